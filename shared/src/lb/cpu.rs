@@ -1,0 +1,254 @@
+//! The CPU reference solver: the same pull-style step, state layout and f32
+//! arithmetic as the GPU kernel, spread over cores with rayon.
+//!
+//! One step, for every interior node `r`: gather `f_m(r − c_m)` from the
+//! previous state (streaming), then collide, `f'_m = f_m + ρ Σ_n Ω[m][n] f_n`
+//! with Ω summed in `n` order, zero `f'_0` at green nodes, and store. Boundary
+//! nodes are never written, so they hold the sun's densities for the whole
+//! solve, and flow into them or off the lattice is dropped.
+
+use super::boundary::Boundary;
+use super::collision::{Collision, Omega};
+use super::lattice::{DIRECTIONS, Q};
+use super::medium::{MediumGrid, NodeClass};
+use super::params::ChannelParams;
+use super::solver::{
+    ChannelReport, ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, initial_state,
+};
+use rayon::prelude::*;
+
+/// Nodes collided together; a multiple of the SIMD width.
+const LANES: usize = 8;
+
+/// The CPU reference solver.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CpuSolver;
+
+impl LightingSolver for CpuSolver {
+    fn name(&self) -> String {
+        format!("cpu ({} threads)", rayon::current_num_threads())
+    }
+
+    fn solve_channel(
+        &mut self,
+        medium: &MediumGrid,
+        params: &ChannelParams,
+        boundary: &Boundary,
+        opts: &SolveOptions,
+    ) -> anyhow::Result<ChannelSolution> {
+        let mut phases = PhaseTimer::default();
+        let mut lattice = phases.time("set-up", || CpuLattice::new(medium, params, boundary));
+        let mut conv = Convergence::new(*opts, medium.dims);
+        let steps = phases.time("steps", || {
+            let mut step = 0;
+            while step < conv.cap() {
+                step += 1;
+                let total = lattice.step(conv.wants_total(step));
+                if let Some(t) = total {
+                    if conv.record(step, t) {
+                        break;
+                    }
+                }
+            }
+            step
+        });
+        let total = phases.time("totals", || lattice.node_totals());
+        let report = ChannelReport {
+            steps,
+            max_steps: conv.cap(),
+            tolerance: opts.tolerance,
+            final_change: conv.last_change,
+            converged: conv.converged(),
+            total_density: total.iter().map(|&v| v as f64).sum(),
+            phases,
+        };
+        Ok(ChannelSolution { total, report })
+    }
+}
+
+/// The lattice state of one channel on the CPU, stepped explicitly; the
+/// verification experiments (pulses, beams) drive it directly.
+pub struct CpuLattice<'m> {
+    medium: &'m MediumGrid,
+    collision: Collision,
+    /// Direction-major state: `state[m · n + node]`.
+    state: Vec<f32>,
+    next: Vec<f32>,
+}
+
+/// A raw pointer the row workers write disjoint ranges through.
+#[derive(Clone, Copy)]
+struct RowWriter(*mut f32);
+// SAFETY: each (y, z) row writes only its own x range of each direction.
+unsafe impl Send for RowWriter {}
+unsafe impl Sync for RowWriter {}
+
+impl<'m> CpuLattice<'m> {
+    /// A lattice at the boundary-lit zero state.
+    pub fn new(medium: &'m MediumGrid, params: &ChannelParams, boundary: &Boundary) -> Self {
+        let state = initial_state(medium.dims, boundary);
+        let next = state.clone();
+        Self { medium, collision: Collision::new(params), state, next }
+    }
+
+    /// The direction-major state, `state[m · n + node]`.
+    pub fn state(&self) -> &[f32] {
+        &self.state
+    }
+
+    /// Mutable state, for experiments that start from a pulse. Boundary
+    /// nodes must keep equal values in both buffers; only set interior nodes.
+    pub fn state_mut(&mut self) -> &mut [f32] {
+        &mut self.state
+    }
+
+    /// `Σ_m f_m` per node, summed in direction order in f32 as the GPU does.
+    pub fn node_totals(&self) -> Vec<f32> {
+        let n = self.medium.dims.len();
+        (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let mut s = 0.0f32;
+                for m in 0..Q {
+                    s += self.state[m * n + i];
+                }
+                s
+            })
+            .collect()
+    }
+
+    /// Runs one step; with `want_total`, returns Σ over nodes and
+    /// directions of the new state.
+    pub fn step(&mut self, want_total: bool) -> Option<f64> {
+        let dims = self.medium.dims;
+        let n = dims.len();
+        let offsets: [isize; Q] = std::array::from_fn(|m| dims.offset(DIRECTIONS[m]));
+        let src = &self.state;
+        let dst = RowWriter(self.next.as_mut_ptr());
+        let medium = self.medium;
+        let coll = &self.collision;
+        let interior: f64 = (1..dims.nz - 1)
+            .into_par_iter()
+            .map(|z| {
+                let mut sum = 0.0;
+                for y in 1..dims.ny - 1 {
+                    let base = dims.index(1, y, z);
+                    sum += update_row(src, dst, n, base, dims.nx - 2, &offsets, medium, coll, want_total);
+                }
+                sum
+            })
+            .sum();
+        std::mem::swap(&mut self.state, &mut self.next);
+        want_total.then(|| interior + self.boundary_total())
+    }
+
+    fn boundary_total(&self) -> f64 {
+        let d = self.medium.dims;
+        let shell = d.len() - (d.nx - 2) * (d.ny - 2) * (d.nz - 2);
+        let per_node: f64 = (0..Q).map(|m| self.state[m * d.len()] as f64).sum();
+        shell as f64 * per_node
+    }
+}
+
+/// Streams and collides `len` nodes starting at node `base`; returns the sum
+/// of their new densities when asked.
+#[allow(clippy::too_many_arguments)]
+fn update_row(
+    src: &[f32],
+    dst: RowWriter,
+    n: usize,
+    base: usize,
+    len: usize,
+    offsets: &[isize; Q],
+    medium: &MediumGrid,
+    coll: &Collision,
+    want_total: bool,
+) -> f64 {
+    let mut sum = 0.0f64;
+    let mut x = 0;
+    while x < len {
+        let lanes = LANES.min(len - x);
+        let node = base + x;
+        let mut f = [[0.0f32; LANES]; Q];
+        for m in 0..Q {
+            let start = (m * n + node) as isize - offsets[m];
+            let s = &src[start as usize..start as usize + lanes];
+            f[m][..lanes].copy_from_slice(s);
+        }
+        let rho = &medium.density[node..node + lanes];
+        let class = &medium.class[node..node + lanes];
+        let mut out = f;
+        if rho.iter().any(|&r| r != 0.0) {
+            if class.iter().all(|&c| c == class[0]) {
+                let mut r = [0.0f32; LANES];
+                r[..lanes].copy_from_slice(rho);
+                collide_lanes(&f, &r, omega_for(coll, class[0]), &mut out);
+                if class[0] == NodeClass::Green {
+                    out[0] = [0.0; LANES];
+                }
+            } else {
+                for k in 0..lanes {
+                    collide_one(&f, k, rho[k], omega_for(coll, class[k]), class[k], &mut out);
+                }
+            }
+        }
+        for m in 0..Q {
+            // SAFETY: `node..node + lanes` lies in this row, which no other
+            // worker writes; `m · n + node + lanes ≤ Q · n`.
+            unsafe {
+                std::ptr::copy_nonoverlapping(out[m].as_ptr(), dst.0.add(m * n + node), lanes);
+            }
+        }
+        if want_total {
+            for k in 0..lanes {
+                sum += (0..Q).map(|m| out[m][k] as f64).sum::<f64>();
+            }
+        }
+        x += lanes;
+    }
+    sum
+}
+
+fn omega_for(coll: &Collision, class: NodeClass) -> &Omega {
+    match class {
+        NodeClass::Brown => &coll.brown,
+        NodeClass::Medium | NodeClass::Green => &coll.medium,
+    }
+}
+
+/// `out_m = f_m + ρ · Σ_n Ω[m][n] f_n` for all lanes at once.
+#[inline]
+fn collide_lanes(f: &[[f32; LANES]; Q], rho: &[f32; LANES], omega: &Omega, out: &mut [[f32; LANES]; Q]) {
+    for m in 0..Q {
+        let row = &omega.0[m];
+        let mut acc = [0.0f32; LANES];
+        for k in 0..LANES {
+            acc[k] = row[0] * f[0][k];
+        }
+        for j in 1..Q {
+            let w = row[j];
+            for k in 0..LANES {
+                acc[k] += w * f[j][k];
+            }
+        }
+        for k in 0..LANES {
+            out[m][k] = f[m][k] + rho[k] * acc[k];
+        }
+    }
+}
+
+/// The same arithmetic for one lane whose class differs from its neighbours'.
+#[inline]
+fn collide_one(f: &[[f32; LANES]; Q], k: usize, rho: f32, omega: &Omega, class: NodeClass, out: &mut [[f32; LANES]; Q]) {
+    for m in 0..Q {
+        let row = &omega.0[m];
+        let mut acc = row[0] * f[0][k];
+        for j in 1..Q {
+            acc += row[j] * f[j][k];
+        }
+        out[m][k] = f[m][k] + rho * acc;
+    }
+    if class == NodeClass::Green {
+        out[0][k] = 0.0;
+    }
+}

@@ -1,0 +1,34 @@
+//! The lattice-Boltzmann (LB) light-transport model of Geist et al.
+//!
+//! A D3Q19 lattice carries photon densities `f_m(r)` along 19 directions.
+//! One step, at every interior node `r` and for every direction `m`:
+//!
+//! ```text
+//! f_m(r + c_m, t + 1) = f_m(r, t) + ρ(r) · Σ_n Ω[m][n] · f_n(r, t)
+//! ```
+//!
+//! - [`lattice`]: the 19 directions and their weights.
+//! - [`params`]: σ_a, σ_s and g per colour channel, presets and validation.
+//! - [`collision`]: the collision matrix Ω, isotropic and Henyey–Greenstein.
+//! - [`medium`]: the density grid and the class (medium, green, brown) of each node.
+//! - [`boundary`]: the sun's boundary condition.
+//! - [`solver`]: the [`LightingSolver`] seam, its options and its report.
+//! - [`cpu`]: the CPU reference solver (rayon) that the GPU solver is tested against.
+//! - [`verify`]: checks of the implementation against the model's mathematics.
+
+pub mod boundary;
+pub mod collision;
+pub mod cpu;
+pub mod lattice;
+pub mod medium;
+pub mod params;
+pub mod solver;
+pub mod verify;
+
+pub use boundary::{Boundary, Sun};
+pub use collision::{Collision, Omega};
+pub use cpu::CpuSolver;
+pub use lattice::{Q, DIRECTIONS};
+pub use medium::{GridDims, MediumGrid, NodeClass};
+pub use params::{ChannelParams, LbParams, ParamError, Preset};
+pub use solver::{ChannelReport, ChannelSolution, LightingSolver, Solution, SolveOptions, solve};

@@ -1,0 +1,11 @@
+//! The crate every side of Sylva uses: the lattice-Boltzmann lighting model
+//! and its CPU reference solver, triangle meshes and their voxelizer, the
+//! built-in shapes, and grids on disk (`.npy`) and on screen (PNG).
+
+pub mod lb;
+pub mod mesh;
+pub mod npy;
+pub mod rng;
+pub mod shapes;
+pub mod visualize;
+pub mod voxel;

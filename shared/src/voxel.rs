@@ -1,0 +1,222 @@
+//! The voxelizer: triangles to an LB medium grid. Each cell of an N³ grid
+//! over the model's bounds is split into 3 × 3 × 3 sub-cells; a sub-cell is
+//! marked when a triangle overlaps it, and the cell's density is the marked
+//! fraction. Cells whose marks come mostly from wood are brown, others green.
+
+use crate::lb::{GridDims, MediumGrid, NodeClass};
+use crate::mesh::{Mesh, Surface};
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Sub-cells per cell edge.
+pub const SUB: usize = 3;
+
+/// A voxelized model and where its grid sits in model space.
+#[derive(Clone, Debug)]
+pub struct Voxelization {
+    /// The medium, one node per cell.
+    pub medium: MediumGrid,
+    /// How the grid maps to model space.
+    pub frame: GridFrame,
+}
+
+/// Placement of a cubic-celled grid in model space: node `(i, j, k)` is the
+/// cell `[origin + (i, j, k) · cell, origin + (i + 1, j + 1, k + 1) · cell)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct GridFrame {
+    /// Corner of node (0, 0, 0).
+    pub origin: [f32; 3],
+    /// Cell edge length.
+    pub cell: f32,
+}
+
+impl GridFrame {
+    /// A frame whose N³ grid holds `(min, max)` in its interior nodes
+    /// `1 ..= N − 2`, so the model never overlaps the boundary shell.
+    pub fn around(min: Vec3, max: Vec3, n: usize) -> Self {
+        let extent = (max - min).max_element().max(f32::EPSILON);
+        // A little slack keeps faces that touch the bounds off the shell.
+        let cell = extent * (1.0 + 1e-3) / (n - 2) as f32;
+        let centre = (min + max) * 0.5;
+        let origin = centre - Vec3::splat(cell * n as f32 * 0.5);
+        Self { origin: origin.to_array(), cell }
+    }
+}
+
+/// Why a mesh cannot be voxelized.
+#[derive(Debug, thiserror::Error)]
+pub enum VoxelError {
+    /// Nothing to voxelize.
+    #[error("the model has no triangles")]
+    Empty,
+    /// A grid with no interior.
+    #[error("grid size {0} is too small; use at least 4")]
+    GridTooSmall(usize),
+}
+
+/// Voxelizes `mesh` into an `n³` grid.
+pub fn voxelize(mesh: &Mesh, n: usize) -> Result<Voxelization, VoxelError> {
+    if n < 4 {
+        return Err(VoxelError::GridTooSmall(n));
+    }
+    let (min, max) = mesh.bounds().ok_or(VoxelError::Empty)?;
+    let frame = GridFrame::around(min, max, n);
+    let s = n * SUB;
+    let words = (s * s * s).div_ceil(64);
+    let leaf: Vec<AtomicU64> = (0..words).map(|_| AtomicU64::new(0)).collect();
+    let wood: Vec<AtomicU64> = (0..words).map(|_| AtomicU64::new(0)).collect();
+    let origin = Vec3::from(frame.origin);
+    let sub = frame.cell / SUB as f32;
+    // A hair larger than half a sub-cell, so a triangle lying exactly on a
+    // face between sub-cells marks them rather than slipping through both.
+    let half = Vec3::splat(sub * 0.5 * (1.0 + 1e-5));
+
+    (0..mesh.triangle_count()).into_par_iter().for_each(|t| {
+        let tri = mesh.triangle(t);
+        let bits = if mesh.surface[t] == Surface::Wood { &wood } else { &leaf };
+        let lo = tri[0].min(tri[1]).min(tri[2]);
+        let hi = tri[0].max(tri[1]).max(tri[2]);
+        // Never mark the boundary shell: its nodes hold the sun's densities.
+        let to_index = |v: f32| -> usize { (v.max(SUB as f32) as usize).min(s - SUB - 1) };
+        let a = ((lo - origin) / sub).to_array().map(|v| to_index(v.floor()));
+        let b = ((hi - origin) / sub).to_array().map(|v| to_index(v.floor()));
+        for k in a[2]..=b[2] {
+            for j in a[1]..=b[1] {
+                for i in a[0]..=b[0] {
+                    let centre = origin + (Vec3::new(i as f32, j as f32, k as f32) + 0.5) * sub;
+                    if triangle_overlaps_box(&tri, centre, half) {
+                        let bit = i + s * (j + s * k);
+                        bits[bit / 64].fetch_or(1 << (bit % 64), Ordering::Relaxed);
+                    }
+                }
+            }
+        }
+    });
+
+    let dims = GridDims::cube(n);
+    let is_set = |bits: &[AtomicU64], bit: usize| bits[bit / 64].load(Ordering::Relaxed) >> (bit % 64) & 1 == 1;
+    let cells: Vec<(f32, NodeClass)> = (0..dims.len())
+        .into_par_iter()
+        .map(|idx| {
+            let (x, y, z) = (idx % n, (idx / n) % n, idx / (n * n));
+            let (mut l, mut w, mut any) = (0, 0, 0);
+            for dz in 0..SUB {
+                for dy in 0..SUB {
+                    for dx in 0..SUB {
+                        let bit = (x * SUB + dx) + s * ((y * SUB + dy) + s * (z * SUB + dz));
+                        let (il, iw) = (is_set(&leaf, bit), is_set(&wood, bit));
+                        l += il as u32;
+                        w += iw as u32;
+                        any += (il || iw) as u32;
+                    }
+                }
+            }
+            let class = if w > l { NodeClass::Brown } else { NodeClass::Green };
+            (any as f32 / (SUB * SUB * SUB) as f32, class)
+        })
+        .collect();
+    let medium = MediumGrid {
+        dims,
+        density: cells.iter().map(|c| c.0).collect(),
+        class: cells.iter().map(|c| c.1).collect(),
+    };
+    Ok(Voxelization { medium, frame })
+}
+
+/// Triangle–box overlap by the separating axis theorem (Akenine-Möller
+/// 2001): the box's three axes, the triangle's normal and the nine cross
+/// products of edges with axes.
+pub fn triangle_overlaps_box(tri: &[Vec3; 3], centre: Vec3, half: Vec3) -> bool {
+    let v = [tri[0] - centre, tri[1] - centre, tri[2] - centre];
+    // Box axes: the triangle's bounds against the box.
+    for a in 0..3 {
+        let (lo, hi) = (v[0][a].min(v[1][a]).min(v[2][a]), v[0][a].max(v[1][a]).max(v[2][a]));
+        if lo > half[a] || hi < -half[a] {
+            return false;
+        }
+    }
+    let e = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
+    // Triangle normal: the box's projection radius against the plane offset.
+    let normal = e[0].cross(e[1]);
+    let r = half.dot(normal.abs());
+    let d = normal.dot(v[0]);
+    if d.abs() > r {
+        return false;
+    }
+    // Edge × axis.
+    for edge in e {
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            let l = edge.cross(axis);
+            let p = [l.dot(v[0]), l.dot(v[1]), l.dot(v[2])];
+            let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+            let r = half.dot(l.abs());
+            if lo > r || hi < -r {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overlap_test_agrees_with_obvious_cases() {
+        let tri = [Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, -1.0), Vec3::new(0.0, 0.0, 1.0)];
+        let h = Vec3::splat(0.1);
+        assert!(triangle_overlaps_box(&tri, Vec3::ZERO, h));
+        assert!(triangle_overlaps_box(&tri, Vec3::new(0.0, 0.09, 0.0), h));
+        assert!(!triangle_overlaps_box(&tri, Vec3::new(0.0, 0.11, 0.0), h));
+        // Beside the hypotenuse: inside the triangle's bounds, outside the triangle.
+        assert!(!triangle_overlaps_box(&tri, Vec3::new(0.9, 0.0, 0.8), h));
+        // A box containing the whole triangle.
+        assert!(triangle_overlaps_box(&tri, Vec3::ZERO, Vec3::splat(5.0)));
+    }
+
+    #[test]
+    fn a_flat_square_fills_one_layer_of_cells() {
+        let mut mesh = Mesh::default();
+        // A square in the plane y = 0.5 spanning x, z ∈ [0, 1].
+        let y = 0.5;
+        mesh.push_quad(
+            [Vec3::new(0.0, y, 0.0), Vec3::new(0.0, y, 1.0), Vec3::new(1.0, y, 1.0), Vec3::new(1.0, y, 0.0)],
+            Surface::Leaf,
+        );
+        // Odd n puts the plane through the middle of the centre cell's
+        // middle layer of sub-cells: 9 of 27 marked, density 1/3.
+        let n = 9;
+        let v = voxelize(&mesh, n).unwrap();
+        let d = &v.medium;
+        let column: Vec<f32> = (0..n).map(|y| d.density[d.dims.index(n / 2, y, n / 2)]).collect();
+        let mut want = vec![0.0; n];
+        want[n / 2] = 1.0 / 3.0;
+        assert_eq!(column, want);
+        assert!(d.class.iter().zip(&d.density).all(|(c, &r)| r == 0.0 || *c == NodeClass::Green));
+        // Nothing on the boundary shell.
+        for z in 0..n {
+            for y in 0..n {
+                for x in 0..n {
+                    if d.dims.is_boundary(x, y, z) {
+                        assert_eq!(d.density[d.dims.index(x, y, z)], 0.0);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn wood_triangles_make_brown_cells() {
+        let mut mesh = crate::shapes::plant(7);
+        let v = voxelize(&mesh, 24).unwrap();
+        let brown = v.medium.class.iter().zip(&v.medium.density).filter(|(c, r)| **r > 0.0 && **c == NodeClass::Brown).count();
+        let green = v.medium.class.iter().zip(&v.medium.density).filter(|(c, r)| **r > 0.0 && **c == NodeClass::Green).count();
+        assert!(brown > 0 && green > brown, "brown {brown}, green {green}");
+        mesh.surface.iter_mut().for_each(|s| *s = Surface::Leaf);
+        let v = voxelize(&mesh, 24).unwrap();
+        assert!(v.medium.class.iter().all(|c| *c == NodeClass::Green));
+    }
+}
