@@ -35,6 +35,7 @@ impl LightingSolver for CpuSolver {
         params: &ChannelParams,
         boundary: &Boundary,
         opts: &SolveOptions,
+        progress: &dyn Fn(usize, usize),
     ) -> anyhow::Result<ChannelSolution> {
         let mut phases = PhaseTimer::default();
         let mut lattice = phases.time("set-up", || CpuLattice::new(medium, params, boundary));
@@ -44,6 +45,9 @@ impl LightingSolver for CpuSolver {
             while step < conv.cap() {
                 step += 1;
                 let total = lattice.step(conv.wants_total(step));
+                if step % 8 == 0 || step == conv.cap() {
+                    progress(step, conv.cap());
+                }
                 if let Some(t) = total {
                     if conv.record(step, t) {
                         break;

@@ -169,33 +169,36 @@ pub trait LightingSolver {
     fn name(&self) -> String;
 
     /// Solves one channel from the zero interior state with `boundary`
-    /// held on the outer shell. The medium and parameters are already
-    /// validated by [`solve`].
+    /// held on the outer shell, calling `progress(step, cap)` as it goes. The
+    /// medium and parameters are already validated by [`solve`].
     fn solve_channel(
         &mut self,
         medium: &MediumGrid,
         params: &ChannelParams,
         boundary: &Boundary,
         opts: &SolveOptions,
+        progress: &dyn Fn(usize, usize),
     ) -> anyhow::Result<ChannelSolution>;
 }
 
 /// Validates the inputs, then solves the three colour channels in turn.
+/// `progress(channel, step, cap)` follows the work.
 pub fn solve(
     solver: &mut dyn LightingSolver,
     medium: &MediumGrid,
     params: &LbParams,
     sun: &Sun,
     opts: &SolveOptions,
+    progress: &dyn Fn(usize, usize, usize),
 ) -> anyhow::Result<Solution> {
     params.validate()?;
     medium.validate()?;
     let boundary = sun.boundary();
     let mut channels = Vec::with_capacity(3);
-    for (p, name) in params.channels.iter().zip(CHANNELS) {
+    for (c, (p, name)) in params.channels.iter().zip(CHANNELS).enumerate() {
         let span = tracing::info_span!("lb_channel", channel = name, solver = %solver.name());
         let _g = span.enter();
-        let s = solver.solve_channel(medium, p, &boundary, opts)?;
+        let s = solver.solve_channel(medium, p, &boundary, opts, &|step, cap| progress(c, step, cap))?;
         tracing::info!(steps = s.report.steps, change = ?s.report.final_change, "channel solved");
         channels.push(s);
     }

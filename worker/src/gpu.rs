@@ -1,0 +1,121 @@
+//! The GPU a worker computes on: adapter, device and queue, requested with
+//! every limit the adapter offers (lavapipe allows 32 storage buffers per
+//! stage where wgpu's defaults allow 8).
+
+use anyhow::Context;
+use serde::Serialize;
+
+/// An open GPU device.
+pub struct GpuContext {
+    /// The adapter the device was opened on.
+    pub adapter: wgpu::Adapter,
+    /// The logical device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The device's limits (the adapter's own).
+    pub limits: wgpu::Limits,
+}
+
+impl GpuContext {
+    /// Opens the highest-performance adapter wgpu can find.
+    pub fn new() -> anyhow::Result<Self> {
+        pollster::block_on(Self::open())
+    }
+
+    async fn open() -> anyhow::Result<Self> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = instance
+            .request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::HighPerformance,
+                ..Default::default()
+            })
+            .await
+            .context(
+                "no GPU adapter found: install a Vulkan driver (on Debian, `apt-get install mesa-vulkan-drivers` gives the lavapipe CPU driver)",
+            )?;
+        let limits = adapter.limits();
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("sylva"),
+                required_limits: limits.clone(),
+                ..Default::default()
+            })
+            .await
+            .with_context(|| format!("cannot open a device on {}", adapter.get_info().name))?;
+        device.on_uncaptured_error(std::sync::Arc::new(|e| tracing::error!("wgpu: {e}")));
+        let ctx = Self { adapter, device, queue, limits };
+        tracing::info!(adapter = %ctx.adapter_name(), "GPU opened");
+        Ok(ctx)
+    }
+
+    /// The adapter's name and driver, as reports print it.
+    pub fn adapter_name(&self) -> String {
+        let i = self.adapter.get_info();
+        let driver = if i.driver.is_empty() { String::new() } else { format!(", {} {}", i.driver, i.driver_info) };
+        format!("{} ({:?}{driver})", i.name, i.backend)
+    }
+
+    /// A summary for JSON reports.
+    pub fn summary(&self) -> AdapterSummary {
+        let i = self.adapter.get_info();
+        AdapterSummary {
+            name: i.name,
+            backend: format!("{:?}", i.backend),
+            device_type: format!("{:?}", i.device_type),
+            driver: format!("{} {}", i.driver, i.driver_info).trim().to_string(),
+            max_storage_binding_bytes: self.limits.max_storage_buffer_binding_size,
+            max_buffer_bytes: self.limits.max_buffer_size,
+        }
+    }
+
+    /// Waits for all submitted work.
+    pub fn wait(&self) -> anyhow::Result<()> {
+        self.device.poll(wgpu::PollType::wait_indefinitely()).context("GPU device lost while waiting")?;
+        Ok(())
+    }
+
+    /// Copies `buffer[..bytes]` back to the host (the buffer needs `COPY_SRC`).
+    pub fn read_back(&self, buffer: &wgpu::Buffer, bytes: u64) -> anyhow::Result<Vec<u8>> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read-back"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
+        self.queue.submit([enc.finish()]);
+        self.map_read(&staging)
+    }
+
+    /// Maps a `MAP_READ` buffer, copies it out and unmaps it.
+    pub fn map_read(&self, staging: &wgpu::Buffer) -> anyhow::Result<Vec<u8>> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv().context("GPU map callback dropped")?.context("cannot map a read-back buffer")?;
+        let bytes = staging.get_mapped_range(..).context("cannot read a mapped buffer")?.to_vec();
+        staging.unmap();
+        Ok(bytes)
+    }
+}
+
+/// What reports say about the GPU.
+#[derive(Clone, Debug, Serialize)]
+pub struct AdapterSummary {
+    /// Adapter name ("llvmpipe (LLVM 15.0.6, 256 bits)", "NVIDIA H100 …").
+    pub name: String,
+    /// Backend ("Vulkan").
+    pub backend: String,
+    /// Kind of device ("Cpu", "DiscreteGpu").
+    pub device_type: String,
+    /// Driver name and version.
+    pub driver: String,
+    /// Largest storage binding, in bytes.
+    pub max_storage_binding_bytes: u64,
+    /// Largest buffer, in bytes.
+    pub max_buffer_bytes: u64,
+}

@@ -1,0 +1,60 @@
+//! The wgpu LB solver against the CPU reference, on the machine's real GPU
+//! adapter (lavapipe in CI).
+
+use sylva_shared::lb::verify::{max_relative_difference, random_medium};
+use sylva_shared::lb::{CpuSolver, GridDims, LightingSolver, Preset, SolveOptions, Sun, solve};
+use sylva_worker::GpuSolver;
+
+fn gpu() -> GpuSolver {
+    GpuSolver::open().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
+}
+
+fn compare(dims: GridDims, steps: usize, seed: u64) -> Vec<f64> {
+    let medium = random_medium(dims, seed);
+    let params = Preset::Leaf.params();
+    let sun = Sun::from_elevation_azimuth(50.0, 20.0, 1.0).unwrap();
+    let opts = SolveOptions::fixed_steps(steps);
+    let mut gpu = gpu();
+    let g = solve(&mut gpu, &medium, &params, &sun, &opts, &|_, _, _| {}).unwrap();
+    let c = solve(&mut CpuSolver, &medium, &params, &sun, &opts, &|_, _, _| {}).unwrap();
+    g.channels
+        .iter()
+        .zip(&c.channels)
+        .map(|(g, c)| {
+            assert_eq!(g.report.steps, steps);
+            max_relative_difference(&g.total, &c.total)
+        })
+        .collect()
+}
+
+#[test]
+fn gpu_matches_cpu_reference_on_random_medium() {
+    let diffs = compare(GridDims::cube(32), 64, 11);
+    for (c, d) in diffs.iter().enumerate() {
+        assert!(*d <= 1e-4, "channel {c}: max relative difference {d:e} > 1e-4");
+    }
+}
+
+#[test]
+fn grid_larger_than_one_storage_binding_runs() {
+    // 128³ × 19 f32 = 159 MB: more than lavapipe's 128 MiB per binding.
+    let diffs = compare(GridDims::cube(128), 3, 5);
+    for (c, d) in diffs.iter().enumerate() {
+        assert!(*d <= 1e-4, "channel {c}: max relative difference {d:e} > 1e-4");
+    }
+}
+
+#[test]
+fn gpu_stops_on_the_same_convergence_rule_as_cpu() {
+    let dims = GridDims::cube(24);
+    let medium = random_medium(dims, 3);
+    let params = Preset::Leaf.params();
+    let sun = Sun::default();
+    let opts = SolveOptions { tolerance: 1e-4, max_steps: Some(400), check_every: 8 };
+    let mut gpu = gpu();
+    let g = gpu.solve_channel(&medium, &params.channels[0], &sun.boundary(), &opts, &|_, _| {}).unwrap();
+    let c = CpuSolver.solve_channel(&medium, &params.channels[0], &sun.boundary(), &opts, &|_, _| {}).unwrap();
+    assert!(g.report.converged && c.report.converged, "{:?} {:?}", g.report, c.report);
+    assert_eq!(g.report.steps, c.report.steps);
+    assert!(g.report.steps < g.report.max_steps);
+}
