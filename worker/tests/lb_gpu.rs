@@ -1,47 +1,30 @@
 //! The wgpu LB solver against the CPU reference, on the machine's real GPU
 //! adapter (lavapipe in CI).
 
-use sylva_shared::lb::verify::{max_relative_difference, random_medium};
-use sylva_shared::lb::{CpuSolver, GridDims, LightingSolver, Preset, SolveOptions, Sun, solve};
+use sylva_shared::lb::verify::{compare_with_reference, random_medium};
+use sylva_shared::lb::{CpuSolver, GridDims, LightingSolver, Preset, SolveOptions, Sun};
 use sylva_worker::GpuSolver;
 
 fn gpu() -> GpuSolver {
     GpuSolver::open().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
 }
 
-fn compare(dims: GridDims, steps: usize, seed: u64) -> Vec<f64> {
-    let medium = random_medium(dims, seed);
-    let params = Preset::Leaf.params();
-    let sun = Sun::from_elevation_azimuth(50.0, 20.0, 1.0).unwrap();
-    let opts = SolveOptions::fixed_steps(steps);
-    let mut gpu = gpu();
-    let g = solve(&mut gpu, &medium, &params, &sun, &opts, &|_, _, _| {}).unwrap();
-    let c = solve(&mut CpuSolver, &medium, &params, &sun, &opts, &|_, _, _| {}).unwrap();
-    g.channels
-        .iter()
-        .zip(&c.channels)
-        .map(|(g, c)| {
-            assert_eq!(g.report.steps, steps);
-            max_relative_difference(&g.total, &c.total)
-        })
-        .collect()
+fn assert_matches(dims: GridDims, steps: usize, seed: u64) {
+    let diffs = compare_with_reference(&mut gpu(), dims, steps, seed).unwrap();
+    for (c, d) in diffs.iter().enumerate() {
+        assert!(*d <= 1e-4, "channel {c}: max relative difference {d:e} > 1e-4");
+    }
 }
 
 #[test]
 fn gpu_matches_cpu_reference_on_random_medium() {
-    let diffs = compare(GridDims::cube(32), 64, 11);
-    for (c, d) in diffs.iter().enumerate() {
-        assert!(*d <= 1e-4, "channel {c}: max relative difference {d:e} > 1e-4");
-    }
+    assert_matches(GridDims::cube(32), 64, 11);
 }
 
 #[test]
 fn grid_larger_than_one_storage_binding_runs() {
     // 128³ × 19 f32 = 159 MB: more than lavapipe's 128 MiB per binding.
-    let diffs = compare(GridDims::cube(128), 3, 5);
-    for (c, d) in diffs.iter().enumerate() {
-        assert!(*d <= 1e-4, "channel {c}: max relative difference {d:e} > 1e-4");
-    }
+    assert_matches(GridDims::cube(128), 3, 5);
 }
 
 #[test]

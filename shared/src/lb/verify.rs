@@ -5,7 +5,9 @@
 
 use super::boundary::{Boundary, Sun};
 use super::collision::Omega;
-use super::cpu::CpuLattice;
+use super::cpu::{CpuLattice, CpuSolver};
+use super::params::Preset;
+use super::solver::{LightingSolver, SolveOptions, solve};
 use super::lattice::{DIRECTIONS, Q};
 use super::medium::{GridDims, MediumGrid, NodeClass};
 use super::params::ChannelParams;
@@ -29,7 +31,8 @@ pub struct Check {
 }
 
 impl Check {
-    fn new(id: &'static str, name: impl Into<String>, measured: f64, bound: f64, detail: String) -> Self {
+    /// A check that passes when `measured <= bound`.
+    pub fn new(id: &'static str, name: impl Into<String>, measured: f64, bound: f64, detail: String) -> Self {
         Self { id, name: name.into(), measured, bound, pass: measured <= bound && measured.is_finite(), detail }
     }
 }
@@ -275,6 +278,37 @@ pub fn random_medium(dims: GridDims, seed: u64) -> MediumGrid {
         })
         .collect();
     MediumGrid { dims, density, class }
+}
+
+/// Solves a random medium of `dims` for `steps` steps with the leaf preset
+/// on `candidate` and on the CPU reference; returns the maximum relative
+/// difference per channel.
+pub fn compare_with_reference(
+    candidate: &mut dyn LightingSolver,
+    dims: GridDims,
+    steps: usize,
+    seed: u64,
+) -> anyhow::Result<[f64; 3]> {
+    let medium = random_medium(dims, seed);
+    let params = Preset::Leaf.params();
+    let sun = Sun::from_elevation_azimuth(50.0, 20.0, 1.0)?;
+    let opts = SolveOptions::fixed_steps(steps);
+    let got = solve(candidate, &medium, &params, &sun, &opts, &|_, _, _| {})?;
+    let want = solve(&mut CpuSolver, &medium, &params, &sun, &opts, &|_, _, _| {})?;
+    Ok(std::array::from_fn(|c| max_relative_difference(&got.channels[c].total, &want.channels[c].total)))
+}
+
+/// (g) `candidate` (the GPU solver) matches the CPU reference within 1e-4
+/// after 64 steps on a 32³ grid of random densities, all three channels.
+pub fn reference_check(candidate: &mut dyn LightingSolver) -> Check {
+    let name = "GPU solver matches the CPU reference (32³ random medium, 64 steps, R/G/B)";
+    match compare_with_reference(candidate, GridDims::cube(32), 64, 11) {
+        Ok(d) => {
+            let detail = format!("max relative difference R {:.2e}, G {:.2e}, B {:.2e} on {}", d[0], d[1], d[2], candidate.name());
+            Check::new("g", name, d.iter().copied().fold(0.0, f64::max), 1e-4, detail)
+        }
+        Err(e) => Check::new("g", name, f64::INFINITY, 1e-4, format!("could not run: {e:#}")),
+    }
 }
 
 /// Checks (a)–(f), which need no GPU.

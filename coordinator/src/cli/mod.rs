@@ -1,0 +1,48 @@
+//! The `sylva` subcommands.
+
+mod bench;
+mod lb;
+mod progress;
+
+use clap::{Parser, Subcommand};
+
+/// Sylva renders lit forests: a lattice-Boltzmann light-transport
+/// pre-process and a GPU ray tracer.
+#[derive(Debug, Parser)]
+#[command(name = "sylva", version, about)]
+pub struct Cli {
+    /// More logging (-v info, -vv debug); RUST_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+impl Cli {
+    /// The tracing filter the verbosity asks for.
+    pub fn log_filter(&self) -> &'static str {
+        match self.verbose {
+            0 => "warn",
+            1 => "info",
+            _ => "debug",
+        }
+    }
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Lattice-Boltzmann lighting: solve a model's light field, verify the solver.
+    #[command(subcommand)]
+    Lb(lb::LbCommand),
+    /// Benchmarks that print JSON.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+/// Runs the parsed command.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Lb(c) => lb::run(c),
+        Command::Bench(c) => bench::run(c),
+    }
+}
