@@ -41,3 +41,16 @@ fn gpu_stops_on_the_same_convergence_rule_as_cpu() {
     assert_eq!(g.report.steps, c.report.steps);
     assert!(g.report.steps < g.report.max_steps);
 }
+
+#[test]
+fn vacuum_holds_exactly_the_boundary_light() {
+    let dims = GridDims { nx: 10, ny: 13, nz: 7 };
+    let medium = sylva_shared::lb::MediumGrid::empty(dims);
+    let b = Sun::from_elevation_azimuth(35.0, 70.0, 2.0).unwrap().boundary();
+    let opts = SolveOptions::fixed_steps(2 * dims.longest_edge());
+    let s = gpu().solve_channel(&medium, &Preset::Leaf.params().channels[0], &b, &opts, &|_, _| {}).unwrap();
+    let want: f32 = b.values.iter().sum();
+    for (i, t) in s.total.iter().enumerate() {
+        assert!((t - want).abs() <= 1e-6 * want, "node {i}: {t} vs {want}");
+    }
+}

@@ -66,7 +66,7 @@ pub struct SolveArgs {
     #[arg(long, default_value = "60,30", allow_hyphen_values = true)]
     pub sun: String,
     /// Density the boundary holds along the sunlight.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
     pub sun_intensity: f64,
     /// Class of every node of a .npy grid; default green for plant presets,
     /// medium otherwise.

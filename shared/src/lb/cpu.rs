@@ -296,3 +296,42 @@ fn collide_one(f: &[[f32; LANES]; Q], k: usize, rho: f32, omega: &Omega, class: 
         out[0][k] = 0.0;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lb::{GridDims, Sun};
+
+    #[test]
+    fn vacuum_carries_the_boundary_light_unchanged() {
+        // Non-cubic, so index arithmetic along each axis is exercised.
+        let dims = GridDims { nx: 10, ny: 13, nz: 7 };
+        let medium = MediumGrid::empty(dims);
+        let sun = Sun::from_elevation_azimuth(35.0, 70.0, 2.0).unwrap();
+        let b = sun.boundary();
+        let mut lattice = CpuLattice::new(&medium, &ChannelParams::isotropic(0.1, 0.9), &b);
+        for _ in 0..2 * dims.longest_edge() {
+            lattice.step(false);
+        }
+        let n = dims.len();
+        for i in 0..n {
+            for m in 0..Q {
+                assert_eq!(lattice.state()[m * n + i], b.values[m], "node {i} direction {m}");
+            }
+        }
+    }
+
+    #[test]
+    fn green_nodes_absorb_and_medium_nodes_conserve() {
+        let dims = GridDims::cube(12);
+        let sun = Sun::default();
+        let p = ChannelParams::isotropic(0.2, 0.8);
+        let total = |class| {
+            let medium = MediumGrid::uniform(dims, 1.0, class);
+            let mut s = CpuSolver;
+            s.solve_channel(&medium, &p, &sun.boundary(), &SolveOptions::fixed_steps(24), &|_, _| {}).unwrap().report.total_density
+        };
+        let (medium, green) = (total(NodeClass::Medium), total(NodeClass::Green));
+        assert!(green < 0.8 * medium, "green {green} vs medium {medium}");
+    }
+}
