@@ -18,7 +18,7 @@ const NZ: u32 = {{NZ}}u;
 const NODES: u32 = {{NODES}}u;
 // Invocations per dispatch row: the flat node index is gid.x + gid.y * ROW.
 const ROW: u32 = {{ROW}}u;
-const WORKGROUP: u32 = 64u;
+const WORKGROUP: u32 = {{WORKGROUP}}u;
 
 const CLASS_GREEN: u32 = 1u;
 const CLASS_BROWN: u32 = 2u;
@@ -35,7 +35,7 @@ fn is_boundary(idx: u32) -> bool {
 // Boundary nodes are never written: they hold the sun's densities, and
 // flow into them (or off the lattice) is dropped. Interior nodes pull
 // f_m(r - c_m), which always lies on the lattice.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn step(@builtin(global_invocation_id) gid: vec3<u32>) {
     let idx = gid.x + gid.y * ROW;
     if idx >= NODES || is_boundary(idx) {
@@ -61,7 +61,7 @@ var<workgroup> wg_partial: array<f32, WORKGROUP>;
 
 // Writes sum_m f_m per node (in direction order, as the CPU reference sums)
 // and one partial sum per workgroup for the convergence measure.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn totals(
     @builtin(global_invocation_id) gid: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
