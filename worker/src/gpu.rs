@@ -69,6 +69,19 @@ impl GpuContext {
         }
     }
 
+    /// Runs `f` inside validation and out-of-memory error scopes, so a wgpu
+    /// error becomes this call's error rather than a log line.
+    pub fn checked<T>(&self, what: &str, f: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let invalid = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = f();
+        let errors = [pollster::block_on(invalid.pop()), pollster::block_on(oom.pop())];
+        if let Some(e) = errors.into_iter().flatten().next() {
+            anyhow::bail!("{what} on {}: {e}", self.adapter_name());
+        }
+        out
+    }
+
     /// Waits for all submitted work.
     pub fn wait(&self) -> anyhow::Result<()> {
         self.device.poll(wgpu::PollType::wait_indefinitely()).context("GPU device lost while waiting")?;

@@ -64,12 +64,14 @@ impl LightingSolver for GpuSolver {
         let dims = medium.dims;
         let layout = StateLayout::new(dims, &self.ctx.limits)?;
         let source = phases.time("codegen", || codegen::step_shader(&layout, &Collision::new(params)));
-        let k = phases.time("upload", || self.build(&layout, &source, medium, boundary))?;
+        let k = phases.time("upload", || {
+            self.ctx.checked("building the LB kernels", || self.build(&layout, &source, medium, boundary))
+        })?;
         let mut conv = Convergence::new(*opts, dims);
         let cap = conv.cap();
         let check = opts.check_every.max(1);
         let [gx, gy] = layout.groups;
-        let steps = phases.time("steps", || -> anyhow::Result<usize> {
+        let steps = phases.time("steps", || self.ctx.checked("running the LB steps", || {
             let mut step = 0;
             while step < cap {
                 let batch_end = cap.min((step / check + 1) * check);
@@ -110,7 +112,7 @@ impl LightingSolver for GpuSolver {
             }
             self.ctx.wait()?;
             Ok(step)
-        })?;
+        }))?;
         let total = phases.time("read-back", || -> anyhow::Result<Vec<f32>> {
             let mut enc = self.ctx.device.create_command_encoder(&Default::default());
             {

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Installs what Sylva needs on a Debian machine: a C toolchain for build
+# scripts, lavapipe (Mesa's Vulkan driver that runs on the CPU, so the GPU
+# code works without a GPU) and, if absent, a Rust toolchain through rustup.
+# Idempotent: packages already present are not fetched again.
+set -euo pipefail
+
+packages=(mesa-vulkan-drivers libvulkan1 gcc pkg-config ca-certificates curl)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  sudo=""
+  [ "$(id -u)" -eq 0 ] || sudo="sudo"
+  echo "installing: ${missing[*]}" >&2
+  $sudo apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
+
+if ! command -v cargo >/dev/null 2>&1; then
+  if [ -x "$HOME/.cargo/bin/cargo" ]; then
+    :
+  else
+    echo "installing Rust through rustup" >&2
+    curl --proto '=https' --tlsv1.2 -sSf https://sh.rustup.rs | sh -s -- -y --profile minimal
+  fi
+fi
