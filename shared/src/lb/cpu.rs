@@ -13,7 +13,7 @@ use super::lattice::{DIRECTIONS, Q};
 use super::medium::{MediumGrid, NodeClass};
 use super::params::ChannelParams;
 use super::solver::{
-    ChannelReport, ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, initial_state,
+    ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, initial_state,
 };
 use rayon::prelude::*;
 
@@ -58,16 +58,7 @@ impl LightingSolver for CpuSolver {
             step
         });
         let total = phases.time("totals", || lattice.node_totals());
-        let report = ChannelReport {
-            steps,
-            max_steps: conv.cap(),
-            tolerance: opts.tolerance,
-            final_change: conv.last_change,
-            converged: conv.converged(),
-            total_density: total.iter().map(|&v| v as f64).sum(),
-            phases,
-        };
-        Ok(ChannelSolution { total, report })
+        Ok(conv.finish(steps, total, phases))
     }
 }
 

@@ -86,6 +86,21 @@ impl Convergence {
         false
     }
 
+    /// The solution of a channel that ran `steps` steps and ended with
+    /// per-node totals `total`.
+    pub fn finish(&self, steps: usize, total: Vec<f32>, phases: PhaseTimer) -> ChannelSolution {
+        let report = ChannelReport {
+            steps,
+            max_steps: self.cap,
+            tolerance: self.opts.tolerance,
+            final_change: self.last_change,
+            converged: self.converged(),
+            total_density: total.iter().map(|&v| v as f64).sum(),
+            phases,
+        };
+        ChannelSolution { total, report }
+    }
+
     /// Whether the last measured change was below the tolerance.
     pub fn converged(&self) -> bool {
         self.opts.tolerance > 0.0 && self.last_change.is_some_and(|c| c < self.opts.tolerance)

@@ -7,7 +7,7 @@ use anyhow::Context;
 use sylva_shared::lb::lattice::Q;
 use sylva_shared::lb::solver::{Convergence, PhaseTimer, initial_state};
 use sylva_shared::lb::{
-    Boundary, ChannelParams, ChannelReport, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions,
+    Boundary, ChannelParams, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions,
 };
 use wgpu::util::DeviceExt;
 
@@ -125,16 +125,7 @@ impl LightingSolver for GpuSolver {
             let raw = self.ctx.read_back(&k.node_total, dims.len() as u64 * 4)?;
             Ok(bytemuck::cast_slice(&raw).to_vec())
         })?;
-        let report = ChannelReport {
-            steps,
-            max_steps: cap,
-            tolerance: opts.tolerance,
-            final_change: conv.last_change,
-            converged: conv.converged(),
-            total_density: total.iter().map(|&v| v as f64).sum(),
-            phases,
-        };
-        Ok(ChannelSolution { total, report })
+        Ok(conv.finish(steps, total, phases))
     }
 }
 
