@@ -49,11 +49,10 @@ impl LightingSolver for CpuSolver {
                 if step % 8 == 0 || step == conv.cap() {
                     progress(step, conv.cap());
                 }
-                if let Some(t) = total {
-                    if conv.record(step, t) {
+                if let Some(t) = total
+                    && conv.record(step, t) {
                         break;
                     }
-                }
             }
             step
         });

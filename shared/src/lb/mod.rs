@@ -16,6 +16,9 @@
 //! - [`cpu`]: the CPU reference solver (rayon) that the GPU solver is tested against.
 //! - [`verify`]: checks of the implementation against the model's mathematics.
 
+// Matrix and lattice code reads best with explicit indices.
+#![allow(clippy::needless_range_loop)]
+
 pub mod boundary;
 pub mod collision;
 pub mod cpu;

@@ -66,22 +66,21 @@ impl Convergence {
     /// (steps count from 1).
     pub fn wants_total(&self, step: usize) -> bool {
         let k = self.opts.check_every.max(1);
-        self.opts.tolerance > 0.0 && (step % k == 0 || (step + 1) % k == 0 || step == self.cap)
+        self.opts.tolerance > 0.0 && (step.is_multiple_of(k) || (step + 1).is_multiple_of(k) || step == self.cap)
     }
 
     /// Records the total density after `step`; returns true when the solve
     /// should stop here.
     pub fn record(&mut self, step: usize, total: f64) -> bool {
-        if let Some((s, prev)) = self.previous {
-            if s + 1 == step {
+        if let Some((s, prev)) = self.previous
+            && s + 1 == step {
                 self.last_change = Some(if total > 0.0 { (total - prev).abs() / total } else { 0.0 });
-                if step % self.opts.check_every.max(1) == 0
+                if step.is_multiple_of(self.opts.check_every.max(1))
                     && self.last_change.is_some_and(|c| c < self.opts.tolerance)
                 {
                     return true;
                 }
             }
-        }
         self.previous = Some((step, total));
         false
     }

@@ -112,9 +112,9 @@ pub fn step_shader(layout: &StateLayout, collision: &Collision) -> String {
     let mut store = String::new();
     let mut declare = String::new();
     let mut sum = Vec::new();
-    for m in 0..Q {
+    for (m, &c) in DIRECTIONS.iter().enumerate() {
         let (buf, at) = layout.location(m);
-        let off = d.offset(DIRECTIONS[m]);
+        let off = d.offset(c);
         let shift = match off {
             0 => String::new(),
             o if o > 0 => format!(" - {o}u"),
