@@ -3,7 +3,7 @@
 //! built-in shapes, and grids on disk (`.npy`) and on screen (PNG).
 
 pub mod lb;
-pub mod mesh;
+pub mod model;
 pub mod npy;
 pub mod rng;
 pub mod shapes;

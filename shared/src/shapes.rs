@@ -2,7 +2,7 @@
 //! plant (a wooden trunk under a sphere of leaves) and a procedural cloud.
 
 use crate::lb::{GridDims, MediumGrid, NodeClass};
-use crate::mesh::{Mesh, Surface};
+use crate::model::{Material, Model, Surface};
 use crate::rng::SplitMix64;
 use glam::Vec3;
 
@@ -12,16 +12,18 @@ pub const PLANT_LEAVES: usize = 4000;
 /// The built-in plant: an eight-sided trunk 1.3 high and a crown of
 /// [`PLANT_LEAVES`] randomly oriented square leaves filling a sphere of
 /// radius 0.7 around (0, 1.4, 0).
-pub fn plant(seed: u64) -> Mesh {
+pub fn plant(seed: u64) -> Model {
     let mut rng = SplitMix64::new(seed);
-    let mut mesh = Mesh::default();
+    let mut mesh = Model::default();
+    let bark = mesh.add_material(Material::plain("bark", Surface::Wood, [0.3, 0.2, 0.12]));
+    let leaf = mesh.add_material(Material::plain("leaf", Surface::Leaf, [0.18, 0.42, 0.1]));
     let (r, h, sides) = (0.06f32, 1.3f32, 8);
     for s in 0..sides {
         let a0 = s as f32 / sides as f32 * std::f32::consts::TAU;
         let a1 = (s + 1) as f32 / sides as f32 * std::f32::consts::TAU;
         let (p0, p1) = (Vec3::new(a0.cos() * r, 0.0, a0.sin() * r), Vec3::new(a1.cos() * r, 0.0, a1.sin() * r));
         let up = Vec3::Y * h;
-        mesh.push_quad([p0, p0 + up, p1 + up, p1], Surface::Wood);
+        mesh.push_quad([p0, p0 + up, p1 + up, p1], bark);
     }
     let centre = Vec3::new(0.0, 1.4, 0.0);
     let (radius, size) = (0.7f32, 0.09f32);
@@ -35,7 +37,7 @@ pub fn plant(seed: u64) -> Mesh {
         let normal = random_unit(&mut rng);
         let u = normal.any_orthonormal_vector() * size * 0.5;
         let v = normal.cross(u);
-        mesh.push_quad([at - u - v, at + u - v, at + u + v, at - u + v], Surface::Leaf);
+        mesh.push_quad([at - u - v, at + u - v, at + u + v, at - u + v], leaf);
         placed += 1;
     }
     mesh

@@ -4,7 +4,7 @@
 //! fraction. Cells whose marks come mostly from wood are brown, others green.
 
 use crate::lb::{GridDims, MediumGrid, NodeClass};
-use crate::mesh::{Mesh, Surface};
+use crate::model::{Model, Surface};
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -57,7 +57,7 @@ pub enum VoxelError {
 }
 
 /// Voxelizes `mesh` into an `n³` grid.
-pub fn voxelize(mesh: &Mesh, n: usize) -> Result<Voxelization, VoxelError> {
+pub fn voxelize(mesh: &Model, n: usize) -> Result<Voxelization, VoxelError> {
     if n < 4 {
         return Err(VoxelError::GridTooSmall(n));
     }
@@ -75,7 +75,7 @@ pub fn voxelize(mesh: &Mesh, n: usize) -> Result<Voxelization, VoxelError> {
 
     (0..mesh.triangle_count()).into_par_iter().for_each(|t| {
         let tri = mesh.triangle(t);
-        let bits = if mesh.surface[t] == Surface::Wood { &wood } else { &leaf };
+        let bits = if mesh.surface(t) == Surface::Wood { &wood } else { &leaf };
         let lo = tri[0].min(tri[1]).min(tri[2]);
         let hi = tri[0].max(tri[1]).max(tri[2]);
         // Never mark the boundary shell: its nodes hold the sun's densities.
@@ -179,12 +179,13 @@ mod tests {
 
     #[test]
     fn a_flat_square_fills_one_layer_of_cells() {
-        let mut mesh = Mesh::default();
+        let mut mesh = Model::default();
+        let leaf = mesh.add_material(crate::model::Material::plain("leaf", Surface::Leaf, [0.2, 0.5, 0.1]));
         // A square in the plane y = 0.5 spanning x, z ∈ [0, 1].
         let y = 0.5;
         mesh.push_quad(
             [Vec3::new(0.0, y, 0.0), Vec3::new(0.0, y, 1.0), Vec3::new(1.0, y, 1.0), Vec3::new(1.0, y, 0.0)],
-            Surface::Leaf,
+            leaf,
         );
         // Odd n puts the plane through the middle of the centre cell's
         // middle layer of sub-cells: 9 of 27 marked, density 1/3.
@@ -215,7 +216,7 @@ mod tests {
         let brown = v.medium.class.iter().zip(&v.medium.density).filter(|(c, r)| **r > 0.0 && **c == NodeClass::Brown).count();
         let green = v.medium.class.iter().zip(&v.medium.density).filter(|(c, r)| **r > 0.0 && **c == NodeClass::Green).count();
         assert!(brown > 0 && green > brown, "brown {brown}, green {green}");
-        mesh.surface.iter_mut().for_each(|s| *s = Surface::Leaf);
+        mesh.materials.iter_mut().for_each(|m| m.surface = Surface::Leaf);
         let v = voxelize(&mesh, 24).unwrap();
         assert!(v.medium.class.iter().all(|c| *c == NodeClass::Green));
     }

@@ -12,7 +12,7 @@ use sylva_shared::lb::{
     CpuSolver, GridDims, LbParams, LightingSolver, MediumGrid, NodeClass, Preset, Solution, SolveOptions, Sun, solve,
 };
 use sylva_shared::voxel::{self, GridFrame};
-use sylva_shared::{mesh, npy, shapes, visualize};
+use sylva_shared::{model, npy, shapes, visualize};
 use sylva_worker::GpuSolver;
 
 #[derive(Debug, Subcommand)]
@@ -178,7 +178,7 @@ fn load_input(a: &SolveArgs, timings: &mut Vec<(&'static str, f64)>) -> anyhow::
                     timings.push(("load", t.elapsed().as_secs_f64() * 1e3));
                     return Ok(LoadedInput { medium, frame: None, triangles: None, default_preset: preset });
                 }
-                Some("gltf" | "glb") => mesh::load_gltf(p)?,
+                Some("gltf" | "glb") => model::load_gltf(p)?,
                 _ => bail!("{path}: unknown input type; expected .gltf, .glb or .npy"),
             }
         }

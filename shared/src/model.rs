@@ -1,0 +1,319 @@
+//! Models: triangle meshes with texture coordinates and materials (leaf or
+//! wood, base colour, alpha-masked texture), and their loading from glTF 2.0.
+
+use anyhow::{Context, bail};
+use glam::{Mat4, Vec2, Vec3};
+use std::path::Path;
+
+/// What a triangle is made of, for the LB medium: leaves make green nodes,
+/// wood brown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Surface {
+    /// Leaf blade (alpha-masked in glTF, or anything not named as wood).
+    Leaf,
+    /// Trunk, branch or stem.
+    Wood,
+}
+
+/// An RGBA8 image: colour in sRGB, alpha linear, rows from the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Texture {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// `width × height × 4` bytes.
+    pub rgba: Vec<u8>,
+}
+
+impl Texture {
+    /// The texel nearest to `uv` (wrapping), as linear-alpha RGBA8.
+    pub fn texel(&self, uv: Vec2) -> [u8; 4] {
+        let x = ((uv.x - uv.x.floor()) * self.width as f32) as u32 % self.width;
+        let y = ((uv.y - uv.y.floor()) * self.height as f32) as u32 % self.height;
+        let i = 4 * (y * self.width + x) as usize;
+        [self.rgba[i], self.rgba[i + 1], self.rgba[i + 2], self.rgba[i + 3]]
+    }
+}
+
+/// How a surface looks.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    /// Name, from the file or the generator.
+    pub name: String,
+    /// Leaf or wood.
+    pub surface: Surface,
+    /// Linear RGBA multiplier of the texture (or the colour, without one).
+    pub base_color: [f32; 4],
+    /// Index into the model's textures.
+    pub texture: Option<u32>,
+    /// Texels with alpha below this are holes (glTF `MASK`); `None` is opaque.
+    pub alpha_cutoff: Option<f32>,
+    /// Whether both faces are lit (leaves).
+    pub double_sided: bool,
+}
+
+impl Material {
+    /// An untextured, opaque material.
+    pub fn plain(name: &str, surface: Surface, rgb: [f32; 3]) -> Self {
+        Self {
+            name: name.into(),
+            surface,
+            base_color: [rgb[0], rgb[1], rgb[2], 1.0],
+            texture: None,
+            alpha_cutoff: None,
+            double_sided: surface == Surface::Leaf,
+        }
+    }
+}
+
+/// An indexed triangle model in model space.
+#[derive(Clone, Debug, Default)]
+pub struct Model {
+    /// Vertex positions.
+    pub positions: Vec<Vec3>,
+    /// Texture coordinates, one per position.
+    pub uvs: Vec<Vec2>,
+    /// Vertex indices, three per triangle.
+    pub triangles: Vec<[u32; 3]>,
+    /// Material index per triangle.
+    pub material: Vec<u32>,
+    /// Materials.
+    pub materials: Vec<Material>,
+    /// Textures the materials refer to.
+    pub textures: Vec<Texture>,
+}
+
+impl Model {
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Adds a material; returns its index.
+    pub fn add_material(&mut self, m: Material) -> u32 {
+        self.materials.push(m);
+        self.materials.len() as u32 - 1
+    }
+
+    /// Adds a triangle with its own three vertices.
+    pub fn push_triangle(&mut self, v: [Vec3; 3], uv: [Vec2; 3], material: u32) {
+        let base = self.positions.len() as u32;
+        self.positions.extend_from_slice(&v);
+        self.uvs.extend_from_slice(&uv);
+        self.triangles.push([base, base + 1, base + 2]);
+        self.material.push(material);
+    }
+
+    /// Adds a quad `a b c d` (counter-clockwise) as two triangles, with
+    /// texture coordinates (0,0) (1,0) (1,1) (0,1) at its corners.
+    pub fn push_quad(&mut self, q: [Vec3; 4], material: u32) {
+        let base = self.positions.len() as u32;
+        self.positions.extend_from_slice(&q);
+        self.uvs.extend_from_slice(&[Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0), Vec2::new(0.0, 0.0)]);
+        self.triangles.push([base, base + 1, base + 2]);
+        self.triangles.push([base, base + 2, base + 3]);
+        self.material.extend([material, material]);
+    }
+
+    /// Corners of triangle `t`.
+    pub fn triangle(&self, t: usize) -> [Vec3; 3] {
+        self.triangles[t].map(|i| self.positions[i as usize])
+    }
+
+    /// Whether triangle `t` is leaf or wood.
+    pub fn surface(&self, t: usize) -> Surface {
+        self.materials[self.material[t] as usize].surface
+    }
+
+    /// Axis-aligned bounds `(min, max)`, or `None` for an empty model.
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        let mut it = self.triangles.iter().flatten().map(|&i| self.positions[i as usize]);
+        let first = it.next()?;
+        Some(it.fold((first, first), |(lo, hi), p| (lo.min(p), hi.max(p))))
+    }
+
+    /// Number of wood triangles.
+    pub fn wood_triangles(&self) -> usize {
+        (0..self.triangle_count()).filter(|&t| self.surface(t) == Surface::Wood).count()
+    }
+
+    /// Whether the texel `uv` of triangle `t`'s material is a hole.
+    pub fn is_transparent(&self, t: usize, uv: Vec2) -> bool {
+        let m = &self.materials[self.material[t] as usize];
+        match (m.alpha_cutoff, m.texture) {
+            (Some(cut), Some(tex)) => {
+                let a = self.textures[tex as usize].texel(uv)[3] as f32 / 255.0 * m.base_color[3];
+                a < cut
+            }
+            (Some(cut), None) => m.base_color[3] < cut,
+            _ => false,
+        }
+    }
+}
+
+/// Names that mark a glTF material as wood rather than leaf.
+const WOOD_WORDS: [&str; 6] = ["bark", "wood", "trunk", "branch", "stem", "twig"];
+
+/// The surface class of a glTF material: wood when its name says so,
+/// otherwise leaf (alpha-masked foliage and anything unnamed).
+pub fn classify_material(name: Option<&str>) -> Surface {
+    let name = name.unwrap_or("").to_ascii_lowercase();
+    if WOOD_WORDS.iter().any(|w| name.contains(w)) { Surface::Wood } else { Surface::Leaf }
+}
+
+/// Loads every triangle of a glTF 2.0 file (`.gltf` or `.glb`) in the
+/// default scene, with node transforms applied, texture coordinates,
+/// base-colour textures and alpha modes (`BLEND` is treated as a mask at 0.5).
+pub fn load_gltf(path: &Path) -> anyhow::Result<Model> {
+    let (doc, buffers, images) =
+        gltf::import(path).with_context(|| format!("{}: cannot load glTF", path.display()))?;
+    let scene = doc
+        .default_scene()
+        .or_else(|| doc.scenes().next())
+        .with_context(|| format!("{}: the glTF file has no scene", path.display()))?;
+    let mut model = Model::default();
+    // glTF images decoded to RGBA8, as the textures of this model.
+    let mut texture_of_image = vec![None; images.len()];
+    for (i, img) in images.iter().enumerate() {
+        if let Some(t) = to_rgba8(img) {
+            model.textures.push(t);
+            texture_of_image[i] = Some(model.textures.len() as u32 - 1);
+        } else {
+            tracing::warn!(image = i, format = ?img.format, "unsupported texture format; ignored");
+        }
+    }
+    for m in doc.materials() {
+        let pbr = m.pbr_metallic_roughness();
+        let texture = pbr.base_color_texture().and_then(|t| texture_of_image.get(t.texture().source().index()).copied().flatten());
+        let alpha_cutoff = match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => None,
+            gltf::material::AlphaMode::Mask => Some(m.alpha_cutoff().unwrap_or(0.5)),
+            gltf::material::AlphaMode::Blend => Some(0.5),
+        };
+        model.materials.push(Material {
+            name: m.name().unwrap_or("").to_string(),
+            surface: classify_material(m.name()),
+            base_color: pbr.base_color_factor(),
+            texture,
+            alpha_cutoff,
+            double_sided: m.double_sided(),
+        });
+    }
+    // The glTF default material, for primitives that name none.
+    let default_material = model.materials.len() as u32;
+    model.materials.push(Material {
+        name: "default".into(),
+        surface: Surface::Leaf,
+        base_color: [1.0; 4],
+        texture: None,
+        alpha_cutoff: None,
+        double_sided: false,
+    });
+    for node in scene.nodes() {
+        add_node(&node, Mat4::IDENTITY, &buffers, &mut model, path, default_material)?;
+    }
+    if model.triangles.is_empty() {
+        bail!("{}: the glTF scene has no triangles", path.display());
+    }
+    Ok(model)
+}
+
+fn to_rgba8(img: &gltf::image::Data) -> Option<Texture> {
+    use gltf::image::Format;
+    let px = (img.width * img.height) as usize;
+    let rgba = match img.format {
+        Format::R8G8B8A8 => img.pixels.clone(),
+        Format::R8G8B8 => img.pixels.chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect(),
+        Format::R8G8 => img.pixels.chunks_exact(2).flat_map(|c| [c[0], c[0], c[0], c[1]]).collect(),
+        Format::R8 => img.pixels.iter().flat_map(|&c| [c, c, c, 255]).collect(),
+        _ => return None,
+    };
+    (rgba.len() == 4 * px && px > 0).then_some(Texture { width: img.width, height: img.height, rgba })
+}
+
+fn add_node(
+    node: &gltf::Node,
+    parent: Mat4,
+    buffers: &[gltf::buffer::Data],
+    model: &mut Model,
+    path: &Path,
+    default_material: u32,
+) -> anyhow::Result<()> {
+    let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+    if let Some(m) = node.mesh() {
+        for prim in m.primitives() {
+            if prim.mode() != gltf::mesh::Mode::Triangles {
+                tracing::warn!(mesh = m.name(), mode = ?prim.mode(), "skipping a non-triangle primitive");
+                continue;
+            }
+            let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+            let Some(pos) = reader.read_positions() else { continue };
+            let base = model.positions.len() as u32;
+            for p in pos {
+                let v = world.transform_point3(Vec3::from(p));
+                if !v.is_finite() {
+                    bail!("{}: mesh {:?} has a non-finite vertex position", path.display(), m.name().unwrap_or("?"));
+                }
+                model.positions.push(v);
+            }
+            let count = model.positions.len() as u32 - base;
+            match reader.read_tex_coords(0) {
+                Some(uv) => model.uvs.extend(uv.into_f32().map(Vec2::from)),
+                None => model.uvs.extend(std::iter::repeat_n(Vec2::ZERO, count as usize)),
+            }
+            if model.uvs.len() != model.positions.len() {
+                bail!("{}: mesh {:?} has {} texture coordinates for {count} vertices", path.display(), m.name().unwrap_or("?"), model.uvs.len() - base as usize);
+            }
+            let indices: Vec<u32> = match reader.read_indices() {
+                Some(ix) => ix.into_u32().collect(),
+                None => (0..count).collect(),
+            };
+            if let Some(&bad) = indices.iter().find(|&&i| i >= count) {
+                bail!("{}: mesh {:?} indexes vertex {bad} of {count}", path.display(), m.name().unwrap_or("?"));
+            }
+            let material = prim.material().index().map_or(default_material, |i| i as u32);
+            for t in indices.chunks_exact(3) {
+                model.triangles.push([base + t[0], base + t[1], base + t[2]]);
+                model.material.push(material);
+            }
+        }
+    }
+    for child in node.children() {
+        add_node(&child, world, buffers, model, path, default_material)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fern() -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/fern_02.glb")
+    }
+
+    #[test]
+    fn fern_loads_with_its_alpha_masked_texture() {
+        let m = load_gltf(&fern()).unwrap();
+        assert_eq!(m.triangle_count(), 6232);
+        assert_eq!(m.uvs.len(), m.positions.len());
+        let leaf = &m.materials[0];
+        assert_eq!(leaf.name, "fern_02");
+        assert_eq!(leaf.alpha_cutoff, Some(0.5));
+        assert!(leaf.double_sided);
+        let tex = &m.textures[leaf.texture.expect("fern has a base-colour texture") as usize];
+        assert!(tex.width >= 256 && tex.height >= 256);
+        // This file's base-colour image is a three-channel JPEG, so by the
+        // glTF rules its mask cuts nothing: alpha is 1 everywhere.
+        assert!(tex.rgba.chunks_exact(4).all(|p| p[3] == 255));
+        assert!(!m.is_transparent(0, Vec2::new(0.01, 0.01)));
+        assert!(m.material.iter().all(|&i| i == 0));
+    }
+
+    #[test]
+    fn missing_and_broken_files_name_the_file() {
+        let err = format!("{:#}", load_gltf(Path::new("/nonexistent/tree.glb")).unwrap_err());
+        assert!(err.contains("/nonexistent/tree.glb: cannot load glTF"), "{err}");
+    }
+}
