@@ -7,5 +7,6 @@ pub mod model;
 pub mod npy;
 pub mod rng;
 pub mod shapes;
+pub mod trees;
 pub mod visualize;
 pub mod voxel;
