@@ -2,10 +2,13 @@
 //! and its CPU reference solver, triangle meshes and their voxelizer, the
 //! built-in shapes, and grids on disk (`.npy`) and on screen (PNG).
 
+pub mod camera;
+pub mod color;
 pub mod lb;
 pub mod model;
 pub mod npy;
 pub mod rng;
+pub mod scene;
 pub mod shapes;
 pub mod trees;
 pub mod visualize;

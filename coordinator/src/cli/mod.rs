@@ -3,6 +3,7 @@
 mod bench;
 mod lb;
 mod progress;
+mod scene;
 
 use clap::{Parser, Subcommand};
 
@@ -34,6 +35,9 @@ enum Command {
     /// Lattice-Boltzmann lighting: solve a model's light field, verify the solver.
     #[command(subcommand)]
     Lb(lb::LbCommand),
+    /// Scene files: the paper's forest.
+    #[command(subcommand)]
+    Scene(scene::SceneCommand),
     /// Benchmarks that print JSON.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -44,5 +48,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Lb(c) => lb::run(c),
         Command::Bench(c) => bench::run(c),
+        Command::Scene(c) => scene::run(c),
     }
 }

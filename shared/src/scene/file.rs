@@ -1,0 +1,212 @@
+//! The scene file: JSON, every field typed, unknown fields refused.
+
+use crate::lb::Preset;
+use crate::trees::TreeParams;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// A scene as written on disk.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    /// Models by name: a glTF file or a generated tree.
+    pub models: BTreeMap<String, ModelSpec>,
+    /// Placements of the models.
+    pub instances: Vec<InstanceSpec>,
+    /// The view.
+    pub camera: CameraSpec,
+    /// The sun.
+    pub sun: SunSpec,
+    /// The sky's colour.
+    #[serde(default)]
+    pub sky: SkySpec,
+    /// A ground plane at y = 0, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ground: Option<GroundSpec>,
+    /// How indirect light is computed.
+    #[serde(default)]
+    pub lighting: LightingMode,
+    /// LB settings for models that give none.
+    #[serde(default)]
+    pub lb: LbSpec,
+    /// Clouds: LB-lit density volumes.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub clouds: Vec<CloudSpec>,
+}
+
+/// Where a model comes from: exactly one of `gltf` and `tree`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSpec {
+    /// A glTF 2.0 file, relative to the scene file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gltf: Option<PathBuf>,
+    /// A generated tree.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tree: Option<TreeParams>,
+    /// LB settings for this model (otherwise the scene's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lb: Option<LbSpec>,
+}
+
+/// One placement of a model: a full matrix, or translate–rotate–scale.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InstanceSpec {
+    /// Name of the model.
+    pub model: String,
+    /// Translation.
+    #[serde(default)]
+    pub position: [f32; 3],
+    /// Rotation about the vertical axis, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub rotate_y_deg: f32,
+    /// Uniform scale.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub scale: f32,
+    /// A column-major 4 × 4 model-to-world matrix, instead of the above.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub matrix: Option<[f32; 16]>,
+}
+
+fn one() -> f32 {
+    1.0
+}
+fn is_one(v: &f32) -> bool {
+    *v == 1.0
+}
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
+}
+
+/// The camera.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    /// Eye position.
+    pub position: [f32; 3],
+    /// Point looked at.
+    pub look_at: [f32; 3],
+    /// Up direction.
+    #[serde(default = "y_up")]
+    pub up: [f32; 3],
+    /// Vertical field of view, degrees.
+    #[serde(default = "default_fov")]
+    pub fov_y_deg: f32,
+}
+
+fn y_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+fn default_fov() -> f32 {
+    40.0
+}
+
+/// The sun: where it is, its colour temperature and strength.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SunSpec {
+    /// Degrees above the horizon (with `azimuth_deg`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elevation_deg: Option<f32>,
+    /// Degrees from +x towards +z.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub azimuth_deg: Option<f32>,
+    /// A vector pointing at the sun, instead of the angles.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub direction: Option<[f32; 3]>,
+    /// Black-body temperature, kelvin.
+    #[serde(default = "default_temperature")]
+    pub temperature_k: f32,
+    /// Irradiance multiplier.
+    #[serde(default = "default_sun_intensity")]
+    pub intensity: f32,
+}
+
+fn default_temperature() -> f32 {
+    6500.0
+}
+fn default_sun_intensity() -> f32 {
+    3.0
+}
+
+/// A gradient sky, linear RGB.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkySpec {
+    /// Colour straight up.
+    pub zenith: [f32; 3],
+    /// Colour at the horizon.
+    pub horizon: [f32; 3],
+}
+
+impl Default for SkySpec {
+    fn default() -> Self {
+        Self { zenith: [0.25, 0.45, 0.85], horizon: [0.75, 0.82, 0.9] }
+    }
+}
+
+/// A ground plane at y = 0.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroundSpec {
+    /// Linear RGB albedo.
+    pub color: [f32; 3],
+}
+
+/// How the image's indirect light is computed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LightingMode {
+    /// Direct sun light only.
+    Local,
+    /// Direct light plus a constant ambient term matched to the LB image.
+    Ambient,
+    /// Direct light plus LB indirect light.
+    #[default]
+    Lb,
+    /// The LB value alone.
+    LbVisualize,
+}
+
+/// LB settings of a model.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LbSpec {
+    /// Grid size N (N³ nodes over the model's bounds).
+    #[serde(default = "default_grid")]
+    pub grid: usize,
+    /// Optical parameters.
+    #[serde(default = "default_preset")]
+    pub preset: Preset,
+}
+
+fn default_grid() -> usize {
+    32
+}
+fn default_preset() -> Preset {
+    Preset::Leaf
+}
+
+impl Default for LbSpec {
+    fn default() -> Self {
+        Self { grid: default_grid(), preset: default_preset() }
+    }
+}
+
+/// A cloud: a procedural density volume in a box.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CloudSpec {
+    /// Centre of the box.
+    pub center: [f32; 3],
+    /// Edge length of the (cubic) box.
+    pub size: f32,
+    /// LB grid size.
+    #[serde(default = "default_grid")]
+    pub grid: usize,
+    /// Shape seed.
+    #[serde(default)]
+    pub seed: u64,
+}

@@ -1,0 +1,343 @@
+//! Scenes: models, their instances, the camera, the sun, sky and ground,
+//! and the lighting settings, loaded from a JSON scene file
+//! ([`SceneFile`]) and checked field by field.
+
+pub mod file;
+pub mod forest;
+
+pub use file::{CameraSpec, CloudSpec, GroundSpec, InstanceSpec, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec, SunSpec};
+
+use crate::camera::Camera;
+use crate::color::black_body_rgb;
+use crate::model::{Model, load_gltf};
+use crate::trees;
+use glam::{Affine3A, Mat4, Vec3};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// A scene file that cannot be used: the file, the field and what is wrong.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {field}: {message}")]
+pub struct SceneError {
+    /// The scene file.
+    pub file: String,
+    /// Path of the field (`instances[3].scale`).
+    pub field: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+/// A model as the scene holds it.
+#[derive(Clone, Debug)]
+pub struct SceneModel {
+    /// Its name in the scene file.
+    pub name: String,
+    /// Geometry and materials, shared by all its instances.
+    pub model: Arc<Model>,
+    /// LB settings.
+    pub lb: LbSpec,
+}
+
+/// One placement.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Instance {
+    /// Index into [`Scene::models`].
+    pub model: u32,
+    /// Model space to world space.
+    pub to_world: Affine3A,
+}
+
+/// The sun as the renderer uses it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SunLight {
+    /// Unit vector from the scene towards the sun.
+    pub towards: Vec3,
+    /// Linear RGB irradiance: black-body colour × intensity.
+    pub radiance: [f32; 3],
+}
+
+/// A loaded, checked scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Unique models.
+    pub models: Vec<SceneModel>,
+    /// Placements.
+    pub instances: Vec<Instance>,
+    /// The view.
+    pub camera: Camera,
+    /// The sun.
+    pub sun: SunLight,
+    /// The sky.
+    pub sky: SkySpec,
+    /// Ground plane at y = 0.
+    pub ground: Option<GroundSpec>,
+    /// Lighting method.
+    pub lighting: LightingMode,
+    /// Clouds.
+    pub clouds: Vec<CloudSpec>,
+    /// The file as parsed (for bundles and reports).
+    pub file: SceneFile,
+}
+
+impl Scene {
+    /// Reads, parses and checks a scene file; glTF paths are relative to it.
+    pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let label = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+            file: label.clone(),
+            field: "(file)".into(),
+            message: format!("cannot read: {e}"),
+        })?;
+        let file = parse(&text, &label)?;
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Scene::build(file, &base, &label)
+    }
+
+    /// Checks a parsed scene and builds its models. `label` names the file
+    /// in errors; relative glTF paths are resolved against `base`.
+    pub fn build(file: SceneFile, base: &Path, label: &str) -> Result<Scene, SceneError> {
+        let err = |field: String, message: String| SceneError { file: label.to_string(), field, message };
+        if file.models.is_empty() {
+            return Err(err("models".into(), "at least one model is needed".into()));
+        }
+        let mut models = Vec::with_capacity(file.models.len());
+        for (name, spec) in &file.models {
+            let field = format!("models.{name}");
+            let lb = spec.lb.unwrap_or(file.lb);
+            check_lb(&lb).map_err(|m| err(format!("{field}.lb"), m))?;
+            let model = match (&spec.gltf, &spec.tree) {
+                (Some(p), None) => {
+                    let full: PathBuf = if p.is_absolute() { p.clone() } else { base.join(p) };
+                    if !full.exists() {
+                        return Err(err(format!("{field}.gltf"), format!("missing file {}", full.display())));
+                    }
+                    load_gltf(&full).map_err(|e| err(format!("{field}.gltf"), format!("{e:#}")))?
+                }
+                (None, Some(t)) => trees::generate(t).map_err(|e| err(format!("{field}.tree"), e.to_string()))?,
+                _ => return Err(err(field, "give exactly one of \"gltf\" and \"tree\"".into())),
+            };
+            models.push(SceneModel { name: name.clone(), model: Arc::new(model), lb });
+        }
+        check_lb(&file.lb).map_err(|m| err("lb".into(), m))?;
+        let mut instances = Vec::with_capacity(file.instances.len());
+        for (i, inst) in file.instances.iter().enumerate() {
+            let field = format!("instances[{i}]");
+            let model = models
+                .iter()
+                .position(|m| m.name == inst.model)
+                .ok_or_else(|| err(format!("{field}.model"), format!("unknown model {:?}", inst.model)))?;
+            let to_world = instance_transform(inst).map_err(|(f, m)| err(format!("{field}.{f}"), m))?;
+            instances.push(Instance { model: model as u32, to_world });
+        }
+        if instances.is_empty() {
+            return Err(err("instances".into(), "at least one instance is needed".into()));
+        }
+        let c = &file.camera;
+        finite3(&c.position).map_err(|m| err("camera.position".into(), m))?;
+        finite3(&c.look_at).map_err(|m| err("camera.look_at".into(), m))?;
+        let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg)
+            .map_err(|e| err("camera".into(), e.to_string()))?;
+        let sun = sun_light(&file.sun).map_err(|(f, m)| err(format!("sun.{f}"), m))?;
+        for (name, v) in [("zenith", file.sky.zenith), ("horizon", file.sky.horizon)] {
+            colour(&v).map_err(|m| err(format!("sky.{name}"), m))?;
+        }
+        if let Some(g) = &file.ground {
+            colour(&g.color).map_err(|m| err("ground.color".into(), m))?;
+        }
+        for (i, c) in file.clouds.iter().enumerate() {
+            finite3(&c.center).map_err(|m| err(format!("clouds[{i}].center"), m))?;
+            if !(c.size.is_finite() && c.size > 0.0) {
+                return Err(err(format!("clouds[{i}].size"), format!("{} must be a finite number > 0", c.size)));
+            }
+            if !(4..=512).contains(&c.grid) {
+                return Err(err(format!("clouds[{i}].grid"), format!("{}: valid range [4, 512]", c.grid)));
+            }
+        }
+        Ok(Scene {
+            models,
+            instances,
+            camera,
+            sun,
+            sky: file.sky.clone(),
+            ground: file.ground.clone(),
+            lighting: file.lighting,
+            clouds: file.clouds.clone(),
+            file,
+        })
+    }
+
+    /// Triangles of the unique models.
+    pub fn unique_triangles(&self) -> u64 {
+        self.models.iter().map(|m| m.model.triangle_count() as u64).sum()
+    }
+
+    /// Triangles of all instances.
+    pub fn instanced_triangles(&self) -> u64 {
+        self.instances.iter().map(|i| self.models[i.model as usize].model.triangle_count() as u64).sum()
+    }
+}
+
+/// Parses scene JSON; errors carry the path of the offending field.
+pub fn parse(text: &str, label: &str) -> Result<SceneFile, SceneError> {
+    let de = &mut serde_json::Deserializer::from_str(text);
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let field = e.path().to_string();
+        SceneError {
+            file: label.to_string(),
+            field: if field == "." { "(document)".into() } else { field },
+            message: e.into_inner().to_string(),
+        }
+    })
+}
+
+fn check_lb(lb: &LbSpec) -> Result<(), String> {
+    if !(4..=512).contains(&lb.grid) {
+        return Err(format!("grid {}: valid range [4, 512]", lb.grid));
+    }
+    Ok(())
+}
+
+fn finite3(v: &[f32; 3]) -> Result<(), String> {
+    if v.iter().all(|x| x.is_finite()) { Ok(()) } else { Err(format!("{v:?} has a value that is not a finite number")) }
+}
+
+fn colour(v: &[f32; 3]) -> Result<(), String> {
+    finite3(v)?;
+    if v.iter().any(|&x| x < 0.0) {
+        return Err(format!("{v:?}: colour components must be ≥ 0"));
+    }
+    Ok(())
+}
+
+fn instance_transform(inst: &InstanceSpec) -> Result<Affine3A, (&'static str, String)> {
+    let m = match inst.matrix {
+        Some(cols) => {
+            if cols.iter().any(|v| !v.is_finite()) {
+                return Err(("matrix", "has a value that is not a finite number".into()));
+            }
+            let m = Mat4::from_cols_array(&cols);
+            if m.row(3) != glam::Vec4::W {
+                return Err(("matrix", "the bottom row must be (0, 0, 0, 1): only affine transforms place instances".into()));
+            }
+            Affine3A::from_mat4(m)
+        }
+        None => {
+            finite3(&inst.position).map_err(|e| ("position", e))?;
+            if !inst.rotate_y_deg.is_finite() {
+                return Err(("rotate_y_deg", format!("{} is not a finite number", inst.rotate_y_deg)));
+            }
+            if !(inst.scale.is_finite() && inst.scale > 0.0) {
+                return Err(("scale", format!("{}: must be a finite number > 0", inst.scale)));
+            }
+            Affine3A::from_scale_rotation_translation(
+                Vec3::splat(inst.scale),
+                glam::Quat::from_rotation_y(inst.rotate_y_deg.to_radians()),
+                inst.position.into(),
+            )
+        }
+    };
+    let det = m.matrix3.determinant();
+    if det.abs() < 1e-12 || !det.is_finite() {
+        return Err(("matrix", "degenerate transform (determinant 0): it flattens the model".into()));
+    }
+    Ok(m)
+}
+
+fn sun_light(s: &SunSpec) -> Result<SunLight, (&'static str, String)> {
+    let towards = match (s.direction, s.elevation_deg, s.azimuth_deg) {
+        (Some(d), None, None) => {
+            let v = Vec3::from(d);
+            if !v.is_finite() || v.length_squared() < 1e-12 {
+                return Err(("direction", format!("{d:?} must be a finite, non-zero vector")));
+            }
+            v.normalize()
+        }
+        (None, Some(e), Some(a)) => {
+            if !(e.is_finite() && e.abs() <= 90.0) {
+                return Err(("elevation_deg", format!("{e}: valid range [-90, 90]")));
+            }
+            if !a.is_finite() {
+                return Err(("azimuth_deg", format!("{a} is not a finite number")));
+            }
+            let (e, a) = (e.to_radians(), a.to_radians());
+            Vec3::new(e.cos() * a.cos(), e.sin(), e.cos() * a.sin())
+        }
+        _ => return Err(("direction", "give either direction or both elevation_deg and azimuth_deg".into())),
+    };
+    if !(s.temperature_k.is_finite() && (1000.0..=40000.0).contains(&s.temperature_k)) {
+        return Err(("temperature_k", format!("{}: valid range [1000, 40000]", s.temperature_k)));
+    }
+    if !(s.intensity.is_finite() && s.intensity >= 0.0) {
+        return Err(("intensity", format!("{}: must be a finite number ≥ 0", s.intensity)));
+    }
+    let c = black_body_rgb(s.temperature_k);
+    Ok(SunLight { towards, radiance: c.map(|x| x * s.intensity) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SMALL: &str = r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 2000, "seed": 1 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 0] },
+                       { "model": "maple", "position": [10, 0, 0], "rotate_y_deg": 90, "scale": 1.2 } ],
+        "camera": { "position": [0, 5, -30], "look_at": [0, 5, 0] },
+        "sun": { "elevation_deg": 40, "azimuth_deg": 30 },
+        "ground": { "color": [0.1, 0.08, 0.05] }
+    }"#;
+
+    fn build(text: &str) -> Result<Scene, SceneError> {
+        Scene::build(parse(text, "test.json")?, Path::new("."), "test.json")
+    }
+
+    fn error_of(text: &str) -> String {
+        build(text).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn a_small_scene_loads() {
+        let s = build(SMALL).unwrap();
+        assert_eq!(s.models.len(), 1);
+        assert_eq!(s.instances.len(), 2);
+        assert_eq!(s.unique_triangles(), 2000);
+        assert_eq!(s.instanced_triangles(), 4000);
+        assert_eq!(s.lighting, LightingMode::Lb);
+        let p = s.instances[1].to_world.transform_point3(Vec3::new(1.0, 0.0, 0.0));
+        assert!((p - Vec3::new(10.0, 0.0, -1.2)).length() < 1e-5, "{p}");
+        assert!(s.sun.towards.y > 0.6);
+    }
+
+    #[test]
+    fn malformed_scenes_name_file_field_and_fault() {
+        let cases = [
+            (SMALL.replace("\"ground\"", "\"grund\""), "test.json: grund: unknown field `grund`, expected one of"),
+            (SMALL.replace("\"model\": \"maple\", \"position\": [10", "\"model\": \"oak\", \"position\": [10"), "instances[1].model: unknown model \"oak\""),
+            (SMALL.replace("\"scale\": 1.2", "\"scale\": 0"), "instances[1].scale: 0: must be a finite number > 0"),
+            (SMALL.replace("\"scale\": 1.2", "\"scale\": 1e39"), "instances[1].scale"),
+            (SMALL.replace("\"position\": [0, 0, 0]", "\"position\": [0, NaN, 0]"), "test.json"),
+            (SMALL.replace("\"rotate_y_deg\": 90, \"scale\": 1.2", "\"matrix\": [1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]"), "instances[1].matrix: degenerate transform"),
+            (SMALL.replace("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {"), "models.maple: give exactly one"),
+            (SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"nowhere.glb\""), "models.maple.gltf: missing file ./nowhere.glb"),
+            (SMALL.replace("red_maple", "oak"), "models.maple.tree.species: unknown variant `oak`"),
+            (SMALL.replace("\"triangles\": 2000", "\"triangles\": 3"), "models.maple.tree: red_maple needs at least"),
+            (SMALL.replace("\"look_at\": [0, 5, 0]", "\"look_at\": [0, 5, -30]"), "camera: camera position and look_at must be distinct"),
+            (SMALL.replace("\"elevation_deg\": 40", "\"elevation_deg\": 140"), "sun.elevation_deg: 140: valid range [-90, 90]"),
+            (SMALL.replace("\"elevation_deg\": 40, ", ""), "sun.direction: give either direction or both"),
+            (SMALL.replace("[0.1, 0.08, 0.05]", "[0.1, -0.08, 0.05]"), "ground.color"),
+        ];
+        for (text, want) in cases {
+            let e = error_of(&text);
+            assert!(e.contains(want), "wanted {want:?}, got {e:?}");
+            assert!(e.starts_with("test.json: "), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_fern_loads_from_a_scene_relative_path() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data");
+        let text = SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"fern_02.glb\"");
+        let s = Scene::build(parse(&text, "t.json").unwrap(), &dir, "t.json").unwrap();
+        assert_eq!(s.unique_triangles(), 6232);
+    }
+}
