@@ -2,6 +2,7 @@
 //! and its CPU reference solver, triangle meshes and their voxelizer, the
 //! built-in shapes, and grids on disk (`.npy`) and on screen (PNG).
 
+pub mod accel;
 pub mod camera;
 pub mod color;
 pub mod lb;

@@ -1,0 +1,175 @@
+//! Two levels: a structure over instances' world bounds, and one per model
+//! over its triangles. A ray entering an instance is carried into model
+//! space unnormalized, so `t` means the same on both levels.
+
+use super::triangle::intersect;
+use super::{Aabb, Accel, AccelKind, Ray};
+use crate::model::Model;
+use crate::scene::Scene;
+use glam::{Affine3A, Vec2, Vec3};
+use rayon::prelude::*;
+
+/// Where a ray hit the scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SceneHit {
+    /// Instance index.
+    pub instance: u32,
+    /// Triangle index within the instance's model.
+    pub triangle: u32,
+    /// Ray parameter.
+    pub t: f32,
+    /// Barycentric u.
+    pub u: f32,
+    /// Barycentric v.
+    pub v: f32,
+}
+
+/// The acceleration structures of a scene.
+#[derive(Clone, Debug)]
+pub struct SceneAccel {
+    /// Which kind both levels are.
+    pub kind: AccelKind,
+    /// Over instances' world bounds.
+    pub top: Accel,
+    /// One per model, over its triangles.
+    pub models: Vec<Accel>,
+    /// World to model space, per instance.
+    pub to_model: Vec<Affine3A>,
+}
+
+impl SceneAccel {
+    /// Builds both levels (the models' in parallel).
+    pub fn build(scene: &Scene, kind: AccelKind) -> Self {
+        let models: Vec<Accel> = scene.models.par_iter().map(|m| Accel::build(kind, &triangle_bounds(&m.model))).collect();
+        let world: Vec<Aabb> = scene
+            .instances
+            .iter()
+            .map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world))
+            .collect();
+        let top = Accel::build(kind, &world);
+        let to_model = scene.instances.iter().map(|i| i.to_world.inverse()).collect();
+        Self { kind, top, models, to_model }
+    }
+
+    /// Bytes of all nodes and primitive lists.
+    pub fn bytes(&self) -> usize {
+        self.top.bytes() + self.models.iter().map(Accel::bytes).sum::<usize>()
+    }
+
+    /// The closest opaque hit in `(t_min, t_max)`: hits on transparent
+    /// texels are passed through.
+    pub fn closest(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> Option<SceneHit> {
+        let mut best: Option<SceneHit> = None;
+        self.top.closest(ray, t_min, t_max, &mut |inst, limit| {
+            let m = scene.instances[inst as usize].model as usize;
+            let to_model = &self.to_model[inst as usize];
+            let local = Ray::new(to_model.transform_point3(ray.origin), to_model.transform_vector3(ray.dir));
+            let (tri, t, u, v) = model_closest(&self.models[m], &scene.models[m].model, &local, t_min, limit)?;
+            best = Some(SceneHit { instance: inst, triangle: tri, t, u, v });
+            Some(t)
+        });
+        best
+    }
+}
+
+/// The closest opaque hit on one model in `(t_min, t_max)`:
+/// `(triangle, t, u, v)`.
+pub fn model_closest(accel: &Accel, model: &Model, ray: &Ray, t_min: f32, t_max: f32) -> Option<(u32, f32, f32, f32)> {
+    let mut found = None;
+    accel.closest(ray, t_min, t_max, &mut |tri, limit| {
+        let [a, b, c] = model.triangle(tri as usize);
+        let (t, u, v) = intersect(ray, a, b, c, t_min, limit)?;
+        if model.is_transparent(tri as usize, uv_at(model, tri, u, v)) {
+            return None;
+        }
+        found = Some((tri, t, u, v));
+        Some(t)
+    })?;
+    found
+}
+
+/// Texture coordinates at barycentrics (u, v) of triangle `tri`.
+pub fn uv_at(model: &Model, tri: u32, u: f32, v: f32) -> Vec2 {
+    let [i, j, k] = model.triangles[tri as usize];
+    model.uvs[i as usize] * (1.0 - u - v) + model.uvs[j as usize] * u + model.uvs[k as usize] * v
+}
+
+/// Bounds of each triangle.
+pub fn triangle_bounds(model: &Model) -> Vec<Aabb> {
+    (0..model.triangle_count()).map(|t| Aabb::around(&model.triangle(t))).collect()
+}
+
+/// Bounds of a whole model.
+pub fn model_bounds(model: &Model) -> Aabb {
+    model.bounds().map_or(Aabb { min: Vec3::ZERO, max: Vec3::ZERO }, |(min, max)| Aabb { min, max })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+    use crate::scene::parse;
+
+    fn scene() -> Scene {
+        let text = r#"{
+            "models": { "birch": { "tree": { "species": "paper_birch", "triangles": 6000, "seed": 2 } } },
+            "instances": [ { "model": "birch", "position": [0, 0, 0] },
+                           { "model": "birch", "position": [6, 0, 1], "rotate_y_deg": 70, "scale": 0.6 },
+                           { "model": "birch", "matrix": [0.8,0,0,0, 0,1.3,0,0, 0,0,0.8,0, -5,0,3,1] } ],
+            "camera": { "position": [0, 5, -30], "look_at": [0, 5, 0] },
+            "sun": { "elevation_deg": 40, "azimuth_deg": 30 }
+        }"#;
+        Scene::build(parse(text, "t.json").unwrap(), std::path::Path::new("."), "t.json").unwrap()
+    }
+
+    /// Every instance's every triangle, in world space, with the alpha test.
+    fn brute(scene: &Scene, ray: &Ray) -> Option<SceneHit> {
+        let mut best: Option<SceneHit> = None;
+        for (i, inst) in scene.instances.iter().enumerate() {
+            let m = &scene.models[inst.model as usize].model;
+            for t in 0..m.triangle_count() {
+                let [a, b, c] = m.triangle(t).map(|p| inst.to_world.transform_point3(p));
+                let limit = best.map_or(f32::INFINITY, |h| h.t);
+                if let Some((d, u, v)) = intersect(ray, a, b, c, 1e-4, limit) {
+                    if !m.is_transparent(t, uv_at(m, t as u32, u, v)) {
+                        best = Some(SceneHit { instance: i as u32, triangle: t as u32, t: d, u, v });
+                    }
+                }
+            }
+        }
+        best
+    }
+
+    #[test]
+    fn instances_are_hit_where_their_transforms_put_them() {
+        let s = scene();
+        let mut rng = SplitMix64::new(8);
+        for kind in [AccelKind::Bvh, AccelKind::Kd] {
+            let accel = SceneAccel::build(&s, kind);
+            // Straight at each trunk's base: the instance there is hit.
+            for (i, p) in [[0.0, 0.5, 0.0], [6.0, 0.5, 1.0], [-5.0, 0.5, 3.0]].iter().enumerate() {
+                let ray = Ray::new(Vec3::new(p[0], p[1], -20.0), Vec3::Z);
+                let hit = accel.closest(&s, &ray, 1e-4, f32::INFINITY).expect("trunk hit");
+                assert_eq!(hit.instance, i as u32, "{kind:?}");
+            }
+            let (mut hits, mut agree, mut close) = (0, 0, 0);
+            for _ in 0..1500 {
+                let o = Vec3::new(rng.range(-12.0, 12.0), rng.range(0.0, 24.0), -15.0);
+                let target = Vec3::new(rng.range(-8.0, 8.0), rng.range(0.0, 20.0), rng.range(-3.0, 5.0));
+                let ray = Ray::new(o, target - o);
+                let (got, want) = (accel.closest(&s, &ray, 1e-4, f32::INFINITY), brute(&s, &ray));
+                assert_eq!(got.is_some(), want.is_some(), "{kind:?} {ray:?}");
+                if let (Some(g), Some(w)) = (got, want) {
+                    hits += 1;
+                    // World-space triangles and model-space rays round
+                    // differently; the hit distance must agree closely.
+                    assert!((g.t - w.t).abs() <= 1e-4 * w.t.max(1.0), "{kind:?} {g:?} vs {w:?}");
+                    agree += ((g.instance, g.triangle) == (w.instance, w.triangle)) as u32;
+                    close += 1;
+                }
+            }
+            assert!(hits > 50, "{kind:?}: only {hits} hits");
+            assert!(agree as f32 >= 0.97 * close as f32, "{kind:?}: {agree}/{close} same triangle");
+        }
+    }
+}
