@@ -82,12 +82,11 @@ impl Bvh {
             let n = &self.nodes[node as usize];
             if n.count > 0 {
                 for &p in &self.prims[n.first as usize..(n.first + n.count) as usize] {
-                    if let Some(t) = hit(p, closest) {
-                        if t < closest && t > t_min {
+                    if let Some(t) = hit(p, closest)
+                        && t < closest && t > t_min {
                             closest = t;
                             best = Some((p, t));
                         }
-                    }
                 }
             } else {
                 let (a, b) = (n.first, n.first + 1);

@@ -131,12 +131,11 @@ impl KdTree {
             }
             let n = &self.nodes[node as usize];
             for &p in &self.prims[n.first as usize..(n.first + n.count) as usize] {
-                if let Some(t) = hit(p, closest) {
-                    if t < closest && t > t_min {
+                if let Some(t) = hit(p, closest)
+                    && t < closest && t > t_min {
                         closest = t;
                         best = Some((p, t));
                     }
-                }
             }
             if closest <= hi {
                 return best;

@@ -155,12 +155,11 @@ mod tests {
     /// Equal, or a tie: two triangles hit at exactly the same distance.
     fn assert_same_hit(got: Option<(u32, f32)>, want: Option<(u32, f32)>, tris: &[[Vec3; 3]], r: &Ray, kind: AccelKind) {
         assert_eq!(got.map(|h| h.1), want.map(|h| h.1), "{kind:?} ray {r:?}");
-        if let (Some(g), Some(w)) = (got, want) {
-            if g.0 != w.0 {
+        if let (Some(g), Some(w)) = (got, want)
+            && g.0 != w.0 {
                 let t = &tris[g.0 as usize];
                 assert_eq!(intersect(r, t[0], t[1], t[2], 0.0, f32::INFINITY).map(|h| h.0), Some(w.1), "{kind:?} ray {r:?}");
             }
-        }
     }
 
     fn check(kind: AccelKind, tris: &[[Vec3; 3]], rays: &[Ray]) {

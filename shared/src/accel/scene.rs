@@ -130,11 +130,10 @@ mod tests {
             for t in 0..m.triangle_count() {
                 let [a, b, c] = m.triangle(t).map(|p| inst.to_world.transform_point3(p));
                 let limit = best.map_or(f32::INFINITY, |h| h.t);
-                if let Some((d, u, v)) = intersect(ray, a, b, c, 1e-4, limit) {
-                    if !m.is_transparent(t, uv_at(m, t as u32, u, v)) {
+                if let Some((d, u, v)) = intersect(ray, a, b, c, 1e-4, limit)
+                    && !m.is_transparent(t, uv_at(m, t as u32, u, v)) {
                         best = Some(SceneHit { instance: i as u32, triangle: t as u32, t: d, u, v });
                     }
-                }
             }
         }
         best
