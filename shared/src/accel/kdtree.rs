@@ -98,7 +98,7 @@ impl KdTree {
 
     /// The closest primitive hit in `(t_min, t_max)`; see [`super::Accel::closest`].
     pub fn closest(&self, ray: &Ray, t_min: f32, t_max: f32, hit: &mut dyn FnMut(u32, f32) -> Option<f32>) -> Option<(u32, f32)> {
-        let Some((scene_min, scene_max)) = self.bounds.clip(ray, t_min, t_max) else { return None };
+        let (scene_min, scene_max) = self.bounds.clip(ray, t_min, t_max)?;
         let mut best: Option<(u32, f32)> = None;
         let mut closest = t_max;
         // Ring buffer: pushing onto a full stack drops the oldest entry.
