@@ -5,6 +5,7 @@
 
 pub mod gpu;
 pub mod lb;
+pub mod trace;
 
 pub use gpu::GpuContext;
 pub use lb::GpuSolver;

@@ -1,0 +1,235 @@
+// The scene as the tracer sees it, and ray casting through it: two levels
+// of acceleration (instances, then each model's triangles), either a BVH or
+// a kd-tree with the short-stack algorithm, Möller–Trumbore triangle tests
+// and alpha-masked texels passed through. Prepended to every tracer entry
+// point (rays.wgsl, render.wgsl); uploaded by worker/src/trace/gpu_scene.rs,
+// whose #[repr(C)] structs these mirror (a test checks the offsets).
+//
+// The CPU reference is shared/src/accel: the same node layouts, the same
+// traversal order, the same arithmetic.
+
+// 0: BVH, 1: kd-tree. Set when the pipeline is built.
+override ACCEL_KIND: u32 = 0u;
+
+const MIN_DIRECTION: f32 = 1e-20;
+const BVH_STACK: u32 = 48u;
+const SHORT_STACK: u32 = 5u;
+const KD_LEAF: u32 = 3u;
+const NO_TEXTURE: u32 = 0xffffffffu;
+const NO_HIT: u32 = 0xffffffffu;
+
+struct Material {
+    base_color: vec4<f32>,
+    texture: u32,
+    // Texels with alpha below this are holes; negative: opaque.
+    alpha_cutoff: f32,
+    double_sided: u32,
+    surface: u32,
+}
+
+struct Texture {
+    offset: u32,
+    width: u32,
+    height: u32,
+    pad: u32,
+}
+
+struct Triangle {
+    v: vec3<u32>,
+    material: u32,
+}
+
+struct Instance {
+    // World to model space, rows of a 3 × 4 affine matrix.
+    to_model: array<vec4<f32>, 3>,
+    model: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+
+struct Model {
+    root: u32,
+    lb_offset: u32,
+    lb_n: u32,
+    has_lb: u32,
+    lb_origin: vec3<f32>,
+    lb_cell: f32,
+}
+
+// BVH nodes take two entries (min + first, max + count); kd nodes one
+// (split, axis, first, count). The top level's root is node 0.
+@group(0) @binding(0) var<storage, read> nodes: array<vec4<u32>>;
+// Leaf contents: instance indices (top level) and global triangle indices.
+@group(0) @binding(1) var<storage, read> prims: array<u32>;
+// Vertex positions, x y z packed.
+@group(0) @binding(2) var<storage, read> positions: array<f32>;
+@group(0) @binding(3) var<storage, read> uvs: array<vec2<f32>>;
+@group(0) @binding(4) var<storage, read> triangles: array<Triangle>;
+@group(0) @binding(5) var<storage, read> materials: array<Material>;
+@group(0) @binding(6) var<storage, read> textures: array<Texture>;
+// RGBA8 texels, sRGB colour, linear alpha.
+@group(0) @binding(7) var<storage, read> texels: array<u32>;
+@group(0) @binding(8) var<storage, read> instances: array<Instance>;
+@group(0) @binding(9) var<storage, read> models: array<Model>;
+
+struct Ray {
+    origin: vec3<f32>,
+    dir: vec3<f32>,
+    inv_dir: vec3<f32>,
+}
+
+struct Hit {
+    instance: u32,
+    triangle: u32,
+    t: f32,
+    u: f32,
+    v: f32,
+}
+
+fn safe_component(d: f32) -> f32 {
+    if abs(d) < MIN_DIRECTION {
+        return select(MIN_DIRECTION, -MIN_DIRECTION, d < 0.0 || (d == 0.0 && bitcast<u32>(d) != 0u));
+    }
+    return d;
+}
+
+fn make_ray(origin: vec3<f32>, dir: vec3<f32>) -> Ray {
+    let d = vec3<f32>(safe_component(dir.x), safe_component(dir.y), safe_component(dir.z));
+    return Ray(origin, d, 1.0 / d);
+}
+
+fn no_hit() -> Hit {
+    return Hit(NO_HIT, NO_HIT, 0.0, 0.0, 0.0);
+}
+
+// The parameter interval inside a box, clipped to [t_min, t_max]; x > y
+// when missed.
+fn clip_box(bmin: vec3<f32>, bmax: vec3<f32>, ray: Ray, t_min: f32, t_max: f32) -> vec2<f32> {
+    let t0 = (bmin - ray.origin) * ray.inv_dir;
+    let t1 = (bmax - ray.origin) * ray.inv_dir;
+    let lo = min(t0, t1);
+    let hi = max(t0, t1);
+    let near = max(max(max(lo.x, lo.y), lo.z), t_min);
+    let far = min(min(min(hi.x, hi.y), hi.z), t_max);
+    return vec2<f32>(near, far);
+}
+
+fn position(i: u32) -> vec3<f32> {
+    return vec3<f32>(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]);
+}
+
+fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        return c / 12.92;
+    }
+    return pow((c + 0.055) / 1.055, 2.4);
+}
+
+// The nearest texel of a texture at uv, wrapping; as the CPU's Texture::texel.
+fn texel(tex: Texture, uv: vec2<f32>) -> vec4<f32> {
+    let x = u32((uv.x - floor(uv.x)) * f32(tex.width)) % tex.width;
+    let y = u32((uv.y - floor(uv.y)) * f32(tex.height)) % tex.height;
+    let p = texels[tex.offset + y * tex.width + x];
+    return vec4<f32>(f32(p & 0xffu), f32((p >> 8u) & 0xffu), f32((p >> 16u) & 0xffu), f32(p >> 24u)) / 255.0;
+}
+
+fn triangle_uv(tri: u32, u: f32, v: f32) -> vec2<f32> {
+    let t = triangles[tri].v;
+    return uvs[t.x] * (1.0 - u - v) + uvs[t.y] * u + uvs[t.z] * v;
+}
+
+fn is_transparent(tri: u32, uv: vec2<f32>) -> bool {
+    let m = materials[triangles[tri].material];
+    if m.alpha_cutoff < 0.0 {
+        return false;
+    }
+    var alpha = m.base_color.a;
+    if m.texture != NO_TEXTURE {
+        alpha = texel(textures[m.texture], uv).a * m.base_color.a;
+    }
+    return alpha < m.alpha_cutoff;
+}
+
+// Möller–Trumbore; (t, u, v) with t < 0 when missed. Both faces count.
+fn intersect_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> vec3<f32> {
+    let ix = triangles[tri].v;
+    let a = position(ix.x);
+    let e1 = position(ix.y) - a;
+    let e2 = position(ix.z) - a;
+    let p = cross(ray.dir, e2);
+    let det = dot(e1, p);
+    let miss = vec3<f32>(-1.0, 0.0, 0.0);
+    if det == 0.0 {
+        return miss;
+    }
+    let inv = 1.0 / det;
+    let s = ray.origin - a;
+    let u = dot(s, p) * inv;
+    if u < 0.0 || u > 1.0 {
+        return miss;
+    }
+    let q = cross(s, e1);
+    let v = dot(ray.dir, q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return miss;
+    }
+    let t = dot(e2, q) * inv;
+    if t > t_min && t < t_max {
+        return vec3<f32>(t, u, v);
+    }
+    return miss;
+}
+
+fn bvh_box(i: u32) -> array<vec4<u32>, 2> {
+    return array<vec4<u32>, 2>(nodes[2u * i], nodes[2u * i + 1u]);
+}
+
+struct KdEntry {
+    node: u32,
+    lo: f32,
+    hi: f32,
+}
+
+fn to_model_point(inst: Instance, p: vec3<f32>) -> vec3<f32> {
+    let h = vec4<f32>(p, 1.0);
+    return vec3<f32>(dot(inst.to_model[0], h), dot(inst.to_model[1], h), dot(inst.to_model[2], h));
+}
+
+fn to_model_vector(inst: Instance, v: vec3<f32>) -> vec3<f32> {
+    let h = vec4<f32>(v, 0.0);
+    return vec3<f32>(dot(inst.to_model[0], h), dot(inst.to_model[1], h), dot(inst.to_model[2], h));
+}
+
+// A triangle hit in (t_min, t_max), or no_hit().
+fn test_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> Hit {
+    let h = intersect_triangle(ray, tri, t_min, t_max);
+    if h.x > t_min && !is_transparent(tri, triangle_uv(tri, h.y, h.z)) {
+        return Hit(NO_HIT, tri, h.x, h.y, h.z);
+    }
+    return no_hit();
+}
+
+// The closest hit inside an instance: the ray carried into model space
+// unnormalized, so t means the same in both spaces.
+fn test_instance(ray: Ray, index: u32, t_min: f32, t_max: f32) -> Hit {
+    let inst = instances[index];
+    let local = make_ray(to_model_point(inst, ray.origin), to_model_vector(inst, ray.dir));
+    var h = traverse_model(local, models[inst.model].root, t_min, t_max);
+    h.instance = index;
+    return h;
+}
+
+fn test_prim_top(ray: Ray, prim: u32, t_min: f32, t_max: f32) -> Hit {
+    return test_instance(ray, prim, t_min, t_max);
+}
+
+fn test_prim_model(ray: Ray, prim: u32, t_min: f32, t_max: f32) -> Hit {
+    return test_triangle(ray, prim, t_min, t_max);
+}
+
+// The closest opaque hit in the scene in (t_min, t_max).
+fn closest_hit(ray: Ray, t_min: f32, t_max: f32) -> Hit {
+    // A kd-tree's root follows its two bounds entries.
+    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), t_min, t_max);
+}

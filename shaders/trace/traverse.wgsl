@@ -1,0 +1,168 @@
+// Traversal of one level of the two-level acceleration structure, a
+// template: worker/src/trace/shaders.rs instantiates it with LEVEL = top
+// (leaves hold instances) and LEVEL = model (leaves hold triangles), since
+// WGSL has no generics and forbids recursion. Mirrors shared/src/accel.
+
+// The closest hit of the tree rooted at `root` in (t_min, t_max).
+fn traverse_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
+    if ACCEL_KIND == 0u {
+        return traverse_bvh_LEVEL(ray, root, t_min, t_max);
+    }
+    return traverse_kd_LEVEL(ray, root, t_min, t_max);
+}
+
+fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
+    var best = no_hit();
+    var closest = t_max;
+    var stack: array<u32, BVH_STACK>;
+    var sp = 0u;
+    var node = root;
+    let r = bvh_box(root);
+    let rc = clip_box(bitcast<vec3<f32>>(r[0].xyz), bitcast<vec3<f32>>(r[1].xyz), ray, t_min, closest);
+    if rc.x > rc.y {
+        return best;
+    }
+    loop {
+        let n = bvh_box(node);
+        let count = n[1].w;
+        var descended = false;
+        if count > 0u {
+            for (var k = 0u; k < count; k++) {
+                let h = test_prim_LEVEL(ray, prims[n[0].w + k], t_min, closest);
+                if h.triangle != NO_HIT {
+                    best = h;
+                    closest = h.t;
+                }
+            }
+        } else {
+            let a = n[0].w;
+            let b = a + 1u;
+            let na = bvh_box(a);
+            let nb = bvh_box(b);
+            let ca = clip_box(bitcast<vec3<f32>>(na[0].xyz), bitcast<vec3<f32>>(na[1].xyz), ray, t_min, closest);
+            let cb = clip_box(bitcast<vec3<f32>>(nb[0].xyz), bitcast<vec3<f32>>(nb[1].xyz), ray, t_min, closest);
+            let hit_a = ca.x <= ca.y;
+            let hit_b = cb.x <= cb.y;
+            if hit_a && hit_b {
+                var near = a;
+                var far = b;
+                if ca.x > cb.x {
+                    near = b;
+                    far = a;
+                }
+                stack[sp] = far;
+                sp += 1u;
+                node = near;
+                descended = true;
+            } else if hit_a {
+                node = a;
+                descended = true;
+            } else if hit_b {
+                node = b;
+                descended = true;
+            }
+        }
+        if descended {
+            continue;
+        }
+        // Pop the next node still in reach.
+        var found = false;
+        loop {
+            if sp == 0u {
+                break;
+            }
+            sp -= 1u;
+            node = stack[sp];
+            let p = bvh_box(node);
+            let c = clip_box(bitcast<vec3<f32>>(p[0].xyz), bitcast<vec3<f32>>(p[1].xyz), ray, t_min, closest);
+            if c.x <= c.y {
+                found = true;
+                break;
+            }
+        }
+        if !found {
+            return best;
+        }
+    }
+    return best;
+}
+
+fn traverse_kd_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
+    var best = no_hit();
+    var closest = t_max;
+    // The tree's bounds sit in the two entries before its root.
+    let bmin = bitcast<vec3<f32>>(nodes[root - 2u].xyz);
+    let bmax = bitcast<vec3<f32>>(nodes[root - 1u].xyz);
+    let sc = clip_box(bmin, bmax, ray, t_min, t_max);
+    if sc.x > sc.y {
+        return best;
+    }
+    let scene_max = sc.y;
+    var stack: array<KdEntry, SHORT_STACK>;
+    var top_i = 0u;
+    var depth = 0u;
+    var node = root;
+    var lo = sc.x;
+    var hi = sc.y;
+    loop {
+        // Descend to a leaf.
+        loop {
+            let n = nodes[node];
+            if n.y == KD_LEAF {
+                break;
+            }
+            let axis = n.y;
+            let split = bitcast<f32>(n.x);
+            let o = ray.origin[axis];
+            let d = ray.dir[axis];
+            let t_split = (split - o) * ray.inv_dir[axis];
+            let below_first = o < split || (o == split && d <= 0.0);
+            var first = n.z;
+            var second = node + 1u;
+            if below_first {
+                first = node + 1u;
+                second = n.z;
+            }
+            if t_split > hi || t_split <= 0.0 {
+                node = first;
+            } else if t_split < lo {
+                node = second;
+            } else {
+                stack[top_i] = KdEntry(second, t_split, hi);
+                top_i = (top_i + 1u) % SHORT_STACK;
+                depth = min(depth + 1u, SHORT_STACK);
+                node = first;
+                hi = t_split;
+            }
+        }
+        let leaf = nodes[node];
+        for (var k = 0u; k < leaf.w; k++) {
+            let h = test_prim_LEVEL(ray, prims[leaf.z + k], t_min, closest);
+            if h.triangle != NO_HIT {
+                best = h;
+                closest = h.t;
+            }
+        }
+        if closest <= hi {
+            return best;
+        }
+        if depth == 0u {
+            // Short stack empty: restart from the root past this leaf.
+            if hi >= scene_max {
+                return best;
+            }
+            node = root;
+            lo = hi;
+            hi = scene_max;
+        } else {
+            top_i = (top_i + SHORT_STACK - 1u) % SHORT_STACK;
+            depth -= 1u;
+            let e = stack[top_i];
+            node = e.node;
+            lo = e.lo;
+            hi = e.hi;
+        }
+    }
+    return best;
+}
+

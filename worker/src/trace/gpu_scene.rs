@@ -1,0 +1,244 @@
+//! The scene on the GPU: models' triangles, materials and textures, both
+//! acceleration levels flattened into one node array, and instances.
+
+use crate::gpu::GpuContext;
+use bytemuck::{Pod, Zeroable};
+use sylva_shared::accel::{Accel, KdNode, SceneAccel};
+use sylva_shared::scene::Scene;
+use wgpu::util::DeviceExt;
+
+/// A material as `scene.wgsl` reads it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuMaterial {
+    /// Linear RGBA multiplier.
+    pub base_color: [f32; 4],
+    /// Texture index, or `u32::MAX`.
+    pub texture: u32,
+    /// Alpha cutoff; negative for opaque.
+    pub alpha_cutoff: f32,
+    /// 1 when both faces are lit.
+    pub double_sided: u32,
+    /// 0 leaf, 1 wood.
+    pub surface: u32,
+}
+
+/// A texture's place in the texel array.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuTexture {
+    /// First texel.
+    pub offset: u32,
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Padding.
+    pub pad: u32,
+}
+
+/// A triangle: global vertex indices and material.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuTriangle {
+    /// Vertex indices.
+    pub v: [u32; 3],
+    /// Global material index.
+    pub material: u32,
+}
+
+/// An instance.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuInstance {
+    /// World to model space: rows of a 3 × 4 affine matrix.
+    pub to_model: [[f32; 4]; 3],
+    /// Model index.
+    pub model: u32,
+    /// Padding.
+    pub pad: [u32; 3],
+}
+
+/// A model: its root node and LB grid.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuModel {
+    /// Root node of its acceleration structure.
+    pub root: u32,
+    /// First value of its LB grid in the LB buffer.
+    pub lb_offset: u32,
+    /// LB grid size N (N³ nodes).
+    pub lb_n: u32,
+    /// 1 when the model has an LB grid.
+    pub has_lb: u32,
+    /// Corner of LB node (0, 0, 0), model space.
+    pub lb_origin: [f32; 3],
+    /// LB cell size.
+    pub lb_cell: f32,
+}
+
+/// The scene's buffers and the bind group (group 0) every tracer kernel uses.
+pub struct GpuScene {
+    /// Bind group layout of group 0.
+    pub layout: wgpu::BindGroupLayout,
+    /// Group 0.
+    pub bind_group: wgpu::BindGroup,
+    /// Global index of each model's first triangle.
+    pub triangle_offsets: Vec<u32>,
+    /// Bytes uploaded.
+    pub bytes: u64,
+    /// `ACCEL_KIND` for pipelines over this scene.
+    pub accel_kind: u32,
+}
+
+/// The flat arrays before upload.
+#[derive(Default)]
+struct Flat {
+    nodes: Vec<[u32; 4]>,
+    prims: Vec<u32>,
+    positions: Vec<f32>,
+    uvs: Vec<[f32; 2]>,
+    triangles: Vec<GpuTriangle>,
+    materials: Vec<GpuMaterial>,
+    textures: Vec<GpuTexture>,
+    texels: Vec<u32>,
+    instances: Vec<GpuInstance>,
+    models: Vec<GpuModel>,
+}
+
+impl Flat {
+    /// Appends a structure; leaves' primitives get `prim_shift` added.
+    /// Returns the root's node index.
+    fn push_accel(&mut self, accel: &Accel, prim_shift: u32) -> u32 {
+        let prim_base = self.prims.len() as u32;
+        match accel {
+            Accel::Bvh(b) => {
+                let base = (self.nodes.len() / 2) as u32;
+                for n in &b.nodes {
+                    let first = if n.count > 0 { n.first + prim_base } else { n.first + base };
+                    let [x0, y0, z0] = n.min.map(f32::to_bits);
+                    let [x1, y1, z1] = n.max.map(f32::to_bits);
+                    self.nodes.push([x0, y0, z0, first]);
+                    self.nodes.push([x1, y1, z1, n.count]);
+                }
+                self.prims.extend(b.prims.iter().map(|p| p + prim_shift));
+                base
+            }
+            Accel::Kd(k) => {
+                let [x0, y0, z0] = k.bounds.min.to_array().map(f32::to_bits);
+                let [x1, y1, z1] = k.bounds.max.to_array().map(f32::to_bits);
+                self.nodes.push([x0, y0, z0, 0]);
+                self.nodes.push([x1, y1, z1, 0]);
+                let base = self.nodes.len() as u32;
+                for n in &k.nodes {
+                    let first = if n.axis == KdNode::LEAF { n.first + prim_base } else { n.first + base };
+                    self.nodes.push([n.split.to_bits(), n.axis, first, n.count]);
+                }
+                self.prims.extend(k.prims.iter().map(|p| p + prim_shift));
+                base
+            }
+        }
+    }
+}
+
+impl GpuScene {
+    /// Uploads `scene` with its acceleration structures.
+    pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel) -> anyhow::Result<Self> {
+        let mut f = Flat::default();
+        let top_root = f.push_accel(&accel.top, 0);
+        debug_assert_eq!(top_root, if matches!(accel.top, Accel::Kd(_)) { 2 } else { 0 });
+        let mut triangle_offsets = Vec::with_capacity(scene.models.len());
+        for (m, sm) in scene.models.iter().enumerate() {
+            let model = &sm.model;
+            let (tri0, vert0) = (f.triangles.len() as u32, (f.positions.len() / 3) as u32);
+            let (mat0, tex0) = (f.materials.len() as u32, f.textures.len() as u32);
+            triangle_offsets.push(tri0);
+            let root = f.push_accel(&accel.models[m], tri0);
+            f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
+            f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
+            f.triangles.extend(
+                model.triangles.iter().zip(&model.material).map(|(t, &mat)| GpuTriangle { v: t.map(|i| i + vert0), material: mat + mat0 }),
+            );
+            f.materials.extend(model.materials.iter().map(|mt| GpuMaterial {
+                base_color: mt.base_color,
+                texture: mt.texture.map_or(u32::MAX, |t| t + tex0),
+                alpha_cutoff: mt.alpha_cutoff.unwrap_or(-1.0),
+                double_sided: mt.double_sided as u32,
+                surface: (mt.surface == sylva_shared::model::Surface::Wood) as u32,
+            }));
+            for t in &model.textures {
+                f.textures.push(GpuTexture { offset: f.texels.len() as u32, width: t.width, height: t.height, pad: 0 });
+                f.texels.extend(t.rgba.chunks_exact(4).map(|p| u32::from_le_bytes([p[0], p[1], p[2], p[3]])));
+            }
+            f.models.push(GpuModel { root, lb_offset: 0, lb_n: 0, has_lb: 0, lb_origin: [0.0; 3], lb_cell: 0.0 });
+        }
+        for (i, inst) in scene.instances.iter().enumerate() {
+            let m = accel.to_model[i];
+            let c = [m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis];
+            let to_model = std::array::from_fn(|r| [c[0][r], c[1][r], c[2][r], m.translation[r]]);
+            f.instances.push(GpuInstance { to_model, model: inst.model, pad: [0; 3] });
+        }
+        Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)
+    }
+
+    fn create(ctx: &GpuContext, mut f: Flat, triangle_offsets: Vec<u32>, accel_kind: u32) -> anyhow::Result<Self> {
+        let device = &ctx.device;
+        // wgpu refuses empty bindings: give every array at least one element.
+        if f.textures.is_empty() {
+            f.textures.push(GpuTexture::zeroed());
+        }
+        if f.texels.is_empty() {
+            f.texels.push(0);
+        }
+        if f.prims.is_empty() {
+            f.prims.push(0);
+        }
+        let mut bytes = 0u64;
+        let mut buffer = |label: &str, contents: &[u8]| {
+            bytes += contents.len() as u64;
+            anyhow::ensure!(
+                contents.len() as u64 <= ctx.limits.max_storage_buffer_binding_size,
+                "scene {label} needs {} bytes, more than this GPU's {}-byte storage-binding limit",
+                contents.len(),
+                ctx.limits.max_storage_buffer_binding_size
+            );
+            Ok(device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE,
+            }))
+        };
+        let buffers = [
+            buffer("nodes", bytemuck::cast_slice(&f.nodes))?,
+            buffer("prims", bytemuck::cast_slice(&f.prims))?,
+            buffer("positions", bytemuck::cast_slice(&f.positions))?,
+            buffer("uvs", bytemuck::cast_slice(&f.uvs))?,
+            buffer("triangles", bytemuck::cast_slice(&f.triangles))?,
+            buffer("materials", bytemuck::cast_slice(&f.materials))?,
+            buffer("textures", bytemuck::cast_slice(&f.textures))?,
+            buffer("texels", bytemuck::cast_slice(&f.texels))?,
+            buffer("instances", bytemuck::cast_slice(&f.instances))?,
+            buffer("models", bytemuck::cast_slice(&f.models))?,
+        ];
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..buffers.len() as u32)
+            .map(|binding| wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Storage { read_only: true },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            })
+            .collect();
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("scene"), entries: &entries });
+        let bg_entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .collect();
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("scene"), layout: &layout, entries: &bg_entries });
+        Ok(Self { layout, bind_group, triangle_offsets, bytes, accel_kind })
+    }
+}

@@ -1,0 +1,11 @@
+//! The GPU ray tracer: the scene uploaded as flat buffers
+//! ([`GpuScene`]), the traversal kernel on its own ([`RayCaster`]) and the
+//! strip renderer. WGSL in `shaders/trace/`.
+
+mod gpu_scene;
+mod raycast;
+mod shaders;
+
+pub use gpu_scene::{GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle};
+pub use raycast::{GpuHit, GpuRay, RayCaster};
+pub use shaders::tracer_source;

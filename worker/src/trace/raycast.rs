@@ -1,0 +1,137 @@
+//! The traversal kernel on its own: a batch of rays in, closest hits out.
+
+use super::gpu_scene::GpuScene;
+use super::shaders::tracer_source;
+use crate::gpu::GpuContext;
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+/// A ray as `rays.wgsl` reads it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct GpuRay {
+    /// Origin.
+    pub origin: [f32; 3],
+    /// Hits must lie beyond this.
+    pub t_min: f32,
+    /// Direction.
+    pub dir: [f32; 3],
+    /// Hits must lie before this.
+    pub t_max: f32,
+}
+
+/// A hit as `rays.wgsl` writes it; `triangle == u32::MAX` for a miss.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct GpuHit {
+    /// Instance index.
+    pub instance: u32,
+    /// Global triangle index.
+    pub triangle: u32,
+    /// Ray parameter.
+    pub t: f32,
+    /// Barycentric u.
+    pub u: f32,
+    /// Barycentric v.
+    pub v: f32,
+    /// Padding.
+    pub pad: [u32; 3],
+}
+
+const SOURCE: &str = include_str!("../../../shaders/trace/rays.wgsl");
+const WORKGROUP: u32 = 64;
+
+/// The ray-casting pipeline for one scene upload.
+pub struct RayCaster {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl RayCaster {
+    /// Builds the pipeline for `scene` (its accel kind picks the traversal).
+    pub fn new(ctx: &GpuContext, scene: &GpuScene) -> anyhow::Result<Self> {
+        ctx.checked("building the ray-casting pipeline", || Ok(Self::build(ctx, scene)))
+    }
+
+    fn build(ctx: &GpuContext, scene: &GpuScene) -> Self {
+        let device = &ctx.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("rays"),
+            source: wgpu::ShaderSource::Wgsl(tracer_source(SOURCE).into()),
+        });
+        let entry = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("rays"),
+            entries: &[entry(0, true), entry(1, false)],
+        });
+        let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("rays"),
+            bind_group_layouts: &[Some(&scene.layout), Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("rays"),
+            layout: Some(&pl),
+            module: &module,
+            entry_point: Some("cast_rays"),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &[("ACCEL_KIND", scene.accel_kind as f64)],
+                ..Default::default()
+            },
+            cache: None,
+        });
+        Self { pipeline, layout }
+    }
+
+    /// Casts `rays` and returns their closest hits, in order.
+    pub fn cast(&self, ctx: &GpuContext, scene: &GpuScene, rays: &[GpuRay]) -> anyhow::Result<Vec<GpuHit>> {
+        if rays.is_empty() {
+            return Ok(Vec::new());
+        }
+        ctx.checked("casting rays", || {
+            let device = &ctx.device;
+            let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("rays in"),
+                contents: bytemuck::cast_slice(rays),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+            let bytes = (rays.len() * size_of::<GpuHit>()) as u64;
+            let output = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("hits out"),
+                size: bytes,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("rays"),
+                layout: &self.layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: input.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: output.as_entire_binding() },
+                ],
+            });
+            let groups = (rays.len() as u32).div_ceil(WORKGROUP);
+            let gx = groups.min(65_535);
+            let mut enc = device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &scene.bind_group, &[]);
+                pass.set_bind_group(1, &bg, &[]);
+                pass.dispatch_workgroups(gx, groups.div_ceil(gx), 1);
+            }
+            ctx.queue.submit([enc.finish()]);
+            let raw = ctx.read_back(&output, bytes)?;
+            Ok(bytemuck::cast_slice(&raw).to_vec())
+        })
+    }
+}
