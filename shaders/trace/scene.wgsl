@@ -42,10 +42,14 @@ struct Triangle {
 struct Instance {
     // World to model space, rows of a 3 × 4 affine matrix.
     to_model: array<vec4<f32>, 3>,
+    // Model space to where the model's LB grid is read: the instance's
+    // rotation, so the side facing the sun reads the grid's sunlit side.
+    to_lb: array<vec4<f32>, 3>,
     model: u32,
+    // Scale of the LB light at this instance (the coarse forest grid).
+    lb_scale: f32,
     pad0: u32,
     pad1: u32,
-    pad2: u32,
 }
 
 struct Model {
@@ -72,6 +76,8 @@ struct Model {
 @group(0) @binding(7) var<storage, read> texels: array<u32>;
 @group(0) @binding(8) var<storage, read> instances: array<Instance>;
 @group(0) @binding(9) var<storage, read> models: array<Model>;
+// LB total densities, per model: three channel planes of N³ values, x fastest.
+@group(0) @binding(10) var<storage, read> lb_data: array<f32>;
 
 struct Ray {
     origin: vec3<f32>,
@@ -201,11 +207,17 @@ fn to_model_vector(inst: Instance, v: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(dot(inst.to_model[0], h), dot(inst.to_model[1], h), dot(inst.to_model[2], h));
 }
 
+// Hits on transparent texels this invocation passed through (for statistics).
+var<private> transparent_passed: u32;
+
 // A triangle hit in (t_min, t_max), or no_hit().
 fn test_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> Hit {
     let h = intersect_triangle(ray, tri, t_min, t_max);
-    if h.x > t_min && !is_transparent(tri, triangle_uv(tri, h.y, h.z)) {
-        return Hit(NO_HIT, tri, h.x, h.y, h.z);
+    if h.x > t_min {
+        if !is_transparent(tri, triangle_uv(tri, h.y, h.z)) {
+            return Hit(NO_HIT, tri, h.x, h.y, h.z);
+        }
+        transparent_passed += 1u;
     }
     return no_hit();
 }

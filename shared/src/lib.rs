@@ -5,6 +5,7 @@
 pub mod accel;
 pub mod camera;
 pub mod color;
+pub mod film;
 pub mod lb;
 pub mod model;
 pub mod npy;

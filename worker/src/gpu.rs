@@ -5,7 +5,8 @@
 use anyhow::Context;
 use serde::Serialize;
 
-/// An open GPU device.
+/// An open GPU device (cheap to clone: wgpu's handles are shared).
+#[derive(Clone)]
 pub struct GpuContext {
     /// The adapter the device was opened on.
     pub adapter: wgpu::Adapter,

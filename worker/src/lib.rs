@@ -5,6 +5,7 @@
 
 pub mod gpu;
 pub mod lb;
+pub mod prepare;
 pub mod trace;
 
 pub use gpu::GpuContext;

@@ -3,6 +3,7 @@
 mod bench;
 mod lb;
 mod progress;
+mod render;
 mod scene;
 
 use clap::{Parser, Subcommand};
@@ -35,6 +36,8 @@ enum Command {
     /// Lattice-Boltzmann lighting: solve a model's light field, verify the solver.
     #[command(subcommand)]
     Lb(lb::LbCommand),
+    /// Render a scene to a PNG, in this process.
+    Render(render::RenderArgs),
     /// Scene files: the paper's forest.
     #[command(subcommand)]
     Scene(scene::SceneCommand),
@@ -49,5 +52,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Lb(c) => lb::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Scene(c) => scene::run(c),
+        Command::Render(a) => render::run(a),
     }
 }

@@ -53,10 +53,25 @@ pub struct GpuTriangle {
 pub struct GpuInstance {
     /// World to model space: rows of a 3 × 4 affine matrix.
     pub to_model: [[f32; 4]; 3],
+    /// Model space to the LB lookup frame: the instance's rotation (rows).
+    pub to_lb: [[f32; 4]; 3],
     /// Model index.
     pub model: u32,
+    /// Scale of the LB light at this instance.
+    pub lb_scale: f32,
     /// Padding.
-    pub pad: [u32; 3],
+    pub pad: [u32; 2],
+}
+
+/// A model's solved LB light, as the tracer samples it.
+#[derive(Clone, Debug)]
+pub struct LbGrid {
+    /// Grid size N.
+    pub n: usize,
+    /// Where the grid sits in model space.
+    pub frame: sylva_shared::voxel::GridFrame,
+    /// Total density per node: three channel planes of N³ values, x fastest.
+    pub rgb: Vec<f32>,
 }
 
 /// A model: its root node and LB grid.
@@ -104,6 +119,7 @@ struct Flat {
     texels: Vec<u32>,
     instances: Vec<GpuInstance>,
     models: Vec<GpuModel>,
+    lb: Vec<f32>,
 }
 
 impl Flat {
@@ -142,8 +158,9 @@ impl Flat {
 }
 
 impl GpuScene {
-    /// Uploads `scene` with its acceleration structures.
-    pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel) -> anyhow::Result<Self> {
+    /// Uploads `scene` with its acceleration structures and, per model, its
+    /// LB light if solved.
+    pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, lb: &[Option<LbGrid>]) -> anyhow::Result<Self> {
         let mut f = Flat::default();
         let top_root = f.push_accel(&accel.top, 0);
         debug_assert_eq!(top_root, if matches!(accel.top, Accel::Kd(_)) { 2 } else { 0 });
@@ -170,13 +187,24 @@ impl GpuScene {
                 f.textures.push(GpuTexture { offset: f.texels.len() as u32, width: t.width, height: t.height, pad: 0 });
                 f.texels.extend(t.rgba.chunks_exact(4).map(|p| u32::from_le_bytes([p[0], p[1], p[2], p[3]])));
             }
-            f.models.push(GpuModel { root, lb_offset: 0, lb_n: 0, has_lb: 0, lb_origin: [0.0; 3], lb_cell: 0.0 });
+            let mut gm = GpuModel { root, lb_offset: 0, lb_n: 0, has_lb: 0, lb_origin: [0.0; 3], lb_cell: 0.0 };
+            if let Some(Some(g)) = lb.get(m) {
+                anyhow::ensure!(g.n >= 2 && g.rgb.len() == 3 * g.n * g.n * g.n, "LB grid of model {} has the wrong size", sm.name);
+                gm = GpuModel { root, lb_offset: f.lb.len() as u32, lb_n: g.n as u32, has_lb: 1, lb_origin: g.frame.origin, lb_cell: g.frame.cell };
+                f.lb.extend_from_slice(&g.rgb);
+            }
+            f.models.push(gm);
         }
         for (i, inst) in scene.instances.iter().enumerate() {
             let m = accel.to_model[i];
             let c = [m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis];
             let to_model = std::array::from_fn(|r| [c[0][r], c[1][r], c[2][r], m.translation[r]]);
-            f.instances.push(GpuInstance { to_model, model: inst.model, pad: [0; 3] });
+            // The instance's own orientation, scale removed.
+            let w = inst.to_world.matrix3;
+            let scale = w.determinant().abs().cbrt().max(f32::MIN_POSITIVE);
+            let wc = [w.x_axis / scale, w.y_axis / scale, w.z_axis / scale];
+            let to_lb = std::array::from_fn(|r| [wc[0][r], wc[1][r], wc[2][r], 0.0]);
+            f.instances.push(GpuInstance { to_model, to_lb, model: inst.model, lb_scale: 1.0, pad: [0; 2] });
         }
         Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)
     }
@@ -192,6 +220,9 @@ impl GpuScene {
         }
         if f.prims.is_empty() {
             f.prims.push(0);
+        }
+        if f.lb.is_empty() {
+            f.lb.push(0.0);
         }
         let mut bytes = 0u64;
         let mut buffer = |label: &str, contents: &[u8]| {
@@ -219,6 +250,7 @@ impl GpuScene {
             buffer("texels", bytemuck::cast_slice(&f.texels))?,
             buffer("instances", bytemuck::cast_slice(&f.instances))?,
             buffer("models", bytemuck::cast_slice(&f.models))?,
+            buffer("lb", bytemuck::cast_slice(&f.lb))?,
         ];
         let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..buffers.len() as u32)
             .map(|binding| wgpu::BindGroupLayoutEntry {

@@ -4,8 +4,10 @@
 
 mod gpu_scene;
 mod raycast;
+mod render;
 mod shaders;
 
-pub use gpu_scene::{GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle};
+pub use gpu_scene::{GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, LbGrid};
 pub use raycast::{GpuHit, GpuRay, RayCaster};
+pub use render::{FrameSettings, FrameUniform, RayCounts, Strip, StripRenderer};
 pub use shaders::tracer_source;

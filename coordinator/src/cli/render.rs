@@ -1,0 +1,249 @@
+//! `sylva render SCENE -o out.png`: load, prepare and trace a scene in this
+//! process, tone-map the whole frame once and write the image and its stats.
+
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use sylva_shared::accel::AccelKind;
+use sylva_shared::film::{HdrImage, reinhard, write_png};
+use sylva_shared::scene::{LightingMode, Scene};
+use sylva_worker::GpuContext;
+use sylva_worker::prepare::prepare;
+use sylva_worker::trace::{FrameSettings, RayCounts};
+
+/// Largest image side a render accepts.
+pub const MAX_SIDE: u32 = 16_384;
+/// Most rays per pixel a render accepts.
+pub const MAX_SPP: u32 = 4_096;
+/// Columns per strip, for the progress bar.
+const STRIP: u32 = 64;
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum AccelArg {
+    /// kd-tree, short-stack traversal.
+    Kd,
+    /// Bounding-volume hierarchy.
+    Bvh,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum LightingArg {
+    /// Direct sun light only.
+    Local,
+    /// Direct light plus a constant ambient matched to the LB image.
+    Ambient,
+    /// Direct light plus LB indirect light.
+    Lb,
+    /// The LB light alone.
+    LbVisualize,
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Scene file (JSON); see `sylva scene forest` and docs/scene-format.md.
+    pub scene: PathBuf,
+    /// Output PNG; stats go beside it as NAME.stats.json.
+    #[arg(short, long, default_value = "sylva-out/render.png")]
+    pub out: PathBuf,
+    /// Image width.
+    #[arg(long, default_value_t = 896)]
+    pub width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 448)]
+    pub height: u32,
+    /// Rays per pixel.
+    #[arg(long, default_value_t = 1)]
+    pub spp: u32,
+    /// Acceleration structure.
+    #[arg(long, value_enum, default_value = "bvh")]
+    pub accel: AccelArg,
+    /// Lighting method; default the scene's.
+    #[arg(long, value_enum)]
+    pub lighting: Option<LightingArg>,
+    /// Seed of the per-pixel sample positions.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u32,
+    /// Weight of the LB light relative to the sun's.
+    #[arg(long, default_value_t = 0.35)]
+    pub lb_strength: f32,
+    /// Also write the linear HDR frame as OpenEXR beside the PNG.
+    #[arg(long)]
+    pub exr: bool,
+    /// Print the stats JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: RenderArgs) -> anyhow::Result<()> {
+    if a.width == 0 || a.height == 0 || a.width > MAX_SIDE || a.height > MAX_SIDE {
+        bail!("image {}×{}: each side must be in [1, {MAX_SIDE}]", a.width, a.height);
+    }
+    if a.spp == 0 || a.spp > MAX_SPP {
+        bail!("--spp {}: valid range [1, {MAX_SPP}]", a.spp);
+    }
+    if !(a.lb_strength.is_finite() && a.lb_strength >= 0.0) {
+        bail!("--lb-strength {}: must be a finite number ≥ 0", a.lb_strength);
+    }
+    let mut phases: Vec<(&str, f64)> = Vec::new();
+    let t = Instant::now();
+    let scene = Scene::load(&a.scene)?;
+    phases.push(("load", ms(t)));
+    let lighting = match a.lighting {
+        None => scene.lighting,
+        Some(LightingArg::Local) => LightingMode::Local,
+        Some(LightingArg::Ambient) => LightingMode::Ambient,
+        Some(LightingArg::Lb) => LightingMode::Lb,
+        Some(LightingArg::LbVisualize) => LightingMode::LbVisualize,
+    };
+    let accel = match a.accel {
+        AccelArg::Kd => AccelKind::Kd,
+        AccelArg::Bvh => AccelKind::Bvh,
+    };
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let ctx = GpuContext::new()?;
+    let prepared = prepare(&ctx, &scene, accel, lighting, &|m| bar.set_message(m.to_string()))?;
+    for p in &prepared.phases.0 {
+        phases.push((p.name, p.ms));
+    }
+    let mut settings = FrameSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        seed: a.seed,
+        lighting,
+        ambient: [0.0; 3],
+        lb_strength: a.lb_strength,
+    };
+    if lighting == LightingMode::Ambient {
+        bar.set_message("matching the ambient constant to the LB image");
+        let t = Instant::now();
+        settings.ambient = matched_ambient(&ctx, &prepared.renderer, &settings)?;
+        phases.push(("ambient match", ms(t)));
+    }
+    bar.finish_and_clear();
+
+    let strips = a.width.div_ceil(STRIP);
+    let bar = ProgressBar::new(strips as u64);
+    bar.set_style(ProgressStyle::with_template("tracing [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
+    let t = Instant::now();
+    let mut frame = HdrImage::new(a.width, a.height);
+    let mut coverage = vec![0.0f32; (a.width * a.height) as usize];
+    let mut rays = RayCounts::default();
+    for s in 0..strips {
+        let (x0, x1) = (s * STRIP, ((s + 1) * STRIP).min(a.width));
+        let strip = prepared.renderer.render_strip(&ctx, &settings, x0, x1)?;
+        frame.paste_strip(x0, strip.width, &strip.pixels);
+        for y in 0..a.height {
+            for x in 0..strip.width {
+                coverage[(y * a.width + x0 + x) as usize] = strip.coverage[(y * strip.width + x) as usize];
+            }
+        }
+        rays.add(&strip.rays);
+        bar.inc(1);
+    }
+    let trace_ms = ms(t);
+    phases.push(("trace", trace_ms));
+    bar.finish_and_clear();
+
+    let t = Instant::now();
+    let (ldr, tone) = reinhard(&frame, 0.18);
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    }
+    write_png(&a.out, a.width, a.height, &ldr)?;
+    phases.push(("tone map", ms(t)));
+    let exr = if a.exr {
+        let p = a.out.with_extension("exr");
+        frame.write_exr(&p)?;
+        Some(p)
+    } else {
+        None
+    };
+    let stats_path = stats_path(&a.out);
+    let stats = json!({
+        "scene": a.scene,
+        "image": a.out,
+        "exr": exr,
+        "width": a.width,
+        "height": a.height,
+        "spp": a.spp,
+        "accel": accel,
+        "lighting": lighting,
+        "adapter": ctx.summary(),
+        "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
+        "rays": {
+            "primary": rays.primary,
+            "shadow": rays.shadow,
+            "transparent_passed": rays.transparent,
+            "mrays_per_second": rays.traced() as f64 / (trace_ms / 1e3) / 1e6,
+        },
+        "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
+        "instances": scene.instances.len(),
+        "models": scene.models.len(),
+        "gpu_memory_bytes": { "scene": prepared.renderer.scene_bytes(), "acceleration_structures": prepared.accel_bytes },
+        "lb": prepared.light,
+        "ambient": settings.ambient,
+        "tone_map": tone,
+        "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
+    });
+    std::fs::write(&stats_path, serde_json::to_string_pretty(&stats)? + "\n").with_context(|| format!("{}: cannot write", stats_path.display()))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&stats)?);
+    } else {
+        println!(
+            "rendered {} ({}×{}, {} spp, {:?}, {:?}) in {:.0} ms of tracing, {:.2} Mrays/s; wrote {} and {}",
+            a.scene.display(),
+            a.width,
+            a.height,
+            a.spp,
+            accel,
+            lighting,
+            trace_ms,
+            rays.traced() as f64 / (trace_ms / 1e3) / 1e6,
+            a.out.display(),
+            stats_path.display()
+        );
+    }
+    Ok(())
+}
+
+/// `NAME.stats.json` beside `NAME.png`.
+pub fn stats_path(image: &Path) -> PathBuf {
+    let stem = image.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_else(|| "render".into());
+    image.with_file_name(format!("{stem}.stats.json"))
+}
+
+/// The constant ambient light whose mean over the models' pixels equals the
+/// LB light's (the paper's Figure 2c): the LB light alone, rendered at a
+/// quarter of the resolution, averaged over the pixels that see a model.
+fn matched_ambient(ctx: &GpuContext, r: &sylva_worker::trace::StripRenderer, f: &FrameSettings) -> anyhow::Result<[f32; 3]> {
+    let small = FrameSettings {
+        width: (f.width / 4).max(16),
+        height: (f.height / 4).max(8),
+        spp: 1,
+        lighting: LightingMode::LbVisualize,
+        ..*f
+    };
+    let s = r.render_strip(ctx, &small, 0, small.width)?;
+    let mut sum = [0.0f64; 3];
+    let mut weight = 0.0f64;
+    for (p, &c) in s.pixels.iter().zip(&s.coverage) {
+        for k in 0..3 {
+            sum[k] += p[k] as f64 * c as f64;
+        }
+        weight += c as f64;
+    }
+    if weight == 0.0 {
+        return Ok([0.0; 3]);
+    }
+    Ok(sum.map(|v| (v / weight) as f32))
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}

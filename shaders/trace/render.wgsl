@@ -1,0 +1,204 @@
+// Renders a vertical strip [x0, x0 + strip_width) of the frame: N jittered
+// primary rays per pixel, alpha-masked leaves passed through, direct sun
+// light with shadow rays, LB indirect light, a sky and a ground plane; the
+// box-filtered mean goes out as linear HDR. Dispatched by
+// worker/src/trace/render.rs; scene.wgsl comes first.
+
+struct Frame {
+    cam_position: vec3<f32>,
+    tan_half_fov_y: f32,
+    cam_forward: vec3<f32>,
+    aspect: f32,
+    cam_right: vec3<f32>,
+    width: u32,
+    cam_up: vec3<f32>,
+    height: u32,
+    sun_towards: vec3<f32>,
+    x0: u32,
+    sun_radiance: vec3<f32>,
+    strip_width: u32,
+    sky_zenith: vec3<f32>,
+    spp: u32,
+    sky_horizon: vec3<f32>,
+    seed: u32,
+    ground_color: vec3<f32>,
+    has_ground: u32,
+    // Constant indirect light for the `ambient` method.
+    ambient: vec3<f32>,
+    // 0 local, 1 ambient, 2 lb, 3 lb-visualize.
+    lighting: u32,
+    // LB total density of unobstructed sunlight: LB values are divided by it.
+    lb_free: f32,
+    // How much of the sun's light the LB term adds where nothing blocks it.
+    lb_strength: f32,
+    // Offset that keeps secondary rays off the surface they leave.
+    epsilon: f32,
+    pad: u32,
+}
+
+// Rays traced, by kind: primary, shadow, transparent texels passed.
+struct Counters {
+    primary: atomic<u32>,
+    shadow: atomic<u32>,
+    transparent: atomic<u32>,
+    pad: u32,
+}
+
+@group(1) @binding(0) var<uniform> frame: Frame;
+@group(1) @binding(1) var<storage, read_write> out_pixels: array<vec4<f32>>;
+@group(1) @binding(2) var<storage, read_write> counters: Counters;
+
+const LIGHTING_LOCAL: u32 = 0u;
+const LIGHTING_AMBIENT: u32 = 1u;
+const LIGHTING_LB: u32 = 2u;
+const LIGHTING_LB_VISUALIZE: u32 = 3u;
+const SPECULAR_EXPONENT: f32 = 24.0;
+
+// PCG hash (Jarzynski & Olano 2020); shared/src/sampler.rs mirrors it.
+fn pcg(v: u32) -> u32 {
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// The random numbers of sample `s` of pixel (x, y): a hash of the pixel,
+// the sample and the frame seed, never of the thread or strip, so a frame
+// is the same however it is split.
+fn sample_2d(x: u32, y: u32, s: u32, seed: u32) -> vec2<f32> {
+    let h = pcg(x ^ pcg(y ^ pcg(s ^ pcg(seed))));
+    let h2 = pcg(h);
+    return vec2<f32>(f32(h >> 8u), f32(h2 >> 8u)) / 16777216.0;
+}
+
+fn sky(dir: vec3<f32>) -> vec3<f32> {
+    return mix(frame.sky_horizon, frame.sky_zenith, sqrt(max(dir.y, 0.0)));
+}
+
+// Whether the sun is hidden from `p`.
+fn in_shadow(p: vec3<f32>) -> bool {
+    let h = closest_hit(make_ray(p, frame.sun_towards), frame.epsilon, 3.0e38);
+    return h.triangle != NO_HIT;
+}
+
+// LB total density at a model-space point of an instance, trilinear,
+// normalized by free-space sunlight; zero where the model has no grid.
+fn lb_light(inst: Instance, p_model: vec3<f32>) -> vec3<f32> {
+    let m = models[inst.model];
+    if m.has_lb == 0u {
+        return vec3<f32>(0.0);
+    }
+    let p = vec3<f32>(dot(inst.to_lb[0].xyz, p_model), dot(inst.to_lb[1].xyz, p_model), dot(inst.to_lb[2].xyz, p_model));
+    let n = m.lb_n;
+    // Node centres sit at origin + (i + 0.5) · cell.
+    let g = clamp((p - m.lb_origin) / m.lb_cell - 0.5, vec3<f32>(0.0), vec3<f32>(f32(n - 1u)));
+    let i0 = vec3<u32>(min(floor(g), vec3<f32>(f32(n - 2u))));
+    let f = g - vec3<f32>(i0);
+    let plane = n * n * n;
+    var rgb = vec3<f32>(0.0);
+    for (var c = 0u; c < 3u; c++) {
+        let base = m.lb_offset + c * plane;
+        var acc = 0.0;
+        for (var k = 0u; k < 8u; k++) {
+            let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, (k >> 2u) & 1u);
+            let q = i0 + d;
+            let w = select(1.0 - f.x, f.x, d.x == 1u) * select(1.0 - f.y, f.y, d.y == 1u) * select(1.0 - f.z, f.z, d.z == 1u);
+            acc += w * lb_data[base + q.x + n * (q.y + n * q.z)];
+        }
+        rgb[c] = acc;
+    }
+    return rgb * inst.lb_scale / frame.lb_free;
+}
+
+// Radiance along one primary ray; alpha is 1 where it hit a model.
+fn radiance(ray: Ray) -> vec4<f32> {
+    let hit = closest_hit(ray, 0.0, 3.0e38);
+    var ground_t = 3.0e38;
+    if frame.has_ground == 1u && ray.dir.y < 0.0 {
+        ground_t = -ray.origin.y / ray.dir.y;
+    }
+    if hit.triangle == NO_HIT || ground_t < hit.t {
+        if ground_t < 3.0e38 {
+            let p = ray.origin + ray.dir * ground_t;
+            var direct = vec3<f32>(0.0);
+            if frame.sun_towards.y > 0.0 && frame.lighting != LIGHTING_LB_VISUALIZE {
+                atomicAdd(&counters.shadow, 1u);
+                if !in_shadow(p + vec3<f32>(0.0, frame.epsilon, 0.0)) {
+                    direct = frame.sun_radiance * frame.sun_towards.y;
+                }
+            }
+            // The ground sees half the sky.
+            return vec4<f32>(frame.ground_color * (direct + 0.5 * (frame.sky_zenith + frame.sky_horizon) * 0.5), 0.0);
+        }
+        return vec4<f32>(sky(ray.dir), 0.0);
+    }
+    let inst = instances[hit.instance];
+    let tri = triangles[hit.triangle];
+    let mat = materials[tri.material];
+    var albedo = mat.base_color.rgb;
+    if mat.texture != NO_TEXTURE {
+        let t = texel(textures[mat.texture], triangle_uv(hit.triangle, hit.u, hit.v));
+        albedo *= vec3<f32>(srgb_to_linear(t.r), srgb_to_linear(t.g), srgb_to_linear(t.b));
+    }
+    // Geometric normal to world space by the inverse transpose, facing the viewer.
+    let a = position(tri.v.x);
+    let n_model = cross(position(tri.v.y) - a, position(tri.v.z) - a);
+    let tm = inst.to_model;
+    var n = normalize(vec3<f32>(
+        tm[0].x * n_model.x + tm[1].x * n_model.y + tm[2].x * n_model.z,
+        tm[0].y * n_model.x + tm[1].y * n_model.y + tm[2].y * n_model.z,
+        tm[0].z * n_model.x + tm[1].z * n_model.y + tm[2].z * n_model.z,
+    ));
+    if dot(n, ray.dir) > 0.0 {
+        n = -n;
+    }
+    let p = ray.origin + ray.dir * hit.t;
+    let p_model = to_model_point(inst, p);
+    if frame.lighting == LIGHTING_LB_VISUALIZE {
+        return vec4<f32>(lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance, 1.0);
+    }
+    var color = vec3<f32>(0.0);
+    let n_dot_l = dot(n, frame.sun_towards);
+    if n_dot_l > 0.0 {
+        atomicAdd(&counters.shadow, 1u);
+        if !in_shadow(p + n * frame.epsilon) {
+            let r = reflect(-frame.sun_towards, n);
+            let ks = select(0.12, 0.04, mat.surface == 1u);
+            let spec = ks * pow(max(dot(-ray.dir, r), 0.0), SPECULAR_EXPONENT);
+            color += frame.sun_radiance * (albedo * n_dot_l + vec3<f32>(spec));
+        }
+    }
+    if frame.lighting == LIGHTING_LB {
+        color += albedo * lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance;
+    } else if frame.lighting == LIGHTING_AMBIENT {
+        color += albedo * frame.ambient;
+    }
+    return vec4<f32>(color, 1.0);
+}
+
+@compute @workgroup_size(8, 8)
+fn render_strip(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= frame.strip_width || gid.y >= frame.height {
+        return;
+    }
+    let x = frame.x0 + gid.x;
+    let y = gid.y;
+    var sum = vec4<f32>(0.0);
+    for (var s = 0u; s < frame.spp; s++) {
+        // One sample at the pixel centre, the rest jittered over the pixel.
+        var j = vec2<f32>(0.5, 0.5);
+        if frame.spp > 1u {
+            j = sample_2d(x, y, s, frame.seed);
+        }
+        let px = f32(x) + j.x;
+        let py = f32(y) + j.y;
+        let sx = (2.0 * px / f32(frame.width) - 1.0) * frame.tan_half_fov_y * frame.aspect;
+        let sy = (1.0 - 2.0 * py / f32(frame.height)) * frame.tan_half_fov_y;
+        let dir = normalize(frame.cam_forward + frame.cam_right * sx + frame.cam_up * sy);
+        transparent_passed = 0u;
+        sum += radiance(make_ray(frame.cam_position, dir));
+        atomicAdd(&counters.transparent, transparent_passed);
+    }
+    atomicAdd(&counters.primary, frame.spp);
+    // Box filter: the mean of the samples; alpha is the fraction that hit a model.
+    out_pixels[gid.x + gid.y * frame.strip_width] = sum / f32(frame.spp);
+}

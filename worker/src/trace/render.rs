@@ -1,0 +1,258 @@
+//! The strip renderer: one compute dispatch renders columns `[x0, x1)` of
+//! the frame and reads them back as linear HDR.
+
+use super::gpu_scene::GpuScene;
+use super::shaders::tracer_source;
+use crate::gpu::GpuContext;
+use bytemuck::{Pod, Zeroable};
+use serde::Serialize;
+use sylva_shared::scene::{LightingMode, Scene};
+use wgpu::util::DeviceExt;
+
+const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
+
+/// The per-frame uniform `render.wgsl` reads as `Frame`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct FrameUniform {
+    pub cam_position: [f32; 3],
+    pub tan_half_fov_y: f32,
+    pub cam_forward: [f32; 3],
+    pub aspect: f32,
+    pub cam_right: [f32; 3],
+    pub width: u32,
+    pub cam_up: [f32; 3],
+    pub height: u32,
+    pub sun_towards: [f32; 3],
+    pub x0: u32,
+    pub sun_radiance: [f32; 3],
+    pub strip_width: u32,
+    pub sky_zenith: [f32; 3],
+    pub spp: u32,
+    pub sky_horizon: [f32; 3],
+    pub seed: u32,
+    pub ground_color: [f32; 3],
+    pub has_ground: u32,
+    pub ambient: [f32; 3],
+    pub lighting: u32,
+    pub lb_free: f32,
+    pub lb_strength: f32,
+    pub epsilon: f32,
+    pub pad: u32,
+}
+
+/// What a frame is rendered with.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FrameSettings {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Rays per pixel.
+    pub spp: u32,
+    /// Seed of the per-pixel sample hash.
+    pub seed: u32,
+    /// Lighting method.
+    pub lighting: LightingMode,
+    /// Constant indirect light of the `ambient` method, linear RGB.
+    pub ambient: [f32; 3],
+    /// Weight of LB light relative to the sun's.
+    pub lb_strength: f32,
+}
+
+/// Rays traced, by kind.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Pod, Zeroable)]
+#[repr(C)]
+pub struct RayCounts {
+    /// Camera rays.
+    pub primary: u32,
+    /// Rays towards the sun.
+    pub shadow: u32,
+    /// Transparent texels a ray passed through and went on.
+    pub transparent: u32,
+    #[serde(skip)]
+    pad: u32,
+}
+
+impl RayCounts {
+    /// Primary plus shadow rays.
+    pub fn traced(&self) -> u64 {
+        self.primary as u64 + self.shadow as u64
+    }
+
+    /// Adds another strip's counts.
+    pub fn add(&mut self, o: &RayCounts) {
+        self.primary += o.primary;
+        self.shadow += o.shadow;
+        self.transparent += o.transparent;
+    }
+}
+
+/// A rendered strip.
+#[derive(Clone, Debug)]
+pub struct Strip {
+    /// First column.
+    pub x0: u32,
+    /// Columns.
+    pub width: u32,
+    /// Linear RGB, `width × height`, rows from the top.
+    pub pixels: Vec<[f32; 3]>,
+    /// Per pixel, the fraction of its samples that hit a model (not sky or ground).
+    pub coverage: Vec<f32>,
+    /// Rays traced.
+    pub rays: RayCounts,
+}
+
+/// The render pipeline over one uploaded scene.
+pub struct StripRenderer {
+    scene: GpuScene,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    base: FrameUniform,
+}
+
+impl StripRenderer {
+    /// Builds the pipeline for an uploaded scene.
+    pub fn new(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> anyhow::Result<Self> {
+        ctx.checked("building the render pipeline", || Ok(Self::build(ctx, gpu_scene, scene)))
+    }
+
+    fn build(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> Self {
+        let device = &ctx.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("render"),
+            source: wgpu::ShaderSource::Wgsl(tracer_source(SOURCE).into()),
+        });
+        let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("frame"),
+            entries: &[
+                entry(0, wgpu::BufferBindingType::Uniform),
+                entry(1, wgpu::BufferBindingType::Storage { read_only: false }),
+                entry(2, wgpu::BufferBindingType::Storage { read_only: false }),
+            ],
+        });
+        let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("render"),
+            bind_group_layouts: &[Some(&gpu_scene.layout), Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("render"),
+            layout: Some(&pl),
+            module: &module,
+            entry_point: Some("render_strip"),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &[("ACCEL_KIND", gpu_scene.accel_kind as f64)],
+                ..Default::default()
+            },
+            cache: None,
+        });
+        let c = &scene.camera;
+        let sun = sylva_shared::lb::Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0).expect("scene checked the sun");
+        let base = FrameUniform {
+            cam_position: c.position.to_array(),
+            tan_half_fov_y: c.tan_half_fov_y,
+            cam_forward: c.forward.to_array(),
+            cam_right: c.right.to_array(),
+            cam_up: c.up.to_array(),
+            sun_towards: scene.sun.towards.to_array(),
+            sun_radiance: scene.sun.radiance,
+            sky_zenith: scene.sky.zenith,
+            sky_horizon: scene.sky.horizon,
+            ground_color: scene.ground.as_ref().map_or([0.0; 3], |g| g.color),
+            has_ground: scene.ground.is_some() as u32,
+            lb_free: sun.boundary().values.iter().sum(),
+            epsilon: 1e-3 * scene_extent(scene).max(1.0),
+            ..FrameUniform::zeroed()
+        };
+        Self { scene: gpu_scene, pipeline, layout, base }
+    }
+
+    /// Bytes of scene data on the GPU.
+    pub fn scene_bytes(&self) -> u64 {
+        self.scene.bytes
+    }
+
+    /// Renders columns `[x0, x1)` of the frame.
+    pub fn render_strip(&self, ctx: &GpuContext, f: &FrameSettings, x0: u32, x1: u32) -> anyhow::Result<Strip> {
+        anyhow::ensure!(x0 < x1 && x1 <= f.width, "strip [{x0}, {x1}) is not inside a frame {} wide", f.width);
+        let strip_width = x1 - x0;
+        ctx.checked("rendering a strip", || {
+            let device = &ctx.device;
+            let uniform = FrameUniform {
+                aspect: f.width as f32 / f.height as f32,
+                width: f.width,
+                height: f.height,
+                x0,
+                strip_width,
+                spp: f.spp,
+                seed: f.seed,
+                ambient: f.ambient,
+                lighting: match f.lighting {
+                    LightingMode::Local => 0,
+                    LightingMode::Ambient => 1,
+                    LightingMode::Lb => 2,
+                    LightingMode::LbVisualize => 3,
+                },
+                lb_strength: f.lb_strength,
+                ..self.base
+            };
+            let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("frame"),
+                contents: bytemuck::bytes_of(&uniform),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
+            let bytes = strip_width as u64 * f.height as u64 * 16;
+            let out = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("strip"),
+                size: bytes,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            let counters = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("ray counters"),
+                contents: bytemuck::bytes_of(&RayCounts::default()),
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            });
+            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("frame"),
+                layout: &self.layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: ubuf.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: counters.as_entire_binding() },
+                ],
+            });
+            let mut enc = device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &self.scene.bind_group, &[]);
+                pass.set_bind_group(1, &bg, &[]);
+                pass.dispatch_workgroups(strip_width.div_ceil(8), f.height.div_ceil(8), 1);
+            }
+            ctx.queue.submit([enc.finish()]);
+            let raw = ctx.read_back(&out, bytes)?;
+            let px: &[[f32; 4]] = bytemuck::cast_slice(&raw);
+            let rays: RayCounts = *bytemuck::from_bytes(&ctx.read_back(&counters, size_of::<RayCounts>() as u64)?);
+            Ok(Strip {
+                x0,
+                width: strip_width,
+                pixels: px.iter().map(|p| [p[0], p[1], p[2]]).collect(),
+                coverage: px.iter().map(|p| p[3]).collect(),
+                rays,
+            })
+        })
+    }
+}
+
+/// The largest extent of the instances' placements, to size ray offsets.
+fn scene_extent(scene: &Scene) -> f32 {
+    scene.instances.iter().map(|i| i.to_world.translation.abs().max_element()).fold(0.0, f32::max) * 1e-2
+}
