@@ -83,6 +83,17 @@ impl GpuContext {
         out
     }
 
+    /// Compiles WGSL without the bounds checks, loop counters and division
+    /// checks wgpu would add: they cost the LB step and the traversal
+    /// kernels dearly on lavapipe, and these kernels only index the buffers
+    /// their own Rust side sizes (the GPU-against-CPU tests cover them).
+    pub fn trusted_module(&self, label: &str, source: String) -> wgpu::ShaderModule {
+        let desc = wgpu::ShaderModuleDescriptor { label: Some(label), source: wgpu::ShaderSource::Wgsl(source.into()) };
+        // SAFETY: see above; every buffer a kernel indexes is sized by the
+        // code that dispatches it, and all loops are bounded by data we build.
+        unsafe { self.device.create_shader_module_trusted(desc, wgpu::ShaderRuntimeChecks::unchecked()) }
+    }
+
     /// Waits for all submitted work.
     pub fn wait(&self) -> anyhow::Result<()> {
         self.device.poll(wgpu::PollType::wait_indefinitely()).context("GPU device lost while waiting")?;

@@ -17,6 +17,8 @@ use sylva_shared::{shapes, voxel};
 pub enum BenchCommand {
     /// The LB solve on the CPU reference and on the GPU, in one run.
     Lb(LbBenchArgs),
+    /// Ray traversal (kd-tree and BVH, GPU and CPU) and frame time on the forest.
+    Trace(TraceBenchArgs),
 }
 
 /// What the benchmark solves.
@@ -51,6 +53,7 @@ pub struct LbBenchArgs {
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Lb(a) => bench_lb(a),
+        BenchCommand::Trace(a) => bench_trace(a),
     }
 }
 
@@ -146,4 +149,116 @@ fn machine() -> serde_json::Value {
         "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
         "os": std::env::consts::OS,
     })
+}
+
+#[derive(Debug, Args)]
+pub struct TraceBenchArgs {
+    /// Forest scale (instance count multiplier of the paper's Table 2).
+    #[arg(long, default_value_t = 0.05)]
+    pub scale: f64,
+    /// Triangle count multiplier per tree.
+    #[arg(long, default_value_t = 1.0)]
+    pub triangle_scale: f64,
+    /// Frame width.
+    #[arg(long, default_value_t = 896)]
+    pub width: u32,
+    /// Frame height.
+    #[arg(long, default_value_t = 448)]
+    pub height: u32,
+    /// Skip the CPU traversal (slow on big scenes).
+    #[arg(long)]
+    pub no_cpu: bool,
+    /// Print JSON (always JSON; accepted for scripts).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Traversal and frame-time benchmark on the forest: Mrays/s of kd-tree
+/// against BVH, GPU against CPU, on the same primary rays, then whole frames
+/// at 1 and 4 rays per pixel.
+fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
+    use sylva_shared::accel::{AccelKind, Ray, SceneAccel};
+    use sylva_shared::scene::forest::{ForestOptions, forest};
+    use sylva_shared::scene::{LightingMode, Scene};
+    use sylva_worker::GpuContext;
+    use sylva_worker::prepare::prepare;
+    use sylva_worker::trace::{FrameSettings, GpuRay, GpuScene, RayCaster};
+    use rayon::prelude::*;
+
+    let file = forest(&ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: 1 }).map_err(anyhow::Error::msg)?;
+    let t = Instant::now();
+    let scene = Scene::build(file, std::path::Path::new("."), "forest")?;
+    let generate_ms = t.elapsed().as_secs_f64() * 1e3;
+    let cam = scene.camera;
+    let rays: Vec<Ray> = (0..a.height)
+        .flat_map(|y| (0..a.width).map(move |x| (x, y)))
+        .map(|(x, y)| Ray::new(cam.position, cam.direction(x as f32 + 0.5, y as f32 + 0.5, a.width, a.height)))
+        .collect();
+    let gpu_rays: Vec<GpuRay> =
+        rays.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 0.0, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
+    let ctx = GpuContext::new()?;
+    let mut traversal = Vec::new();
+    for kind in [AccelKind::Kd, AccelKind::Bvh] {
+        let t = Instant::now();
+        let accel = SceneAccel::build(&scene, kind);
+        let build_ms = t.elapsed().as_secs_f64() * 1e3;
+        let cpu = if a.no_cpu {
+            serde_json::Value::Null
+        } else {
+            let t = Instant::now();
+            let hits = rays.par_iter().filter(|r| accel.closest(&scene, r, 0.0, f32::MAX).is_some()).count();
+            let s = t.elapsed().as_secs_f64();
+            json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": rayon::current_num_threads() })
+        };
+        let gpu_scene = GpuScene::upload(&ctx, &scene, &accel, &[])?;
+        let caster = RayCaster::new(&ctx, &gpu_scene)?;
+        caster.cast(&ctx, &gpu_scene, &gpu_rays[..gpu_rays.len().min(4096)])?; // warm-up: lavapipe compiles on first dispatch
+        let t = Instant::now();
+        let hits = caster.cast(&ctx, &gpu_scene, &gpu_rays)?;
+        let s = t.elapsed().as_secs_f64();
+        let gpu_hits = hits.iter().filter(|h| h.triangle != u32::MAX).count();
+        traversal.push(json!({
+            "accel": kind,
+            "build_ms": build_ms,
+            "bytes": accel.bytes(),
+            "cpu": cpu,
+            "gpu": { "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": gpu_hits },
+        }));
+    }
+    let mut frames = Vec::new();
+    for kind in [AccelKind::Kd, AccelKind::Bvh] {
+        let prepared = prepare(&ctx, &scene, kind, LightingMode::Lb, &|_| {})?;
+        for spp in [1u32, 4] {
+            let f = FrameSettings { width: a.width, height: a.height, spp, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
+            prepared.renderer.render_strip(&ctx, &FrameSettings { width: 64, height: 32, ..f }, 0, 64)?; // warm-up
+            let t = Instant::now();
+            let strip = prepared.renderer.render_strip(&ctx, &f, 0, a.width)?;
+            let s = t.elapsed().as_secs_f64();
+            frames.push(json!({
+                "accel": kind,
+                "spp": spp,
+                "frame_ms": s * 1e3,
+                "rays": strip.rays,
+                "mrays_per_second": strip.rays.traced() as f64 / s / 1e6,
+                "prepare_ms": prepared.phases,
+            }));
+        }
+    }
+    let out = json!({
+        "benchmark": "trace",
+        "scene": { "scale": a.scale, "triangle_scale": a.triangle_scale, "instances": scene.instances.len(),
+                   "triangles_unique": scene.unique_triangles(), "triangles_instanced": scene.instanced_triangles(),
+                   "generate_ms": generate_ms },
+        "image": [a.width, a.height],
+        "adapter": ctx.summary(),
+        "machine": machine(),
+        "traversal": traversal,
+        "frames": frames,
+        "figures": {
+            "traversal": "closest hits of one primary ray per pixel, the same rays for every structure and machine; GPU time includes upload of the rays and read-back of the hits",
+            "frames": "a whole frame rendered as one strip with LB lighting: primary and shadow rays, shading, read-back; after a warm-up dispatch",
+        },
+    });
+    println!("{}", serde_json::to_string_pretty(&out)?);
+    Ok(())
 }

@@ -135,10 +135,7 @@ impl GpuSolver {
     fn build(&self, layout: &StateLayout, source: &str, medium: &MediumGrid, boundary: &Boundary) -> anyhow::Result<Kernels> {
         let device = &self.ctx.device;
         let n = layout.dims.len();
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("lb step"),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
+        let module = self.ctx.trusted_module("lb step", source.to_string());
         let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,

@@ -55,10 +55,7 @@ impl RayCaster {
 
     fn build(ctx: &GpuContext, scene: &GpuScene) -> Self {
         let device = &ctx.device;
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("rays"),
-            source: wgpu::ShaderSource::Wgsl(tracer_source(SOURCE).into()),
-        });
+        let module = ctx.trusted_module("rays", tracer_source(SOURCE));
         let entry = |binding, read_only| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,

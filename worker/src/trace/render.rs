@@ -119,10 +119,7 @@ impl StripRenderer {
 
     fn build(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> Self {
         let device = &ctx.device;
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("render"),
-            source: wgpu::ShaderSource::Wgsl(tracer_source(SOURCE).into()),
-        });
+        let module = ctx.trusted_module("render", tracer_source(SOURCE));
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
