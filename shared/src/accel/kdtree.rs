@@ -42,7 +42,9 @@ pub struct KdTree {
 pub const SHORT_STACK: usize = 5;
 const BINS: usize = 32;
 const TRAVERSAL_COST: f32 = 1.0;
-const INTERSECT_COST: f32 = 1.5;
+const INTERSECT_COST: f32 = 1.0;
+/// Nodes with this many primitives or fewer become leaves.
+const LEAF_PRIMS: usize = 4;
 const EMPTY_BONUS: f32 = 0.2;
 
 impl KdTree {
@@ -61,13 +63,13 @@ impl KdTree {
         self.nodes.push(KdNode::zeroed());
         let n = prims.len();
         let leaf_cost = INTERSECT_COST * n as f32;
-        let split = if n <= 1 || max_depth == 0 { None } else { best_plane(&prims, bounds, &node_box) };
+        let split = if n <= LEAF_PRIMS || max_depth == 0 { None } else { best_plane(&prims, bounds, &node_box) };
         let Some((cost, axis, split)) = split else {
             return self.make_leaf(index, &prims);
         };
         // Allow a few splits that do not pay off, as pbrt does, before giving up.
         let bad = bad_refines + (cost > leaf_cost) as u32;
-        if (cost > 4.0 * leaf_cost && n < 16) || bad >= 3 {
+        if (cost > 4.0 * leaf_cost && n < 16) || bad >= 1 {
             return self.make_leaf(index, &prims);
         }
         let (mut below, mut above) = (Vec::new(), Vec::new());
