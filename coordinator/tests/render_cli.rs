@@ -1,0 +1,148 @@
+//! `sylva scene` and `sylva render` as a user runs them: real processes,
+//! real files, the real GPU adapter (lavapipe in CI).
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn sylva(args: &[&str]) -> Output {
+    let runtime = std::env::temp_dir().join("sylva-xdg");
+    std::fs::create_dir_all(&runtime).unwrap();
+    Command::new(env!("CARGO_BIN_EXE_sylva")).args(args).env("XDG_RUNTIME_DIR", runtime).output().expect("sylva runs")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = sylva(args);
+    assert!(out.status.success(), "sylva {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn fails(args: &[&str]) -> String {
+    let out = sylva(args);
+    assert!(!out.status.success(), "sylva {args:?} should fail");
+    String::from_utf8(out.stderr).unwrap()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("sylva-render-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn png_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    assert_eq!(&b[1..4], b"PNG");
+    (u32::from_be_bytes(b[16..20].try_into().unwrap()), u32::from_be_bytes(b[20..24].try_into().unwrap()))
+}
+
+fn small_forest(dir: &Path) -> PathBuf {
+    let scene = dir.join("forest.json");
+    let v: Value = serde_json::from_str(&ok(&[
+        "scene", "forest", "--scale", "0.01", "--triangle-scale", "0.01", "-o", scene.to_str().unwrap(), "--json",
+    ]))
+    .unwrap();
+    assert_eq!(v["instances"], 11);
+    scene
+}
+
+#[test]
+fn the_forest_scene_has_the_papers_counts_at_scale_one() {
+    let dir = scratch("table2");
+    let scene = dir.join("forest.json");
+    let v: Value = serde_json::from_str(&ok(&["scene", "forest", "--scale", "1", "-o", scene.to_str().unwrap(), "--json"])).unwrap();
+    assert_eq!(v["instances"], 962);
+    assert_eq!(v["triangles_instanced"], 273_376_528u64);
+    let species: Vec<(String, u64, u64)> = v["species"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["species"].as_str().unwrap().to_string(), s["instances"].as_u64().unwrap(), s["triangles_per_instance"].as_u64().unwrap()))
+        .collect();
+    assert_eq!(species[0], ("red_maple".into(), 12, 115_529));
+    assert_eq!(species[4], ("american_beech".into(), 168, 496_719));
+}
+
+#[test]
+fn render_writes_image_and_stats() {
+    let dir = scratch("render");
+    let scene = small_forest(&dir);
+    let out = dir.join("frame.png");
+    let stats: Value = serde_json::from_str(&ok(&[
+        "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "96", "--height", "48", "--spp", "2", "--exr",
+        "--json",
+    ]))
+    .unwrap();
+    assert_eq!(png_size(&out), (96, 48));
+    assert!(dir.join("frame.exr").exists());
+    let on_disk: Value = serde_json::from_slice(&std::fs::read(dir.join("frame.stats.json")).unwrap()).unwrap();
+    assert_eq!(on_disk, stats);
+    assert_eq!(stats["rays"]["primary"], 96 * 48 * 2);
+    assert!(stats["rays"]["shadow"].as_u64().unwrap() > 0);
+    assert!(stats["rays"]["mrays_per_second"].as_f64().unwrap() > 0.0);
+    assert_eq!(stats["instances"], 11);
+    assert!(stats["triangles"]["instanced"].as_u64().unwrap() > stats["triangles"]["unique"].as_u64().unwrap());
+    let phases: Vec<&str> = stats["phases_ms"].as_array().unwrap().iter().map(|p| p["phase"].as_str().unwrap()).collect();
+    assert_eq!(phases, ["load", "build", "voxelize", "lb", "upload", "trace", "tone map"]);
+    assert_eq!(stats["lb"].as_array().unwrap().len(), 5);
+    assert!(stats["gpu_memory_bytes"]["scene"].as_u64().unwrap() > 0);
+}
+
+#[test]
+fn every_lighting_method_and_structure_renders() {
+    let dir = scratch("methods");
+    let scene = small_forest(&dir);
+    let mut means = Vec::new();
+    for (lighting, accel) in [("local", "kd"), ("ambient", "bvh"), ("lb", "kd"), ("lb-visualize", "bvh")] {
+        let out = dir.join(format!("{lighting}.png"));
+        let stats: Value = serde_json::from_str(&ok(&[
+            "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "64", "--height", "32", "--lighting", lighting,
+            "--accel", accel, "--json",
+        ]))
+        .unwrap();
+        assert_eq!(stats["lighting"], lighting);
+        assert_eq!(stats["accel"], accel);
+        if lighting == "local" {
+            assert!(stats["lb"].as_array().unwrap().is_empty(), "local lighting needs no LB solve");
+        }
+        if lighting == "ambient" {
+            assert!(stats["ambient"].as_array().unwrap().iter().all(|c| c.as_f64().unwrap() > 0.0), "{}", stats["ambient"]);
+        }
+        means.push(stats["tone_map"]["log_average"].as_f64().unwrap());
+    }
+    // Indirect light brightens the frame compared with direct light alone.
+    assert!(means[2] > means[0], "lb {} vs local {}", means[2], means[0]);
+}
+
+#[test]
+fn bad_render_requests_get_clear_errors() {
+    let dir = scratch("bad");
+    let scene = small_forest(&dir);
+    let s = scene.to_str().unwrap();
+    assert!(fails(&["render", s, "--spp", "5000"]).contains("--spp 5000: valid range [1, 4096]"));
+    assert!(fails(&["render", s, "--width", "20000"]).contains("each side must be in [1, 16384]"));
+    assert!(fails(&["render", "/nonexistent/scene.json"]).contains("/nonexistent/scene.json: (file): cannot read"));
+    let text = std::fs::read_to_string(&scene).unwrap();
+    let broken = dir.join("broken.json");
+    std::fs::write(&broken, text.replacen("\"camera\"", "\"kamera\"", 1)).unwrap();
+    let err = fails(&["render", broken.to_str().unwrap()]);
+    assert!(err.contains("broken.json: kamera: unknown field `kamera`"), "{err}");
+    std::fs::write(&broken, text.replacen("\"scale\":", "\"scale\": -1, \"x\":", 1)).unwrap();
+    assert!(fails(&["render", broken.to_str().unwrap()]).contains("broken.json"));
+    let missing = dir.join("missing.json");
+    std::fs::write(&missing, text.replacen("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {", 1)).unwrap();
+    assert!(fails(&["render", missing.to_str().unwrap()]).contains("give exactly one of"));
+}
+
+#[test]
+fn the_fern_example_renders() {
+    let dir = scratch("fern");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/ferns.json");
+    let out = dir.join("ferns.png");
+    let stats: Value = serde_json::from_str(&ok(&[
+        "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "64", "--height", "48", "--json",
+    ]))
+    .unwrap();
+    assert_eq!(stats["triangles"]["unique"], 6232);
+    assert!(stats["coverage"].as_f64().unwrap() > 0.1, "the ferns fill {} of the frame", stats["coverage"]);
+}
