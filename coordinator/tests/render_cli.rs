@@ -83,9 +83,29 @@ fn render_writes_image_and_stats() {
     assert_eq!(stats["instances"], 11);
     assert!(stats["triangles"]["instanced"].as_u64().unwrap() > stats["triangles"]["unique"].as_u64().unwrap());
     let phases: Vec<&str> = stats["phases_ms"].as_array().unwrap().iter().map(|p| p["phase"].as_str().unwrap()).collect();
-    assert_eq!(phases, ["load", "build", "voxelize", "lb", "upload", "trace", "tone map"]);
+    assert_eq!(phases, ["load", "build", "voxelize", "lb", "forest lb", "upload", "trace", "tone map"]);
     assert_eq!(stats["lb"].as_array().unwrap().len(), 5);
     assert!(stats["gpu_memory_bytes"]["scene"].as_u64().unwrap() > 0);
+    let fg = &stats["forest_grid"];
+    assert!(!fg["reason"].as_str().unwrap().is_empty());
+    let (lo, hi) = (fg["scale_min"].as_f64().unwrap(), fg["scale_max"].as_f64().unwrap());
+    assert!(0.0 < lo && lo <= hi && hi <= 1.0, "{fg}");
+}
+
+#[test]
+fn the_forest_grid_can_be_switched_off() {
+    let dir = scratch("nogrid");
+    let scene = small_forest(&dir);
+    let mut v: Value = serde_json::from_slice(&std::fs::read(&scene).unwrap()).unwrap();
+    v["forest_grid"] = serde_json::json!({ "use": "never" });
+    std::fs::write(&scene, serde_json::to_string(&v).unwrap()).unwrap();
+    let out = dir.join("f.png");
+    let stats: Value = serde_json::from_str(&ok(&[
+        "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "32", "--height", "16", "--json",
+    ]))
+    .unwrap();
+    assert_eq!(stats["forest_grid"]["used"], false);
+    assert!(stats["forest_grid"]["reason"].as_str().unwrap().contains("never"));
 }
 
 #[test]

@@ -8,8 +8,10 @@ use crate::trace::{GpuScene, LbGrid, StripRenderer};
 use serde::Serialize;
 use sylva_shared::accel::{AccelKind, SceneAccel};
 use sylva_shared::lb::solver::PhaseTimer;
-use sylva_shared::lb::{SolveOptions, Sun, solve};
-use sylva_shared::scene::{LightingMode, Scene};
+use sylva_shared::accel::Aabb;
+use sylva_shared::lb::coarse::{Occupant, WorldGrid, forest_medium};
+use sylva_shared::lb::{Preset, SolveOptions, Sun, solve};
+use sylva_shared::scene::{ForestGridUse, LightingMode, Scene};
 use sylva_shared::voxel::voxelize;
 
 /// What the LB pre-process did for one model.
@@ -29,6 +31,25 @@ pub struct ModelLight {
     pub converged: [bool; 3],
 }
 
+/// What the coarse forest grid decided.
+#[derive(Clone, Debug, Serialize)]
+pub struct ForestLight {
+    /// Whether instances' LB light is scaled by it.
+    pub used: bool,
+    /// Why.
+    pub reason: String,
+    /// The grid, when solved.
+    pub grid: Option<WorldGrid>,
+    /// (max − min) / max of the instances' light.
+    pub spread: f32,
+    /// Smallest, mean and largest scale applied (all 1 when unused).
+    pub scale_min: f32,
+    /// Mean scale.
+    pub scale_mean: f32,
+    /// Largest scale.
+    pub scale_max: f32,
+}
+
 /// A scene ready to trace, and what preparing it cost.
 pub struct PreparedScene {
     /// The renderer.
@@ -39,6 +60,8 @@ pub struct PreparedScene {
     pub accel_bytes: usize,
     /// The LB solve per model (empty when the lighting needs none).
     pub light: Vec<ModelLight>,
+    /// The coarse forest grid's decision (none when the lighting needs no LB).
+    pub forest: Option<ForestLight>,
 }
 
 /// Prepares `scene` for tracing with `kind` structures; `lighting` decides
@@ -61,7 +84,7 @@ pub fn prepare(
         let voxels = phases.time("voxelize", || {
             scene.models.iter().map(|m| voxelize(&m.model, m.lb.grid)).collect::<Result<Vec<_>, _>>()
         })?;
-        let sun = Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)?;
+        let sun = sun_of(scene)?;
         let mut solver = GpuSolver::new(ctx.clone());
         phases.time("lb", || -> anyhow::Result<()> {
             for (i, (m, v)) in scene.models.iter().zip(&voxels).enumerate() {
@@ -76,17 +99,102 @@ pub fn prepare(
                     converged: std::array::from_fn(|c| s.channels[c].report.converged),
                 });
                 let rgb = s.channels.iter().flat_map(|c| c.total.iter().copied()).collect();
-                grids[i] = Some(LbGrid { n: m.lb.grid, frame: v.frame, rgb });
+                grids[i] = Some(LbGrid { n: m.lb.grid, frame: v.frame, rgb, occupancy: v.medium.occupancy() });
             }
             Ok(())
         })?;
     }
+    let mut forest = None;
+    let mut scales = vec![1.0f32; scene.instances.len()];
+    if needs_lb {
+        progress("LB light of the whole forest");
+        let fills: Vec<f32> = grids.iter().zip(&scene.models).map(|(g, m)| crown_fill(g.as_ref(), &m.model)).collect();
+        let f = phases.time("forest lb", || forest_light(ctx, scene, &fills, &sun_of(scene)?, &mut scales))?;
+        forest = Some(f);
+    }
     progress("uploading the scene");
     let renderer = phases.time("upload", || -> anyhow::Result<StripRenderer> {
-        let gpu_scene = GpuScene::upload(ctx, scene, &accel, &grids)?;
+        let gpu_scene = GpuScene::upload(ctx, scene, &accel, &grids, &scales)?;
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
         ctx.wait()?;
         Ok(r)
     })?;
-    Ok(PreparedScene { renderer, phases, accel_bytes: accel.bytes(), light })
+    Ok(PreparedScene { renderer, phases, accel_bytes: accel.bytes(), light, forest })
+}
+
+fn sun_of(scene: &Scene) -> anyhow::Result<Sun> {
+    Ok(Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)?)
+}
+
+/// How much of its bounding box a model's crown fills: the volume of its
+/// occupied voxels over the box's volume.
+fn crown_fill(grid: Option<&LbGrid>, model: &sylva_shared::model::Model) -> f32 {
+    let (Some(g), Some((lo, hi))) = (grid, model.bounds()) else { return 0.0 };
+    let e = (hi - lo).max(glam::Vec3::splat(g.frame.cell));
+    let occupied = g.occupancy as f32 * (g.n * g.n * g.n) as f32 * g.frame.cell.powi(3);
+    (occupied / (e.x * e.y * e.z)).clamp(0.0, 1.0)
+}
+
+/// Solves the coarse forest grid, decides whether to use it, and writes the
+/// per-instance scales (normalized so the best-lit instance gets 1).
+fn forest_light(
+    ctx: &GpuContext,
+    scene: &Scene,
+    fills: &[f32],
+    sun: &Sun,
+    scales: &mut [f32],
+) -> anyhow::Result<ForestLight> {
+    let spec = scene.file.forest_grid;
+    let unused = |reason: String| ForestLight { used: false, reason, grid: None, spread: 0.0, scale_min: 1.0, scale_mean: 1.0, scale_max: 1.0 };
+    if spec.use_grid == ForestGridUse::Never {
+        return Ok(unused("forest_grid.use is \"never\"".into()));
+    }
+    if scene.instances.len() < 2 {
+        return Ok(unused("a single instance has nothing to shade it".into()));
+    }
+    let occupants: Vec<Occupant> = scene
+        .instances
+        .iter()
+        .map(|i| Occupant {
+            bounds: sylva_shared::accel::scene::model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world),
+            fill: fills[i.model as usize],
+        })
+        .collect();
+    let all = occupants.iter().fold(Aabb::EMPTY, |b, o| b.union(o.bounds));
+    let grid = WorldGrid::around(all, spec.grid);
+    let medium = forest_medium(&grid, &occupants);
+    let mut solver = GpuSolver::new(ctx.clone());
+    let sol = solve(&mut solver, &medium, &Preset::Leaf.params(), sun, &SolveOptions::default(), &|_, _, _| {})?;
+    let free: f32 = sun.boundary().values.iter().sum();
+    let light: Vec<f32> = occupants
+        .iter()
+        .map(|o| {
+            let p = o.bounds.centroid();
+            sol.channels.iter().map(|c| grid.sample(&c.total, p)).sum::<f32>() / (3.0 * free)
+        })
+        .collect();
+    let max = light.iter().copied().fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
+    let min = light.iter().copied().fold(f32::INFINITY, f32::min);
+    let spread = (max - min) / max;
+    let used = spec.use_grid == ForestGridUse::Always || spread > spec.threshold;
+    let reason = match spec.use_grid {
+        ForestGridUse::Always => "forest_grid.use is \"always\"".to_string(),
+        _ if used => format!("the instances' light differs by {:.0} % (threshold {:.0} %)", 100.0 * spread, 100.0 * spec.threshold),
+        _ => format!("the instances' light differs by only {:.0} % (threshold {:.0} %): all get full light", 100.0 * spread, 100.0 * spec.threshold),
+    };
+    if used {
+        for (s, l) in scales.iter_mut().zip(&light) {
+            *s = l / max;
+        }
+    }
+    let n = scales.len() as f32;
+    Ok(ForestLight {
+        used,
+        reason,
+        grid: Some(grid),
+        spread,
+        scale_min: scales.iter().copied().fold(f32::INFINITY, f32::min),
+        scale_mean: scales.iter().sum::<f32>() / n,
+        scale_max: scales.iter().copied().fold(0.0, f32::max),
+    })
 }

@@ -80,9 +80,9 @@ fn a_lit_quad_matches_the_shading_formula() {
         // kd (N·L) + ks (V·R)^24 with V = +z, R = reflect(−L, N) = (−0.866, 0, 0.5).
         let n_dot_l = 0.5f32;
         let spec = 0.04 * 0.5f32.powi(24);
-        for c in 0..3 {
-            let want = scene.sun.radiance[c] * (0.5 * n_dot_l + spec);
-            assert!((centre[c] - want).abs() <= 1e-4 * want, "{kind:?} channel {c}: {} vs {want}", centre[c]);
+        for (c, (&got, &sun)) in centre.iter().zip(&scene.sun.radiance).enumerate() {
+            let want = sun * (0.5 * n_dot_l + spec);
+            assert!((got - want).abs() <= 1e-4 * want, "{kind:?} channel {c}: {got} vs {want}");
         }
         // Off the quad: the black sky.
         assert_eq!(s.pixels[0], [0.0; 3]);

@@ -187,6 +187,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         "models": scene.models.len(),
         "gpu_memory_bytes": { "scene": prepared.renderer.scene_bytes(), "acceleration_structures": prepared.accel_bytes },
         "lb": prepared.light,
+        "forest_grid": prepared.forest,
         "ambient": settings.ambient,
         "tone_map": tone,
         "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,

@@ -20,6 +20,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod boundary;
+pub mod coarse;
 pub mod collision;
 pub mod cpu;
 pub mod lattice;

@@ -30,6 +30,9 @@ pub struct SceneFile {
     /// LB settings for models that give none.
     #[serde(default)]
     pub lb: LbSpec,
+    /// The coarse LB grid over the whole forest.
+    #[serde(default)]
+    pub forest_grid: ForestGridSpec,
     /// Clouds: LB-lit density volumes.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub clouds: Vec<CloudSpec>,
@@ -192,6 +195,46 @@ fn default_preset() -> Preset {
 impl Default for LbSpec {
     fn default() -> Self {
         Self { grid: default_grid(), preset: default_preset() }
+    }
+}
+
+/// When to light the forest as a whole with a coarse LB grid, whose value
+/// at each instance scales that instance's species grid.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ForestGridUse {
+    /// When the instances' exposure differs by more than the threshold.
+    #[default]
+    Auto,
+    /// Always.
+    Always,
+    /// Never: every instance gets full light.
+    Never,
+}
+
+/// The coarse forest grid's settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForestGridSpec {
+    /// Cells along the forest's longest horizontal side.
+    #[serde(default = "default_grid")]
+    pub grid: usize,
+    /// When to use it.
+    #[serde(default, rename = "use")]
+    pub use_grid: ForestGridUse,
+    /// `auto` uses the grid when (max − min) / max of the instances' light
+    /// exceeds this.
+    #[serde(default = "default_threshold")]
+    pub threshold: f32,
+}
+
+fn default_threshold() -> f32 {
+    0.1
+}
+
+impl Default for ForestGridSpec {
+    fn default() -> Self {
+        Self { grid: default_grid(), use_grid: ForestGridUse::Auto, threshold: default_threshold() }
     }
 }
 

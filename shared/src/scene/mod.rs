@@ -5,7 +5,10 @@
 pub mod file;
 pub mod forest;
 
-pub use file::{CameraSpec, CloudSpec, GroundSpec, InstanceSpec, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec, SunSpec};
+pub use file::{
+    CameraSpec, CloudSpec, ForestGridSpec, ForestGridUse, GroundSpec, InstanceSpec, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec,
+    SunSpec,
+};
 
 use crate::camera::Camera;
 use crate::color::black_body_rgb;
@@ -119,6 +122,13 @@ impl Scene {
             models.push(SceneModel { name: name.clone(), model: Arc::new(model), lb });
         }
         check_lb(&file.lb).map_err(|m| err("lb".into(), m))?;
+        let fg = &file.forest_grid;
+        if !(4..=256).contains(&fg.grid) {
+            return Err(err("forest_grid.grid".into(), format!("{}: valid range [4, 256]", fg.grid)));
+        }
+        if !(fg.threshold.is_finite() && fg.threshold >= 0.0) {
+            return Err(err("forest_grid.threshold".into(), format!("{}: must be a finite number ≥ 0", fg.threshold)));
+        }
         let mut instances = Vec::with_capacity(file.instances.len());
         for (i, inst) in file.instances.iter().enumerate() {
             let field = format!("instances[{i}]");

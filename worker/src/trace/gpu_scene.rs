@@ -72,6 +72,8 @@ pub struct LbGrid {
     pub frame: sylva_shared::voxel::GridFrame,
     /// Total density per node: three channel planes of N³ values, x fastest.
     pub rgb: Vec<f32>,
+    /// Fraction of the grid's nodes with matter.
+    pub occupancy: f64,
 }
 
 /// A model: its root node and LB grid.
@@ -158,9 +160,10 @@ impl Flat {
 }
 
 impl GpuScene {
-    /// Uploads `scene` with its acceleration structures and, per model, its
-    /// LB light if solved.
-    pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, lb: &[Option<LbGrid>]) -> anyhow::Result<Self> {
+    /// Uploads `scene` with its acceleration structures, per model its LB
+    /// light if solved, and per instance the scale of that light (missing
+    /// scales are 1).
+    pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, lb: &[Option<LbGrid>], lb_scales: &[f32]) -> anyhow::Result<Self> {
         let mut f = Flat::default();
         let top_root = f.push_accel(&accel.top, 0);
         debug_assert_eq!(top_root, if matches!(accel.top, Accel::Kd(_)) { 2 } else { 0 });
@@ -204,7 +207,8 @@ impl GpuScene {
             let scale = w.determinant().abs().cbrt().max(f32::MIN_POSITIVE);
             let wc = [w.x_axis / scale, w.y_axis / scale, w.z_axis / scale];
             let to_lb = std::array::from_fn(|r| [wc[0][r], wc[1][r], wc[2][r], 0.0]);
-            f.instances.push(GpuInstance { to_model, to_lb, model: inst.model, lb_scale: 1.0, pad: [0; 2] });
+            let lb_scale = lb_scales.get(i).copied().unwrap_or(1.0);
+            f.instances.push(GpuInstance { to_model, to_lb, model: inst.model, lb_scale, pad: [0; 2] });
         }
         Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)
     }
