@@ -1,6 +1,7 @@
 // Renders a vertical strip [x0, x0 + strip_width) of the frame: N jittered
 // primary rays per pixel, alpha-masked leaves passed through, direct sun
-// light with shadow rays, LB indirect light, a sky and a ground plane; the
+// light with shadow rays, LB indirect light, LB-lit clouds marched in front
+// of what lies behind them, a sky and a ground plane; the
 // box-filtered mean goes out as linear HDR. Dispatched by
 // worker/src/trace/render.rs; scene.wgsl comes first.
 
@@ -109,8 +110,99 @@ fn lb_light(inst: Instance, p_model: vec3<f32>) -> vec3<f32> {
     return rgb * inst.lb_scale / frame.lb_free;
 }
 
-// Radiance along one primary ray; alpha is 1 where it hit a model.
+// Trilinear sample of plane `plane` of a cloud's data at grid coordinates g.
+fn cloud_sample(c: Cloud, plane: u32, g: vec3<f32>) -> f32 {
+    let n = c.n;
+    let gc = clamp(g, vec3<f32>(0.0), vec3<f32>(f32(n - 1u)));
+    let i0 = vec3<u32>(min(floor(gc), vec3<f32>(f32(n - 2u))));
+    let f = gc - vec3<f32>(i0);
+    let base = c.offset + plane * n * n * n;
+    var acc = 0.0;
+    for (var k = 0u; k < 8u; k++) {
+        let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, (k >> 2u) & 1u);
+        let q = i0 + d;
+        let w = select(1.0 - f.x, f.x, d.x == 1u) * select(1.0 - f.y, f.y, d.y == 1u) * select(1.0 - f.z, f.z, d.z == 1u);
+        acc += w * cloud_data[base + q.x + n * (q.y + n * q.z)];
+    }
+    return acc;
+}
+
+// Light a cloud adds along [t0, t1) of the ray (rgb) and what it lets
+// through (a): opacity from density, in-scattered light from its LB grid.
+fn march_cloud(c: Cloud, ray: Ray, t0: f32, t1: f32) -> vec4<f32> {
+    let cell = c.size / f32(c.n);
+    let len = length(ray.dir);
+    let dt = 0.5 * cell / len;
+    var transmittance = 1.0;
+    var light = vec3<f32>(0.0);
+    var t = t0 + 0.5 * dt;
+    loop {
+        if t >= t1 || transmittance < 1e-3 {
+            break;
+        }
+        let p = ray.origin + ray.dir * t;
+        let g = (p - c.min) / cell - 0.5;
+        let rho = cloud_sample(c, 0u, g);
+        if rho > 0.0 {
+            let sigma = rho * c.extinction * len;
+            let lb = vec3<f32>(cloud_sample(c, 1u, g), cloud_sample(c, 2u, g), cloud_sample(c, 3u, g)) / frame.lb_free;
+            let absorbed = 1.0 - exp(-sigma * dt);
+            light += transmittance * absorbed * c.albedo * lb * frame.sun_radiance;
+            transmittance *= 1.0 - absorbed;
+        }
+        t += dt;
+    }
+    return vec4<f32>(light, transmittance);
+}
+
+// Composites the clouds a ray crosses before distance `t_max` over the
+// radiance behind them, nearest cloud in front.
+fn through_clouds(ray: Ray, t_max: f32, behind: vec3<f32>) -> vec3<f32> {
+    var color = behind;
+    var done = 0u;
+    let count = arrayLength(&clouds);
+    // Farthest first, so each nearer cloud is composited over the result.
+    for (var k = 0u; k < count; k++) {
+        var pick = count;
+        var pick_t = -1.0;
+        for (var i = 0u; i < count; i++) {
+            let c = clouds[i];
+            if c.n == 0u || (done & (1u << i)) != 0u {
+                continue;
+            }
+            let span = clip_box(c.min, c.min + vec3<f32>(c.size), ray, 0.0, t_max);
+            if span.x <= span.y && span.x > pick_t {
+                pick = i;
+                pick_t = span.x;
+            }
+        }
+        if pick == count {
+            break;
+        }
+        done |= 1u << pick;
+        let c = clouds[pick];
+        let span = clip_box(c.min, c.min + vec3<f32>(c.size), ray, 0.0, t_max);
+        let m = march_cloud(c, ray, span.x, span.y);
+        color = m.rgb + m.a * color;
+    }
+    return color;
+}
+
+// Radiance along one primary ray, clouds included; alpha is 1 where it hit a model.
 fn radiance(ray: Ray) -> vec4<f32> {
+    let r = surface_radiance(ray);
+    return vec4<f32>(through_clouds(ray, r.t, r.color.rgb), r.color.a);
+}
+
+struct Surface {
+    color: vec4<f32>,
+    // Distance to what the ray hit (ground or model), or 3e38.
+    t: f32,
+}
+
+// Radiance of the first surface (or the sky) along a primary ray; alpha is
+// 1 where it hit a model.
+fn surface_radiance(ray: Ray) -> Surface {
     let hit = closest_hit(ray, 0.0, 3.0e38);
     var ground_t = 3.0e38;
     if frame.has_ground == 1u && ray.dir.y < 0.0 {
@@ -127,9 +219,9 @@ fn radiance(ray: Ray) -> vec4<f32> {
                 }
             }
             // The ground sees half the sky.
-            return vec4<f32>(frame.ground_color * (direct + 0.5 * (frame.sky_zenith + frame.sky_horizon) * 0.5), 0.0);
+            return Surface(vec4<f32>(frame.ground_color * (direct + 0.5 * (frame.sky_zenith + frame.sky_horizon) * 0.5), 0.0), ground_t);
         }
-        return vec4<f32>(sky(ray.dir), 0.0);
+        return Surface(vec4<f32>(sky(ray.dir), 0.0), 3.0e38);
     }
     let inst = instances[hit.instance];
     let tri = triangles[hit.triangle];
@@ -154,7 +246,7 @@ fn radiance(ray: Ray) -> vec4<f32> {
     let p = ray.origin + ray.dir * hit.t;
     let p_model = to_model_point(inst, p);
     if frame.lighting == LIGHTING_LB_VISUALIZE {
-        return vec4<f32>(lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance, 1.0);
+        return Surface(vec4<f32>(lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance, 1.0), hit.t);
     }
     var color = vec3<f32>(0.0);
     let n_dot_l = dot(n, frame.sun_towards);
@@ -172,7 +264,7 @@ fn radiance(ray: Ray) -> vec4<f32> {
     } else if frame.lighting == LIGHTING_AMBIENT {
         color += albedo * frame.ambient;
     }
-    return vec4<f32>(color, 1.0);
+    return Surface(vec4<f32>(color, 1.0), hit.t);
 }
 
 @compute @workgroup_size(8, 8)

@@ -79,6 +79,23 @@ struct Model {
 // LB total densities, per model: three channel planes of N³ values, x fastest.
 @group(0) @binding(10) var<storage, read> lb_data: array<f32>;
 
+struct Cloud {
+    // Lower corner of the cloud's cube and its edge.
+    min: vec3<f32>,
+    size: f32,
+    // Grid size N (0: no cloud).
+    n: u32,
+    // Density (N³ values), then three channel planes of LB light, in cloud_data.
+    offset: u32,
+    // Extinction per unit length at density 1: sigma_t / cell size.
+    extinction: f32,
+    // sigma_s / sigma_t.
+    albedo: f32,
+}
+
+@group(0) @binding(11) var<storage, read> clouds: array<Cloud>;
+@group(0) @binding(12) var<storage, read> cloud_data: array<f32>;
+
 struct Ray {
     origin: vec3<f32>,
     dir: vec3<f32>,

@@ -4,7 +4,7 @@
 
 use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
-use crate::trace::{GpuScene, LbGrid, StripRenderer};
+use crate::trace::{CloudGrid, GpuScene, LbGrid, SceneLight, StripRenderer};
 use serde::Serialize;
 use sylva_shared::accel::{AccelKind, SceneAccel};
 use sylva_shared::lb::solver::PhaseTimer;
@@ -112,9 +112,16 @@ pub fn prepare(
         let f = phases.time("forest lb", || forest_light(ctx, scene, &fills, &sun_of(scene)?, &mut scales))?;
         forest = Some(f);
     }
+    let clouds = if needs_lb && !scene.clouds.is_empty() {
+        progress("LB light of the clouds");
+        phases.time("cloud lb", || solve_clouds(ctx, scene))?
+    } else {
+        Vec::new()
+    };
     progress("uploading the scene");
     let renderer = phases.time("upload", || -> anyhow::Result<StripRenderer> {
-        let gpu_scene = GpuScene::upload(ctx, scene, &accel, &grids, &scales)?;
+        let light = SceneLight { models: grids, instance_scales: scales, clouds };
+        let gpu_scene = GpuScene::upload(ctx, scene, &accel, &light)?;
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
         ctx.wait()?;
         Ok(r)
@@ -197,4 +204,30 @@ fn forest_light(
         scale_mean: scales.iter().sum::<f32>() / n,
         scale_max: scales.iter().copied().fold(0.0, f32::max),
     })
+}
+
+/// Generates each cloud's density and solves its light with the chapter's
+/// cloud parameters (strongly forward scattering, almost no absorption).
+fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<CloudGrid>> {
+    let sun = sun_of(scene)?;
+    let params = Preset::Cloud.params();
+    let mut solver = GpuSolver::new(ctx.clone());
+    scene
+        .clouds
+        .iter()
+        .map(|c| {
+            let medium = sylva_shared::shapes::cloud(c.grid, c.seed);
+            let s = solve(&mut solver, &medium, &params, &sun, &SolveOptions::default(), &|_, _, _| {})?;
+            let p = params.channels[0];
+            Ok(CloudGrid {
+                min: (glam::Vec3::from(c.center) - glam::Vec3::splat(c.size / 2.0)).to_array(),
+                size: c.size,
+                n: c.grid,
+                light: s.channels.iter().flat_map(|ch| ch.total.iter().copied()).collect(),
+                density: medium.density,
+                sigma_t: p.sigma_t(),
+                albedo: p.sigma_s / p.sigma_t(),
+            })
+        })
+        .collect()
 }

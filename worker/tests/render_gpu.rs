@@ -139,3 +139,33 @@ fn leaves_have_holes_where_their_texture_is_transparent() {
     assert!(s.pixels.iter().flatten().all(|v| v.is_finite() && *v >= 0.0));
     assert!(p.light.iter().all(|l| l.grid == 16 && l.occupancy > 0.0));
 }
+
+#[test]
+fn a_cloud_dims_what_lies_behind_it_and_glows_where_lit() {
+    let ctx = ctx();
+    let base = r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 4000, "seed": 1 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 30] } ],
+        "camera": { "position": [0, 20, -40], "look_at": [0, 20, 0], "fov_y_deg": 40 },
+        "sun": { "elevation_deg": 40, "azimuth_deg": 60 },
+        "sky": { "zenith": [0.2, 0.4, 0.9], "horizon": [0.2, 0.4, 0.9] },
+        "lb": { "grid": 8, "preset": "leaf" } CLOUDS
+    }"#;
+    let render = |clouds: &str| {
+        let text = base.replace("CLOUDS", clouds);
+        let scene = Scene::build(parse(&text, "c.json").unwrap(), Path::new("."), "c.json").unwrap();
+        let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Lb, &|_| {}).unwrap();
+        let f = FrameSettings { width: 32, height: 32, spp: 1, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
+        p.renderer.render_strip(&ctx, &f, 0, 32).unwrap()
+    };
+    let clear = render("");
+    let cloudy = render(r#", "clouds": [ { "center": [0, 20, 0], "size": 24, "grid": 24, "seed": 3 } ]"#);
+    let centre = 16 * 32 + 16;
+    // The cloud's heart hides the blue sky behind it and shows its own,
+    // nearly white, scattered sunlight.
+    let (sky, cloud) = (clear.pixels[centre], cloudy.pixels[centre]);
+    assert!(cloud[2] / cloud[0] < 0.5 * sky[2] / sky[0], "cloud {cloud:?} vs sky {sky:?}");
+    assert!(cloud.iter().all(|v| v.is_finite() && *v > sky[0]), "cloud {cloud:?} vs sky {sky:?}");
+    // Corners miss the cloud and are untouched.
+    assert_eq!(clear.pixels[0], cloudy.pixels[0]);
+}

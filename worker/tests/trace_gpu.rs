@@ -56,7 +56,7 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
     let scene = scene();
     for kind in [AccelKind::Bvh, AccelKind::Kd] {
         let accel = SceneAccel::build(&scene, kind);
-        let gpu_scene = GpuScene::upload(&ctx, &scene, &accel, &[], &[]).unwrap();
+        let gpu_scene = GpuScene::upload(&ctx, &scene, &accel, &Default::default()).unwrap();
         let caster = RayCaster::new(&ctx, &gpu_scene).unwrap();
         let rays = rays(&accel, 100_000);
         let gpu_rays: Vec<GpuRay> =

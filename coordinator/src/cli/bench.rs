@@ -210,7 +210,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             let s = t.elapsed().as_secs_f64();
             json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": rayon::current_num_threads() })
         };
-        let gpu_scene = GpuScene::upload(&ctx, &scene, &accel, &[], &[])?;
+        let gpu_scene = GpuScene::upload(&ctx, &scene, &accel, &Default::default())?;
         let caster = RayCaster::new(&ctx, &gpu_scene)?;
         caster.cast(&ctx, &gpu_scene, &gpu_rays[..gpu_rays.len().min(4096)])?; // warm-up: lavapipe compiles on first dispatch
         let t = Instant::now();

@@ -94,6 +94,54 @@ pub struct GpuModel {
     pub lb_cell: f32,
 }
 
+/// A cloud as `scene.wgsl` reads it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuCloud {
+    /// Lower corner of its cube.
+    pub min: [f32; 3],
+    /// Cube edge.
+    pub size: f32,
+    /// Grid size N; 0 marks the placeholder of a scene without clouds.
+    pub n: u32,
+    /// Its first value in the cloud data.
+    pub offset: u32,
+    /// Extinction per unit length at density 1.
+    pub extinction: f32,
+    /// Scattering albedo σ_s / σ_t.
+    pub albedo: f32,
+}
+
+/// A cloud's density and solved LB light.
+#[derive(Clone, Debug)]
+pub struct CloudGrid {
+    /// Lower corner of its cube, world space.
+    pub min: [f32; 3],
+    /// Cube edge.
+    pub size: f32,
+    /// Grid size N.
+    pub n: usize,
+    /// Density per node (N³).
+    pub density: Vec<f32>,
+    /// LB total density: three channel planes of N³ values.
+    pub light: Vec<f32>,
+    /// σ_t of the cloud's medium per lattice cell at density 1.
+    pub sigma_t: f32,
+    /// σ_s / σ_t.
+    pub albedo: f32,
+}
+
+/// The solved light a scene is uploaded with.
+#[derive(Clone, Debug, Default)]
+pub struct SceneLight {
+    /// Per model, its LB grid if solved.
+    pub models: Vec<Option<LbGrid>>,
+    /// Per instance, the scale of its model's LB light (missing: 1).
+    pub instance_scales: Vec<f32>,
+    /// Clouds.
+    pub clouds: Vec<CloudGrid>,
+}
+
 /// The scene's buffers and the bind group (group 0) every tracer kernel uses.
 pub struct GpuScene {
     /// Bind group layout of group 0.
@@ -122,6 +170,8 @@ struct Flat {
     instances: Vec<GpuInstance>,
     models: Vec<GpuModel>,
     lb: Vec<f32>,
+    clouds: Vec<GpuCloud>,
+    cloud_data: Vec<f32>,
 }
 
 impl Flat {
@@ -160,10 +210,9 @@ impl Flat {
 }
 
 impl GpuScene {
-    /// Uploads `scene` with its acceleration structures, per model its LB
-    /// light if solved, and per instance the scale of that light (missing
-    /// scales are 1).
-    pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, lb: &[Option<LbGrid>], lb_scales: &[f32]) -> anyhow::Result<Self> {
+    /// Uploads `scene` with its acceleration structures and its solved light.
+    pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, light: &SceneLight) -> anyhow::Result<Self> {
+        let (lb, lb_scales) = (&light.models, &light.instance_scales);
         let mut f = Flat::default();
         let top_root = f.push_accel(&accel.top, 0);
         debug_assert_eq!(top_root, if matches!(accel.top, Accel::Kd(_)) { 2 } else { 0 });
@@ -210,6 +259,19 @@ impl GpuScene {
             let lb_scale = lb_scales.get(i).copied().unwrap_or(1.0);
             f.instances.push(GpuInstance { to_model, to_lb, model: inst.model, lb_scale, pad: [0; 2] });
         }
+        for c in &light.clouds {
+            anyhow::ensure!(c.n >= 2 && c.density.len() == c.n.pow(3) && c.light.len() == 3 * c.n.pow(3), "cloud grid has the wrong size");
+            f.clouds.push(GpuCloud {
+                min: c.min,
+                size: c.size,
+                n: c.n as u32,
+                offset: f.cloud_data.len() as u32,
+                extinction: c.sigma_t * c.n as f32 / c.size,
+                albedo: c.albedo,
+            });
+            f.cloud_data.extend_from_slice(&c.density);
+            f.cloud_data.extend_from_slice(&c.light);
+        }
         Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)
     }
 
@@ -227,6 +289,12 @@ impl GpuScene {
         }
         if f.lb.is_empty() {
             f.lb.push(0.0);
+        }
+        if f.clouds.is_empty() {
+            f.clouds.push(GpuCloud::zeroed());
+        }
+        if f.cloud_data.is_empty() {
+            f.cloud_data.push(0.0);
         }
         let mut bytes = 0u64;
         let mut buffer = |label: &str, contents: &[u8]| {
@@ -255,6 +323,8 @@ impl GpuScene {
             buffer("instances", bytemuck::cast_slice(&f.instances))?,
             buffer("models", bytemuck::cast_slice(&f.models))?,
             buffer("lb", bytemuck::cast_slice(&f.lb))?,
+            buffer("clouds", bytemuck::cast_slice(&f.clouds))?,
+            buffer("cloud data", bytemuck::cast_slice(&f.cloud_data))?,
         ];
         let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..buffers.len() as u32)
             .map(|binding| wgpu::BindGroupLayoutEntry {

@@ -7,7 +7,7 @@ mod raycast;
 mod render;
 mod shaders;
 
-pub use gpu_scene::{GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, LbGrid};
+pub use gpu_scene::{CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, LbGrid, SceneLight};
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use render::{FrameSettings, FrameUniform, RayCounts, Strip, StripRenderer};
 pub use shaders::tracer_source;

@@ -31,7 +31,29 @@ mod tests {
     }
 
     #[test]
-    fn ray_casting_module_is_valid_wgsl() {
+    fn ray_casting_and_render_modules_are_valid_wgsl() {
         validate(&tracer_source(include_str!("../../../shaders/trace/rays.wgsl")));
+        validate(&tracer_source(include_str!("../../../shaders/trace/render.wgsl")));
+    }
+
+    /// The WGSL structs the Rust side uploads have the Rust layouts.
+    #[test]
+    fn gpu_structs_match_their_rust_twins() {
+        use crate::trace::{FrameUniform, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuTexture, GpuTriangle};
+        let m = validate(&tracer_source(include_str!("../../../shaders/trace/render.wgsl")));
+        let size_of_struct = |name: &str| -> u32 {
+            let (_, ty) = m.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("no struct {name}"));
+            match &ty.inner {
+                naga::TypeInner::Struct { span, .. } => *span,
+                _ => panic!("{name} is not a struct"),
+            }
+        };
+        assert_eq!(size_of_struct("Material") as usize, size_of::<GpuMaterial>());
+        assert_eq!(size_of_struct("Texture") as usize, size_of::<GpuTexture>());
+        assert_eq!(size_of_struct("Triangle") as usize, size_of::<GpuTriangle>());
+        assert_eq!(size_of_struct("Instance") as usize, size_of::<GpuInstance>());
+        assert_eq!(size_of_struct("Model") as usize, size_of::<GpuModel>());
+        assert_eq!(size_of_struct("Cloud") as usize, size_of::<GpuCloud>());
+        assert_eq!(size_of_struct("Frame") as usize, size_of::<FrameUniform>());
     }
 }
