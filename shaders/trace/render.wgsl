@@ -77,8 +77,7 @@ fn sky(dir: vec3<f32>) -> vec3<f32> {
 
 // Whether the sun is hidden from `p`.
 fn in_shadow(p: vec3<f32>) -> bool {
-    let h = closest_hit(make_ray(p, frame.sun_towards), frame.epsilon, 3.0e38);
-    return h.triangle != NO_HIT;
+    return occluded(make_ray(p, frame.sun_towards), frame.epsilon, 3.0e38);
 }
 
 // LB total density at a model-space point of an instance, trilinear,

@@ -241,24 +241,29 @@ fn test_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> Hit {
 
 // The closest hit inside an instance: the ray carried into model space
 // unnormalized, so t means the same in both spaces.
-fn test_instance(ray: Ray, index: u32, t_min: f32, t_max: f32) -> Hit {
+fn test_instance(ray: Ray, index: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     let inst = instances[index];
     let local = make_ray(to_model_point(inst, ray.origin), to_model_vector(inst, ray.dir));
-    var h = traverse_model(local, models[inst.model].root, t_min, t_max);
+    var h = traverse_model(local, models[inst.model].root, t_min, t_max, any);
     h.instance = index;
     return h;
 }
 
-fn test_prim_top(ray: Ray, prim: u32, t_min: f32, t_max: f32) -> Hit {
-    return test_instance(ray, prim, t_min, t_max);
+fn test_prim_top(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
+    return test_instance(ray, prim, t_min, t_max, any);
 }
 
-fn test_prim_model(ray: Ray, prim: u32, t_min: f32, t_max: f32) -> Hit {
+fn test_prim_model(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     return test_triangle(ray, prim, t_min, t_max);
 }
 
 // The closest opaque hit in the scene in (t_min, t_max).
 fn closest_hit(ray: Ray, t_min: f32, t_max: f32) -> Hit {
     // A kd-tree's root follows its two bounds entries.
-    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), t_min, t_max);
+    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), t_min, t_max, false);
+}
+
+// Whether anything opaque lies along the ray in (t_min, t_max).
+fn occluded(ray: Ray, t_min: f32, t_max: f32) -> bool {
+    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), t_min, t_max, true).triangle != NO_HIT;
 }

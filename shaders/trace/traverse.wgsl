@@ -3,15 +3,16 @@
 // (leaves hold instances) and LEVEL = model (leaves hold triangles), since
 // WGSL has no generics and forbids recursion. Mirrors shared/src/accel.
 
-// The closest hit of the tree rooted at `root` in (t_min, t_max).
-fn traverse_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
+// The closest hit of the tree rooted at `root` in (t_min, t_max); with
+// `any`, the first hit found (shadow rays need no more).
+fn traverse_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     if ACCEL_KIND == 0u {
-        return traverse_bvh_LEVEL(ray, root, t_min, t_max);
+        return traverse_bvh_LEVEL(ray, root, t_min, t_max, any);
     }
-    return traverse_kd_LEVEL(ray, root, t_min, t_max);
+    return traverse_kd_LEVEL(ray, root, t_min, t_max, any);
 }
 
-fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
+fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     var best = no_hit();
     var closest = t_max;
     var stack: array<u32, BVH_STACK>;
@@ -28,10 +29,13 @@ fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
         var descended = false;
         if count > 0u {
             for (var k = 0u; k < count; k++) {
-                let h = test_prim_LEVEL(ray, prims[n[0].w + k], t_min, closest);
+                let h = test_prim_LEVEL(ray, prims[n[0].w + k], t_min, closest, any);
                 if h.triangle != NO_HIT {
                     best = h;
                     closest = h.t;
+                    if any {
+                        return best;
+                    }
                 }
             }
         } else {
@@ -87,7 +91,7 @@ fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
     return best;
 }
 
-fn traverse_kd_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
+fn traverse_kd_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     var best = no_hit();
     var closest = t_max;
     // The tree's bounds sit in the two entries before its root.
@@ -137,10 +141,13 @@ fn traverse_kd_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32) -> Hit {
         }
         let leaf = nodes[node];
         for (var k = 0u; k < leaf.w; k++) {
-            let h = test_prim_LEVEL(ray, prims[leaf.z + k], t_min, closest);
+            let h = test_prim_LEVEL(ray, prims[leaf.z + k], t_min, closest, any);
             if h.triangle != NO_HIT {
                 best = h;
                 closest = h.t;
+                if any {
+                    return best;
+                }
             }
         }
         if closest <= hi {
