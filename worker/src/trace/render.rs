@@ -11,7 +11,8 @@ use wgpu::util::DeviceExt;
 
 const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
 
-/// The per-frame uniform `render.wgsl` reads as `Frame`.
+/// The per-frame uniform `render.wgsl` reads as `Frame` (the fields are
+/// documented there; a test checks the two layouts agree).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct FrameUniform {
@@ -165,7 +166,7 @@ impl StripRenderer {
             ground_color: scene.ground.as_ref().map_or([0.0; 3], |g| g.color),
             has_ground: scene.ground.is_some() as u32,
             lb_free: sun.boundary().values.iter().sum(),
-            epsilon: 1e-3 * scene_extent(scene).max(1.0),
+            epsilon: ray_offset(scene),
             ..FrameUniform::zeroed()
         };
         Self { scene: gpu_scene, pipeline, layout, base }
@@ -249,7 +250,9 @@ impl StripRenderer {
     }
 }
 
-/// The largest extent of the instances' placements, to size ray offsets.
-fn scene_extent(scene: &Scene) -> f32 {
-    scene.instances.iter().map(|i| i.to_world.translation.abs().max_element()).fold(0.0, f32::max) * 1e-2
+/// How far secondary rays start off the surface they leave: a millimetre,
+/// or more where the scene's coordinates are large enough for f32 to need it.
+fn ray_offset(scene: &Scene) -> f32 {
+    let extent = scene.instances.iter().map(|i| i.to_world.translation.abs().max_element()).fold(0.0, f32::max);
+    (1e-5 * extent).max(1e-3)
 }
