@@ -1,0 +1,151 @@
+//! Scene bundles: a scene file and the model files it names, packed into
+//! one content-addressed blob that workers cache by hash.
+//!
+//! Layout: the magic `SYLVABN1`, the manifest's length (u64, little
+//! endian), the manifest (JSON: the scene with model paths rewritten to
+//! blob names, and each blob's name and length), then the blobs in order.
+//! The hash is BLAKE3 of the whole bundle, in hex.
+
+use crate::scene::{Scene, SceneError, SceneFile};
+use anyhow::{Context, bail};
+use serde::{Deserialize, Serialize};
+use std::path::{Component, Path, PathBuf};
+
+const MAGIC: &[u8; 8] = b"SYLVABN1";
+
+/// A packed scene.
+#[derive(Clone, Debug)]
+pub struct SceneBundle {
+    /// The bundle's bytes.
+    pub bytes: Vec<u8>,
+    /// BLAKE3 of the bytes, hex.
+    pub hash: String,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Manifest {
+    scene: SceneFile,
+    blobs: Vec<BlobEntry>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BlobEntry {
+    name: String,
+    len: u64,
+}
+
+/// The hash a bundle of `bytes` is known by.
+pub fn hash_of(bytes: &[u8]) -> String {
+    blake3::hash(bytes).to_hex().to_string()
+}
+
+/// Packs the scene file at `path` and the glTF files it names (with the
+/// buffers and images a `.gltf` refers to by relative path).
+pub fn pack(path: &Path) -> anyhow::Result<SceneBundle> {
+    let label = path.display().to_string();
+    let text = std::fs::read_to_string(path).with_context(|| format!("{label}: cannot read"))?;
+    let mut scene = crate::scene::parse(&text, &label)?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let mut blobs: Vec<(String, Vec<u8>)> = Vec::new();
+    for (i, (name, spec)) in scene.models.iter_mut().enumerate() {
+        let Some(rel) = spec.gltf.clone() else { continue };
+        let full = if rel.is_absolute() { rel.clone() } else { base.join(&rel) };
+        let bytes = std::fs::read(&full).with_context(|| format!("{label}: models.{name}.gltf: cannot read {}", full.display()))?;
+        let dir = format!("m{i}");
+        let file = full.file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_else(|| "model.glb".into());
+        if file.to_ascii_lowercase().ends_with(".gltf") {
+            for uri in external_uris(&bytes).with_context(|| format!("{}: not glTF JSON", full.display()))? {
+                let dep = full.parent().unwrap_or(Path::new(".")).join(&uri);
+                let data = std::fs::read(&dep).with_context(|| format!("{}: cannot read {}", full.display(), dep.display()))?;
+                blobs.push((format!("{dir}/{uri}"), data));
+            }
+        }
+        blobs.push((format!("{dir}/{file}"), bytes));
+        spec.gltf = Some(PathBuf::from(format!("{dir}/{file}")));
+    }
+    let manifest = Manifest {
+        scene,
+        blobs: blobs.iter().map(|(n, b)| BlobEntry { name: n.clone(), len: b.len() as u64 }).collect(),
+    };
+    let json = serde_json::to_vec(&manifest)?;
+    let mut bytes = Vec::with_capacity(16 + json.len() + blobs.iter().map(|b| b.1.len()).sum::<usize>());
+    bytes.extend_from_slice(MAGIC);
+    bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&json);
+    for (_, b) in &blobs {
+        bytes.extend_from_slice(b);
+    }
+    let hash = hash_of(&bytes);
+    Ok(SceneBundle { bytes, hash })
+}
+
+/// Relative URIs of a `.gltf` file's buffers and images.
+fn external_uris(gltf_json: &[u8]) -> anyhow::Result<Vec<String>> {
+    let v: serde_json::Value = serde_json::from_slice(gltf_json)?;
+    let mut out = Vec::new();
+    for key in ["buffers", "images"] {
+        for item in v[key].as_array().into_iter().flatten() {
+            if let Some(uri) = item["uri"].as_str() {
+                if !uri.starts_with("data:") {
+                    out.push(uri.to_string());
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Unpacks a bundle into `dir` (blobs as files) and builds its scene.
+/// Refuses malformed bundles and blob names that would leave `dir`.
+pub fn unpack(bytes: &[u8], dir: &Path) -> anyhow::Result<Scene> {
+    if bytes.len() < 16 || &bytes[..8] != MAGIC {
+        bail!("not a Sylva scene bundle (bad magic)");
+    }
+    let len = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes")) as usize;
+    let body = &bytes[16..];
+    if len > body.len() {
+        bail!("truncated scene bundle: manifest of {len} bytes, {} present", body.len());
+    }
+    let manifest: Manifest = serde_json::from_slice(&body[..len]).context("malformed bundle manifest")?;
+    let mut at = len;
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    for b in &manifest.blobs {
+        let rel = Path::new(&b.name);
+        if rel.is_absolute() || rel.components().any(|c| !matches!(c, Component::Normal(_))) {
+            bail!("bundle blob name {:?} is not a plain relative path", b.name);
+        }
+        let end = at.checked_add(b.len as usize).filter(|&e| e <= body.len());
+        let Some(end) = end else { bail!("truncated scene bundle: blob {:?} runs past the end", b.name) };
+        let target = dir.join(rel);
+        if let Some(parent) = target.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        std::fs::write(&target, &body[at..end]).with_context(|| format!("{}: cannot write", target.display()))?;
+        at = end;
+    }
+    if at != body.len() {
+        bail!("scene bundle has {} stray bytes after its blobs", body.len() - at);
+    }
+    Scene::build(manifest.scene, dir, "bundle").map_err(|e: SceneError| anyhow::anyhow!(e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_scene_with_a_gltf_model_round_trips_and_tampering_is_refused() {
+        let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/ferns.json");
+        let b = pack(&examples).unwrap();
+        assert_eq!(b.hash, hash_of(&b.bytes));
+        assert_eq!(pack(&examples).unwrap().hash, b.hash, "packing is deterministic");
+        let dir = std::env::temp_dir().join(format!("sylva-bundle-{}", std::process::id()));
+        let s = unpack(&b.bytes, &dir).unwrap();
+        assert_eq!(s.unique_triangles(), 6232);
+        assert!(unpack(&b.bytes[..b.bytes.len() - 10], &dir).unwrap_err().to_string().contains("truncated"));
+        assert!(unpack(b"nonsense-bytes-here", &dir).unwrap_err().to_string().contains("bad magic"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
