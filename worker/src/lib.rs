@@ -6,6 +6,7 @@
 pub mod gpu;
 pub mod lb;
 pub mod prepare;
+pub mod service;
 pub mod trace;
 
 pub use gpu::GpuContext;

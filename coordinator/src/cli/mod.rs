@@ -5,6 +5,7 @@ mod lb;
 mod progress;
 mod render;
 mod scene;
+mod worker;
 
 use clap::{Parser, Subcommand};
 
@@ -38,6 +39,8 @@ enum Command {
     Lb(lb::LbCommand),
     /// Render a scene to a PNG, in this process.
     Render(render::RenderArgs),
+    /// Serve the worker API: hold scenes, render strips on this machine's GPU.
+    Worker(worker::WorkerArgs),
     /// Scene files: the paper's forest.
     #[command(subcommand)]
     Scene(scene::SceneCommand),
@@ -53,5 +56,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(c) => bench::run(c),
         Command::Scene(c) => scene::run(c),
         Command::Render(a) => render::run(a),
+        Command::Worker(a) => worker::run(a),
     }
 }

@@ -1,0 +1,55 @@
+//! `sylva worker --listen ADDR`: a GPU worker serving the worker API.
+
+use anyhow::Context;
+use clap::Args;
+use std::io::Write;
+use sylva_worker::GpuContext;
+use sylva_worker::service::{self, WorkerConfig};
+
+#[derive(Debug, Args)]
+pub struct WorkerArgs {
+    /// Address to listen on (port 0 picks a free port; the bound address is
+    /// printed on stdout).
+    #[arg(long, default_value = "127.0.0.1:50151")]
+    pub listen: String,
+    /// Largest scene bundle accepted, MiB.
+    #[arg(long, default_value_t = 1024)]
+    pub max_bundle_mib: u64,
+    /// Scene bundles kept in the cache, MiB.
+    #[arg(long, default_value_t = 4096)]
+    pub cache_mib: u64,
+}
+
+pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
+    let rt = tokio::runtime::Runtime::new()?;
+    rt.block_on(async {
+        let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("cannot listen on {}", a.listen))?;
+        let addr = listener.local_addr()?;
+        let ctx = GpuContext::new()?;
+        let config = WorkerConfig { max_bundle_bytes: a.max_bundle_mib << 20, cache_bytes: a.cache_mib << 20, ..WorkerConfig::default() };
+        tracing::info!(%addr, adapter = %ctx.adapter_name(), "worker ready");
+        println!("sylva worker listening on {addr}");
+        std::io::stdout().flush()?;
+        service::run(listener, ctx, config, shutdown_signal()).await
+    })
+}
+
+/// Resolves on Ctrl-C or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        if let Ok(mut s) = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            s.recv().await;
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {},
+        _ = term => {},
+    }
+    tracing::info!("shutting down");
+}

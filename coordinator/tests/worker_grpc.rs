@@ -1,0 +1,164 @@
+//! A real `sylva worker` process on loopback, spoken to over real gRPC.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use sylva_proto::pb;
+use sylva_proto::pb::worker_client::WorkerClient;
+use sylva_shared::bundle;
+use tonic::Code;
+
+/// A worker process, killed when dropped.
+struct WorkerProcess {
+    child: Child,
+    addr: String,
+}
+
+impl WorkerProcess {
+    fn start(extra: &[&str]) -> Self {
+        let runtime = std::env::temp_dir().join("sylva-xdg");
+        std::fs::create_dir_all(&runtime).unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_sylva"))
+            .args(["worker", "--listen", "127.0.0.1:0"])
+            .args(extra)
+            .env("XDG_RUNTIME_DIR", runtime)
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("worker starts");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+        let addr = line.trim().rsplit(' ').next().expect("address").to_string();
+        assert!(line.starts_with("sylva worker listening on"), "{line}");
+        Self { child, addr }
+    }
+
+    async fn client(&self) -> WorkerClient<tonic::transport::Channel> {
+        WorkerClient::connect(format!("http://{}", self.addr)).await.unwrap().max_decoding_message_size(256 << 20)
+    }
+}
+
+impl Drop for WorkerProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn scene_file(dir: &Path) -> PathBuf {
+    let text = r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 8000, "seed": 1 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 0] }, { "model": "maple", "position": [9, 0, 5], "rotate_y_deg": 50 } ],
+        "camera": { "position": [4, 8, -26], "look_at": [4, 7, 0], "fov_y_deg": 45 },
+        "sun": { "elevation_deg": 50, "azimuth_deg": 120 },
+        "ground": { "color": [0.1, 0.08, 0.05] },
+        "lb": { "grid": 12, "preset": "leaf" }
+    }"#;
+    std::fs::create_dir_all(dir).unwrap();
+    let p = dir.join("scene.json");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn chunks(b: &bundle::SceneBundle, size: usize) -> Vec<pb::SceneChunk> {
+    b.bytes
+        .chunks(size)
+        .enumerate()
+        .map(|(i, c)| pb::SceneChunk {
+            hash: if i == 0 { b.hash.clone() } else { String::new() },
+            total_size: if i == 0 { b.bytes.len() as u64 } else { 0 },
+            data: c.to_vec(),
+        })
+        .collect()
+}
+
+fn frame() -> pb::FrameSettings {
+    pb::FrameSettings { width: 48, height: 24, spp: 2, seed: 3, lighting: "lb".into(), accel: "bvh".into(), lb_strength: 0.35, ambient: vec![] }
+}
+
+#[tokio::test]
+async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
+    let dir = std::env::temp_dir().join(format!("sylva-grpc-{}", std::process::id()));
+    let b = bundle::pack(&scene_file(&dir)).unwrap();
+    let w = WorkerProcess::start(&[]);
+    let mut c = w.client().await;
+    let r = c.load_scene(tokio_stream::iter(chunks(&b, 1000))).await.unwrap().into_inner();
+    assert_eq!((r.hash.as_str(), r.was_cached), (b.hash.as_str(), false));
+    let again = c.load_scene(tokio_stream::iter(vec![pb::SceneChunk { hash: b.hash.clone(), total_size: b.bytes.len() as u64, data: vec![] }])).await.unwrap();
+    assert!(again.into_inner().was_cached);
+
+    let mut remote = vec![0f32; 48 * 24 * 3];
+    for (x0, x1) in [(0, 20), (20, 48)] {
+        let s = c.render_strip(pb::RenderStripRequest { scene_hash: b.hash.clone(), frame: Some(frame()), x0, x1 }).await.unwrap().into_inner();
+        assert_eq!((s.x0, s.width, s.height), (x0, x1 - x0, 24));
+        let px: Vec<f32> = s.rgb_f32.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+        for y in 0..24usize {
+            for x in 0..(x1 - x0) as usize {
+                for k in 0..3 {
+                    remote[(y * 48 + x0 as usize + x) * 3 + k] = px[(y * (x1 - x0) as usize + x) * 3 + k];
+                }
+            }
+        }
+    }
+    // The same frame rendered here, in this process.
+    let scene = bundle::unpack(&b.bytes, &dir.join("local")).unwrap();
+    let ctx = sylva_worker::GpuContext::new().unwrap();
+    let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_shared::accel::AccelKind::Bvh, sylva_shared::scene::LightingMode::Lb, &|_| {}).unwrap();
+    let f = sylva_worker::trace::FrameSettings {
+        width: 48,
+        height: 24,
+        spp: 2,
+        seed: 3,
+        lighting: sylva_shared::scene::LightingMode::Lb,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+    };
+    let local = p.renderer.render_strip(&ctx, &f, 0, 48).unwrap();
+    let local: Vec<u32> = local.pixels.iter().flatten().map(|v| v.to_bits()).collect();
+    assert_eq!(remote.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), local);
+
+    let st = c.status(pb::StatusRequest {}).await.unwrap().into_inner();
+    assert_eq!(st.cached_scenes, vec![b.hash.clone()]);
+    assert!(st.gpu_memory_bytes > 0 && !st.adapter.is_empty());
+}
+
+#[tokio::test]
+async fn bad_requests_get_their_codes_and_the_worker_stays_up() {
+    let dir = std::env::temp_dir().join(format!("sylva-grpc-bad-{}", std::process::id()));
+    let b = bundle::pack(&scene_file(&dir)).unwrap();
+    let w = WorkerProcess::start(&["--max-bundle-mib", "1"]);
+    let mut c = w.client().await;
+    // Wrong hash.
+    let mut wrong = chunks(&b, 4096);
+    wrong[0].hash = "0".repeat(64);
+    assert_eq!(c.load_scene(tokio_stream::iter(wrong)).await.unwrap_err().code(), Code::InvalidArgument);
+    // Truncated upload.
+    let mut short = chunks(&b, 512);
+    short.pop();
+    let e = c.load_scene(tokio_stream::iter(short)).await.unwrap_err();
+    assert!(e.code() == Code::InvalidArgument && e.message().contains("truncated"), "{e:?}");
+    // Over the worker's bundle limit.
+    let big = pb::SceneChunk { hash: b.hash.clone(), total_size: 2 << 20, data: vec![] };
+    assert_eq!(c.load_scene(tokio_stream::iter(vec![big])).await.unwrap_err().code(), Code::ResourceExhausted);
+    // A malformed bundle with a matching hash.
+    let junk = b"SYLVABN1 this is not a manifest".to_vec();
+    let jb = bundle::SceneBundle { hash: bundle::hash_of(&junk), bytes: junk };
+    let e = c.load_scene(tokio_stream::iter(chunks(&jb, 100))).await.unwrap_err();
+    assert!(e.code() == Code::InvalidArgument && e.message().contains("bundle"), "{e:?}");
+    // Rendering a scene the worker does not hold.
+    let req = |f: pb::FrameSettings, x0, x1| pb::RenderStripRequest { scene_hash: b.hash.clone(), frame: Some(f), x0, x1 };
+    assert_eq!(c.render_strip(req(frame(), 0, 48)).await.unwrap_err().code(), Code::NotFound);
+    // Absurd sizes.
+    c.load_scene(tokio_stream::iter(chunks(&b, 8192))).await.unwrap();
+    for (f, x0, x1) in [
+        (pb::FrameSettings { width: 20_000, ..frame() }, 0, 48),
+        (pb::FrameSettings { spp: 5000, ..frame() }, 0, 48),
+        (pb::FrameSettings { lb_strength: f32::NAN, ..frame() }, 0, 48),
+        (pb::FrameSettings { lighting: "sunny".into(), ..frame() }, 0, 48),
+        (frame(), 40, 60),
+    ] {
+        assert_eq!(c.render_strip(req(f, x0, x1)).await.unwrap_err().code(), Code::InvalidArgument);
+    }
+    // Still serving.
+    c.render_strip(req(frame(), 0, 8)).await.unwrap();
+    assert_eq!(c.status(pb::StatusRequest {}).await.unwrap().into_inner().busy_strips, 0);
+}
