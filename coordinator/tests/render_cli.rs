@@ -70,7 +70,7 @@ fn render_writes_image_and_stats() {
     let out = dir.join("frame.png");
     let stats: Value = serde_json::from_str(&ok(&[
         "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "96", "--height", "48", "--spp", "2", "--exr",
-        "--json",
+        "--local-workers", "0", "--json",
     ]))
     .unwrap();
     assert_eq!(png_size(&out), (96, 48));
@@ -101,7 +101,7 @@ fn the_forest_grid_can_be_switched_off() {
     std::fs::write(&scene, serde_json::to_string(&v).unwrap()).unwrap();
     let out = dir.join("f.png");
     let stats: Value = serde_json::from_str(&ok(&[
-        "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "32", "--height", "16", "--json",
+        "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "32", "--height", "16", "--local-workers", "0", "--json",
     ]))
     .unwrap();
     assert_eq!(stats["forest_grid"]["used"], false);
@@ -117,7 +117,7 @@ fn every_lighting_method_and_structure_renders() {
         let out = dir.join(format!("{lighting}.png"));
         let stats: Value = serde_json::from_str(&ok(&[
             "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "64", "--height", "32", "--lighting", lighting,
-            "--accel", accel, "--json",
+            "--accel", accel, "--local-workers", "0", "--json",
         ]))
         .unwrap();
         assert_eq!(stats["lighting"], lighting);

@@ -87,11 +87,10 @@ fn external_uris(gltf_json: &[u8]) -> anyhow::Result<Vec<String>> {
     let mut out = Vec::new();
     for key in ["buffers", "images"] {
         for item in v[key].as_array().into_iter().flatten() {
-            if let Some(uri) = item["uri"].as_str() {
-                if !uri.starts_with("data:") {
+            if let Some(uri) = item["uri"].as_str()
+                && !uri.starts_with("data:") {
                     out.push(uri.to_string());
                 }
-            }
         }
     }
     Ok(out)

@@ -75,6 +75,27 @@ pub struct RenderArgs {
     /// Print the stats JSON on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Worker processes to start on loopback for this render (0: render in
+    /// this process, without gRPC).
+    #[arg(long, default_value_t = 2)]
+    pub local_workers: usize,
+    /// Render on these running workers (`host:port,…`) instead of starting any.
+    #[arg(long, value_delimiter = ',')]
+    pub workers: Vec<String>,
+    /// How the frame is cut into strips for the workers.
+    #[arg(long, value_enum, default_value = "dynamic")]
+    pub schedule: ScheduleArg,
+    /// Seconds a worker may take over one strip before it is handed to another.
+    #[arg(long, default_value_t = 600)]
+    pub strip_deadline_s: u64,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ScheduleArg {
+    /// One equal strip per worker.
+    Static,
+    /// More strips than workers, pulled by idle workers.
+    Dynamic,
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
@@ -102,6 +123,9 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         AccelArg::Kd => AccelKind::Kd,
         AccelArg::Bvh => AccelKind::Bvh,
     };
+    if a.local_workers > 0 || !a.workers.is_empty() {
+        return render_on_workers(&a, &scene, lighting, accel, phases);
+    }
     let bar = ProgressBar::new_spinner();
     bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
@@ -231,20 +255,196 @@ fn matched_ambient(ctx: &GpuContext, r: &sylva_worker::trace::StripRenderer, f: 
         ..*f
     };
     let s = r.render_strip(ctx, &small, 0, small.width)?;
+    Ok(ambient_from(&s.pixels, &s.coverage))
+}
+
+/// The mean of `pixels` weighted by how much of each shows a model.
+fn ambient_from(pixels: &[[f32; 3]], coverage: &[f32]) -> [f32; 3] {
     let mut sum = [0.0f64; 3];
     let mut weight = 0.0f64;
-    for (p, &c) in s.pixels.iter().zip(&s.coverage) {
+    for (p, &c) in pixels.iter().zip(coverage) {
         for k in 0..3 {
             sum[k] += p[k] as f64 * c as f64;
         }
         weight += c as f64;
     }
     if weight == 0.0 {
-        return Ok([0.0; 3]);
+        return [0.0; 3];
     }
-    Ok(sum.map(|v| (v / weight) as f32))
+    sum.map(|v| (v / weight) as f32)
 }
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Worker processes started for one render, stopped when dropped.
+struct LocalWorkers {
+    children: Vec<std::process::Child>,
+    addrs: Vec<String>,
+}
+
+impl LocalWorkers {
+    fn start(n: usize) -> anyhow::Result<Self> {
+        use std::io::BufRead;
+        let exe = std::env::current_exe().context("cannot find the sylva executable")?;
+        let mut w = LocalWorkers { children: Vec::new(), addrs: Vec::new() };
+        for _ in 0..n {
+            let mut child = std::process::Command::new(&exe)
+                .args(["worker", "--listen", "127.0.0.1:0"])
+                .stdout(std::process::Stdio::piped())
+                .spawn()
+                .context("cannot start a local worker")?;
+            let mut line = String::new();
+            std::io::BufReader::new(child.stdout.take().expect("piped")).read_line(&mut line)?;
+            w.children.push(child);
+            let addr = line.trim().strip_prefix("sylva worker listening on ").context("a local worker did not start")?;
+            w.addrs.push(addr.to_string());
+        }
+        Ok(w)
+    }
+}
+
+impl Drop for LocalWorkers {
+    fn drop(&mut self) {
+        for c in &mut self.children {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+/// Renders through gRPC workers: local processes started here, or the
+/// running ones named by `--workers`.
+fn render_on_workers(
+    a: &RenderArgs,
+    scene: &Scene,
+    lighting: LightingMode,
+    accel: AccelKind,
+    mut phases: Vec<(&'static str, f64)>,
+) -> anyhow::Result<()> {
+    use sylva_coordinator::farm::{self, FarmEvent};
+    use sylva_coordinator::schedule::{ScheduleKind, scheduler};
+    let t = Instant::now();
+    let bundle = sylva_shared::bundle::pack(&a.scene)?;
+    phases.push(("bundle", ms(t)));
+    let t = Instant::now();
+    let local = if a.workers.is_empty() { Some(LocalWorkers::start(a.local_workers)?) } else { None };
+    let addrs = local.as_ref().map_or_else(|| a.workers.clone(), |l| l.addrs.clone());
+    if local.is_some() {
+        phases.push(("start workers", ms(t)));
+    }
+    let kind = match a.schedule {
+        ScheduleArg::Static => ScheduleKind::Static,
+        ScheduleArg::Dynamic => ScheduleKind::Dynamic,
+    };
+    let lighting_name = serde_json::to_value(lighting)?.as_str().unwrap_or("lb").to_string();
+    let accel_name = serde_json::to_value(accel)?.as_str().unwrap_or("bvh").to_string();
+    let mut frame = sylva_proto::pb::FrameSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        seed: a.seed,
+        lighting: lighting_name,
+        accel: accel_name,
+        lb_strength: a.lb_strength,
+        ambient: vec![],
+    };
+    let deadline = std::time::Duration::from_secs(a.strip_deadline_s.max(1));
+    let rt = tokio::runtime::Runtime::new()?;
+    let mut ambient = [0.0f32; 3];
+    if lighting == LightingMode::Ambient {
+        let t = Instant::now();
+        let small = sylva_proto::pb::FrameSettings {
+            width: (a.width / 4).max(16),
+            height: (a.height / 4).max(8),
+            spp: 1,
+            lighting: "lb-visualize".into(),
+            ..frame.clone()
+        };
+        let w = small.width;
+        let f = rt.block_on(farm::render_frame(&addrs, &bundle, small, vec![(0, w)], deadline, |_| {}))?;
+        ambient = ambient_from(&f.image.pixels, &f.coverage);
+        frame.ambient = ambient.to_vec();
+        phases.push(("ambient match", ms(t)));
+    }
+    let plan = scheduler(kind).plan(a.width, addrs.len(), &[]);
+    let bar = ProgressBar::new(plan.len() as u64);
+    bar.set_style(ProgressStyle::with_template("rendering [{bar:40}] {pos}/{len} strips on {msg} {elapsed}").expect("valid template").progress_chars("=> "));
+    bar.set_message(format!("{} workers", addrs.len()));
+    let b2 = bar.clone();
+    let t = Instant::now();
+    let result = rt.block_on(farm::render_frame(&addrs, &bundle, frame, plan, deadline, move |e| match e {
+        FarmEvent::StripDone { .. } => b2.inc(1),
+        FarmEvent::StripRetried { strip, worker, error } => tracing::warn!(?strip, %worker, %error, "strip re-queued"),
+        FarmEvent::WorkerDropped { worker, error } => tracing::warn!(%worker, %error, "worker dropped for this frame"),
+    }))?;
+    let frame_ms = ms(t);
+    phases.push(("frame", frame_ms));
+    bar.finish_and_clear();
+    drop(local);
+
+    let t = Instant::now();
+    let (ldr, tone) = reinhard(&result.image, 0.18);
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    }
+    write_png(&a.out, a.width, a.height, &ldr)?;
+    phases.push(("tone map", ms(t)));
+    let exr = if a.exr {
+        let p = a.out.with_extension("exr");
+        result.image.write_exr(&p)?;
+        Some(p)
+    } else {
+        None
+    };
+    let traced = result.rays[0] + result.rays[1];
+    let stats_path = stats_path(&a.out);
+    let stats = json!({
+        "scene": a.scene,
+        "image": a.out,
+        "exr": exr,
+        "width": a.width,
+        "height": a.height,
+        "spp": a.spp,
+        "accel": accel,
+        "lighting": lighting,
+        "schedule": kind,
+        "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
+        "workers": result.workers,
+        "strips": result.strip_ms.iter().map(|(s, ms)| json!({ "x0": s.0, "x1": s.1, "render_ms": ms })).collect::<Vec<_>>(),
+        "upload_ms": result.upload_ms,
+        "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
+        "rays": {
+            "primary": result.rays[0],
+            "shadow": result.rays[1],
+            "transparent_passed": result.rays[2],
+            "mrays_per_second": traced as f64 / (frame_ms / 1e3) / 1e6,
+        },
+        "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
+        "instances": scene.instances.len(),
+        "models": scene.models.len(),
+        "ambient": ambient,
+        "tone_map": tone,
+        "coverage": result.coverage.iter().map(|&c| c as f64).sum::<f64>() / result.coverage.len() as f64,
+    });
+    std::fs::write(&stats_path, serde_json::to_string_pretty(&stats)? + "\n").with_context(|| format!("{}: cannot write", stats_path.display()))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&stats)?);
+    } else {
+        println!(
+            "rendered {} ({}×{}, {} spp, {:?}, {:?}) on {} workers in {:.0} ms; wrote {} and {}",
+            a.scene.display(),
+            a.width,
+            a.height,
+            a.spp,
+            accel,
+            lighting,
+            addrs.len(),
+            frame_ms,
+            a.out.display(),
+            stats_path.display()
+        );
+    }
+    Ok(())
 }

@@ -1,0 +1,80 @@
+//! How a frame is cut into vertical strips for a set of workers.
+
+mod dynamic;
+mod fixed;
+
+pub use dynamic::Dynamic;
+pub use fixed::Static;
+
+use serde::{Deserialize, Serialize};
+
+/// A strip: columns `[x0, x1)`.
+pub type Strip = (u32, u32);
+
+/// Which scheduler.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScheduleKind {
+    /// N equal strips, one per worker (the paper's way).
+    Static,
+    /// More strips than workers, pulled by idle workers, sized so the last
+    /// ones finish together.
+    #[default]
+    Dynamic,
+}
+
+/// Cuts a frame into strips.
+pub trait Scheduler {
+    /// Strips covering `[0, width)` exactly, in pull order, for `workers`
+    /// workers; `column_cost` (one value per column, any scale) says where
+    /// the work is, or is empty when unknown.
+    fn plan(&self, width: u32, workers: usize, column_cost: &[f64]) -> Vec<Strip>;
+}
+
+/// The scheduler of a kind.
+pub fn scheduler(kind: ScheduleKind) -> Box<dyn Scheduler + Send + Sync> {
+    match kind {
+        ScheduleKind::Static => Box::new(Static),
+        ScheduleKind::Dynamic => Box::new(Dynamic::default()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn covers(strips: &[Strip], width: u32) -> bool {
+        let mut s = strips.to_vec();
+        s.sort();
+        s.first().map(|f| f.0) == Some(0) && s.last().map(|l| l.1) == Some(width) && s.windows(2).all(|w| w[0].1 == w[1].0) && s.iter().all(|x| x.0 < x.1)
+    }
+
+    #[test]
+    fn every_plan_covers_the_frame_once() {
+        for kind in [ScheduleKind::Static, ScheduleKind::Dynamic] {
+            for (w, n) in [(896u32, 1usize), (896, 2), (896, 7), (100, 16), (5, 8), (1, 3)] {
+                let p = scheduler(kind).plan(w, n, &[]);
+                assert!(covers(&p, w), "{kind:?} {w} {n}: {p:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn static_gives_one_equal_strip_per_worker_and_dynamic_more_shrinking_ones() {
+        assert_eq!(Static.plan(896, 4, &[]), vec![(0, 224), (224, 448), (448, 672), (672, 896)]);
+        let d = Dynamic::default().plan(896, 4, &[]);
+        assert!(d.len() > 4);
+        let widths: Vec<u32> = d.iter().map(|s| s.1 - s.0).collect();
+        assert!(widths.first() > widths.last(), "{widths:?}");
+    }
+
+    #[test]
+    fn dynamic_strips_follow_the_cost() {
+        // All the work in the right half: the strips there are narrower.
+        let cost: Vec<f64> = (0..800).map(|x| if x < 400 { 0.01 } else { 1.0 }).collect();
+        let d = Dynamic::default().plan(800, 4, &cost);
+        let left = d.iter().filter(|s| s.1 <= 400).count();
+        let right = d.iter().filter(|s| s.0 >= 400).count();
+        assert!(right > 3 * left.max(1), "left {left}, right {right}: {d:?}");
+    }
+}

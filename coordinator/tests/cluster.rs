@@ -1,0 +1,159 @@
+//! Frames rendered by real worker processes over real gRPC on loopback:
+//! identical to a single in-process render, through a worker killed with
+//! SIGKILL mid-frame, and with several jobs at once.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use sylva_coordinator::farm::{self, FarmEvent};
+use sylva_coordinator::schedule::{Dynamic, Scheduler, Static};
+use sylva_proto::pb;
+use sylva_shared::bundle;
+
+struct Worker {
+    child: Child,
+    addr: String,
+}
+
+fn start_worker() -> Worker {
+    let runtime = std::env::temp_dir().join("sylva-xdg");
+    std::fs::create_dir_all(&runtime).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sylva"))
+        .args(["worker", "--listen", "127.0.0.1:0"])
+        .env("XDG_RUNTIME_DIR", runtime)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    Worker { addr: line.trim().rsplit(' ').next().unwrap().to_string(), child }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn scene(dir: &Path) -> PathBuf {
+    std::fs::create_dir_all(dir).unwrap();
+    let p = dir.join("scene.json");
+    std::fs::write(
+        &p,
+        r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 6000, "seed": 1 } },
+                    "birch": { "tree": { "species": "paper_birch", "triangles": 6000, "seed": 2 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 0] }, { "model": "birch", "position": [8, 0, 4], "rotate_y_deg": 30 } ],
+        "camera": { "position": [4, 8, -26], "look_at": [4, 7, 0], "fov_y_deg": 45 },
+        "sun": { "elevation_deg": 50, "azimuth_deg": 120 },
+        "ground": { "color": [0.1, 0.08, 0.05] },
+        "lb": { "grid": 12, "preset": "leaf" }
+    }"#,
+    )
+    .unwrap();
+    p
+}
+
+fn frame(seed: u32) -> pb::FrameSettings {
+    pb::FrameSettings { width: 96, height: 48, spp: 2, seed, lighting: "lb".into(), accel: "bvh".into(), lb_strength: 0.35, ambient: vec![] }
+}
+
+/// The same frame, rendered in this process without gRPC.
+fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
+    let scene = bundle::unpack(&b.bytes, dir).unwrap();
+    let ctx = sylva_worker::GpuContext::new().unwrap();
+    let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_shared::accel::AccelKind::Bvh, sylva_shared::scene::LightingMode::Lb, &|_| {}).unwrap();
+    let f = sylva_worker::trace::FrameSettings {
+        width: 96,
+        height: 48,
+        spp: 2,
+        seed,
+        lighting: sylva_shared::scene::LightingMode::Lb,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+    };
+    p.renderer.render_strip(&ctx, &f, 0, 96).unwrap().pixels.iter().flatten().map(|v| v.to_bits()).collect()
+}
+
+fn bits(img: &sylva_shared::film::HdrImage) -> Vec<u32> {
+    img.pixels.iter().flatten().map(|v| v.to_bits()).collect()
+}
+
+const DEADLINE: Duration = Duration::from_secs(120);
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn three_workers_render_the_frame_a_single_process_renders() {
+    let dir = std::env::temp_dir().join(format!("sylva-cluster-a-{}", std::process::id()));
+    let b = bundle::pack(&scene(&dir)).unwrap();
+    let want = reference(&b, &dir.join("ref"), 5);
+    let workers: Vec<Worker> = (0..3).map(|_| start_worker()).collect();
+    let addrs: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
+    for plan in [Static.plan(96, 3, &[]), Dynamic::default().plan(96, 3, &[])] {
+        let f = farm::render_frame(&addrs, &b, frame(5), plan, DEADLINE, |_| {}).await.unwrap();
+        assert_eq!(bits(&f.image), want);
+        assert!(f.workers.iter().all(|w| w.strips > 0 && !w.dropped), "{:?}", f.workers);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_killed_mid_frame_loses_nothing() {
+    let dir = std::env::temp_dir().join(format!("sylva-cluster-b-{}", std::process::id()));
+    let b = bundle::pack(&scene(&dir)).unwrap();
+    let want = reference(&b, &dir.join("ref"), 9);
+    let workers = Arc::new(Mutex::new((0..3).map(|_| start_worker()).collect::<Vec<_>>()));
+    let addrs: Vec<String> = workers.lock().unwrap().iter().map(|w| w.addr.clone()).collect();
+    let victim = addrs[1].clone();
+    // Many narrow strips, so plenty are still queued when the kill comes.
+    let plan = Dynamic { share: 8.0, min_width: 2 }.plan(96, 3, &[]);
+    assert!(plan.len() > 12);
+    let killed = Arc::new(Mutex::new(false));
+    let (w2, k2) = (workers.clone(), killed.clone());
+    let f = farm::render_frame(&addrs, &b, frame(9), plan, DEADLINE, move |e| {
+        if let FarmEvent::StripDone { .. } = e {
+            let mut k = k2.lock().unwrap();
+            if !*k {
+                // SIGKILL: the worker dies with whatever strip it holds.
+                let _ = w2.lock().unwrap()[1].child.kill();
+                *k = true;
+            }
+        }
+    })
+    .await
+    .unwrap();
+    assert!(*killed.lock().unwrap());
+    assert_eq!(bits(&f.image), want, "the frame must be bit-identical to a clean run");
+    let v = f.workers.iter().find(|w| w.worker == victim).unwrap();
+    assert!(v.dropped && v.failures >= 1, "{v:?}");
+    let survivors: u32 = f.workers.iter().filter(|w| w.worker != victim).map(|w| w.strips).sum();
+    assert!(survivors > 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn three_jobs_at_once_all_complete_correctly() {
+    let dir = std::env::temp_dir().join(format!("sylva-cluster-c-{}", std::process::id()));
+    let b = bundle::pack(&scene(&dir)).unwrap();
+    let want: Vec<Vec<u32>> = (0..3).map(|s| reference(&b, &dir.join(format!("ref{s}")), 20 + s)).collect();
+    let workers: Vec<Worker> = (0..3).map(|_| start_worker()).collect();
+    let addrs: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
+    let jobs = (0..3u32).map(|s| {
+        let (addrs, b) = (addrs.clone(), b.clone());
+        tokio::spawn(async move { farm::render_frame(&addrs, &b, frame(20 + s), Dynamic::default().plan(96, 3, &[]), DEADLINE, |_| {}).await })
+    });
+    for (job, want) in jobs.collect::<Vec<_>>().into_iter().zip(&want) {
+        let f = job.await.unwrap().unwrap();
+        assert_eq!(&bits(&f.image), want);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frame_fails_with_a_reason_when_no_worker_can_finish_it() {
+    let dir = std::env::temp_dir().join(format!("sylva-cluster-d-{}", std::process::id()));
+    let b = bundle::pack(&scene(&dir)).unwrap();
+    // Nobody listens there.
+    let gone = vec!["127.0.0.1:9".to_string()];
+    let err = farm::render_frame(&gone, &b, frame(1), Static.plan(96, 1, &[]), DEADLINE, |_| {}).await.unwrap_err();
+    assert!(err.to_string().contains("no worker left"), "{err}");
+}
