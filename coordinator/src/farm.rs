@@ -14,6 +14,7 @@ use sylva_proto::pb;
 use sylva_proto::pb::worker_client::WorkerClient;
 use sylva_shared::bundle::SceneBundle;
 use sylva_shared::film::HdrImage;
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 
 /// Failures after which a worker is dropped for the frame.
@@ -66,18 +67,23 @@ pub struct FarmFrame {
     pub upload_ms: f64,
 }
 
-/// Connects to a worker at `addr` (`host:port`).
-pub async fn connect(addr: &str) -> anyhow::Result<WorkerClient<Channel>> {
+/// A worker client that sends the bearer token, if any.
+pub type Client = WorkerClient<InterceptedService<Channel, Auth>>;
+type Auth = Box<dyn FnMut(tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> + Send + Sync>;
+
+/// Connects to a worker at `addr` (`host:port`), sending `token` with every call.
+pub async fn connect(addr: &str, token: Option<String>) -> anyhow::Result<Client> {
     let ch = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))?
         .connect_timeout(Duration::from_secs(10))
         .connect()
         .await
         .map_err(|e| anyhow::anyhow!("cannot reach worker {addr}: {e}"))?;
-    Ok(WorkerClient::new(ch).max_decoding_message_size(1 << 30).max_encoding_message_size(1 << 30))
+    let auth: Auth = Box::new(sylva_proto::auth::attach(token));
+    Ok(WorkerClient::with_interceptor(ch, auth).max_decoding_message_size(1 << 30).max_encoding_message_size(1 << 30))
 }
 
 /// Sends `bundle` to a worker (a single empty chunk first, in case it is cached).
-pub async fn upload(client: &mut WorkerClient<Channel>, bundle: &SceneBundle) -> Result<(), tonic::Status> {
+pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<(), tonic::Status> {
     let probe = pb::SceneChunk { hash: bundle.hash.clone(), total_size: bundle.bytes.len() as u64, data: Vec::new() };
     if bundle.bytes.is_empty() || client.load_scene(tokio_stream::iter(vec![probe])).await.is_ok_and(|r| r.get_ref().was_cached) {
         return Ok(());
@@ -101,23 +107,39 @@ struct Shared {
     total: usize,
 }
 
+/// Where and how to reach the workers.
+#[derive(Clone, Debug)]
+pub struct Workers {
+    /// Addresses, `host:port`.
+    pub addrs: Vec<String>,
+    /// Bearer token the workers require, if any.
+    pub token: Option<String>,
+}
+
+impl Workers {
+    /// Workers that need no token.
+    pub fn open(addrs: &[String]) -> Self {
+        Self { addrs: addrs.to_vec(), token: None }
+    }
+}
+
 /// Renders `frame` of `bundle` on `workers`, strips pulled in `plan` order;
 /// `deadline` bounds each strip's RPC.
 pub async fn render_frame(
-    workers: &[String],
+    workers: &Workers,
     bundle: &SceneBundle,
     frame: pb::FrameSettings,
     plan: Vec<Strip>,
     deadline: Duration,
     events: impl Fn(FarmEvent) + Send + Sync + 'static,
 ) -> anyhow::Result<FarmFrame> {
-    anyhow::ensure!(!workers.is_empty(), "no workers to render on");
+    anyhow::ensure!(!workers.addrs.is_empty(), "no workers to render on");
     let t = Instant::now();
     let mut clients = Vec::new();
     let mut reports: Vec<WorkerReport> = Vec::new();
-    for w in workers {
+    for w in &workers.addrs {
         let mut report = WorkerReport { worker: w.clone(), ..Default::default() };
-        match connect(w).await {
+        match connect(w, workers.token.clone()).await {
             Ok(mut c) => match upload(&mut c, bundle).await {
                 Ok(()) => clients.push(Some(c)),
                 Err(e) => {

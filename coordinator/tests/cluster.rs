@@ -92,7 +92,7 @@ async fn three_workers_render_the_frame_a_single_process_renders() {
     let workers: Vec<Worker> = (0..3).map(|_| start_worker()).collect();
     let addrs: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
     for plan in [Static.plan(96, 3, &[]), Dynamic::default().plan(96, 3, &[])] {
-        let f = farm::render_frame(&addrs, &b, frame(5), plan, DEADLINE, |_| {}).await.unwrap();
+        let f = farm::render_frame(&farm::Workers::open(&addrs), &b, frame(5), plan, DEADLINE, |_| {}).await.unwrap();
         assert_eq!(bits(&f.image), want);
         assert!(f.workers.iter().all(|w| w.strips > 0 && !w.dropped), "{:?}", f.workers);
     }
@@ -111,7 +111,7 @@ async fn a_worker_killed_mid_frame_loses_nothing() {
     assert!(plan.len() > 12);
     let killed = Arc::new(Mutex::new(false));
     let (w2, k2) = (workers.clone(), killed.clone());
-    let f = farm::render_frame(&addrs, &b, frame(9), plan, DEADLINE, move |e| {
+    let f = farm::render_frame(&farm::Workers::open(&addrs), &b, frame(9), plan, DEADLINE, move |e| {
         if let FarmEvent::StripDone { .. } = e {
             let mut k = k2.lock().unwrap();
             if !*k {
@@ -140,7 +140,7 @@ async fn three_jobs_at_once_all_complete_correctly() {
     let addrs: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
     let jobs = (0..3u32).map(|s| {
         let (addrs, b) = (addrs.clone(), b.clone());
-        tokio::spawn(async move { farm::render_frame(&addrs, &b, frame(20 + s), Dynamic::default().plan(96, 3, &[]), DEADLINE, |_| {}).await })
+        tokio::spawn(async move { farm::render_frame(&farm::Workers::open(&addrs), &b, frame(20 + s), Dynamic::default().plan(96, 3, &[]), DEADLINE, |_| {}).await })
     });
     for (job, want) in jobs.collect::<Vec<_>>().into_iter().zip(&want) {
         let f = job.await.unwrap().unwrap();
@@ -154,6 +154,6 @@ async fn a_frame_fails_with_a_reason_when_no_worker_can_finish_it() {
     let b = bundle::pack(&scene(&dir)).unwrap();
     // Nobody listens there.
     let gone = vec!["127.0.0.1:9".to_string()];
-    let err = farm::render_frame(&gone, &b, frame(1), Static.plan(96, 1, &[]), DEADLINE, |_| {}).await.unwrap_err();
+    let err = farm::render_frame(&farm::Workers::open(&gone), &b, frame(1), Static.plan(96, 1, &[]), DEADLINE, |_| {}).await.unwrap_err();
     assert!(err.to_string().contains("no worker left"), "{err}");
 }

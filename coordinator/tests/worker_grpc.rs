@@ -162,3 +162,23 @@ async fn bad_requests_get_their_codes_and_the_worker_stays_up() {
     c.render_strip(req(frame(), 0, 8)).await.unwrap();
     assert_eq!(c.status(pb::StatusRequest {}).await.unwrap().into_inner().busy_strips, 0);
 }
+
+#[tokio::test]
+async fn with_a_token_calls_without_it_are_refused() {
+    let dir = std::env::temp_dir().join(format!("sylva-grpc-token-{}", std::process::id()));
+    let b = bundle::pack(&scene_file(&dir)).unwrap();
+    let w = WorkerProcess::start(&["--token", "s3cret"]);
+    let mut c = w.client().await;
+    assert_eq!(c.status(pb::StatusRequest {}).await.unwrap_err().code(), Code::Unauthenticated);
+    assert_eq!(c.load_scene(tokio_stream::iter(chunks(&b, 4096))).await.unwrap_err().code(), Code::Unauthenticated);
+    let mut authed = sylva_coordinator::farm::connect(&w.addr, Some("s3cret".into())).await.unwrap();
+    sylva_coordinator::farm::upload(&mut authed, &b).await.unwrap();
+    assert_eq!(authed.status(pb::StatusRequest {}).await.unwrap().into_inner().cached_scenes, vec![b.hash.clone()]);
+    let mut wrong = sylva_coordinator::farm::connect(&w.addr, Some("guess".into())).await.unwrap();
+    assert_eq!(wrong.status(pb::StatusRequest {}).await.unwrap_err().code(), Code::Unauthenticated);
+    // Health stays open for orchestrators' probes.
+    let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", w.addr)).unwrap().connect().await.unwrap();
+    let mut health = tonic_health::pb::health_client::HealthClient::new(ch);
+    let h = health.check(tonic_health::pb::HealthCheckRequest { service: "sylva.v1.Worker".into() }).await.unwrap().into_inner();
+    assert_eq!(h.status, tonic_health::pb::health_check_response::ServingStatus::Serving as i32);
+}

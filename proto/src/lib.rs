@@ -1,5 +1,7 @@
 //! Sylva's wire format, generated from `proto/sylva/v1/*.proto`.
 
+pub mod auth;
+
 /// Package `sylva.v1`.
 pub mod pb {
     tonic::include_proto!("sylva.v1");

@@ -32,6 +32,9 @@ pub struct WorkerConfig {
     pub cache_bytes: u64,
     /// Where bundles are unpacked.
     pub cache_dir: PathBuf,
+    /// When set, every worker-API and reflection call needs it as a bearer
+    /// token (health checks stay open for orchestrators' probes).
+    pub token: Option<String>,
 }
 
 impl Default for WorkerConfig {
@@ -40,6 +43,7 @@ impl Default for WorkerConfig {
             max_bundle_bytes: 1 << 30,
             cache_bytes: 4 << 30,
             cache_dir: std::env::temp_dir().join(format!("sylva-worker-{}", std::process::id())),
+            token: None,
         }
     }
 }
@@ -272,12 +276,13 @@ pub async fn run(
     let reflection = tonic_reflection::server::Builder::configure()
         .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
         .build_v1()?;
+    let auth = sylva_proto::auth::require(config.token.clone());
     let service = WorkerService::new(ctx, config);
     reporter.set_serving::<pb::worker_server::WorkerServer<WorkerService>>().await;
     tonic::transport::Server::builder()
         .add_service(health)
-        .add_service(reflection)
-        .add_service(service.into_server())
+        .add_service(tonic::service::interceptor::InterceptedService::new(reflection, auth.clone()))
+        .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), auth))
         .serve_with_incoming_shutdown(tokio_stream::wrappers::TcpListenerStream::new(listener), shutdown)
         .await?;
     Ok(())

@@ -88,6 +88,13 @@ pub struct RenderArgs {
     /// Seconds a worker may take over one strip before it is handed to another.
     #[arg(long, default_value_t = 600)]
     pub strip_deadline_s: u64,
+    /// Bearer token the `--workers` require (also `SYLVA_TOKEN`, `--token-file`).
+    /// Local workers get a fresh random token of their own.
+    #[arg(long)]
+    pub token: Option<String>,
+    /// Read the workers' bearer token from this file.
+    #[arg(long)]
+    pub token_file: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -285,13 +292,15 @@ struct LocalWorkers {
 }
 
 impl LocalWorkers {
-    fn start(n: usize) -> anyhow::Result<Self> {
+    /// Starts `n` workers on loopback that require `token`.
+    fn start(n: usize, token: &str) -> anyhow::Result<Self> {
         use std::io::BufRead;
         let exe = std::env::current_exe().context("cannot find the sylva executable")?;
         let mut w = LocalWorkers { children: Vec::new(), addrs: Vec::new() };
         for _ in 0..n {
             let mut child = std::process::Command::new(&exe)
                 .args(["worker", "--listen", "127.0.0.1:0"])
+                .env("SYLVA_TOKEN", token)
                 .stdout(std::process::Stdio::piped())
                 .spawn()
                 .context("cannot start a local worker")?;
@@ -329,8 +338,17 @@ fn render_on_workers(
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
     phases.push(("bundle", ms(t)));
     let t = Instant::now();
-    let local = if a.workers.is_empty() { Some(LocalWorkers::start(a.local_workers)?) } else { None };
-    let addrs = local.as_ref().map_or_else(|| a.workers.clone(), |l| l.addrs.clone());
+    let (local, workers) = if a.workers.is_empty() {
+        // Other users of this machine must not be able to use our workers.
+        let token = sylva_shared::bundle::hash_of(format!("{:?} {}", std::time::SystemTime::now(), std::process::id()).as_bytes());
+        let l = LocalWorkers::start(a.local_workers, &token)?;
+        let w = farm::Workers { addrs: l.addrs.clone(), token: Some(token) };
+        (Some(l), w)
+    } else {
+        let token = sylva_proto::auth::load_token(a.token.as_deref(), a.token_file.as_deref()).context("cannot read the token file")?;
+        (None, farm::Workers { addrs: a.workers.clone(), token })
+    };
+    let addrs = workers.addrs.clone();
     if local.is_some() {
         phases.push(("start workers", ms(t)));
     }
@@ -363,7 +381,7 @@ fn render_on_workers(
             ..frame.clone()
         };
         let w = small.width;
-        let f = rt.block_on(farm::render_frame(&addrs, &bundle, small, vec![(0, w)], deadline, |_| {}))?;
+        let f = rt.block_on(farm::render_frame(&workers, &bundle, small, vec![(0, w)], deadline, |_| {}))?;
         ambient = ambient_from(&f.image.pixels, &f.coverage);
         frame.ambient = ambient.to_vec();
         phases.push(("ambient match", ms(t)));
@@ -374,7 +392,7 @@ fn render_on_workers(
     bar.set_message(format!("{} workers", addrs.len()));
     let b2 = bar.clone();
     let t = Instant::now();
-    let result = rt.block_on(farm::render_frame(&addrs, &bundle, frame, plan, deadline, move |e| match e {
+    let result = rt.block_on(farm::render_frame(&workers, &bundle, frame, plan, deadline, move |e| match e {
         FarmEvent::StripDone { .. } => b2.inc(1),
         FarmEvent::StripRetried { strip, worker, error } => tracing::warn!(?strip, %worker, %error, "strip re-queued"),
         FarmEvent::WorkerDropped { worker, error } => tracing::warn!(%worker, %error, "worker dropped for this frame"),
