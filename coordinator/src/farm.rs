@@ -61,8 +61,9 @@ pub struct FarmFrame {
     pub rays: [u64; 3],
     /// Per worker.
     pub workers: Vec<WorkerReport>,
-    /// Every strip's render time on the worker, by strip.
-    pub strip_ms: Vec<(Strip, f64)>,
+    /// Every strip: its render time on the worker and the whole RPC's time
+    /// as the coordinator saw it (render plus transfer), by strip.
+    pub strip_ms: Vec<(Strip, f64, f64)>,
     /// Time to send the bundle to every worker.
     pub upload_ms: f64,
 }
@@ -103,7 +104,7 @@ pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<(), ton
 
 struct Shared {
     queue: Mutex<VecDeque<Strip>>,
-    done: Mutex<Vec<(pb::RenderStripReply, Strip)>>,
+    done: Mutex<Vec<(pb::RenderStripReply, Strip, f64)>>,
     total: usize,
 }
 
@@ -177,6 +178,7 @@ pub async fn render_frame(
                 };
                 let mut req = tonic::Request::new(pb::RenderStripRequest { scene_hash: hash.clone(), frame: Some(frame.clone()), x0: strip.0, x1: strip.1 });
                 req.set_timeout(deadline);
+                let sent = Instant::now();
                 match tokio::time::timeout(deadline + Duration::from_secs(1), client.render_strip(req)).await {
                     Ok(Ok(reply)) => {
                         let r = reply.into_inner();
@@ -184,7 +186,7 @@ pub async fn render_frame(
                         report.render_ms += r.render_ms;
                         report.prepare_ms += r.prepare_ms;
                         events(FarmEvent::StripDone { strip, worker: report.worker.clone(), ms: r.render_ms });
-                        shared.done.lock().expect("lock").push((r, strip));
+                        shared.done.lock().expect("lock").push((r, strip, sent.elapsed().as_secs_f64() * 1e3));
                     }
                     failure => {
                         let error = match failure {
@@ -218,7 +220,7 @@ pub async fn render_frame(
     let mut coverage = vec![0.0f32; (frame.width * frame.height) as usize];
     let mut rays = [0u64; 3];
     let mut strip_ms = Vec::new();
-    for (r, strip) in &done {
+    for (r, strip, rpc_ms) in &done {
         let px: Vec<[f32; 3]> = r.rgb_f32.chunks_exact(12).map(|c| std::array::from_fn(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes")))).collect();
         anyhow::ensure!(px.len() == (r.width * frame.height) as usize && r.x0 == strip.0, "worker returned a malformed strip");
         image.paste_strip(r.x0, r.width, &px);
@@ -231,7 +233,7 @@ pub async fn render_frame(
             rays[1] += c.shadow;
             rays[2] += c.transparent;
         }
-        strip_ms.push((*strip, r.render_ms));
+        strip_ms.push((*strip, r.render_ms, *rpc_ms));
     }
     strip_ms.sort_by_key(|s| s.0);
     Ok(FarmFrame { image, coverage, rays, workers: reports, strip_ms, upload_ms })

@@ -157,3 +157,30 @@ async fn a_frame_fails_with_a_reason_when_no_worker_can_finish_it() {
     let err = farm::render_frame(&farm::Workers::open(&gone), &b, frame(1), Static.plan(96, 1, &[]), DEADLINE, |_| {}).await.unwrap_err();
     assert!(err.to_string().contains("no worker left"), "{err}");
 }
+
+#[test]
+fn the_scaling_benchmark_reports_measured_and_simulated_figures_and_a_chart() {
+    let dir = std::env::temp_dir().join(format!("sylva-cluster-e-{}", std::process::id()));
+    let scene = scene(&dir);
+    let chart = dir.join("scaling.svg");
+    let runtime = std::env::temp_dir().join("sylva-xdg");
+    let out = Command::new(env!("CARGO_BIN_EXE_sylva"))
+        .args(["bench", "scaling", scene.to_str().unwrap(), "--workers", "1,2,4", "--width", "64", "--height", "32"])
+        .args(["--profile-strips", "8", "--local-real", "1", "--chart", chart.to_str().unwrap(), "--json"])
+        .env("XDG_RUNTIME_DIR", runtime)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 6);
+    for r in rows {
+        let sim = &r["simulated"];
+        assert!(sim["frame_s"].as_f64().unwrap() > 0.0 && sim["speedup"].as_f64().unwrap() > 0.0);
+        // Only one worker count was measured on real processes.
+        assert_eq!(r["measured"].is_null(), r["workers"] != 1, "{r}");
+    }
+    assert!(v["figures"]["simulated"].as_str().unwrap().contains("virtual workers"));
+    let svg = std::fs::read_to_string(&chart).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("ideal") && svg.contains("static") && svg.contains("dynamic"));
+}

@@ -19,6 +19,8 @@ pub enum BenchCommand {
     Lb(LbBenchArgs),
     /// Ray traversal (kd-tree and BVH, GPU and CPU) and frame time on the forest.
     Trace(TraceBenchArgs),
+    /// Strip-scaling speedup over worker counts, static against dynamic.
+    Scaling(ScalingBenchArgs),
 }
 
 /// What the benchmark solves.
@@ -54,6 +56,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Lb(a) => bench_lb(a),
         BenchCommand::Trace(a) => bench_trace(a),
+        BenchCommand::Scaling(a) => bench_scaling(a),
     }
 }
 
@@ -258,6 +261,186 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             "traversal": "closest hits of one primary ray per pixel, the same rays for every structure and machine; GPU time includes upload of the rays and read-back of the hits",
             "frames": "a whole frame rendered as one strip with LB lighting: primary and shadow rays, shading, read-back; after a warm-up dispatch",
         },
+    });
+    println!("{}", serde_json::to_string_pretty(&out)?);
+    Ok(())
+}
+
+#[derive(Debug, Args)]
+pub struct ScalingBenchArgs {
+    /// Scene file.
+    pub scene: std::path::PathBuf,
+    /// Worker counts.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,4,8,16")]
+    pub workers: Vec<usize>,
+    /// Schedules to compare.
+    #[arg(long, value_delimiter = ',', default_value = "static,dynamic")]
+    pub schedule: Vec<String>,
+    /// Frame width.
+    #[arg(long, default_value_t = 896)]
+    pub width: u32,
+    /// Frame height.
+    #[arg(long, default_value_t = 448)]
+    pub height: u32,
+    /// Rays per pixel.
+    #[arg(long, default_value_t = 1)]
+    pub spp: u32,
+    /// Running workers for measured wall times (`host:port,…`); without them
+    /// up to --local-real local workers are started for measured runs.
+    #[arg(long = "real-workers", value_delimiter = ',')]
+    pub real_workers: Vec<String>,
+    /// Largest worker count measured with local worker processes.
+    #[arg(long, default_value_t = 2)]
+    pub local_real: usize,
+    /// Strips the frame is profiled in, one at a time.
+    #[arg(long, default_value_t = 64)]
+    pub profile_strips: u32,
+    /// Where to draw the chart (SVG).
+    #[arg(long, default_value = "sylva-out/scaling.svg")]
+    pub chart: std::path::PathBuf,
+    /// Print JSON (always JSON; accepted for scripts).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The paper's Table 4: G80s, static strips, seconds per frame.
+const PAPER_TABLE_4: [(usize, f64); 4] = [(2, 1.162), (4, 0.666), (8, 0.351), (16, 0.170)];
+
+fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
+    use super::local::{LocalWorkers, fresh_token};
+    use sylva_coordinator::chart::{Series, line_chart};
+    use sylva_coordinator::farm::{self, Workers};
+    use sylva_coordinator::schedule::{ScheduleKind, scheduler};
+    use sylva_coordinator::simulate::FrameCost;
+    use sylva_shared::film::reinhard;
+
+    let kinds: Vec<ScheduleKind> = a
+        .schedule
+        .iter()
+        .map(|s| match s.as_str() {
+            "static" => Ok(ScheduleKind::Static),
+            "dynamic" => Ok(ScheduleKind::Dynamic),
+            o => Err(anyhow::anyhow!("--schedule {o:?}: static or dynamic")),
+        })
+        .collect::<anyhow::Result<_>>()?;
+    anyhow::ensure!(a.workers.iter().all(|&n| (1..=1024).contains(&n)), "--workers: counts in [1, 1024]");
+    anyhow::ensure!(a.width > 0 && a.height > 0 && a.width <= 16384 && a.height <= 16384, "image sides in [1, 16384]");
+    let scene = sylva_shared::scene::Scene::load(&a.scene)?;
+    let bundle = sylva_shared::bundle::pack(&a.scene)?;
+    let frame = sylva_proto::pb::FrameSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        seed: 1,
+        lighting: serde_json::to_value(scene.lighting)?.as_str().unwrap_or("lb").to_string(),
+        accel: "bvh".into(),
+        lb_strength: 0.35,
+        ambient: vec![],
+    };
+    let rt = tokio::runtime::Runtime::new()?;
+    let deadline = std::time::Duration::from_secs(3600);
+    // One worker profiles the frame: strips one at a time on one device.
+    let token = fresh_token();
+    let profiler = LocalWorkers::start(1, &token)?;
+    let one = Workers { addrs: profiler.addrs.clone(), token: Some(token.clone()) };
+    let whole = vec![(0, a.width)];
+    rt.block_on(farm::render_frame(&one, &bundle, frame.clone(), whole.clone(), deadline, |_| {}))?; // prepare + compile
+    let t = Instant::now();
+    let single = rt.block_on(farm::render_frame(&one, &bundle, frame.clone(), whole, deadline, |_| {}))?;
+    let single_ms = t.elapsed().as_secs_f64() * 1e3;
+    let n = a.profile_strips.clamp(1, a.width);
+    let fine: Vec<(u32, u32)> = (0..n).map(|i| (i * a.width / n, (i + 1) * a.width / n)).filter(|s| s.0 < s.1).collect();
+    let profile = rt.block_on(farm::render_frame(&one, &bundle, frame.clone(), fine, deadline, |_| {}))?;
+    drop(profiler);
+    let mut column_ms = vec![0.0; a.width as usize];
+    let mut overhead = 0.0;
+    for &((x0, x1), render, rpc) in &profile.strip_ms {
+        for c in &mut column_ms[x0 as usize..x1 as usize] {
+            *c = render / (x1 - x0) as f64;
+        }
+        overhead += (rpc - render).max(0.0);
+    }
+    let t = Instant::now();
+    let _ = reinhard(&single.image, 0.18);
+    let assembly_ms = t.elapsed().as_secs_f64() * 1e3;
+    let cost = FrameCost { column_ms, per_strip_ms: overhead / profile.strip_ms.len().max(1) as f64, assembly_ms };
+
+    let mut rows = Vec::new();
+    let mut lines = Vec::new();
+    for &kind in &kinds {
+        let base = cost.frame_ms(&scheduler(kind).plan(a.width, 1, &cost.column_ms), 1);
+        let mut pts = Vec::new();
+        for &w in &a.workers {
+            let plan = scheduler(kind).plan(a.width, w, &cost.column_ms);
+            let sim = cost.frame_ms(&plan, w);
+            // Measured wall time where real workers are at hand.
+            let measured = if w <= a.real_workers.len() || (a.real_workers.is_empty() && w <= a.local_real) {
+                let (_local, workers) = if a.real_workers.is_empty() {
+                    let l = LocalWorkers::start(w, &token)?;
+                    let ws = Workers { addrs: l.addrs.clone(), token: Some(token.clone()) };
+                    (Some(l), ws)
+                } else {
+                    (None, Workers { addrs: a.real_workers[..w].to_vec(), token: sylva_proto::auth::load_token(None, None)? })
+                };
+                rt.block_on(farm::render_frame(&workers, &bundle, frame.clone(), plan.clone(), deadline, |_| {}))?; // every worker prepares
+                let t = Instant::now();
+                rt.block_on(farm::render_frame(&workers, &bundle, frame.clone(), plan.clone(), deadline, |_| {}))?;
+                Some(t.elapsed().as_secs_f64() * 1e3 + cost.assembly_ms)
+            } else {
+                None
+            };
+            pts.push((w as f64, base / sim));
+            rows.push(json!({
+                "schedule": kind,
+                "workers": w,
+                "strips": plan.len(),
+                "simulated": { "frame_s": sim / 1e3, "speedup": base / sim, "efficiency": base / sim / w as f64 },
+                "measured": measured.map(|m| json!({ "frame_s": m / 1e3 })),
+                "paper_g80_s": PAPER_TABLE_4.iter().find(|p| p.0 == w).map(|p| p.1),
+            }));
+        }
+        lines.push(Series {
+            name: format!("{kind:?} (simulated)").to_lowercase(),
+            color: if kind == ScheduleKind::Static { "#c0392b" } else { "#2471a3" },
+            dashed: false,
+            points: pts,
+        });
+    }
+    let max_w = a.workers.iter().copied().max().unwrap_or(1) as f64;
+    lines.insert(0, Series { name: "ideal".into(), color: "#888", dashed: true, points: vec![(0.0, 0.0), (max_w, max_w)] });
+    let paper_base = 2.277;
+    lines.push(Series {
+        name: "paper, G80s".into(),
+        color: "#27ae60",
+        dashed: true,
+        points: std::iter::once((1.0, 1.0)).chain(PAPER_TABLE_4.iter().map(|&(w, s)| (w as f64, paper_base / s))).collect(),
+    });
+    let ticks: Vec<f64> = a.workers.iter().map(|&w| w as f64).collect();
+    if let Some(dir) = a.chart.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(&a.chart, line_chart("Strip scaling", "workers", "speedup", &ticks, &lines))?;
+    let out = json!({
+        "benchmark": "scaling",
+        "scene": a.scene,
+        "image": [a.width, a.height],
+        "spp": a.spp,
+        "machine": machine(),
+        "figures": {
+            "measured": "wall time of a frame on real worker processes (after a frame that lets every worker prepare the scene), plus assembly; on one machine the workers share its cores and device",
+            "simulated": "each column's render time measured by rendering profile_strips strips one at a time on one worker, plus the mean measured per-strip RPC and transfer overhead; the same scheduler code assigns the strips to N virtual workers that pull in order; plus measured assembly (tone mapping of the whole frame)",
+            "paper_g80_s": "Geist & Steele Table 4, static strips on G80s; their one-GPU frame took 2.277 s",
+        },
+        "profile": {
+            "strips": profile.strip_ms.len(),
+            "render_ms_total": profile.strip_ms.iter().map(|s| s.1).sum::<f64>(),
+            "per_strip_overhead_ms": cost.per_strip_ms,
+            "assembly_ms": cost.assembly_ms,
+            "single_worker_frame_ms": single_ms,
+            "bundle_upload_ms": profile.upload_ms,
+        },
+        "chart": a.chart,
+        "rows": rows,
     });
     println!("{}", serde_json::to_string_pretty(&out)?);
     Ok(())

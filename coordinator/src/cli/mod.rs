@@ -2,6 +2,7 @@
 
 mod bench;
 mod lb;
+mod local;
 mod progress;
 mod render;
 mod scene;

@@ -285,44 +285,6 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
-/// Worker processes started for one render, stopped when dropped.
-struct LocalWorkers {
-    children: Vec<std::process::Child>,
-    addrs: Vec<String>,
-}
-
-impl LocalWorkers {
-    /// Starts `n` workers on loopback that require `token`.
-    fn start(n: usize, token: &str) -> anyhow::Result<Self> {
-        use std::io::BufRead;
-        let exe = std::env::current_exe().context("cannot find the sylva executable")?;
-        let mut w = LocalWorkers { children: Vec::new(), addrs: Vec::new() };
-        for _ in 0..n {
-            let mut child = std::process::Command::new(&exe)
-                .args(["worker", "--listen", "127.0.0.1:0"])
-                .env("SYLVA_TOKEN", token)
-                .stdout(std::process::Stdio::piped())
-                .spawn()
-                .context("cannot start a local worker")?;
-            let mut line = String::new();
-            std::io::BufReader::new(child.stdout.take().expect("piped")).read_line(&mut line)?;
-            w.children.push(child);
-            let addr = line.trim().strip_prefix("sylva worker listening on ").context("a local worker did not start")?;
-            w.addrs.push(addr.to_string());
-        }
-        Ok(w)
-    }
-}
-
-impl Drop for LocalWorkers {
-    fn drop(&mut self) {
-        for c in &mut self.children {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-    }
-}
-
 /// Renders through gRPC workers: local processes started here, or the
 /// running ones named by `--workers`.
 fn render_on_workers(
@@ -340,8 +302,8 @@ fn render_on_workers(
     let t = Instant::now();
     let (local, workers) = if a.workers.is_empty() {
         // Other users of this machine must not be able to use our workers.
-        let token = sylva_shared::bundle::hash_of(format!("{:?} {}", std::time::SystemTime::now(), std::process::id()).as_bytes());
-        let l = LocalWorkers::start(a.local_workers, &token)?;
+        let token = super::local::fresh_token();
+        let l = super::local::LocalWorkers::start(a.local_workers, &token)?;
         let w = farm::Workers { addrs: l.addrs.clone(), token: Some(token) };
         (Some(l), w)
     } else {
@@ -430,7 +392,7 @@ fn render_on_workers(
         "schedule": kind,
         "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
         "workers": result.workers,
-        "strips": result.strip_ms.iter().map(|(s, ms)| json!({ "x0": s.0, "x1": s.1, "render_ms": ms })).collect::<Vec<_>>(),
+        "strips": result.strip_ms.iter().map(|(s, ms, rpc)| json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
         "upload_ms": result.upload_ms,
         "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
         "rays": {
