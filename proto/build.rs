@@ -6,7 +6,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = std::path::PathBuf::from(std::env::var("OUT_DIR")?);
     tonic_prost_build::configure()
         .file_descriptor_set_path(out.join("sylva_descriptor.bin"))
-        .compile_protos(&["sylva/v1/worker.proto"], &["."])?;
+        .compile_protos(&["sylva/v1/worker.proto", "sylva/v1/coordinator.proto"], &["."])?;
     println!("cargo:rerun-if-changed=sylva");
     Ok(())
 }

@@ -4,4 +4,5 @@
 pub mod chart;
 pub mod farm;
 pub mod schedule;
+pub mod service;
 pub mod simulate;

@@ -1,6 +1,7 @@
 //! The `sylva` subcommands.
 
 mod bench;
+mod coordinator;
 mod lb;
 mod local;
 mod progress;
@@ -40,6 +41,10 @@ enum Command {
     Lb(lb::LbCommand),
     /// Render a scene to a PNG, in this process.
     Render(render::RenderArgs),
+    /// Serve the coordinator API: queue jobs, cut them into strips for workers.
+    Coordinator(coordinator::CoordinatorArgs),
+    /// Send a render job to a running coordinator and follow it.
+    Submit(coordinator::SubmitArgs),
     /// Serve the worker API: hold scenes, render strips on this machine's GPU.
     Worker(worker::WorkerArgs),
     /// Scene files: the paper's forest.
@@ -58,5 +63,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Scene(c) => scene::run(c),
         Command::Render(a) => render::run(a),
         Command::Worker(a) => worker::run(a),
+        Command::Coordinator(a) => coordinator::run_coordinator(a),
+        Command::Submit(a) => coordinator::run_submit(a),
     }
 }

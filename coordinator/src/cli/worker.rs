@@ -24,6 +24,12 @@ pub struct WorkerArgs {
     /// Read the bearer token from this file.
     #[arg(long)]
     pub token_file: Option<std::path::PathBuf>,
+    /// Register with this coordinator (`host:port`) and re-register every few seconds.
+    #[arg(long)]
+    pub coordinator: Option<String>,
+    /// The address the coordinator should use for this worker (default: the bound one).
+    #[arg(long)]
+    pub advertise: Option<String>,
 }
 
 pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
@@ -37,6 +43,11 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         tracing::info!(%addr, adapter = %ctx.adapter_name(), "worker ready");
         println!("sylva worker listening on {addr}");
         std::io::stdout().flush()?;
+        if let Some(coord) = a.coordinator.clone() {
+            let me = a.advertise.clone().unwrap_or_else(|| addr.to_string());
+            let token = config.token.clone();
+            tokio::spawn(register_loop(coord, me, token));
+        }
         service::run(listener, ctx, config, shutdown_signal()).await
     })
 }
@@ -59,4 +70,22 @@ pub async fn shutdown_signal() {
         _ = term => {},
     }
     tracing::info!("shutting down");
+}
+
+/// Announces this worker to its coordinator, and again every few seconds
+/// (a restarted coordinator learns its workers back within one period).
+async fn register_loop(coordinator: String, me: String, token: Option<String>) {
+    use sylva_proto::pb;
+    loop {
+        let sent = async {
+            let ch = tonic::transport::Endpoint::from_shared(format!("http://{coordinator}")).ok()?.connect().await.ok()?;
+            let mut c = pb::coordinator_client::CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token.clone()));
+            c.register_worker(pb::RegisterWorkerRequest { addr: me.clone() }).await.ok()
+        }
+        .await;
+        if sent.is_none() {
+            tracing::warn!(%coordinator, "cannot register with the coordinator; retrying");
+        }
+        tokio::time::sleep(std::time::Duration::from_secs(5)).await;
+    }
 }
