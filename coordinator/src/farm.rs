@@ -25,8 +25,10 @@ const CHUNK: usize = 1 << 20;
 /// What happened, for progress bars and logs.
 #[derive(Clone, Debug)]
 pub enum FarmEvent {
-    /// A strip came back.
-    StripDone { strip: Strip, worker: String, ms: f64 },
+    /// A strip came back with `bytes` of pixels.
+    StripDone { strip: Strip, worker: String, ms: f64, bytes: u64 },
+    /// A scene bundle of `bytes` was sent to a worker.
+    BundleSent { worker: String, bytes: u64 },
     /// A strip failed on a worker and was put back on the queue.
     StripRetried { strip: Strip, worker: String, error: String },
     /// A worker was dropped for this frame.
@@ -83,11 +85,12 @@ pub async fn connect(addr: &str, token: Option<String>) -> anyhow::Result<Client
     Ok(WorkerClient::with_interceptor(ch, auth).max_decoding_message_size(1 << 30).max_encoding_message_size(1 << 30))
 }
 
-/// Sends `bundle` to a worker (a single empty chunk first, in case it is cached).
-pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<(), tonic::Status> {
+/// Sends `bundle` to a worker (a single empty chunk first, in case it is
+/// cached); returns the bytes sent.
+pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<u64, tonic::Status> {
     let probe = pb::SceneChunk { hash: bundle.hash.clone(), total_size: bundle.bytes.len() as u64, data: Vec::new() };
     if bundle.bytes.is_empty() || client.load_scene(tokio_stream::iter(vec![probe])).await.is_ok_and(|r| r.get_ref().was_cached) {
-        return Ok(());
+        return Ok(0);
     }
     let chunks: Vec<pb::SceneChunk> = bundle
         .bytes
@@ -99,7 +102,7 @@ pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<(), ton
             data: c.to_vec(),
         })
         .collect();
-    client.load_scene(tokio_stream::iter(chunks)).await.map(|_| ())
+    client.load_scene(tokio_stream::iter(chunks)).await.map(|_| bundle.bytes.len() as u64)
 }
 
 struct Shared {
@@ -138,11 +141,17 @@ pub async fn render_frame(
     let t = Instant::now();
     let mut clients = Vec::new();
     let mut reports: Vec<WorkerReport> = Vec::new();
+    let mut sent = Vec::new();
     for w in &workers.addrs {
         let mut report = WorkerReport { worker: w.clone(), ..Default::default() };
         match connect(w, workers.token.clone()).await {
             Ok(mut c) => match upload(&mut c, bundle).await {
-                Ok(()) => clients.push(Some(c)),
+                Ok(bytes) => {
+                    if bytes > 0 {
+                        sent.push((w.clone(), bytes));
+                    }
+                    clients.push(Some(c))
+                }
                 Err(e) => {
                     report.dropped = true;
                     events(FarmEvent::WorkerDropped { worker: w.clone(), error: format!("scene upload: {}", e.message()) });
@@ -158,6 +167,9 @@ pub async fn render_frame(
         reports.push(report);
     }
     let upload_ms = t.elapsed().as_secs_f64() * 1e3;
+    for (w, b) in &sent {
+        events(FarmEvent::BundleSent { worker: w.clone(), bytes: *b });
+    }
     let shared = Arc::new(Shared { total: plan.len(), queue: Mutex::new(plan.into_iter().collect()), done: Mutex::new(Vec::new()) });
     let events = Arc::new(events);
     let mut tasks = Vec::new();
@@ -185,7 +197,8 @@ pub async fn render_frame(
                         report.strips += 1;
                         report.render_ms += r.render_ms;
                         report.prepare_ms += r.prepare_ms;
-                        events(FarmEvent::StripDone { strip, worker: report.worker.clone(), ms: r.render_ms });
+                        let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
+                        events(FarmEvent::StripDone { strip, worker: report.worker.clone(), ms: r.render_ms, bytes });
                         shared.done.lock().expect("lock").push((r, strip, sent.elapsed().as_secs_f64() * 1e3));
                     }
                     failure => {

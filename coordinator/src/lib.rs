@@ -3,6 +3,7 @@
 
 pub mod chart;
 pub mod farm;
+pub mod metrics;
 pub mod schedule;
 pub mod service;
 pub mod simulate;

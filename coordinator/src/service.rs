@@ -19,7 +19,7 @@ use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
 
 /// How the coordinator runs.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct CoordinatorConfig {
     /// Jobs rendered at the same time.
     pub max_running: usize,
@@ -33,6 +33,8 @@ pub struct CoordinatorConfig {
     pub strip_deadline: Duration,
     /// Time between worker heartbeats.
     pub heartbeat: Duration,
+    /// Serve Prometheus metrics here.
+    pub metrics: Option<tokio::net::TcpListener>,
 }
 
 impl Default for CoordinatorConfig {
@@ -44,6 +46,7 @@ impl Default for CoordinatorConfig {
             workers: Vec::new(),
             strip_deadline: Duration::from_secs(600),
             heartbeat: Duration::from_secs(2),
+            metrics: None,
         }
     }
 }
@@ -61,6 +64,7 @@ struct Job {
 
 struct State {
     config: CoordinatorConfig,
+    metrics: Arc<crate::metrics::Metrics>,
     jobs: Mutex<BTreeMap<String, Job>>,
     workers: Mutex<BTreeMap<String, pb::WorkerInfo>>,
     next: Mutex<u64>,
@@ -76,19 +80,26 @@ pub struct CoordinatorService {
 
 impl CoordinatorService {
     /// A coordinator; call [`CoordinatorService::spawn_background`] to run jobs.
-    pub fn new(config: CoordinatorConfig) -> Self {
+    pub fn new(mut config: CoordinatorConfig) -> Self {
+        let metrics_listener = config.metrics.take();
         let workers = config.workers.iter().map(|a| (a.clone(), pb::WorkerInfo { addr: a.clone(), ..Default::default() })).collect();
         let slots = Arc::new(Semaphore::new(config.max_running.max(1)));
-        Self {
+        let service = Self {
             state: Arc::new(State {
                 config,
+                metrics: Arc::new(crate::metrics::Metrics::default()),
                 jobs: Mutex::new(BTreeMap::new()),
                 workers: Mutex::new(workers),
                 next: Mutex::new(1),
                 slots,
                 wake: tokio::sync::Notify::new(),
             }),
+        };
+        if let Some(l) = metrics_listener {
+            let s = service.state.clone();
+            tokio::spawn(crate::metrics::serve(l, service.state.metrics.clone(), move || s.gauges()));
         }
+        service
     }
 
     /// Starts the scheduler loop and the worker heartbeats.
@@ -107,6 +118,17 @@ impl CoordinatorService {
 }
 
 impl State {
+    fn gauges(&self) -> crate::metrics::Gauges {
+        let jobs = self.jobs.lock().expect("lock");
+        let workers = self.workers.lock().expect("lock");
+        crate::metrics::Gauges {
+            queued: jobs.values().filter(|j| j.summary.state == "queued").count() as u64,
+            running: jobs.values().filter(|j| j.summary.state == "running").count() as u64,
+            workers_alive: workers.values().filter(|w| w.alive).count() as u64,
+            workers: workers.len() as u64,
+        }
+    }
+
     fn event(&self, id: &str) -> pb::JobEvent {
         let jobs = self.jobs.lock().expect("lock");
         let j = &jobs[id];
@@ -185,7 +207,8 @@ impl State {
             move |e| {
                 let mut ev = pb::JobEvent { id: jid.clone(), state: "running".into(), ..Default::default() };
                 match e {
-                    FarmEvent::StripDone { worker, ms, .. } => {
+                    FarmEvent::StripDone { worker, ms, bytes, .. } => {
+                        me.metrics.strip_done(ms / 1e3, bytes);
                         let mut jobs = me.jobs.lock().expect("lock");
                         if let Some(j) = jobs.get_mut(&jid) {
                             j.summary.strips_done += 1;
@@ -195,7 +218,14 @@ impl State {
                         ev.worker = worker;
                         ev.strip_ms = ms;
                     }
-                    FarmEvent::StripRetried { worker, error, .. } => ev.message = format!("strip re-queued from {worker}: {error}"),
+                    FarmEvent::StripRetried { worker, error, .. } => {
+                        me.metrics.strip_retried();
+                        ev.message = format!("strip re-queued from {worker}: {error}");
+                    }
+                    FarmEvent::BundleSent { bytes, .. } => {
+                        me.metrics.bundle_sent(bytes);
+                        return;
+                    }
                     FarmEvent::WorkerDropped { worker, error } => ev.message = format!("worker {worker} dropped: {error}"),
                 }
                 let _ = tx2.send(ev);

@@ -81,7 +81,8 @@ async fn wait_for_workers(addr: &str, n: usize) -> CoordinatorClient<tonic::tran
 async fn three_clients_at_once_get_the_single_process_image() {
     let dir = std::env::temp_dir().join(format!("sylva-service-a-{}", std::process::id()));
     let s = scene(&dir);
-    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0"], &[]);
+    let metrics = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().to_string();
+    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--metrics", &metrics], &[]);
     let _workers: Vec<Proc> = (0..3).map(|_| spawn(&["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr], &[])).collect();
     let mut c = wait_for_workers(&coord.addr, 3).await;
     let reference = dir.join("reference.png");
@@ -110,6 +111,22 @@ async fn three_clients_at_once_get_the_single_process_image() {
     assert_eq!(c.fetch_result(pb::FetchRequest { id: "job-99".into(), format: "png".into() }).await.unwrap_err().code(), Code::NotFound);
     let exr = c.fetch_result(pb::FetchRequest { id: jobs[0].id.clone(), format: "exr".into() }).await.unwrap().into_inner();
     assert!(exr.data.starts_with(&[0x76, 0x2f, 0x31, 0x01]), "OpenEXR magic");
+
+    // Prometheus text on the metrics port.
+    use std::io::{Read, Write};
+    let mut sock = std::net::TcpStream::connect(&metrics).unwrap();
+    sock.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+    let mut text = String::new();
+    sock.read_to_string(&mut text).unwrap();
+    let value = |name: &str| -> f64 {
+        text.lines().find(|l| l.starts_with(&format!("{name} "))).and_then(|l| l.rsplit(' ').next()).unwrap_or_else(|| panic!("{name} in {text}")).parse().unwrap()
+    };
+    let strips: u32 = jobs.iter().map(|j| j.strips_total).sum();
+    assert_eq!(value("sylva_strips_done_total"), strips as f64);
+    assert_eq!(value("sylva_strip_seconds_count"), strips as f64);
+    assert_eq!(value("sylva_workers_alive"), 3.0);
+    assert_eq!(value("sylva_jobs_queued"), 0.0);
+    assert!(value("sylva_bytes_received_total") > 0.0 && value("sylva_bytes_sent_total") > 0.0);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

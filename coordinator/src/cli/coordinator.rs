@@ -35,6 +35,9 @@ pub struct CoordinatorArgs {
     /// Read the token from this file.
     #[arg(long)]
     pub token_file: Option<PathBuf>,
+    /// Serve Prometheus metrics on this address (`GET /metrics`).
+    #[arg(long)]
+    pub metrics: Option<String>,
 }
 
 pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
@@ -43,7 +46,13 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
     rt.block_on(async {
         let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("cannot listen on {}", a.listen))?;
         let addr = listener.local_addr()?;
+        let metrics = match &a.metrics {
+            Some(m) => Some(tokio::net::TcpListener::bind(m).await.with_context(|| format!("cannot listen on {m}"))?),
+            None => None,
+        };
+        let metrics_addr = metrics.as_ref().map(|l| l.local_addr()).transpose()?;
         let config = CoordinatorConfig {
+            metrics,
             max_running: a.max_running,
             max_bundle_bytes: a.max_bundle_mib << 20,
             token,
@@ -51,6 +60,9 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             strip_deadline: Duration::from_secs(a.strip_deadline_s.max(1)),
             ..Default::default()
         };
+        if let Some(m) = metrics_addr {
+            eprintln!("sylva coordinator metrics on http://{m}/metrics");
+        }
         println!("sylva coordinator listening on {addr}");
         std::io::stdout().flush()?;
         service::run(listener, config, shutdown_signal()).await

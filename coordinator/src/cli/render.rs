@@ -358,6 +358,7 @@ fn render_on_workers(
         FarmEvent::StripDone { .. } => b2.inc(1),
         FarmEvent::StripRetried { strip, worker, error } => tracing::warn!(?strip, %worker, %error, "strip re-queued"),
         FarmEvent::WorkerDropped { worker, error } => tracing::warn!(%worker, %error, "worker dropped for this frame"),
+        FarmEvent::BundleSent { worker, bytes } => tracing::info!(%worker, bytes, "scene sent"),
     }))?;
     let frame_ms = ms(t);
     phases.push(("frame", frame_ms));
