@@ -181,21 +181,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     phases.push(("trace", trace_ms));
     bar.finish_and_clear();
 
-    let t = Instant::now();
-    let (ldr, tone) = reinhard(&frame, 0.18);
-    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
-    }
-    write_png(&a.out, a.width, a.height, &ldr)?;
-    phases.push(("tone map", ms(t)));
-    let exr = if a.exr {
-        let p = a.out.with_extension("exr");
-        frame.write_exr(&p)?;
-        Some(p)
-    } else {
-        None
-    };
-    let stats_path = stats_path(&a.out);
+    let (tone, exr) = write_image(&a, &frame, &mut phases)?;
     let stats = json!({
         "scene": a.scene,
         "image": a.out,
@@ -223,22 +209,44 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         "tone_map": tone,
         "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
     });
-    std::fs::write(&stats_path, serde_json::to_string_pretty(&stats)? + "\n").with_context(|| format!("{}: cannot write", stats_path.display()))?;
+    let how = format!("in {:.0} ms of tracing, {:.2} Mrays/s", trace_ms, rays.traced() as f64 / (trace_ms / 1e3) / 1e6);
+    report(&a, &stats, accel, lighting, &how)
+}
+
+/// Tone-maps the whole frame once and writes the PNG (and the EXR when asked).
+fn write_image(a: &RenderArgs, frame: &HdrImage, phases: &mut Vec<(&'static str, f64)>) -> anyhow::Result<(sylva_shared::film::ToneMapStats, Option<PathBuf>)> {
+    let t = Instant::now();
+    let (ldr, tone) = reinhard(frame, 0.18);
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    }
+    write_png(&a.out, a.width, a.height, &ldr)?;
+    phases.push(("tone map", ms(t)));
+    let exr = if a.exr {
+        let p = a.out.with_extension("exr");
+        frame.write_exr(&p)?;
+        Some(p)
+    } else {
+        None
+    };
+    Ok((tone, exr))
+}
+
+/// Writes the stats beside the image and tells the user.
+fn report(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting: LightingMode, how: &str) -> anyhow::Result<()> {
+    let path = stats_path(&a.out);
+    std::fs::write(&path, serde_json::to_string_pretty(stats)? + "\n").with_context(|| format!("{}: cannot write", path.display()))?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&stats)?);
+        println!("{}", serde_json::to_string_pretty(stats)?);
     } else {
         println!(
-            "rendered {} ({}×{}, {} spp, {:?}, {:?}) in {:.0} ms of tracing, {:.2} Mrays/s; wrote {} and {}",
+            "rendered {} ({}×{}, {} spp, {accel:?}, {lighting:?}) {how}; wrote {} and {}",
             a.scene.display(),
             a.width,
             a.height,
             a.spp,
-            accel,
-            lighting,
-            trace_ms,
-            rays.traced() as f64 / (trace_ms / 1e3) / 1e6,
             a.out.display(),
-            stats_path.display()
+            path.display()
         );
     }
     Ok(())
@@ -365,22 +373,8 @@ fn render_on_workers(
     bar.finish_and_clear();
     drop(local);
 
-    let t = Instant::now();
-    let (ldr, tone) = reinhard(&result.image, 0.18);
-    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
-    }
-    write_png(&a.out, a.width, a.height, &ldr)?;
-    phases.push(("tone map", ms(t)));
-    let exr = if a.exr {
-        let p = a.out.with_extension("exr");
-        result.image.write_exr(&p)?;
-        Some(p)
-    } else {
-        None
-    };
+    let (tone, exr) = write_image(a, &result.image, &mut phases)?;
     let traced = result.rays[0] + result.rays[1];
-    let stats_path = stats_path(&a.out);
     let stats = json!({
         "scene": a.scene,
         "image": a.out,
@@ -409,23 +403,5 @@ fn render_on_workers(
         "tone_map": tone,
         "coverage": result.coverage.iter().map(|&c| c as f64).sum::<f64>() / result.coverage.len() as f64,
     });
-    std::fs::write(&stats_path, serde_json::to_string_pretty(&stats)? + "\n").with_context(|| format!("{}: cannot write", stats_path.display()))?;
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&stats)?);
-    } else {
-        println!(
-            "rendered {} ({}×{}, {} spp, {:?}, {:?}) on {} workers in {:.0} ms; wrote {} and {}",
-            a.scene.display(),
-            a.width,
-            a.height,
-            a.spp,
-            accel,
-            lighting,
-            addrs.len(),
-            frame_ms,
-            a.out.display(),
-            stats_path.display()
-        );
-    }
-    Ok(())
+    report(a, &stats, accel, lighting, &format!("on {} workers in {:.0} ms", addrs.len(), frame_ms))
 }
