@@ -82,7 +82,9 @@ impl CoordinatorService {
     /// A coordinator; call [`CoordinatorService::spawn_background`] to run jobs.
     pub fn new(mut config: CoordinatorConfig) -> Self {
         let metrics_listener = config.metrics.take();
-        let workers = config.workers.iter().map(|a| (a.clone(), pb::WorkerInfo { addr: a.clone(), ..Default::default() })).collect();
+        // Named workers count as alive until a heartbeat says otherwise, so a
+        // job submitted at once can use them (the farm copes if one is not).
+        let workers = config.workers.iter().map(|a| (a.clone(), pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() })).collect();
         let slots = Arc::new(Semaphore::new(config.max_running.max(1)));
         let service = Self {
             state: Arc::new(State {
@@ -190,6 +192,14 @@ impl State {
         let _ = tx.send(self.event(id));
         let frame = spec.frame.clone().unwrap_or_default();
         let addrs: Vec<String> = self.workers.lock().expect("lock").values().filter(|w| w.alive).map(|w| w.addr.clone()).collect();
+        if addrs.is_empty() {
+            let why = "no worker is registered and alive: start workers with --coordinator, or the coordinator with --workers";
+            self.set_state(id, "failed", Some(why.into()));
+            let mut ev = self.event(id);
+            ev.message = why.into();
+            let _ = tx.send(ev);
+            return;
+        }
         let kind = if spec.schedule == "static" { ScheduleKind::Static } else { ScheduleKind::Dynamic };
         let plan = scheduler(kind).plan(frame.width, addrs.len().max(1), &[]);
         if let Some(j) = self.jobs.lock().expect("lock").get_mut(id) {

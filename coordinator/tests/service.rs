@@ -152,3 +152,20 @@ async fn bad_jobs_are_refused_and_tokens_are_required() {
     let ok = submit(&["--height", "16"], Some("s3cret"));
     assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn named_workers_serve_at_once_and_no_workers_is_a_clear_failure() {
+    let dir = std::env::temp_dir().join(format!("sylva-service-c-{}", std::process::id()));
+    let s = scene(&dir);
+    let png = dir.join("out.png");
+    // No workers at all: the job fails with the reason.
+    let lonely = spawn(&["coordinator", "--listen", "127.0.0.1:0"], &[]);
+    let out = sylva(&["submit", s.to_str().unwrap(), "--coordinator", &lonely.addr, "-o", png.to_str().unwrap(), "--width", "16", "--height", "8"], &[]);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no worker is registered"), "{}", String::from_utf8_lossy(&out.stderr));
+    // A worker named on the command line is used by a job submitted straight away.
+    let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[]);
+    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr], &[]);
+    let out = sylva(&["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "16", "--height", "8"], &[]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(png.exists());
+}
