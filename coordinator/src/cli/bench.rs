@@ -289,6 +289,9 @@ pub struct ScalingBenchArgs {
     /// up to --local-real local workers are started for measured runs.
     #[arg(long = "real-workers", value_delimiter = ',')]
     pub real_workers: Vec<String>,
+    /// The token the `--real-workers` require.
+    #[command(flatten)]
+    pub auth: super::token::TokenArgs,
     /// Largest worker count measured with local worker processes.
     #[arg(long, default_value_t = 2)]
     pub local_real: usize,
@@ -380,7 +383,7 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
                     let ws = Workers { addrs: l.addrs.clone(), token: Some(token.clone()) };
                     (Some(l), ws)
                 } else {
-                    (None, Workers { addrs: a.real_workers[..w].to_vec(), token: sylva_proto::auth::load_token(None, None)? })
+                    (None, Workers { addrs: a.real_workers[..w].to_vec(), token: a.auth.load()? })
                 };
                 rt.block_on(farm::render_frame(&workers, &bundle, frame.clone(), plan.clone(), deadline, |_| {}))?; // every worker prepares
                 let t = Instant::now();

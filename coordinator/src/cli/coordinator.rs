@@ -29,19 +29,16 @@ pub struct CoordinatorArgs {
     /// Seconds one strip may take before it goes to another worker.
     #[arg(long, default_value_t = 600)]
     pub strip_deadline_s: u64,
-    /// Bearer token clients must send (and workers are sent); also `SYLVA_TOKEN`, `--token-file`.
-    #[arg(long)]
-    pub token: Option<String>,
-    /// Read the token from this file.
-    #[arg(long)]
-    pub token_file: Option<PathBuf>,
+    /// The token clients must send, and workers are sent.
+    #[command(flatten)]
+    pub auth: super::token::TokenArgs,
     /// Serve Prometheus metrics on this address (`GET /metrics`).
     #[arg(long)]
     pub metrics: Option<String>,
 }
 
 pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
-    let token = sylva_proto::auth::load_token(a.token.as_deref(), a.token_file.as_deref()).context("cannot read the token file")?;
+    let token = a.auth.load()?;
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async {
         let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("cannot listen on {}", a.listen))?;
@@ -102,15 +99,12 @@ pub struct SubmitArgs {
     /// Also fetch the linear HDR frame as OpenEXR.
     #[arg(long)]
     pub exr: bool,
-    /// Bearer token (also `SYLVA_TOKEN`, `--token-file`).
-    #[arg(long)]
-    pub token: Option<String>,
-    #[arg(long)]
-    pub token_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub auth: super::token::TokenArgs,
 }
 
 pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
-    let token = sylva_proto::auth::load_token(a.token.as_deref(), a.token_file.as_deref()).context("cannot read the token file")?;
+    let token = a.auth.load()?;
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async {

@@ -7,6 +7,7 @@ mod local;
 mod progress;
 mod render;
 mod scene;
+mod token;
 mod worker;
 
 use clap::{Parser, Subcommand};

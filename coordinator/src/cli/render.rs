@@ -14,10 +14,8 @@ use sylva_worker::GpuContext;
 use sylva_worker::prepare::prepare;
 use sylva_worker::trace::{FrameSettings, RayCounts};
 
-/// Largest image side a render accepts.
-pub const MAX_SIDE: u32 = 16_384;
-/// Most rays per pixel a render accepts.
-pub const MAX_SPP: u32 = 4_096;
+// The same limits every worker enforces on a strip request.
+use sylva_worker::service::{MAX_SIDE, MAX_SPP};
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
 
@@ -88,13 +86,9 @@ pub struct RenderArgs {
     /// Seconds a worker may take over one strip before it is handed to another.
     #[arg(long, default_value_t = 600)]
     pub strip_deadline_s: u64,
-    /// Bearer token the `--workers` require (also `SYLVA_TOKEN`, `--token-file`).
-    /// Local workers get a fresh random token of their own.
-    #[arg(long)]
-    pub token: Option<String>,
-    /// Read the workers' bearer token from this file.
-    #[arg(long)]
-    pub token_file: Option<PathBuf>,
+    /// The token the `--workers` require; local workers get a fresh random one.
+    #[command(flatten)]
+    pub auth: super::token::TokenArgs,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -315,7 +309,7 @@ fn render_on_workers(
         let w = farm::Workers { addrs: l.addrs.clone(), token: Some(token) };
         (Some(l), w)
     } else {
-        let token = sylva_proto::auth::load_token(a.token.as_deref(), a.token_file.as_deref()).context("cannot read the token file")?;
+        let token = a.auth.load()?;
         (None, farm::Workers { addrs: a.workers.clone(), token })
     };
     let addrs = workers.addrs.clone();

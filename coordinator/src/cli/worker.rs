@@ -18,12 +18,8 @@ pub struct WorkerArgs {
     /// Scene bundles kept in the cache, MiB.
     #[arg(long, default_value_t = 4096)]
     pub cache_mib: u64,
-    /// Require this bearer token on every call (also `SYLVA_TOKEN`, `--token-file`).
-    #[arg(long)]
-    pub token: Option<String>,
-    /// Read the bearer token from this file.
-    #[arg(long)]
-    pub token_file: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub auth: super::token::TokenArgs,
     /// Register with this coordinator (`host:port`) and re-register every few seconds.
     #[arg(long)]
     pub coordinator: Option<String>,
@@ -38,7 +34,7 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("cannot listen on {}", a.listen))?;
         let addr = listener.local_addr()?;
         let ctx = GpuContext::new()?;
-        let token = sylva_proto::auth::load_token(a.token.as_deref(), a.token_file.as_deref()).context("cannot read the token file")?;
+        let token = a.auth.load()?;
         let config = WorkerConfig { max_bundle_bytes: a.max_bundle_mib << 20, cache_bytes: a.cache_mib << 20, token, ..WorkerConfig::default() };
         tracing::info!(%addr, adapter = %ctx.adapter_name(), "worker ready");
         println!("sylva worker listening on {addr}");
