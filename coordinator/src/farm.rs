@@ -15,7 +15,7 @@ use sylva_proto::pb::worker_client::WorkerClient;
 use sylva_shared::bundle::SceneBundle;
 use sylva_shared::film::HdrImage;
 use tonic::service::interceptor::InterceptedService;
-use tonic::transport::Channel;
+use tonic::transport::{Channel, ClientTlsConfig};
 
 /// Failures after which a worker is dropped for the frame.
 pub const MAX_FAILURES: u32 = 3;
@@ -74,13 +74,10 @@ pub struct FarmFrame {
 pub type Client = WorkerClient<InterceptedService<Channel, Auth>>;
 type Auth = Box<dyn FnMut(tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> + Send + Sync>;
 
-/// Connects to a worker at `addr` (`host:port`), sending `token` with every call.
-pub async fn connect(addr: &str, token: Option<String>) -> anyhow::Result<Client> {
-    let ch = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))?
-        .connect_timeout(Duration::from_secs(10))
-        .connect()
-        .await
-        .map_err(|e| anyhow::anyhow!("cannot reach worker {addr}: {e}"))?;
+/// Connects to a worker at `addr` (`host:port`), over TLS when `tls` is
+/// set, sending `token` with every call.
+pub async fn connect(addr: &str, token: Option<String>, tls: Option<&ClientTlsConfig>) -> anyhow::Result<Client> {
+    let ch = sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.map_err(|e| anyhow::anyhow!("cannot reach worker {addr}: {e}"))?;
     let auth: Auth = Box::new(sylva_proto::auth::attach(token));
     Ok(WorkerClient::with_interceptor(ch, auth).max_decoding_message_size(1 << 30).max_encoding_message_size(1 << 30))
 }
@@ -118,12 +115,14 @@ pub struct Workers {
     pub addrs: Vec<String>,
     /// Bearer token the workers require, if any.
     pub token: Option<String>,
+    /// TLS to reach them with, if they serve it.
+    pub tls: Option<ClientTlsConfig>,
 }
 
 impl Workers {
     /// Workers that need no token.
     pub fn open(addrs: &[String]) -> Self {
-        Self { addrs: addrs.to_vec(), token: None }
+        Self { addrs: addrs.to_vec(), token: None, tls: None }
     }
 }
 
@@ -144,7 +143,7 @@ pub async fn render_frame(
     let mut sent = Vec::new();
     for w in &workers.addrs {
         let mut report = WorkerReport { worker: w.clone(), ..Default::default() };
-        match connect(w, workers.token.clone()).await {
+        match connect(w, workers.token.clone(), workers.tls.as_ref()).await {
             Ok(mut c) => match upload(&mut c, bundle).await {
                 Ok(bytes) => {
                     if bytes > 0 {

@@ -35,6 +35,10 @@ pub struct CoordinatorConfig {
     pub heartbeat: Duration,
     /// Serve Prometheus metrics here.
     pub metrics: Option<tokio::net::TcpListener>,
+    /// Serve the API over TLS with this identity.
+    pub tls: Option<tonic::transport::ServerTlsConfig>,
+    /// Reach workers over TLS with this.
+    pub worker_tls: Option<tonic::transport::ClientTlsConfig>,
 }
 
 impl Default for CoordinatorConfig {
@@ -47,6 +51,8 @@ impl Default for CoordinatorConfig {
             strip_deadline: Duration::from_secs(600),
             heartbeat: Duration::from_secs(2),
             metrics: None,
+            tls: None,
+            worker_tls: None,
         }
     }
 }
@@ -67,6 +73,8 @@ struct State {
     metrics: Arc<crate::metrics::Metrics>,
     jobs: Mutex<BTreeMap<String, Job>>,
     workers: Mutex<BTreeMap<String, pb::WorkerInfo>>,
+    /// Per-column cost of frames rendered before, by scene and frame shape.
+    costs: Mutex<std::collections::HashMap<String, Vec<f64>>>,
     next: Mutex<u64>,
     slots: Arc<Semaphore>,
     wake: tokio::sync::Notify,
@@ -92,6 +100,7 @@ impl CoordinatorService {
                 metrics: Arc::new(crate::metrics::Metrics::default()),
                 jobs: Mutex::new(BTreeMap::new()),
                 workers: Mutex::new(workers),
+                costs: Mutex::new(Default::default()),
                 next: Mutex::new(1),
                 slots,
                 wake: tokio::sync::Notify::new(),
@@ -201,15 +210,22 @@ impl State {
             return;
         }
         let kind = if spec.schedule == "static" { ScheduleKind::Static } else { ScheduleKind::Dynamic };
-        let plan = scheduler(kind).plan(frame.width, addrs.len().max(1), &[]);
+        // A frame seen before is cut by its measured cost; a new one by
+        // guided self-scheduling alone, whose shrinking strips still let
+        // the last ones finish close together.
+        let cost_key = format!("{}/{}x{}/{}/{}/{}", bundle.hash, frame.width, frame.height, frame.spp, frame.lighting, frame.accel);
+        let cost = self.costs.lock().expect("lock").get(&cost_key).cloned().unwrap_or_default();
+        let cost_source = if cost.is_empty() { "uniform (first frame of this scene and size)" } else { "measured on the previous frame" };
+        let plan = scheduler(kind).plan(frame.width, addrs.len().max(1), &cost);
         if let Some(j) = self.jobs.lock().expect("lock").get_mut(id) {
             j.summary.strips_total = plan.len() as u32;
         }
         let span = tracing::info_span!("job", %id, strips = plan.len(), workers = addrs.len());
         let _g = span.enter();
         let (me, jid, tx2) = (self.clone(), id.to_string(), tx.clone());
+        let started = std::time::Instant::now();
         let result = farm::render_frame(
-            &Workers { addrs: addrs.clone(), token: self.config.token.clone() },
+            &Workers { addrs: addrs.clone(), token: self.config.token.clone(), tls: self.config.worker_tls.clone() },
             &bundle,
             frame.clone(),
             plan,
@@ -247,7 +263,25 @@ impl State {
                 let (ldr, tone) = reinhard(&f.image, 0.18);
                 let png = encode_png(frame.width, frame.height, &ldr);
                 let exr = encode_exr(&f.image);
-                let stats = serde_json::json!({ "workers": f.workers, "rays": f.rays, "upload_ms": f.upload_ms, "tone_map": tone, "strips": f.strip_ms.len() });
+                let frame_ms = started.elapsed().as_secs_f64() * 1e3;
+                {
+                    let mut costs = self.costs.lock().expect("lock");
+                    if costs.len() >= 1024 {
+                        costs.clear();
+                    }
+                    costs.insert(cost_key, crate::schedule::column_cost(frame.width, &f.strip_ms));
+                }
+                let stats = serde_json::json!({
+                    "schedule": kind,
+                    "strip_cost": cost_source,
+                    "frame_ms": frame_ms,
+                    "upload_ms": f.upload_ms,
+                    "workers": f.workers,
+                    "strips": f.strip_ms.iter().map(|(s, ms, rpc)| serde_json::json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
+                    "rays": { "primary": f.rays[0], "shadow": f.rays[1], "transparent_passed": f.rays[2], "mrays_per_second": (f.rays[0] + f.rays[1]) as f64 / (frame_ms / 1e3) / 1e6 },
+                    "coverage": f.coverage.iter().map(|&c| c as f64).sum::<f64>() / f.coverage.len().max(1) as f64,
+                    "tone_map": tone,
+                });
                 {
                     let mut jobs = self.jobs.lock().expect("lock");
                     if let Some(j) = jobs.get_mut(id) {
@@ -276,7 +310,7 @@ impl State {
             let addrs: Vec<String> = self.workers.lock().expect("lock").keys().cloned().collect();
             for a in addrs {
                 let status = async {
-                    let mut c = farm::connect(&a, self.config.token.clone()).await.ok()?;
+                    let mut c = farm::connect(&a, self.config.token.clone(), self.config.worker_tls.as_ref()).await.ok()?;
                     let mut req = Request::new(pb::StatusRequest {});
                     req.set_timeout(Duration::from_secs(5));
                     c.status(req).await.ok().map(|r| r.into_inner())
@@ -456,14 +490,18 @@ impl Coordinator for CoordinatorService {
 }
 
 /// Serves the coordinator API, health and reflection until `shutdown`.
-pub async fn run(listener: tokio::net::TcpListener, config: CoordinatorConfig, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
+pub async fn run(listener: tokio::net::TcpListener, mut config: CoordinatorConfig, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
     let reflection = tonic_reflection::server::Builder::configure().register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET).build_v1()?;
     let auth = sylva_proto::auth::require(config.token.clone());
+    let mut builder = tonic::transport::Server::builder();
+    if let Some(tls) = config.tls.take() {
+        builder = builder.tls_config(tls)?;
+    }
     let service = CoordinatorService::new(config);
     service.spawn_background();
     reporter.set_serving::<CoordinatorServer<CoordinatorService>>().await;
-    tonic::transport::Server::builder()
+    builder
         .add_service(health)
         .add_service(tonic::service::interceptor::InterceptedService::new(reflection, auth.clone()))
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), auth))

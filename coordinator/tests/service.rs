@@ -169,3 +169,121 @@ async fn named_workers_serve_at_once_and_no_workers_is_a_clear_failure() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(png.exists());
 }
+
+/// Submits `scene` at `width`×`height` to the coordinator at `addr` over
+/// raw gRPC; calls `on_event` with each progress event.
+async fn submit_raw(
+    c: &mut CoordinatorClient<tonic::transport::Channel>,
+    scene: &Path,
+    width: u32,
+    height: u32,
+    mut on_event: impl FnMut(&pb::JobEvent),
+) -> (pb::JobEvent, Vec<u8>) {
+    let b = sylva_shared::bundle::pack(scene).unwrap();
+    let spec = pb::JobSpec {
+        frame: Some(pb::FrameSettings { width, height, spp: 2, seed: 1, lighting: "lb".into(), accel: "bvh".into(), lb_strength: 0.35, ambient: vec![] }),
+        schedule: "dynamic".into(),
+        priority: 0,
+        name: "raw".into(),
+    };
+    let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: b.hash.clone(), total_size: b.bytes.len() as u64, data: vec![] }];
+    chunks.extend(b.bytes.chunks(1 << 16).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
+    let id = c.submit_job(tokio_stream::iter(chunks)).await.unwrap().into_inner().id;
+    let mut events = c.watch_job(pb::JobId { id: id.clone() }).await.unwrap().into_inner();
+    let mut last = None;
+    while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
+        let ev = ev.unwrap();
+        on_event(&ev);
+        if matches!(ev.state.as_str(), "done" | "failed" | "cancelled") {
+            last = Some(ev);
+            break;
+        }
+    }
+    let last = last.unwrap();
+    assert_eq!(last.state, "done", "{last:?}");
+    let png = c.fetch_result(pb::FetchRequest { id, format: "png".into() }).await.unwrap().into_inner().data;
+    (last, png)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_killed_mid_job_loses_nothing_through_the_coordinator() {
+    let dir = std::env::temp_dir().join(format!("sylva-service-d-{}", std::process::id()));
+    let s = scene(&dir);
+    let reference = dir.join("reference.png");
+    let out = sylva(&["render", s.to_str().unwrap(), "-o", reference.to_str().unwrap(), "--local-workers", "0", "--width", "192", "--height", "48", "--spp", "2"], &[]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let mut workers: Vec<Proc> = (0..3).map(|_| spawn(&["worker", "--listen", "127.0.0.1:0"], &[])).collect();
+    let names: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
+    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &names.join(",")], &[]);
+    let mut c = CoordinatorClient::connect(format!("http://{}", coord.addr)).await.unwrap();
+    let mut notices = Vec::new();
+    let mut killed = false;
+    let (end, png) = submit_raw(&mut c, &s, 192, 48, |ev| {
+        if ev.strips_done >= 1 && !killed {
+            // SIGKILL: the worker dies with whatever strip it holds.
+            workers[1].child.kill().unwrap();
+            killed = true;
+        }
+        if !ev.message.is_empty() {
+            notices.push(ev.message.clone());
+        }
+    })
+    .await;
+    assert!(killed);
+    assert_eq!(png, std::fs::read(&reference).unwrap(), "the frame must be bit-identical to a clean run");
+    assert!(notices.iter().any(|m| m.contains(&names[1])), "the victim's failure is reported: {notices:?}");
+    let stats: serde_json::Value = serde_json::from_str(&end.stats_json).unwrap();
+    let victim = stats["workers"].as_array().unwrap().iter().find(|w| w["worker"] == names[1].as_str()).unwrap();
+    assert!(victim["failures"].as_u64().unwrap() >= 1, "{victim}");
+    assert!(stats["strip_cost"].as_str().unwrap().starts_with("uniform"), "{stats}");
+    // The next frame of the scene is cut by the cost the first one measured.
+    let (end, _) = submit_raw(&mut c, &s, 192, 48, |_| {}).await;
+    let stats: serde_json::Value = serde_json::from_str(&end.stats_json).unwrap();
+    assert_eq!(stats["strip_cost"], "measured on the previous frame", "{stats}");
+}
+
+/// A CA and a certificate for `localhost`/127.0.0.1 signed by it, as PEM
+/// files in `dir`: (ca.pem, cert.pem, key.pem).
+fn certificates(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
+    use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, IsCa, KeyPair};
+    std::fs::create_dir_all(dir).unwrap();
+    let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
+    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+    let ca = CertifiedIssuer::self_signed(ca_params, KeyPair::generate().unwrap()).unwrap();
+    let key = KeyPair::generate().unwrap();
+    let cert = CertificateParams::new(vec!["localhost".to_string(), "127.0.0.1".to_string()]).unwrap().signed_by(&key, &ca).unwrap();
+    let paths = (dir.join("ca.pem"), dir.join("cert.pem"), dir.join("key.pem"));
+    std::fs::write(&paths.0, ca.pem()).unwrap();
+    std::fs::write(&paths.1, cert.pem()).unwrap();
+    std::fs::write(&paths.2, key.serialize_pem()).unwrap();
+    paths
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tls_on_both_services_with_a_token() {
+    let dir = std::env::temp_dir().join(format!("sylva-service-e-{}", std::process::id()));
+    let s = scene(&dir);
+    let (ca, cert, key) = certificates(&dir);
+    let (ca, cert, key) = (ca.to_str().unwrap(), cert.to_str().unwrap(), key.to_str().unwrap());
+    let token = [("SYLVA_TOKEN", "s3cret")];
+    let w = spawn(&["worker", "--listen", "127.0.0.1:0", "--tls-cert", cert, "--tls-key", key], &token);
+    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--tls-cert", cert, "--tls-key", key, "--tls-ca", ca], &token);
+    let png = dir.join("out.png");
+    let submit = |extra: &[&str], env: &[(&str, &str)]| {
+        let mut args = vec!["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "32", "--height", "16"];
+        args.extend_from_slice(extra);
+        sylva(&args, env)
+    };
+    let ok = submit(&["--tls-ca", ca], &token);
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+    // Plain text to a TLS server, and TLS without the token, are refused.
+    let plain = submit(&[], &token);
+    assert!(!plain.status.success());
+    let no_token = submit(&["--tls-ca", ca], &[]);
+    assert!(String::from_utf8_lossy(&no_token.stderr).contains("Unauthenticated"), "{}", String::from_utf8_lossy(&no_token.stderr));
+    // A client that does not trust the CA is refused by its own TLS check.
+    let (other_ca, _, _) = certificates(&dir.join("other"));
+    let untrusted = submit(&["--tls-ca", other_ca.to_str().unwrap()], &token);
+    assert!(!untrusted.status.success());
+}

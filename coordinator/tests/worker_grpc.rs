@@ -171,10 +171,10 @@ async fn with_a_token_calls_without_it_are_refused() {
     let mut c = w.client().await;
     assert_eq!(c.status(pb::StatusRequest {}).await.unwrap_err().code(), Code::Unauthenticated);
     assert_eq!(c.load_scene(tokio_stream::iter(chunks(&b, 4096))).await.unwrap_err().code(), Code::Unauthenticated);
-    let mut authed = sylva_coordinator::farm::connect(&w.addr, Some("s3cret".into())).await.unwrap();
+    let mut authed = sylva_coordinator::farm::connect(&w.addr, Some("s3cret".into()), None).await.unwrap();
     sylva_coordinator::farm::upload(&mut authed, &b).await.unwrap();
     assert_eq!(authed.status(pb::StatusRequest {}).await.unwrap().into_inner().cached_scenes, vec![b.hash.clone()]);
-    let mut wrong = sylva_coordinator::farm::connect(&w.addr, Some("guess".into())).await.unwrap();
+    let mut wrong = sylva_coordinator::farm::connect(&w.addr, Some("guess".into()), None).await.unwrap();
     assert_eq!(wrong.status(pb::StatusRequest {}).await.unwrap_err().code(), Code::Unauthenticated);
     // Health stays open for orchestrators' probes.
     let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", w.addr)).unwrap().connect().await.unwrap();

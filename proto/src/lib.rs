@@ -1,6 +1,7 @@
 //! Sylva's wire format, generated from `proto/sylva/v1/*.proto`.
 
 pub mod auth;
+pub mod tls;
 
 /// Package `sylva.v1`.
 pub mod pb {

@@ -35,6 +35,8 @@ pub struct WorkerConfig {
     /// When set, every worker-API and reflection call needs it as a bearer
     /// token (health checks stay open for orchestrators' probes).
     pub token: Option<String>,
+    /// Serve over TLS with this identity.
+    pub tls: Option<tonic::transport::ServerTlsConfig>,
 }
 
 impl Default for WorkerConfig {
@@ -44,6 +46,7 @@ impl Default for WorkerConfig {
             cache_bytes: 4 << 30,
             cache_dir: std::env::temp_dir().join(format!("sylva-worker-{}", std::process::id())),
             token: None,
+            tls: None,
         }
     }
 }
@@ -62,6 +65,8 @@ struct State {
     bundles: Mutex<HashMap<String, Cached>>,
     /// Prepared scenes by (hash, structure, whether LB light is needed).
     prepared: Mutex<HashMap<(String, AccelKind, bool), Arc<PreparedScene>>>,
+    /// Matched ambient constants by scene and frame shape.
+    ambient: Mutex<HashMap<String, [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
     gpu: Mutex<()>,
     busy: AtomicU32,
@@ -82,6 +87,7 @@ impl WorkerService {
                 config,
                 bundles: Mutex::new(HashMap::new()),
                 prepared: Mutex::new(HashMap::new()),
+                ambient: Mutex::new(HashMap::new()),
                 gpu: Mutex::new(()),
                 busy: AtomicU32::new(0),
             }),
@@ -214,6 +220,7 @@ impl Worker for WorkerService {
             ambient: if f.ambient.len() == 3 { [f.ambient[0], f.ambient[1], f.ambient[2]] } else { [0.0; 3] },
             lb_strength: f.lb_strength,
         };
+        let ambient_given = f.ambient.len() == 3;
         let state = self.state.clone();
         state.busy.fetch_add(1, Ordering::SeqCst);
         let span = tracing::info_span!("strip", x0 = r.x0, x1 = r.x1, scene = %r.scene_hash);
@@ -231,6 +238,21 @@ impl Worker for WorkerService {
                     p
                 }
             };
+            let mut settings = settings;
+            if lighting == LightingMode::Ambient && !ambient_given {
+                // Matched here, once per frame shape, so every client gets
+                // the paper's ambient without a round of its own.
+                let key = format!("{}/{:?}/{}x{}/{}/{}", r.scene_hash, accel, settings.width, settings.height, settings.seed, settings.lb_strength);
+                let known = state.ambient.lock().expect("lock").get(&key).copied();
+                settings.ambient = match known {
+                    Some(a) => a,
+                    None => {
+                        let a = prepared.renderer.matched_ambient(&state.ctx, &settings)?;
+                        state.ambient.lock().expect("lock").insert(key, a);
+                        a
+                    }
+                };
+            }
             let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
             let t = Instant::now();
             let strip = prepared.renderer.render_strip(&state.ctx, &settings, r.x0, r.x1)?;
@@ -277,9 +299,13 @@ pub async fn run(
         .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
         .build_v1()?;
     let auth = sylva_proto::auth::require(config.token.clone());
+    let mut builder = tonic::transport::Server::builder();
+    if let Some(tls) = config.tls.clone() {
+        builder = builder.tls_config(tls)?;
+    }
     let service = WorkerService::new(ctx, config);
     reporter.set_serving::<pb::worker_server::WorkerServer<WorkerService>>().await;
-    tonic::transport::Server::builder()
+    builder
         .add_service(health)
         .add_service(tonic::service::interceptor::InterceptedService::new(reflection, auth.clone()))
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), auth))

@@ -291,7 +291,10 @@ pub struct ScalingBenchArgs {
     pub real_workers: Vec<String>,
     /// The token the `--real-workers` require.
     #[command(flatten)]
-    pub auth: super::token::TokenArgs,
+    pub auth: super::security::TokenArgs,
+    /// How to reach the `--real-workers` over TLS.
+    #[command(flatten)]
+    pub tls: super::security::ConnectTlsArgs,
     /// Largest worker count measured with local worker processes.
     #[arg(long, default_value_t = 2)]
     pub local_real: usize,
@@ -310,10 +313,10 @@ pub struct ScalingBenchArgs {
 const PAPER_TABLE_4: [(usize, f64); 4] = [(2, 1.162), (4, 0.666), (8, 0.351), (16, 0.170)];
 
 fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
-    use super::local::{LocalWorkers, fresh_token};
+    use super::local::{LocalProcesses, fresh_token};
     use sylva_coordinator::chart::{Series, line_chart};
     use sylva_coordinator::farm::{self, Workers};
-    use sylva_coordinator::schedule::{ScheduleKind, scheduler};
+    use sylva_coordinator::schedule::{ScheduleKind, column_cost, scheduler};
     use sylva_coordinator::simulate::FrameCost;
     use sylva_shared::film::reinhard;
 
@@ -344,8 +347,8 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     let deadline = std::time::Duration::from_secs(3600);
     // One worker profiles the frame: strips one at a time on one device.
     let token = fresh_token();
-    let profiler = LocalWorkers::start(1, &token)?;
-    let one = Workers { addrs: profiler.addrs.clone(), token: Some(token.clone()) };
+    let mut profiler = LocalProcesses::default();
+    let one = Workers { addrs: profiler.start_workers(1, &token)?, token: Some(token.clone()), tls: None };
     let whole = vec![(0, a.width)];
     rt.block_on(farm::render_frame(&one, &bundle, frame.clone(), whole.clone(), deadline, |_| {}))?; // prepare + compile
     let t = Instant::now();
@@ -355,14 +358,8 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     let fine: Vec<(u32, u32)> = (0..n).map(|i| (i * a.width / n, (i + 1) * a.width / n)).filter(|s| s.0 < s.1).collect();
     let profile = rt.block_on(farm::render_frame(&one, &bundle, frame.clone(), fine, deadline, |_| {}))?;
     drop(profiler);
-    let mut column_ms = vec![0.0; a.width as usize];
-    let mut overhead = 0.0;
-    for &((x0, x1), render, rpc) in &profile.strip_ms {
-        for c in &mut column_ms[x0 as usize..x1 as usize] {
-            *c = render / (x1 - x0) as f64;
-        }
-        overhead += (rpc - render).max(0.0);
-    }
+    let column_ms = column_cost(a.width, &profile.strip_ms);
+    let overhead: f64 = profile.strip_ms.iter().map(|&(_, render, rpc)| (rpc - render).max(0.0)).sum();
     let t = Instant::now();
     let _ = reinhard(&single.image, 0.18);
     let assembly_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -379,11 +376,11 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
             // Measured wall time where real workers are at hand.
             let measured = if w <= a.real_workers.len() || (a.real_workers.is_empty() && w <= a.local_real) {
                 let (_local, workers) = if a.real_workers.is_empty() {
-                    let l = LocalWorkers::start(w, &token)?;
-                    let ws = Workers { addrs: l.addrs.clone(), token: Some(token.clone()) };
+                    let mut l = LocalProcesses::default();
+                    let ws = Workers { addrs: l.start_workers(w, &token)?, token: Some(token.clone()), tls: None };
                     (Some(l), ws)
                 } else {
-                    (None, Workers { addrs: a.real_workers[..w].to_vec(), token: a.auth.load()? })
+                    (None, Workers { addrs: a.real_workers[..w].to_vec(), token: a.auth.load()?, tls: a.tls.load()? })
                 };
                 rt.block_on(farm::render_frame(&workers, &bundle, frame.clone(), plan.clone(), deadline, |_| {}))?; // every worker prepares
                 let t = Instant::now();

@@ -1,38 +1,64 @@
-//! Worker processes started on loopback for one command.
+//! Worker and coordinator processes started on loopback for one command.
 
 use anyhow::Context;
+use std::process::Child;
 
-/// Worker processes started for one render, stopped when dropped.
-pub struct LocalWorkers {
-    children: Vec<std::process::Child>,
-    /// Their addresses.
-    pub addrs: Vec<String>,
-}
-
-impl LocalWorkers {
-    /// Starts `n` workers on loopback that require `token`.
-    pub fn start(n: usize, token: &str) -> anyhow::Result<Self> {
-        use std::io::BufRead;
-        let exe = std::env::current_exe().context("cannot find the sylva executable")?;
-        let mut w = LocalWorkers { children: Vec::new(), addrs: Vec::new() };
-        for _ in 0..n {
-            let mut child = std::process::Command::new(&exe)
-                .args(["worker", "--listen", "127.0.0.1:0"])
-                .env("SYLVA_TOKEN", token)
-                .stdout(std::process::Stdio::piped())
-                .spawn()
-                .context("cannot start a local worker")?;
-            let mut line = String::new();
-            std::io::BufReader::new(child.stdout.take().expect("piped")).read_line(&mut line)?;
-            w.children.push(child);
-            let addr = line.trim().strip_prefix("sylva worker listening on ").context("a local worker did not start")?;
-            w.addrs.push(addr.to_string());
+/// Starts `sylva ARGS` with `token` required, and reads the address it
+/// announces on its first line (`sylva … listening on ADDR`).
+fn spawn_announcing(args: &[String], token: &str) -> anyhow::Result<(Child, String)> {
+    use std::io::BufRead;
+    let exe = std::env::current_exe().context("cannot find the sylva executable")?;
+    let mut child = std::process::Command::new(&exe)
+        .args(args)
+        .env("SYLVA_TOKEN", token)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .with_context(|| format!("cannot start a local `sylva {}`", args[0]))?;
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().expect("piped")).read_line(&mut line)?;
+    match line.trim().split_once(" listening on ") {
+        Some((_, addr)) => Ok((child, addr.to_string())),
+        None => {
+            let _ = child.kill();
+            let _ = child.wait();
+            anyhow::bail!("a local `sylva {}` did not start (see its error above)", args[0])
         }
-        Ok(w)
     }
 }
 
-impl Drop for LocalWorkers {
+/// Processes started for one command, stopped when dropped.
+#[derive(Default)]
+pub struct LocalProcesses {
+    children: Vec<Child>,
+}
+
+impl LocalProcesses {
+    /// Starts `n` workers on loopback that require `token`; returns their addresses.
+    pub fn start_workers(&mut self, n: usize, token: &str) -> anyhow::Result<Vec<String>> {
+        let mut addrs = Vec::new();
+        for _ in 0..n {
+            let (child, addr) = spawn_announcing(&["worker".into(), "--listen".into(), "127.0.0.1:0".into()], token)?;
+            self.children.push(child);
+            addrs.push(addr);
+        }
+        Ok(addrs)
+    }
+
+    /// Starts a coordinator on loopback over `workers`, requiring `token`
+    /// from clients and sending it to workers; `extra` are more of its flags.
+    pub fn start_coordinator(&mut self, workers: &[String], token: &str, extra: &[String]) -> anyhow::Result<String> {
+        let mut args: Vec<String> = ["coordinator", "--listen", "127.0.0.1:0", "--max-running", "1"].map(String::from).to_vec();
+        if !workers.is_empty() {
+            args.extend(["--workers".to_string(), workers.join(",")]);
+        }
+        args.extend_from_slice(extra);
+        let (child, addr) = spawn_announcing(&args, token)?;
+        self.children.push(child);
+        Ok(addr)
+    }
+}
+
+impl Drop for LocalProcesses {
     fn drop(&mut self) {
         for c in &mut self.children {
             let _ = c.kill();
@@ -41,8 +67,7 @@ impl Drop for LocalWorkers {
     }
 }
 
-
-/// A fresh random token for workers only this process talks to.
+/// A fresh random token for processes only this one talks to.
 pub fn fresh_token() -> String {
     sylva_shared::bundle::hash_of(format!("{:?} {}", std::time::SystemTime::now(), std::process::id()).as_bytes())
 }

@@ -7,7 +7,7 @@ mod local;
 mod progress;
 mod render;
 mod scene;
-mod token;
+mod security;
 mod worker;
 
 use clap::{Parser, Subcommand};
@@ -40,7 +40,8 @@ enum Command {
     /// Lattice-Boltzmann lighting: solve a model's light field, verify the solver.
     #[command(subcommand)]
     Lb(lb::LbCommand),
-    /// Render a scene to a PNG, in this process.
+    /// Render a scene to a PNG: through a coordinator and worker processes
+    /// started on loopback (default), running workers, or in this process.
     Render(render::RenderArgs),
     /// Serve the coordinator API: queue jobs, cut them into strips for workers.
     Coordinator(coordinator::CoordinatorArgs),

@@ -1,5 +1,8 @@
-//! `sylva render SCENE -o out.png`: load, prepare and trace a scene in this
-//! process, tone-map the whole frame once and write the image and its stats.
+//! `sylva render SCENE -o out.png`: by default starts a coordinator and
+//! `--local-workers` worker processes on loopback and renders through them
+//! (the farm's own gRPC path); `--local-workers 0` loads, prepares and
+//! traces the scene in this process. Either way the whole frame is
+//! tone-mapped once and written with its stats.
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
@@ -88,7 +91,10 @@ pub struct RenderArgs {
     pub strip_deadline_s: u64,
     /// The token the `--workers` require; local workers get a fresh random one.
     #[command(flatten)]
-    pub auth: super::token::TokenArgs,
+    pub auth: super::security::TokenArgs,
+    /// How to reach the `--workers` over TLS.
+    #[command(flatten)]
+    pub tls: super::security::ConnectTlsArgs,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -125,7 +131,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         AccelArg::Bvh => AccelKind::Bvh,
     };
     if a.local_workers > 0 || !a.workers.is_empty() {
-        return render_on_workers(&a, &scene, lighting, accel, phases);
+        return render_through_coordinator(&a, &scene, lighting, accel, phases);
     }
     let bar = ProgressBar::new_spinner();
     bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
@@ -147,7 +153,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     if lighting == LightingMode::Ambient {
         bar.set_message("matching the ambient constant to the LB image");
         let t = Instant::now();
-        settings.ambient = matched_ambient(&ctx, &prepared.renderer, &settings)?;
+        settings.ambient = prepared.renderer.matched_ambient(&ctx, &settings)?;
         phases.push(("ambient match", ms(t)));
     }
     bar.finish_and_clear();
@@ -252,124 +258,76 @@ pub fn stats_path(image: &Path) -> PathBuf {
     image.with_file_name(format!("{stem}.stats.json"))
 }
 
-/// The constant ambient light whose mean over the models' pixels equals the
-/// LB light's (the paper's Figure 2c): the LB light alone, rendered at a
-/// quarter of the resolution, averaged over the pixels that see a model.
-fn matched_ambient(ctx: &GpuContext, r: &sylva_worker::trace::StripRenderer, f: &FrameSettings) -> anyhow::Result<[f32; 3]> {
-    let small = FrameSettings {
-        width: (f.width / 4).max(16),
-        height: (f.height / 4).max(8),
-        spp: 1,
-        lighting: LightingMode::LbVisualize,
-        ..*f
-    };
-    let s = r.render_strip(ctx, &small, 0, small.width)?;
-    Ok(ambient_from(&s.pixels, &s.coverage))
-}
-
-/// The mean of `pixels` weighted by how much of each shows a model.
-fn ambient_from(pixels: &[[f32; 3]], coverage: &[f32]) -> [f32; 3] {
-    let mut sum = [0.0f64; 3];
-    let mut weight = 0.0f64;
-    for (p, &c) in pixels.iter().zip(coverage) {
-        for k in 0..3 {
-            sum[k] += p[k] as f64 * c as f64;
-        }
-        weight += c as f64;
-    }
-    if weight == 0.0 {
-        return [0.0; 3];
-    }
-    sum.map(|v| (v / weight) as f32)
-}
-
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
-/// Renders through gRPC workers: local processes started here, or the
-/// running ones named by `--workers`.
-fn render_on_workers(
+/// Renders through a coordinator process started here, over worker
+/// processes started here or the running ones named by `--workers`: the
+/// same gRPC path a farm's jobs take.
+fn render_through_coordinator(
     a: &RenderArgs,
     scene: &Scene,
     lighting: LightingMode,
     accel: AccelKind,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
-    use sylva_coordinator::farm::{self, FarmEvent};
-    use sylva_coordinator::schedule::{ScheduleKind, scheduler};
+    use super::local::{LocalProcesses, fresh_token};
     let t = Instant::now();
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
     phases.push(("bundle", ms(t)));
     let t = Instant::now();
-    let (local, workers) = if a.workers.is_empty() {
-        // Other users of this machine must not be able to use our workers.
-        let token = super::local::fresh_token();
-        let l = super::local::LocalWorkers::start(a.local_workers, &token)?;
-        let w = farm::Workers { addrs: l.addrs.clone(), token: Some(token) };
-        (Some(l), w)
+    let mut processes = LocalProcesses::default();
+    let mut flags = vec!["--strip-deadline-s".to_string(), a.strip_deadline_s.max(1).to_string()];
+    let (workers, token) = if a.workers.is_empty() {
+        // Other users of this machine must not be able to use our processes.
+        let token = fresh_token();
+        (processes.start_workers(a.local_workers, &token)?, token)
     } else {
-        let token = a.auth.load()?;
-        (None, farm::Workers { addrs: a.workers.clone(), token })
+        // The coordinator sends its own token to the workers, so it is theirs.
+        flags.extend(a.tls.to_args());
+        (a.workers.clone(), a.auth.load()?.unwrap_or_else(fresh_token))
     };
-    let addrs = workers.addrs.clone();
-    if local.is_some() {
-        phases.push(("start workers", ms(t)));
-    }
-    let kind = match a.schedule {
-        ScheduleArg::Static => ScheduleKind::Static,
-        ScheduleArg::Dynamic => ScheduleKind::Dynamic,
+    let coordinator = processes.start_coordinator(&workers, &token, &flags)?;
+    phases.push(("start processes", ms(t)));
+    let spec = sylva_proto::pb::JobSpec {
+        frame: Some(sylva_proto::pb::FrameSettings {
+            width: a.width,
+            height: a.height,
+            spp: a.spp,
+            seed: a.seed,
+            lighting: serde_json::to_value(lighting)?.as_str().unwrap_or("lb").to_string(),
+            accel: serde_json::to_value(accel)?.as_str().unwrap_or("bvh").to_string(),
+            lb_strength: a.lb_strength,
+            ambient: vec![],
+        }),
+        schedule: match a.schedule {
+            ScheduleArg::Static => "static".into(),
+            ScheduleArg::Dynamic => "dynamic".into(),
+        },
+        priority: 0,
+        name: a.scene.display().to_string(),
     };
-    let lighting_name = serde_json::to_value(lighting)?.as_str().unwrap_or("lb").to_string();
-    let accel_name = serde_json::to_value(accel)?.as_str().unwrap_or("bvh").to_string();
-    let mut frame = sylva_proto::pb::FrameSettings {
-        width: a.width,
-        height: a.height,
-        spp: a.spp,
-        seed: a.seed,
-        lighting: lighting_name,
-        accel: accel_name,
-        lb_strength: a.lb_strength,
-        ambient: vec![],
-    };
-    let deadline = std::time::Duration::from_secs(a.strip_deadline_s.max(1));
     let rt = tokio::runtime::Runtime::new()?;
-    let mut ambient = [0.0f32; 3];
-    if lighting == LightingMode::Ambient {
-        let t = Instant::now();
-        let small = sylva_proto::pb::FrameSettings {
-            width: (a.width / 4).max(16),
-            height: (a.height / 4).max(8),
-            spp: 1,
-            lighting: "lb-visualize".into(),
-            ..frame.clone()
-        };
-        let w = small.width;
-        let f = rt.block_on(farm::render_frame(&workers, &bundle, small, vec![(0, w)], deadline, |_| {}))?;
-        ambient = ambient_from(&f.image.pixels, &f.coverage);
-        frame.ambient = ambient.to_vec();
-        phases.push(("ambient match", ms(t)));
-    }
-    let plan = scheduler(kind).plan(a.width, addrs.len(), &[]);
-    let bar = ProgressBar::new(plan.len() as u64);
-    bar.set_style(ProgressStyle::with_template("rendering [{bar:40}] {pos}/{len} strips on {msg} {elapsed}").expect("valid template").progress_chars("=> "));
-    bar.set_message(format!("{} workers", addrs.len()));
-    let b2 = bar.clone();
     let t = Instant::now();
-    let result = rt.block_on(farm::render_frame(&workers, &bundle, frame, plan, deadline, move |e| match e {
-        FarmEvent::StripDone { .. } => b2.inc(1),
-        FarmEvent::StripRetried { strip, worker, error } => tracing::warn!(?strip, %worker, %error, "strip re-queued"),
-        FarmEvent::WorkerDropped { worker, error } => tracing::warn!(%worker, %error, "worker dropped for this frame"),
-        FarmEvent::BundleSent { worker, bytes } => tracing::info!(%worker, bytes, "scene sent"),
-    }))?;
+    let done = rt.block_on(super::coordinator::submit_and_follow(&coordinator, Some(token), None, spec, &bundle, a.exr))?;
     let frame_ms = ms(t);
     phases.push(("frame", frame_ms));
-    bar.finish_and_clear();
-    drop(local);
+    drop(processes);
 
-    let (tone, exr) = write_image(a, &result.image, &mut phases)?;
-    let traced = result.rays[0] + result.rays[1];
-    let stats = json!({
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    }
+    std::fs::write(&a.out, &done.png).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    let exr = match &done.exr {
+        Some(bytes) => {
+            let p = a.out.with_extension("exr");
+            std::fs::write(&p, bytes).with_context(|| format!("{}: cannot write", p.display()))?;
+            Some(p)
+        }
+        None => None,
+    };
+    let mut stats = json!({
         "scene": a.scene,
         "image": a.out,
         "exr": exr,
@@ -378,24 +336,17 @@ fn render_on_workers(
         "spp": a.spp,
         "accel": accel,
         "lighting": lighting,
-        "schedule": kind,
+        "coordinator": coordinator,
+        "job": done.id,
         "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
-        "workers": result.workers,
-        "strips": result.strip_ms.iter().map(|(s, ms, rpc)| json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
-        "upload_ms": result.upload_ms,
         "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
-        "rays": {
-            "primary": result.rays[0],
-            "shadow": result.rays[1],
-            "transparent_passed": result.rays[2],
-            "mrays_per_second": traced as f64 / (frame_ms / 1e3) / 1e6,
-        },
         "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
         "instances": scene.instances.len(),
         "models": scene.models.len(),
-        "ambient": ambient,
-        "tone_map": tone,
-        "coverage": result.coverage.iter().map(|&c| c as f64).sum::<f64>() / result.coverage.len() as f64,
     });
-    report(a, &stats, accel, lighting, &format!("on {} workers in {:.0} ms", addrs.len(), frame_ms))
+    // The coordinator's own figures: schedule, strips, workers, rays, tone map.
+    if let (Some(s), serde_json::Value::Object(c)) = (stats.as_object_mut(), done.stats) {
+        s.extend(c);
+    }
+    report(a, &stats, accel, lighting, &format!("through a coordinator and {} workers in {:.0} ms", workers.len(), frame_ms))
 }

@@ -19,7 +19,12 @@ pub struct WorkerArgs {
     #[arg(long, default_value_t = 4096)]
     pub cache_mib: u64,
     #[command(flatten)]
-    pub auth: super::token::TokenArgs,
+    pub auth: super::security::TokenArgs,
+    #[command(flatten)]
+    pub tls: super::security::ServeTlsArgs,
+    /// How to reach the coordinator over TLS.
+    #[command(flatten)]
+    pub coordinator_tls: super::security::ConnectTlsArgs,
     /// Register with this coordinator (`host:port`) and re-register every few seconds.
     #[arg(long)]
     pub coordinator: Option<String>,
@@ -35,14 +40,16 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         let addr = listener.local_addr()?;
         let ctx = GpuContext::new()?;
         let token = a.auth.load()?;
-        let config = WorkerConfig { max_bundle_bytes: a.max_bundle_mib << 20, cache_bytes: a.cache_mib << 20, token, ..WorkerConfig::default() };
+        let tls = a.tls.load()?;
+        let config = WorkerConfig { max_bundle_bytes: a.max_bundle_mib << 20, cache_bytes: a.cache_mib << 20, token, tls, ..WorkerConfig::default() };
+        let coordinator_tls = a.coordinator_tls.load()?;
         tracing::info!(%addr, adapter = %ctx.adapter_name(), "worker ready");
         println!("sylva worker listening on {addr}");
         std::io::stdout().flush()?;
         if let Some(coord) = a.coordinator.clone() {
             let me = a.advertise.clone().unwrap_or_else(|| addr.to_string());
             let token = config.token.clone();
-            tokio::spawn(register_loop(coord, me, token));
+            tokio::spawn(register_loop(coord, me, token, coordinator_tls));
         }
         service::run(listener, ctx, config, shutdown_signal()).await
     })
@@ -70,11 +77,11 @@ pub async fn shutdown_signal() {
 
 /// Announces this worker to its coordinator, and again every few seconds
 /// (a restarted coordinator learns its workers back within one period).
-async fn register_loop(coordinator: String, me: String, token: Option<String>) {
+async fn register_loop(coordinator: String, me: String, token: Option<String>, tls: Option<tonic::transport::ClientTlsConfig>) {
     use sylva_proto::pb;
     loop {
         let sent = async {
-            let ch = tonic::transport::Endpoint::from_shared(format!("http://{coordinator}")).ok()?.connect().await.ok()?;
+            let ch = sylva_proto::tls::connect(&coordinator, tls.as_ref(), std::time::Duration::from_secs(10)).await.ok()?;
             let mut c = pb::coordinator_client::CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token.clone()));
             c.register_worker(pb::RegisterWorkerRequest { addr: me.clone() }).await.ok()
         }

@@ -31,6 +31,20 @@ pub trait Scheduler {
     fn plan(&self, width: u32, workers: usize, column_cost: &[f64]) -> Vec<Strip>;
 }
 
+/// Per-column cost of a frame from its strips' measured render times
+/// (`(strip, ms, …)`), each strip's time spread evenly over its columns;
+/// columns no strip covers cost nothing.
+pub fn column_cost(width: u32, strips: &[(Strip, f64, f64)]) -> Vec<f64> {
+    let mut cost = vec![0.0; width as usize];
+    for &((x0, x1), ms, _) in strips {
+        let x1 = x1.min(width);
+        if x0 < x1 {
+            cost[x0 as usize..x1 as usize].fill(ms / (x1 - x0) as f64);
+        }
+    }
+    cost
+}
+
 /// The scheduler of a kind.
 pub fn scheduler(kind: ScheduleKind) -> Box<dyn Scheduler + Send + Sync> {
     match kind {

@@ -250,6 +250,34 @@ impl StripRenderer {
     }
 }
 
+impl StripRenderer {
+    /// The constant ambient light whose mean over the models' pixels equals
+    /// the LB light's (the paper's Figure 2c): the LB light alone, rendered
+    /// at a quarter of `f`'s resolution, averaged over the pixels that see
+    /// a model. Deterministic, so every worker of a frame finds the same.
+    pub fn matched_ambient(&self, ctx: &GpuContext, f: &FrameSettings) -> anyhow::Result<[f32; 3]> {
+        let small = FrameSettings { width: (f.width / 4).max(16), height: (f.height / 4).max(8), spp: 1, lighting: LightingMode::LbVisualize, ..*f };
+        let s = self.render_strip(ctx, &small, 0, small.width)?;
+        Ok(coverage_weighted_mean(&s.pixels, &s.coverage))
+    }
+}
+
+/// The mean of `pixels` weighted by how much of each shows a model.
+pub fn coverage_weighted_mean(pixels: &[[f32; 3]], coverage: &[f32]) -> [f32; 3] {
+    let mut sum = [0.0f64; 3];
+    let mut weight = 0.0f64;
+    for (p, &c) in pixels.iter().zip(coverage) {
+        for k in 0..3 {
+            sum[k] += p[k] as f64 * c as f64;
+        }
+        weight += c as f64;
+    }
+    if weight == 0.0 {
+        return [0.0; 3];
+    }
+    sum.map(|v| (v / weight) as f32)
+}
+
 /// How far secondary rays start off the surface they leave: a millimetre,
 /// or more where the scene's coordinates are large enough for f32 to need it.
 fn ray_offset(scene: &Scene) -> f32 {
