@@ -8,6 +8,7 @@ pub mod camera;
 pub mod color;
 pub mod film;
 pub mod lb;
+pub mod leaf;
 pub mod model;
 pub mod npy;
 pub mod rng;
