@@ -34,7 +34,19 @@ struct Frame {
     lb_strength: f32,
     // Offset that keeps secondary rays off the surface they leave.
     epsilon: f32,
-    pad: u32,
+    // The reference integrator's path length cap (Russian roulette ends most paths sooner).
+    max_bounces: u32,
+    // Leaf optics (shared/src/leaf.rs): multipliers of the texture colour.
+    leaf_reflect_front: vec3<f32>,
+    pad0: u32,
+    leaf_reflect_back: vec3<f32>,
+    pad1: u32,
+    leaf_transmit_front: vec3<f32>,
+    pad2: u32,
+    leaf_transmit_back: vec3<f32>,
+    pad3: u32,
+    // Boulanger et al.: mean sky (or ground) radiance over each direction's octant.
+    bl_sky: array<vec4<f32>, 8>,
 }
 
 // Rays traced, by kind: primary, shadow, transparent texels passed.
@@ -53,6 +65,8 @@ const LIGHTING_LOCAL: u32 = 0u;
 const LIGHTING_AMBIENT: u32 = 1u;
 const LIGHTING_LB: u32 = 2u;
 const LIGHTING_LB_VISUALIZE: u32 = 3u;
+const LIGHTING_REFERENCE: u32 = 4u;
+const LIGHTING_BOULANGER: u32 = 5u;
 const SPECULAR_EXPONENT: f32 = 24.0;
 
 // PCG hash (Jarzynski & Olano 2020); shared/src/sampler.rs mirrors it.
@@ -199,9 +213,24 @@ struct Surface {
     t: f32,
 }
 
-// Radiance of the first surface (or the sky) along a primary ray; alpha is
-// 1 where it hit a model.
-fn surface_radiance(ray: Ray) -> Surface {
+const KIND_LEAF: u32 = 0u;
+const KIND_WOOD: u32 = 1u;
+const KIND_GROUND: u32 = 2u;
+const KIND_SKY: u32 = 3u;
+
+// The first thing a ray meets: where, its geometric normal in world space
+// (as the triangle winds, not turned to the viewer), its colour and kind.
+struct SurfacePoint {
+    p: vec3<f32>,
+    t: f32,
+    n: vec3<f32>,
+    kind: u32,
+    albedo: vec3<f32>,
+    instance: u32,
+    triangle: u32,
+}
+
+fn first_surface(ray: Ray) -> SurfacePoint {
     let hit = closest_hit(ray, 0.0, 3.0e38);
     var ground_t = 3.0e38;
     if frame.has_ground == 1u && ray.dir.y < 0.0 {
@@ -209,18 +238,9 @@ fn surface_radiance(ray: Ray) -> Surface {
     }
     if hit.triangle == NO_HIT || ground_t < hit.t {
         if ground_t < 3.0e38 {
-            let p = ray.origin + ray.dir * ground_t;
-            var direct = vec3<f32>(0.0);
-            if frame.sun_towards.y > 0.0 && frame.lighting != LIGHTING_LB_VISUALIZE {
-                atomicAdd(&counters.shadow, 1u);
-                if !in_shadow(p + vec3<f32>(0.0, frame.epsilon, 0.0)) {
-                    direct = frame.sun_radiance * frame.sun_towards.y;
-                }
-            }
-            // The ground sees half the sky.
-            return Surface(vec4<f32>(frame.ground_color * (direct + 0.5 * (frame.sky_zenith + frame.sky_horizon) * 0.5), 0.0), ground_t);
+            return SurfacePoint(ray.origin + ray.dir * ground_t, ground_t, vec3<f32>(0.0, 1.0, 0.0), KIND_GROUND, frame.ground_color, 0u, 0u);
         }
-        return Surface(vec4<f32>(sky(ray.dir), 0.0), 3.0e38);
+        return SurfacePoint(vec3<f32>(0.0), 3.0e38, vec3<f32>(0.0), KIND_SKY, vec3<f32>(0.0), 0u, 0u);
     }
     let inst = instances[hit.instance];
     let tri = triangles[hit.triangle];
@@ -230,40 +250,76 @@ fn surface_radiance(ray: Ray) -> Surface {
         let t = texel(textures[mat.texture], triangle_uv(hit.triangle, hit.u, hit.v));
         albedo *= vec3<f32>(srgb_to_linear(t.r), srgb_to_linear(t.g), srgb_to_linear(t.b));
     }
-    // Geometric normal to world space by the inverse transpose, facing the viewer.
+    // Geometric normal to world space by the inverse transpose.
     let a = position(tri.v.x);
     let n_model = cross(position(tri.v.y) - a, position(tri.v.z) - a);
     let tm = inst.to_model;
-    var n = normalize(vec3<f32>(
+    let n = normalize(vec3<f32>(
         tm[0].x * n_model.x + tm[1].x * n_model.y + tm[2].x * n_model.z,
         tm[0].y * n_model.x + tm[1].y * n_model.y + tm[2].y * n_model.z,
         tm[0].z * n_model.x + tm[1].z * n_model.y + tm[2].z * n_model.z,
     ));
-    if dot(n, ray.dir) > 0.0 {
-        n = -n;
+    return SurfacePoint(ray.origin + ray.dir * hit.t, hit.t, n, select(KIND_LEAF, KIND_WOOD, mat.surface == 1u), albedo, hit.instance, hit.triangle);
+}
+
+// The sun's specular highlight (the paper's ks (V·R)^24) seen along
+// `view` from a surface of normal `n` (facing the viewer) and `kind`.
+fn sun_highlight(n: vec3<f32>, view: vec3<f32>, kind: u32) -> f32 {
+    let r = reflect(-frame.sun_towards, n);
+    let ks = select(0.12, 0.04, kind == KIND_WOOD);
+    return ks * pow(max(dot(-view, r), 0.0), SPECULAR_EXPONENT);
+}
+
+// Radiance of the first surface (or the sky) along a primary ray; alpha is
+// 1 where it hit a model.
+fn surface_radiance(ray: Ray) -> Surface {
+    let s = first_surface(ray);
+    if s.kind == KIND_SKY {
+        return Surface(vec4<f32>(sky(ray.dir), 0.0), 3.0e38);
     }
-    let p = ray.origin + ray.dir * hit.t;
-    let p_model = to_model_point(inst, p);
+    if s.kind == KIND_GROUND {
+        var direct = vec3<f32>(0.0);
+        if frame.sun_towards.y > 0.0 && frame.lighting != LIGHTING_LB_VISUALIZE {
+            atomicAdd(&counters.shadow, 1u);
+            if !in_shadow(s.p + vec3<f32>(0.0, frame.epsilon, 0.0)) {
+                direct = frame.sun_radiance * frame.sun_towards.y;
+            }
+        }
+        // The ground sees half the sky.
+        return Surface(vec4<f32>(frame.ground_color * (direct + 0.5 * (frame.sky_zenith + frame.sky_horizon) * 0.5), 0.0), s.t);
+    }
+    let inst = instances[s.instance];
+    let n = select(s.n, -s.n, dot(s.n, ray.dir) > 0.0);
+    let p_model = to_model_point(inst, s.p);
     if frame.lighting == LIGHTING_LB_VISUALIZE {
-        return Surface(vec4<f32>(lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance, 1.0), hit.t);
+        return Surface(vec4<f32>(lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance, 1.0), s.t);
+    }
+    if frame.lighting == LIGHTING_BOULANGER && s.kind == KIND_LEAF && models[inst.model].has_envelope == 1u {
+        return Surface(vec4<f32>(boulanger_leaf(s, ray.dir), 1.0), s.t);
     }
     var color = vec3<f32>(0.0);
     let n_dot_l = dot(n, frame.sun_towards);
     if n_dot_l > 0.0 {
         atomicAdd(&counters.shadow, 1u);
-        if !in_shadow(p + n * frame.epsilon) {
-            let r = reflect(-frame.sun_towards, n);
-            let ks = select(0.12, 0.04, mat.surface == 1u);
-            let spec = ks * pow(max(dot(-ray.dir, r), 0.0), SPECULAR_EXPONENT);
-            color += frame.sun_radiance * (albedo * n_dot_l + vec3<f32>(spec));
+        if !in_shadow(s.p + n * frame.epsilon) {
+            color += frame.sun_radiance * (s.albedo * n_dot_l + vec3<f32>(sun_highlight(n, ray.dir, s.kind)));
         }
     }
     if frame.lighting == LIGHTING_LB {
-        color += albedo * lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance;
+        color += s.albedo * lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance;
     } else if frame.lighting == LIGHTING_AMBIENT {
-        color += albedo * frame.ambient;
+        color += s.albedo * frame.ambient;
     }
-    return Surface(vec4<f32>(color, 1.0), hit.t);
+    return Surface(vec4<f32>(color, 1.0), s.t);
+}
+
+// One sample of pixel (x, y): the reference integrator's path, or the
+// direct methods' radiance.
+fn sample_radiance(ray: Ray, x: u32, y: u32, s: u32) -> vec4<f32> {
+    if frame.lighting == LIGHTING_REFERENCE {
+        return path_radiance(ray, x, y, s);
+    }
+    return radiance(ray);
 }
 
 @compute @workgroup_size(8, 8)
@@ -286,7 +342,7 @@ fn render_strip(@builtin(global_invocation_id) gid: vec3<u32>) {
         let sy = (1.0 - 2.0 * py / f32(frame.height)) * frame.tan_half_fov_y;
         let dir = normalize(frame.cam_forward + frame.cam_right * sx + frame.cam_up * sy);
         transparent_passed = 0u;
-        sum += radiance(make_ray(frame.cam_position, dir));
+        sum += sample_radiance(make_ray(frame.cam_position, dir), x, y, s);
         atomicAdd(&counters.transparent, transparent_passed);
     }
     atomicAdd(&counters.primary, frame.spp);

@@ -59,6 +59,11 @@ struct Model {
     has_lb: u32,
     lb_origin: vec3<f32>,
     lb_cell: f32,
+    // Boulanger et al.: optical thickness, leaf density and area of the foliage.
+    tau: f32,
+    leaf_density: f32,
+    leaf_area: f32,
+    has_envelope: u32,
 }
 
 // BVH nodes take two entries (min + first, max + count); kd nodes one
@@ -91,10 +96,17 @@ struct Cloud {
     extinction: f32,
     // sigma_s / sigma_t.
     albedo: f32,
+    // Henyey–Greenstein asymmetry (the reference integrator's phase function).
+    g: f32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 @group(0) @binding(11) var<storage, read> clouds: array<Cloud>;
 @group(0) @binding(12) var<storage, read> cloud_data: array<f32>;
+// Boulanger envelope distances s_max, eight per triangle (global index).
+@group(0) @binding(13) var<storage, read> envelope: array<f32>;
 
 struct Ray {
     origin: vec3<f32>,

@@ -3,6 +3,7 @@
 //! built-in shapes, and grids on disk (`.npy`) and on screen (PNG).
 
 pub mod accel;
+pub mod boulanger;
 pub mod bundle;
 pub mod camera;
 pub mod color;

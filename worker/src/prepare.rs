@@ -62,6 +62,25 @@ pub struct PreparedScene {
     pub light: Vec<ModelLight>,
     /// The coarse forest grid's decision (none when the lighting needs no LB).
     pub forest: Option<ForestLight>,
+    /// The Boulanger precompute per model (empty unless that lighting).
+    pub boulanger: Vec<ModelEnvelope>,
+}
+
+/// One model's Boulanger envelope, as reported.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelEnvelope {
+    /// Model name.
+    pub model: String,
+    /// Leaves (leaf cards) found.
+    pub leaves: usize,
+    /// Optical thickness per unit length τ = ρA/2.
+    pub tau: f32,
+    /// Leaves per unit volume of the envelope.
+    pub leaf_density: f32,
+    /// Mean leaf area.
+    pub leaf_area: f32,
+    /// Precompute time, ms.
+    pub ms: f64,
 }
 
 /// Prepares `scene` for tracing with `kind` structures; `lighting` decides
@@ -76,7 +95,7 @@ pub fn prepare(
     let mut phases = PhaseTimer::default();
     progress("building acceleration structures");
     let accel = phases.time("build", || SceneAccel::build(scene, kind));
-    let needs_lb = lighting != LightingMode::Local;
+    let needs_lb = lighting.needs_lb();
     let mut grids: Vec<Option<LbGrid>> = vec![None; scene.models.len()];
     let mut light = Vec::new();
     if needs_lb {
@@ -112,7 +131,20 @@ pub fn prepare(
         let f = phases.time("forest lb", || forest_light(ctx, scene, &fills, &sun_of(scene)?, &mut scales))?;
         forest = Some(f);
     }
-    let clouds = if needs_lb && !scene.clouds.is_empty() {
+    let mut envelopes = Vec::new();
+    let mut boulanger = Vec::new();
+    if lighting == LightingMode::Boulanger {
+        progress("Boulanger envelope distances");
+        phases.time("boulanger precompute", || {
+            for m in &scene.models {
+                let e = sylva_shared::boulanger::precompute(&m.model);
+                boulanger.push(ModelEnvelope { model: m.name.clone(), leaves: e.leaves, tau: e.tau, leaf_density: e.leaf_density, leaf_area: e.leaf_area, ms: e.precompute_ms });
+                envelopes.push(Some(std::sync::Arc::new(e)));
+            }
+        });
+    }
+    // The reference path-traces the clouds' density; the LB methods light them.
+    let clouds = if (needs_lb || lighting == LightingMode::Reference) && !scene.clouds.is_empty() {
         progress("LB light of the clouds");
         phases.time("cloud lb", || solve_clouds(ctx, scene))?
     } else {
@@ -120,13 +152,13 @@ pub fn prepare(
     };
     progress("uploading the scene");
     let renderer = phases.time("upload", || -> anyhow::Result<StripRenderer> {
-        let light = SceneLight { models: grids, instance_scales: scales, clouds };
+        let light = SceneLight { models: grids, instance_scales: scales, clouds, envelopes };
         let gpu_scene = GpuScene::upload(ctx, scene, &accel, &light)?;
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
         ctx.wait()?;
         Ok(r)
     })?;
-    Ok(PreparedScene { renderer, phases, accel_bytes: accel.bytes(), light, forest })
+    Ok(PreparedScene { renderer, phases, accel_bytes: accel.bytes(), light, forest, boulanger })
 }
 
 fn sun_of(scene: &Scene) -> anyhow::Result<Sun> {
@@ -227,6 +259,7 @@ fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<CloudGrid
                 density: medium.density,
                 sigma_t: p.sigma_t(),
                 albedo: p.sigma_s / p.sigma_t(),
+                g: p.g,
             })
         })
         .collect()

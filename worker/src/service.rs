@@ -63,8 +63,8 @@ struct State {
     ctx: GpuContext,
     config: WorkerConfig,
     bundles: Mutex<HashMap<String, Cached>>,
-    /// Prepared scenes by (hash, structure, whether LB light is needed).
-    prepared: Mutex<HashMap<(String, AccelKind, bool), Arc<PreparedScene>>>,
+    /// Prepared scenes by (hash, structure, what the lighting needs prepared).
+    prepared: Mutex<HashMap<(String, AccelKind, &'static str), Arc<PreparedScene>>>,
     /// Matched ambient constants by scene and frame shape.
     ambient: Mutex<HashMap<String, [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
@@ -117,11 +117,10 @@ impl State {
 fn parse_lighting(s: &str, scene: &Scene) -> Result<LightingMode, Status> {
     Ok(match s {
         "" => scene.lighting,
-        "local" => LightingMode::Local,
-        "ambient" => LightingMode::Ambient,
-        "lb" => LightingMode::Lb,
-        "lb-visualize" => LightingMode::LbVisualize,
-        o => return Err(Status::invalid_argument(format!("lighting {o:?}: one of local, ambient, lb, lb-visualize"))),
+        o => LightingMode::from_name(o).ok_or_else(|| {
+            let names: Vec<&str> = LightingMode::ALL.iter().map(|m| m.name()).collect();
+            Status::invalid_argument(format!("lighting {o:?}: one of {}", names.join(", ")))
+        })?,
     })
 }
 
@@ -227,7 +226,7 @@ impl Worker for WorkerService {
         let result = tokio::task::spawn_blocking(move || {
             let _g = span.enter();
             let _gpu = state.gpu.lock().expect("lock");
-            let key = (r.scene_hash.clone(), accel, lighting != LightingMode::Local);
+            let key = (r.scene_hash.clone(), accel, lighting.preparation());
             let t = Instant::now();
             let cached = state.prepared.lock().expect("lock").get(&key).cloned();
             let prepared = match cached {

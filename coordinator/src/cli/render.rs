@@ -40,6 +40,13 @@ pub enum LightingArg {
     Lb,
     /// The LB light alone.
     LbVisualize,
+    /// The reference: path tracing with the leaf BSDF, sky, sun and clouds;
+    /// in this process it renders progressively until its own error
+    /// estimate is below --target-error.
+    Reference,
+    /// Boulanger et al. 2008: envelope distances per leaf, sky, sun and
+    /// one-bounce indirect light in closed form.
+    Boulanger,
 }
 
 #[derive(Debug, Args)]
@@ -70,6 +77,13 @@ pub struct RenderArgs {
     /// Weight of the LB light relative to the sun's.
     #[arg(long, default_value_t = 0.35)]
     pub lb_strength: f32,
+    /// `--lighting reference` in this process: stop once the image's own
+    /// relative standard error is below this (each batch has --spp samples).
+    #[arg(long, default_value_t = 0.02)]
+    pub target_error: f64,
+    /// `--lighting reference` in this process: stop after this many seconds.
+    #[arg(long, default_value_t = 600.0)]
+    pub max_seconds: f64,
     /// Also write the linear HDR frame as OpenEXR beside the PNG.
     #[arg(long)]
     pub exr: bool,
@@ -125,6 +139,8 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         Some(LightingArg::Ambient) => LightingMode::Ambient,
         Some(LightingArg::Lb) => LightingMode::Lb,
         Some(LightingArg::LbVisualize) => LightingMode::LbVisualize,
+        Some(LightingArg::Reference) => LightingMode::Reference,
+        Some(LightingArg::Boulanger) => LightingMode::Boulanger,
     };
     let accel = match a.accel {
         AccelArg::Kd => AccelKind::Kd,
@@ -158,6 +174,45 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
 
+    if lighting == LightingMode::Reference {
+        anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error {}: must be a finite number > 0", a.target_error);
+        anyhow::ensure!(a.max_seconds.is_finite() && a.max_seconds > 0.0, "--max-seconds {}: must be a finite number > 0", a.max_seconds);
+        let opts = sylva_worker::trace::ReferenceOptions {
+            batch_spp: a.spp.max(4),
+            target_error: a.target_error,
+            max_seconds: a.max_seconds,
+            max_batches: (MAX_SPP / a.spp.max(4)).max(4),
+            ..Default::default()
+        };
+        let bar = ProgressBar::new_spinner();
+        bar.set_style(ProgressStyle::with_template("{spinner} reference: {msg} {elapsed}").expect("valid template"));
+        bar.enable_steady_tick(std::time::Duration::from_millis(200));
+        let t = Instant::now();
+        let r = sylva_worker::trace::render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
+            bar.set_message(format!("{} spp, relative error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
+        })?;
+        phases.push(("trace", ms(t)));
+        bar.finish_and_clear();
+        let (tone, exr) = write_image(&a, &r.image, &mut phases)?;
+        let stats = json!({
+            "scene": a.scene,
+            "image": a.out,
+            "exr": exr,
+            "width": a.width,
+            "height": a.height,
+            "accel": accel,
+            "lighting": lighting,
+            "adapter": ctx.summary(),
+            "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
+            "reference": r.stats,
+            "leaf_optics": scene.file.leaf_optics,
+            "max_bounces": sylva_worker::trace::MAX_BOUNCES,
+            "tone_map": tone,
+            "coverage": r.coverage.iter().map(|&c| c as f64).sum::<f64>() / r.coverage.len() as f64,
+        });
+        let how = format!("{} spp in {:.0} ms, relative standard error {:.4}{}", r.stats.spp, r.stats.ms, r.stats.relative_error, if r.stats.converged { "" } else { " (not converged)" });
+        return report(&a, &stats, accel, lighting, &how);
+    }
     let strips = a.width.div_ceil(STRIP);
     let bar = ProgressBar::new(strips as u64);
     bar.set_style(ProgressStyle::with_template("tracing [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));

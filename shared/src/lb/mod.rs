@@ -14,6 +14,8 @@
 //! - [`boundary`]: the sun's boundary condition.
 //! - [`solver`]: the [`LightingSolver`] seam, its options and its report.
 //! - [`cpu`]: the CPU reference solver (rayon) that the GPU solver is tested against.
+//! - [`montecarlo`]: an analog Monte Carlo reference in the same medium and sun.
+//! - [`limits`]: where the model fails: warnings and the sweeps that measured them.
 //! - [`verify`]: checks of the implementation against the model's mathematics.
 
 // Matrix and lattice code reads best with explicit indices.
@@ -24,7 +26,9 @@ pub mod coarse;
 pub mod collision;
 pub mod cpu;
 pub mod lattice;
+pub mod limits;
 pub mod medium;
+pub mod montecarlo;
 pub mod params;
 pub mod solver;
 pub mod verify;
@@ -33,6 +37,8 @@ pub use boundary::{Boundary, Sun};
 pub use collision::{Collision, Omega};
 pub use cpu::CpuSolver;
 pub use lattice::{Q, DIRECTIONS};
+pub use limits::{LbWarning, Sweep, SweepKind, SweepPoint, failure_sweep, failure_sweeps, lb_warnings};
 pub use medium::{GridDims, MediumGrid, NodeClass};
+pub use montecarlo::McFluence;
 pub use params::{ChannelParams, LbParams, ParamError, Preset};
 pub use solver::{ChannelReport, ChannelSolution, LightingSolver, Solution, SolveOptions, solve};

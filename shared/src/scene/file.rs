@@ -36,6 +36,10 @@ pub struct SceneFile {
     /// Clouds: LB-lit density volumes.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub clouds: Vec<CloudSpec>,
+    /// Leaf reflection and transmission per side, for the reference and
+    /// Boulanger methods (default: from the measured leaf scattering).
+    #[serde(default)]
+    pub leaf_optics: crate::leaf::LeafOptics,
 }
 
 /// Where a model comes from: exactly one of `gltf` and `tree`.
@@ -171,6 +175,50 @@ pub enum LightingMode {
     Lb,
     /// The LB value alone.
     LbVisualize,
+    /// The reference: a path tracer with the leaf BSDF, sky, sun and clouds.
+    Reference,
+    /// Boulanger et al. 2008: per-leaf envelope distances, direct sky and
+    /// sun and one-bounce indirect light in closed form.
+    Boulanger,
+}
+
+impl LightingMode {
+    /// Every method, in the order `compare` lists them.
+    pub const ALL: [LightingMode; 6] =
+        [LightingMode::Local, LightingMode::Ambient, LightingMode::Lb, LightingMode::LbVisualize, LightingMode::Boulanger, LightingMode::Reference];
+
+    /// Whether the method reads the LB light.
+    pub fn needs_lb(self) -> bool {
+        matches!(self, LightingMode::Ambient | LightingMode::Lb | LightingMode::LbVisualize)
+    }
+
+    /// What a scene must be prepared with for this method: scenes prepared
+    /// alike can be shared between methods.
+    pub fn preparation(self) -> &'static str {
+        match self {
+            LightingMode::Local => "geometry",
+            LightingMode::Ambient | LightingMode::Lb | LightingMode::LbVisualize => "lb",
+            LightingMode::Reference => "clouds",
+            LightingMode::Boulanger => "envelopes",
+        }
+    }
+
+    /// The name scene files and the command line use.
+    pub fn name(self) -> &'static str {
+        match self {
+            LightingMode::Local => "local",
+            LightingMode::Ambient => "ambient",
+            LightingMode::Lb => "lb",
+            LightingMode::LbVisualize => "lb-visualize",
+            LightingMode::Reference => "reference",
+            LightingMode::Boulanger => "boulanger",
+        }
+    }
+
+    /// Parses a name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.name() == name)
+    }
 }
 
 /// LB settings of a model.

@@ -86,6 +86,7 @@ pub fn forest(o: &ForestOptions) -> Result<SceneFile, String> {
         lb: LbSpec::default(),
         forest_grid: ForestGridSpec::default(),
         clouds: Vec::new(),
+        leaf_optics: Default::default(),
     })
 }
 

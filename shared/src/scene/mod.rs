@@ -151,6 +151,7 @@ impl Scene {
         for (name, v) in [("zenith", file.sky.zenith), ("horizon", file.sky.horizon)] {
             colour(&v).map_err(|m| err(format!("sky.{name}"), m))?;
         }
+        file.leaf_optics.validate().map_err(|m| err("leaf_optics".into(), m))?;
         if let Some(g) = &file.ground {
             colour(&g.color).map_err(|m| err("ground.color".into(), m))?;
         }

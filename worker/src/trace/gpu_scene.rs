@@ -92,6 +92,14 @@ pub struct GpuModel {
     pub lb_origin: [f32; 3],
     /// LB cell size.
     pub lb_cell: f32,
+    /// Boulanger optical thickness τ = ρA/2 of its foliage.
+    pub tau: f32,
+    /// Leaves per unit volume of its envelope.
+    pub leaf_density: f32,
+    /// Mean leaf area.
+    pub leaf_area: f32,
+    /// 1 when its leaves have envelope distances.
+    pub has_envelope: u32,
 }
 
 /// A cloud as `scene.wgsl` reads it.
@@ -110,6 +118,9 @@ pub struct GpuCloud {
     pub extinction: f32,
     /// Scattering albedo σ_s / σ_t.
     pub albedo: f32,
+    /// Henyey–Greenstein asymmetry of its medium (the reference integrator's phase function).
+    pub g: f32,
+    pub pad: [u32; 3],
 }
 
 /// A cloud's density and solved LB light.
@@ -129,6 +140,8 @@ pub struct CloudGrid {
     pub sigma_t: f32,
     /// σ_s / σ_t.
     pub albedo: f32,
+    /// Henyey–Greenstein asymmetry.
+    pub g: f32,
 }
 
 /// The solved light a scene is uploaded with.
@@ -140,6 +153,8 @@ pub struct SceneLight {
     pub instance_scales: Vec<f32>,
     /// Clouds.
     pub clouds: Vec<CloudGrid>,
+    /// Per model, its Boulanger leaf envelope if precomputed.
+    pub envelopes: Vec<Option<std::sync::Arc<sylva_shared::boulanger::LeafEnvelope>>>,
 }
 
 /// The scene's buffers and the bind group (group 0) every tracer kernel uses.
@@ -172,6 +187,7 @@ struct Flat {
     lb: Vec<f32>,
     clouds: Vec<GpuCloud>,
     cloud_data: Vec<f32>,
+    envelope: Vec<f32>,
 }
 
 impl Flat {
@@ -239,11 +255,22 @@ impl GpuScene {
                 f.textures.push(GpuTexture { offset: f.texels.len() as u32, width: t.width, height: t.height, pad: 0 });
                 f.texels.extend(t.rgba.chunks_exact(4).map(|p| u32::from_le_bytes([p[0], p[1], p[2], p[3]])));
             }
-            let mut gm = GpuModel { root, lb_offset: 0, lb_n: 0, has_lb: 0, lb_origin: [0.0; 3], lb_cell: 0.0 };
+            let mut gm = GpuModel { root, ..GpuModel::zeroed() };
             if let Some(Some(g)) = lb.get(m) {
                 anyhow::ensure!(g.n >= 2 && g.rgb.len() == 3 * g.n * g.n * g.n, "LB grid of model {} has the wrong size", sm.name);
-                gm = GpuModel { root, lb_offset: f.lb.len() as u32, lb_n: g.n as u32, has_lb: 1, lb_origin: g.frame.origin, lb_cell: g.frame.cell };
+                gm = GpuModel { root, lb_offset: f.lb.len() as u32, lb_n: g.n as u32, has_lb: 1, lb_origin: g.frame.origin, lb_cell: g.frame.cell, ..GpuModel::zeroed() };
                 f.lb.extend_from_slice(&g.rgb);
+            }
+            // Envelope distances are indexed by global triangle: eight per triangle.
+            if light.envelopes.iter().any(|e| e.is_some()) {
+                match light.envelopes.get(m).and_then(|e| e.as_ref()) {
+                    Some(e) => {
+                        anyhow::ensure!(e.s_max.len() == model.triangles.len(), "envelope of model {} has the wrong size", sm.name);
+                        (gm.tau, gm.leaf_density, gm.leaf_area, gm.has_envelope) = (e.tau, e.leaf_density, e.leaf_area, 1);
+                        f.envelope.extend(e.s_max.iter().flatten());
+                    }
+                    None => f.envelope.extend(std::iter::repeat_n(0.0, 8 * model.triangles.len())),
+                }
             }
             f.models.push(gm);
         }
@@ -268,6 +295,8 @@ impl GpuScene {
                 offset: f.cloud_data.len() as u32,
                 extinction: c.sigma_t * c.n as f32 / c.size,
                 albedo: c.albedo,
+                g: c.g,
+                pad: [0; 3],
             });
             f.cloud_data.extend_from_slice(&c.density);
             f.cloud_data.extend_from_slice(&c.light);
@@ -295,6 +324,9 @@ impl GpuScene {
         }
         if f.cloud_data.is_empty() {
             f.cloud_data.push(0.0);
+        }
+        if f.envelope.is_empty() {
+            f.envelope.push(0.0);
         }
         let mut bytes = 0u64;
         let mut buffer = |label: &str, contents: &[u8]| {
@@ -325,6 +357,7 @@ impl GpuScene {
             buffer("lb", bytemuck::cast_slice(&f.lb))?,
             buffer("clouds", bytemuck::cast_slice(&f.clouds))?,
             buffer("cloud data", bytemuck::cast_slice(&f.cloud_data))?,
+            buffer("leaf envelopes", bytemuck::cast_slice(&f.envelope))?,
         ];
         let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..buffers.len() as u32)
             .map(|binding| wgpu::BindGroupLayoutEntry {

@@ -4,10 +4,13 @@
 
 mod gpu_scene;
 mod raycast;
-mod render;
+mod reference;
+pub(crate) mod render;
 mod shaders;
 
 pub use gpu_scene::{CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, LbGrid, SceneLight};
 pub use raycast::{GpuHit, GpuRay, RayCaster};
+pub use reference::{ReferenceImage, ReferenceOptions, ReferenceStats, render_reference};
+pub use render::MAX_BOUNCES;
 pub use render::{FrameSettings, FrameUniform, RayCounts, Strip, StripRenderer};
 pub use shaders::tracer_source;

@@ -10,6 +10,12 @@ use sylva_shared::scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
 
 const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
+/// The reference integrator, called from render.wgsl.
+const REFERENCE: &str = include_str!("../../../shaders/trace/reference.wgsl");
+/// The Boulanger et al. leaf shading, called from render.wgsl.
+const BOULANGER: &str = include_str!("../../../shaders/trace/boulanger.wgsl");
+/// Longest path the reference integrator follows.
+pub const MAX_BOUNCES: u32 = 16;
 
 /// The per-frame uniform `render.wgsl` reads as `Frame` (the fields are
 /// documented there; a test checks the two layouts agree).
@@ -39,7 +45,16 @@ pub struct FrameUniform {
     pub lb_free: f32,
     pub lb_strength: f32,
     pub epsilon: f32,
-    pub pad: u32,
+    pub max_bounces: u32,
+    pub leaf_reflect_front: [f32; 3],
+    pub pad0: u32,
+    pub leaf_reflect_back: [f32; 3],
+    pub pad1: u32,
+    pub leaf_transmit_front: [f32; 3],
+    pub pad2: u32,
+    pub leaf_transmit_back: [f32; 3],
+    pub pad3: u32,
+    pub bl_sky: [[f32; 4]; 8],
 }
 
 /// What a frame is rendered with.
@@ -120,7 +135,7 @@ impl StripRenderer {
 
     fn build(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> Self {
         let device = &ctx.device;
-        let module = ctx.trusted_module("render", tracer_source(SOURCE));
+        let module = ctx.trusted_module("render", render_source());
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
@@ -167,6 +182,12 @@ impl StripRenderer {
             has_ground: scene.ground.is_some() as u32,
             lb_free: sun.boundary().values.iter().sum(),
             epsilon: ray_offset(scene),
+            max_bounces: MAX_BOUNCES,
+            leaf_reflect_front: scene.file.leaf_optics.reflect_front,
+            leaf_reflect_back: scene.file.leaf_optics.reflect_back,
+            leaf_transmit_front: scene.file.leaf_optics.transmit_front,
+            leaf_transmit_back: scene.file.leaf_optics.transmit_back,
+            bl_sky: sky_per_direction(scene),
             ..FrameUniform::zeroed()
         };
         Self { scene: gpu_scene, pipeline, layout, base }
@@ -197,6 +218,8 @@ impl StripRenderer {
                     LightingMode::Ambient => 1,
                     LightingMode::Lb => 2,
                     LightingMode::LbVisualize => 3,
+                    LightingMode::Reference => 4,
+                    LightingMode::Boulanger => 5,
                 },
                 lb_strength: f.lb_strength,
                 ..self.base
@@ -276,6 +299,22 @@ pub fn coverage_weighted_mean(pixels: &[[f32; 3]], coverage: &[f32]) -> [f32; 3]
         return [0.0; 3];
     }
     sum.map(|v| (v / weight) as f32)
+}
+
+/// The sky's (and the ground's) mean radiance over each Boulanger
+/// direction's octant. The sky depends only on height, so this holds for
+/// instances turned about the vertical too.
+fn sky_per_direction(scene: &Scene) -> [[f32; 4]; 8] {
+    let (z, h) = (glam::Vec3::from(scene.sky.zenith), glam::Vec3::from(scene.sky.horizon));
+    let sky = |d: glam::Vec3| h.lerp(z, d.y.max(0.0).sqrt()).to_array();
+    let ground = scene.ground.as_ref().map_or([0.0; 3], |g| g.color);
+    sylva_shared::boulanger::sky_radiance_per_direction(sky, ground).map(|c| [c[0], c[1], c[2], 0.0])
+}
+
+/// The whole render module: scene, traversal, the direct methods and the
+/// reference integrator.
+pub fn render_source() -> String {
+    tracer_source(&format!("{SOURCE}\n{REFERENCE}\n{BOULANGER}"))
 }
 
 /// How far secondary rays start off the surface they leave: a millimetre,

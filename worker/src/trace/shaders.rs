@@ -33,14 +33,14 @@ mod tests {
     #[test]
     fn ray_casting_and_render_modules_are_valid_wgsl() {
         validate(&tracer_source(include_str!("../../../shaders/trace/rays.wgsl")));
-        validate(&tracer_source(include_str!("../../../shaders/trace/render.wgsl")));
+        validate(&crate::trace::render::render_source());
     }
 
     /// The WGSL structs the Rust side uploads have the Rust layouts.
     #[test]
     fn gpu_structs_match_their_rust_twins() {
         use crate::trace::{FrameUniform, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuTexture, GpuTriangle};
-        let m = validate(&tracer_source(include_str!("../../../shaders/trace/render.wgsl")));
+        let m = validate(&crate::trace::render::render_source());
         let size_of_struct = |name: &str| -> u32 {
             let (_, ty) = m.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("no struct {name}"));
             match &ty.inner {

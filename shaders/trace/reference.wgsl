@@ -1,0 +1,230 @@
+// The reference integrator (`--lighting reference`): a path tracer on the
+// same triangles, traversal and textures as the direct methods. Leaves
+// reflect and transmit Lambertianly per side (Boulanger et al.'s ρ_rf, ρ_rb,
+// ρ_tf, ρ_tb as multipliers of the texture colour, shared/src/leaf.rs); wood
+// and the ground are Lambertian; the sky is the same gradient; clouds are a
+// heterogeneous medium sampled by delta tracking with the Henyey–Greenstein
+// phase function, their transmittance towards the sun by ratio tracking.
+// The sun is sampled at every vertex (next-event estimation) with the same
+// highlight the direct methods add, so with no bounce the reference equals
+// `local`. Paths end by Russian roulette after three bounces, or at
+// `frame.max_bounces`. Appended to render.wgsl, which calls path_radiance.
+
+const PI: f32 = 3.14159265;
+
+var<private> rng_state: u32;
+
+fn rand() -> f32 {
+    rng_state = pcg(rng_state);
+    return f32(rng_state >> 8u) / 16777216.0;
+}
+
+// An orthonormal frame around unit `n` (Duff et al. 2017).
+fn frame_around(n: vec3<f32>) -> mat3x3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    let t = vec3<f32>(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
+    let u = vec3<f32>(b, s + n.y * n.y * a, -n.y);
+    return mat3x3<f32>(t, u, n);
+}
+
+// A cosine-distributed direction around `n`.
+fn cosine_direction(n: vec3<f32>) -> vec3<f32> {
+    let u1 = rand();
+    let u2 = rand();
+    let r = sqrt(u1);
+    let phi = 2.0 * PI * u2;
+    return normalize(frame_around(n) * vec3<f32>(r * cos(phi), r * sin(phi), sqrt(max(0.0, 1.0 - u1))));
+}
+
+// Henyey–Greenstein phase function of the angle between the propagation
+// directions before and after scattering.
+fn hg_phase(cos_theta: f32, g: f32) -> f32 {
+    let d = 1.0 + g * g - 2.0 * g * cos_theta;
+    return (1.0 - g * g) / (4.0 * PI * d * sqrt(d));
+}
+
+// A direction scattered from propagation direction `d`, by HG inversion.
+fn hg_direction(d: vec3<f32>, g: f32) -> vec3<f32> {
+    let u1 = rand();
+    let u2 = rand();
+    var cos_theta: f32;
+    if abs(g) < 1e-3 {
+        cos_theta = 1.0 - 2.0 * u1;
+    } else {
+        let q = (1.0 - g * g) / (1.0 - g + 2.0 * g * u1);
+        cos_theta = clamp((1.0 + g * g - q * q) / (2.0 * g), -1.0, 1.0);
+    }
+    let sin_theta = sqrt(max(0.0, 1.0 - cos_theta * cos_theta));
+    let phi = 2.0 * PI * u2;
+    return normalize(frame_around(d) * vec3<f32>(sin_theta * cos(phi), sin_theta * sin(phi), cos_theta));
+}
+
+// Density (0..1) of cloud `c` at world point p.
+fn cloud_density(c: Cloud, p: vec3<f32>) -> f32 {
+    let cell = c.size / f32(c.n);
+    return cloud_sample(c, 0u, (p - c.min) / cell - 0.5);
+}
+
+// The first real collision with a cloud before `t_max` by delta tracking
+// (density ≤ 1, so the majorant is the cloud's extinction): (t, cloud) or
+// t < 0 when the ray gets through. Clouds do not overlap, so sampling each
+// span on its own and keeping the nearest collision is exact.
+fn cloud_collision(ray: Ray, t_max: f32) -> vec2<f32> {
+    var best = vec2<f32>(-1.0, 0.0);
+    let len = length(ray.dir);
+    for (var i = 0u; i < arrayLength(&clouds); i++) {
+        let c = clouds[i];
+        if c.n == 0u {
+            continue;
+        }
+        let span = clip_box(c.min, c.min + vec3<f32>(c.size), ray, 0.0, t_max);
+        if span.x > span.y {
+            continue;
+        }
+        let majorant = c.extinction * len;
+        var t = span.x;
+        for (var k = 0u; k < 4096u; k++) {
+            t -= log(1.0 - rand()) / majorant;
+            if t >= span.y {
+                break;
+            }
+            if rand() < cloud_density(c, ray.origin + ray.dir * t) {
+                if best.x < 0.0 || t < best.x {
+                    best = vec2<f32>(t, f32(i));
+                }
+                break;
+            }
+        }
+    }
+    return best;
+}
+
+// Transmittance of the clouds along [0, t_max) of a ray, by ratio tracking.
+fn cloud_transmittance(ray: Ray, t_max: f32) -> f32 {
+    var tr = 1.0;
+    let len = length(ray.dir);
+    for (var i = 0u; i < arrayLength(&clouds); i++) {
+        let c = clouds[i];
+        if c.n == 0u {
+            continue;
+        }
+        let span = clip_box(c.min, c.min + vec3<f32>(c.size), ray, 0.0, t_max);
+        if span.x > span.y {
+            continue;
+        }
+        let majorant = c.extinction * len;
+        var t = span.x;
+        for (var k = 0u; k < 4096u; k++) {
+            t -= log(1.0 - rand()) / majorant;
+            if t >= span.y || tr < 1e-4 {
+                break;
+            }
+            tr *= 1.0 - cloud_density(c, ray.origin + ray.dir * t);
+        }
+    }
+    return tr;
+}
+
+// How much of the sun reaches p: 0 behind geometry, else what the clouds let through.
+fn sun_visibility(p: vec3<f32>) -> f32 {
+    if frame.sun_towards.y <= 0.0 && frame.has_ground == 1u {
+        return 0.0;
+    }
+    atomicAdd(&counters.shadow, 1u);
+    if in_shadow(p) {
+        return 0.0;
+    }
+    return cloud_transmittance(make_ray(p, frame.sun_towards), 3.0e38);
+}
+
+// A leaf's reflectance and transmittance seen from the side `wo` leaves:
+// (reflect, transmit) multipliers of its colour.
+fn leaf_optics(n: vec3<f32>, wo: vec3<f32>) -> array<vec3<f32>, 2> {
+    if dot(n, wo) >= 0.0 {
+        // Seen from the front: light from the front is reflected (ρ_rf),
+        // light entering the back face comes through (ρ_tb).
+        return array<vec3<f32>, 2>(frame.leaf_reflect_front, frame.leaf_transmit_back);
+    }
+    return array<vec3<f32>, 2>(frame.leaf_reflect_back, frame.leaf_transmit_front);
+}
+
+fn mean3(v: vec3<f32>) -> f32 {
+    return (v.x + v.y + v.z) / 3.0;
+}
+
+// Radiance along a camera ray by path tracing; alpha is 1 where the first
+// surface is a model.
+fn path_radiance(camera_ray: Ray, x: u32, y: u32, s: u32) -> vec4<f32> {
+    rng_state = pcg(x ^ pcg(y ^ pcg(s ^ pcg(frame.seed ^ 0x5bd1e995u))));
+    var ray = camera_ray;
+    var beta = vec3<f32>(1.0);
+    var light = vec3<f32>(0.0);
+    var coverage = 0.0;
+    for (var depth = 0u; depth <= frame.max_bounces; depth++) {
+        let surf = first_surface(ray);
+        let hit = cloud_collision(ray, surf.t);
+        let d = normalize(ray.dir);
+        if hit.x >= 0.0 {
+            // Scattered inside a cloud: the sun through the phase function,
+            // then on in a phase-sampled direction.
+            let c = clouds[u32(hit.y)];
+            let p = ray.origin + ray.dir * hit.x;
+            beta *= c.albedo;
+            let vis = sun_visibility(p);
+            // A directional sun of radiance-scale E lights a surface with ρE cosθ, i.e. irradiance πE.
+            light += beta * hg_phase(dot(d, frame.sun_towards), c.g) * PI * frame.sun_radiance * vis;
+            ray = make_ray(p, hg_direction(d, c.g));
+        } else {
+            if surf.kind == KIND_SKY {
+                light += beta * sky(d);
+                break;
+            }
+            if depth == 0u && surf.kind != KIND_GROUND {
+                coverage = 1.0;
+            }
+            let wo = -d;
+            // The normal on the viewer's side.
+            let n = select(surf.n, -surf.n, dot(surf.n, wo) < 0.0);
+            var reflect_c = surf.albedo;
+            var transmit_c = vec3<f32>(0.0);
+            if surf.kind == KIND_LEAF {
+                let o = leaf_optics(surf.n, wo);
+                reflect_c = min(surf.albedo * o[0], vec3<f32>(1.0));
+                transmit_c = min(surf.albedo * o[1], vec3<f32>(1.0) - reflect_c);
+            }
+            // The sun: reflected when it lights the viewer's side, transmitted when the other.
+            let cos_sun = dot(n, frame.sun_towards);
+            if cos_sun > 0.0 {
+                let vis = sun_visibility(surf.p + n * frame.epsilon);
+                light += beta * frame.sun_radiance * (reflect_c * cos_sun + vec3<f32>(sun_highlight(n, d, surf.kind))) * vis;
+            } else if cos_sun < 0.0 && surf.kind == KIND_LEAF {
+                let vis = sun_visibility(surf.p - n * frame.epsilon);
+                light += beta * frame.sun_radiance * transmit_c * (-cos_sun) * vis;
+            }
+            // Next: reflect or transmit, picked in proportion to how much each carries.
+            let pr = mean3(reflect_c);
+            let pt = mean3(transmit_c);
+            if pr + pt <= 0.0 {
+                break;
+            }
+            if rand() * (pr + pt) < pr {
+                beta *= reflect_c * ((pr + pt) / pr);
+                ray = make_ray(surf.p + n * frame.epsilon, cosine_direction(n));
+            } else {
+                beta *= transmit_c * ((pr + pt) / pt);
+                ray = make_ray(surf.p - n * frame.epsilon, cosine_direction(-n));
+            }
+        }
+        // Russian roulette after three bounces keeps the estimate unbiased.
+        if depth >= 3u {
+            let q = min(max(beta.x, max(beta.y, beta.z)), 0.95);
+            if rand() >= q {
+                break;
+            }
+            beta /= q;
+        }
+    }
+    return vec4<f32>(light, coverage);
+}

@@ -1,0 +1,122 @@
+//! The progressive reference: the path tracer of `reference.wgsl` run in
+//! batches with different seeds until the image's own error estimate is
+//! small enough. Each batch's mean is one independent sample of every
+//! pixel, so the spread of the batch means gives a per-pixel standard
+//! error: a reference states how far it may still be from the truth.
+
+use super::render::{FrameSettings, StripRenderer};
+use crate::gpu::GpuContext;
+use serde::Serialize;
+use std::time::Instant;
+use sylva_shared::color::luminance;
+use sylva_shared::film::HdrImage;
+use sylva_shared::scene::LightingMode;
+
+/// When a progressive reference stops.
+#[derive(Clone, Copy, Debug)]
+pub struct ReferenceOptions {
+    /// Samples per pixel in one batch.
+    pub batch_spp: u32,
+    /// Batches always rendered (the error estimate needs a few).
+    pub min_batches: u32,
+    /// Batches at most.
+    pub max_batches: u32,
+    /// Stop once the relative standard error of the frame is below this.
+    pub target_error: f64,
+    /// Stop after this many seconds, converged or not.
+    pub max_seconds: f64,
+}
+
+impl Default for ReferenceOptions {
+    fn default() -> Self {
+        Self { batch_spp: 4, min_batches: 4, max_batches: 1024, target_error: 0.01, max_seconds: 600.0 }
+    }
+}
+
+/// A reference image and its own error estimate.
+#[derive(Clone, Debug)]
+pub struct ReferenceImage {
+    /// The mean of all samples, linear HDR.
+    pub image: HdrImage,
+    /// Per pixel, the fraction of camera rays whose first hit is a model.
+    pub coverage: Vec<f32>,
+    /// Per pixel, the standard error of the mean's luminance.
+    pub std_error: Vec<f32>,
+    /// What was rendered and how close it is.
+    pub stats: ReferenceStats,
+}
+
+/// How a reference was made.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ReferenceStats {
+    /// Samples per pixel in all.
+    pub spp: u32,
+    /// Batches.
+    pub batches: u32,
+    /// √(Σ σ²) / √(Σ μ²) over the frame's luminance: the relative RMS
+    /// standard error of the image.
+    pub relative_error: f64,
+    /// Whether `relative_error` reached the target.
+    pub converged: bool,
+    /// Wall time.
+    pub ms: f64,
+}
+
+/// Renders `f` (any lighting; the reference's is forced) progressively.
+pub fn render_reference(
+    ctx: &GpuContext,
+    renderer: &StripRenderer,
+    f: &FrameSettings,
+    opts: &ReferenceOptions,
+    progress: &dyn Fn(&ReferenceStats),
+) -> anyhow::Result<ReferenceImage> {
+    anyhow::ensure!(opts.batch_spp > 0 && opts.max_batches >= opts.min_batches.max(2), "reference batches: need batch_spp ≥ 1 and max_batches ≥ 2");
+    let t = Instant::now();
+    let n = (f.width * f.height) as usize;
+    let mut sum = vec![[0.0f64; 3]; n];
+    let mut lum_sq = vec![0.0f64; n];
+    let mut coverage = vec![0.0f64; n];
+    let mut stats = ReferenceStats { spp: 0, batches: 0, relative_error: f64::INFINITY, converged: false, ms: 0.0 };
+    let mut batch = 0u32;
+    loop {
+        // Seeds far apart, so no batch repeats another's samples.
+        let settings = FrameSettings { spp: opts.batch_spp, seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)), lighting: LightingMode::Reference, ..*f };
+        let s = renderer.render_strip(ctx, &settings, 0, f.width)?;
+        for i in 0..n {
+            let p = s.pixels[i];
+            for c in 0..3 {
+                sum[i][c] += p[c] as f64;
+            }
+            let l = luminance(p) as f64;
+            lum_sq[i] += l * l;
+            coverage[i] += s.coverage[i] as f64;
+        }
+        batch += 1;
+        let b = batch as f64;
+        let (mut var_sum, mut mean_sq_sum) = (0.0, 0.0);
+        for i in 0..n {
+            let mean_l = luminance(sum[i].map(|v| (v / b) as f32)) as f64;
+            let var_batch = ((lum_sq[i] / b) - mean_l * mean_l).max(0.0) * b / (b - 1.0).max(1.0);
+            var_sum += var_batch / b;
+            mean_sq_sum += mean_l * mean_l;
+        }
+        stats.batches = batch;
+        stats.spp = batch * opts.batch_spp;
+        stats.relative_error = if mean_sq_sum > 0.0 { (var_sum / mean_sq_sum).sqrt() } else { 0.0 };
+        stats.ms = t.elapsed().as_secs_f64() * 1e3;
+        stats.converged = batch >= 2 && stats.relative_error <= opts.target_error;
+        progress(&stats);
+        if batch >= opts.min_batches.max(2) && (stats.converged || batch >= opts.max_batches || stats.ms / 1e3 >= opts.max_seconds) {
+            break;
+        }
+    }
+    let b = batch as f64;
+    let image = HdrImage { width: f.width, height: f.height, pixels: sum.iter().map(|s| s.map(|v| (v / b) as f32)).collect() };
+    let std_error = (0..n)
+        .map(|i| {
+            let mean_l = luminance(image.pixels[i]) as f64;
+            ((((lum_sq[i] / b) - mean_l * mean_l).max(0.0) / (b - 1.0).max(1.0)).sqrt()) as f32
+        })
+        .collect();
+    Ok(ReferenceImage { image, coverage: coverage.iter().map(|c| (c / b) as f32).collect(), std_error, stats })
+}
