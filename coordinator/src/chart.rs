@@ -14,17 +14,19 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
 }
 
-/// A line chart with linear axes from 0, ticks at the x values given.
+/// A line chart with linear axes from 0 (x from below 0 when the data
+/// are), ticks at the x values given.
 pub fn line_chart(title: &str, x_label: &str, y_label: &str, x_ticks: &[f64], series: &[Series]) -> String {
     let (w, h, left, right, top, bottom) = (640.0, 420.0, 64.0, 170.0, 40.0, 56.0);
     let x_max = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0f64, f64::max);
     let y_max = series.iter().flat_map(|s| s.points.iter().map(|p| p.1)).fold(1.0f64, f64::max) * 1.05;
-    let px = |x: f64| left + (w - left - right) * x / x_max;
+    let x_min = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(0.0f64, f64::min);
+    let px = |x: f64| left + (w - left - right) * (x - x_min) / (x_max - x_min);
     let py = |y: f64| h - bottom - (h - top - bottom) * y / y_max;
     let mut s = String::new();
     let _ = write!(s, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12">"#);
     let _ = write!(s, r#"<rect width="{w}" height="{h}" fill="white"/><text x="{}" y="22" font-size="15" text-anchor="middle">{title}</text>"#, (w - right + left) / 2.0);
-    let (x0, y0, x1, y1) = (px(0.0), py(0.0), px(x_max), py(y_max));
+    let (x0, y0, x1, y1) = (px(x_min), py(0.0), px(x_max), py(y_max));
     let _ = write!(s, r#"<path d="M{x0},{y1} L{x0},{y0} L{x1},{y0}" stroke="black" fill="none"/>"#);
     for &t in x_ticks {
         let _ = write!(s, r#"<line x1="{0}" y1="{y0}" x2="{0}" y2="{1}" stroke="black"/><text x="{0}" y="{2}" text-anchor="middle">{t}</text>"#, px(t), y0 + 5.0, y0 + 18.0);

@@ -58,12 +58,28 @@ pub struct ToneMapStats {
 /// `L (1 + L / L_white²) / (1 + L)`. Colours keep their ratios. Returns
 /// 8-bit sRGB pixels.
 pub fn reinhard(img: &HdrImage, key: f32) -> (Vec<[u8; 3]>, ToneMapStats) {
+    reinhard_exposed(img, key, None)
+}
+
+/// [`reinhard`] with the exposure (log-average and white) of another frame,
+/// so several renders of one scene can be compared by eye.
+pub fn reinhard_like(img: &HdrImage, like: &ToneMapStats) -> Vec<[u8; 3]> {
+    reinhard_exposed(img, like.key, Some((like.log_average, like.white))).0
+}
+
+fn reinhard_exposed(img: &HdrImage, key: f32, fixed: Option<(f32, f32)>) -> (Vec<[u8; 3]>, ToneMapStats) {
     const DELTA: f64 = 1e-4;
     let n = img.pixels.len().max(1) as f64;
     let lum: Vec<f32> = img.pixels.iter().map(|&p| luminance(p).max(0.0)).collect();
-    let log_average = (lum.iter().map(|&l| (DELTA + l as f64).ln()).sum::<f64>() / n).exp() as f32;
+    let log_average = match fixed {
+        Some((l, _)) => l,
+        None => (lum.iter().map(|&l| (DELTA + l as f64).ln()).sum::<f64>() / n).exp() as f32,
+    };
     let scale = key / log_average.max(1e-12);
-    let white = lum.iter().fold(0.0f32, |a, &b| a.max(b)) * scale;
+    let white = match fixed {
+        Some((_, w)) => w * scale,
+        None => lum.iter().fold(0.0f32, |a, &b| a.max(b)) * scale,
+    };
     let white2 = (white * white).max(1e-12);
     let out = img
         .pixels

@@ -29,6 +29,103 @@ pub struct ModelLight {
     pub steps: [usize; 3],
     /// Whether each channel converged.
     pub converged: [bool; 3],
+    /// Where the LB model is not to be trusted for this medium, and why.
+    pub warnings: Vec<String>,
+}
+
+/// Voxelizes one model at `grid`³ and solves its LB light.
+fn solve_model(solver: &mut GpuSolver, m: &sylva_shared::scene::SceneModel, grid: usize, sun: &Sun) -> anyhow::Result<(LbGrid, ModelLight)> {
+    solve_voxels(solver, m, &voxelize(&m.model, grid)?, grid, sun)
+}
+
+/// Solves the LB light of one model's voxels.
+fn solve_voxels(solver: &mut GpuSolver, m: &sylva_shared::scene::SceneModel, v: &sylva_shared::voxel::Voxelization, grid: usize, sun: &Sun) -> anyhow::Result<(LbGrid, ModelLight)> {
+    let params = m.lb.preset.params();
+    let s = solve(solver, &v.medium, &params, sun, &SolveOptions::default(), &|_, _, _| {})?;
+    let warnings = sylva_shared::lb::lb_warnings(&params, &v.medium, sun).into_iter().map(|w| format!("{}: {}", w.kind, w.message)).collect();
+    let report = ModelLight {
+        model: m.name.clone(),
+        grid,
+        preset: m.lb.preset.name(),
+        occupancy: v.medium.occupancy(),
+        steps: std::array::from_fn(|c| s.channels[c].report.steps),
+        converged: std::array::from_fn(|c| s.channels[c].report.converged),
+        warnings,
+    };
+    let rgb = s.channels.iter().flat_map(|c| c.total.iter().copied()).collect();
+    Ok((LbGrid { n: grid, frame: v.frame, rgb, occupancy: v.medium.occupancy() }, report))
+}
+
+/// The LB light of `g` at a model-space point: trilinear between node
+/// centres, as `render.wgsl`'s `lb_light` reads it.
+pub fn sample_lb(g: &LbGrid, p: glam::Vec3) -> [f32; 3] {
+    let n = g.n;
+    let q = ((p - glam::Vec3::from(g.frame.origin)) / g.frame.cell - 0.5).clamp(glam::Vec3::ZERO, glam::Vec3::splat((n - 1) as f32));
+    let i0 = q.floor().min(glam::Vec3::splat((n - 2) as f32));
+    let f = q - i0;
+    let (x0, y0, z0) = (i0.x as usize, i0.y as usize, i0.z as usize);
+    std::array::from_fn(|c| {
+        let base = c * n * n * n;
+        let mut acc = 0.0;
+        for k in 0..8 {
+            let (dx, dy, dz) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
+            let w = if dx == 1 { f.x } else { 1.0 - f.x } * if dy == 1 { f.y } else { 1.0 - f.y } * if dz == 1 { f.z } else { 1.0 - f.z };
+            acc += w * g.rgb[base + (x0 + dx) + n * ((y0 + dy) + n * (z0 + dz))];
+        }
+        acc
+    })
+}
+
+/// What `--lb-grid auto` chose for one model, and why.
+#[derive(Clone, Debug, Serialize)]
+pub struct GridChoice {
+    /// Model name.
+    pub model: String,
+    /// The grid chosen.
+    pub grid: usize,
+    /// Each pair compared: (N, next finer N, relative RMS difference of
+    /// the LB light at the model's triangle centres).
+    pub compared: Vec<(usize, usize, f64)>,
+    /// Why this grid.
+    pub reason: String,
+    /// Time spent choosing, ms.
+    pub ms: f64,
+}
+
+/// Picks per model the smallest of `candidates` (ascending) whose LB light,
+/// where the image samples it (every triangle's centre), differs from the
+/// next finer grid's by less than `tolerance` (relative RMS).
+pub fn choose_lb_grids(ctx: &GpuContext, scene: &Scene, candidates: &[usize], tolerance: f64, progress: &dyn Fn(&str)) -> anyhow::Result<Vec<GridChoice>> {
+    anyhow::ensure!(candidates.len() >= 2 && candidates.windows(2).all(|w| w[0] < w[1]), "auto grid candidates must be at least two, ascending");
+    let sun = sun_of(scene)?;
+    let mut solver = GpuSolver::new(ctx.clone());
+    let mut out = Vec::new();
+    for m in &scene.models {
+        let t = std::time::Instant::now();
+        let pts: Vec<glam::Vec3> = m.model.triangles.iter().map(|t| t.iter().map(|&i| m.model.positions[i as usize]).sum::<glam::Vec3>() / 3.0).collect();
+        let light_at = |g: &LbGrid| -> Vec<f32> { pts.iter().map(|&p| sample_lb(g, p).iter().sum::<f32>()).collect() };
+        progress(&format!("choosing the LB grid of {} ({}³)", m.name, candidates[0]));
+        let mut coarse = light_at(&solve_model(&mut solver, m, candidates[0], &sun)?.0);
+        let mut compared = Vec::new();
+        let mut chosen = None;
+        for w in candidates.windows(2) {
+            progress(&format!("choosing the LB grid of {} ({}³)", m.name, w[1]));
+            let fine = light_at(&solve_model(&mut solver, m, w[1], &sun)?.0);
+            let num: f64 = coarse.iter().zip(&fine).map(|(a, b)| ((a - b) as f64).powi(2)).sum();
+            let den: f64 = fine.iter().map(|b| (*b as f64).powi(2)).sum();
+            let diff = if den > 0.0 { (num / den).sqrt() } else { 0.0 };
+            compared.push((w[0], w[1], diff));
+            if diff < tolerance {
+                chosen = Some((w[0], format!("{}³ differs from {}³ by {:.1} % < {:.1} %", w[0], w[1], 100.0 * diff, 100.0 * tolerance)));
+                break;
+            }
+            coarse = fine;
+        }
+        let last = *candidates.last().expect("two or more");
+        let (grid, reason) = chosen.unwrap_or((last, format!("no grid up to {last}³ agreed with the next within {:.1} %: the finest was used", 100.0 * tolerance)));
+        out.push(GridChoice { model: m.name.clone(), grid, compared, reason, ms: t.elapsed().as_secs_f64() * 1e3 });
+    }
+    Ok(out)
 }
 
 /// What the coarse forest grid decided.
@@ -108,17 +205,12 @@ pub fn prepare(
         phases.time("lb", || -> anyhow::Result<()> {
             for (i, (m, v)) in scene.models.iter().zip(&voxels).enumerate() {
                 progress(&format!("LB light of {} ({}³)", m.name, m.lb.grid));
-                let s = solve(&mut solver, &v.medium, &m.lb.preset.params(), &sun, &SolveOptions::default(), &|_, _, _| {})?;
-                light.push(ModelLight {
-                    model: m.name.clone(),
-                    grid: m.lb.grid,
-                    preset: m.lb.preset.name(),
-                    occupancy: v.medium.occupancy(),
-                    steps: std::array::from_fn(|c| s.channels[c].report.steps),
-                    converged: std::array::from_fn(|c| s.channels[c].report.converged),
-                });
-                let rgb = s.channels.iter().flat_map(|c| c.total.iter().copied()).collect();
-                grids[i] = Some(LbGrid { n: m.lb.grid, frame: v.frame, rgb, occupancy: v.medium.occupancy() });
+                let (grid, report) = solve_voxels(&mut solver, m, v, m.lb.grid, &sun)?;
+                for w in &report.warnings {
+                    tracing::warn!(model = %m.name, "LB: {w}");
+                }
+                light.push(report);
+                grids[i] = Some(grid);
             }
             Ok(())
         })?;

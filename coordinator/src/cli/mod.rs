@@ -1,6 +1,7 @@
 //! The `sylva` subcommands.
 
 mod bench;
+mod compare;
 mod coordinator;
 mod lb;
 mod local;
@@ -52,6 +53,8 @@ enum Command {
     /// Scene files: the paper's forest.
     #[command(subcommand)]
     Scene(scene::SceneCommand),
+    /// Render a scene with every lighting method and chart error against time.
+    Compare(compare::CompareArgs),
     /// Benchmarks that print JSON.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -64,6 +67,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(c) => bench::run(c),
         Command::Scene(c) => scene::run(c),
         Command::Render(a) => render::run(a),
+        Command::Compare(a) => compare::run(a),
         Command::Worker(a) => worker::run(a),
         Command::Coordinator(a) => coordinator::run_coordinator(a),
         Command::Submit(a) => coordinator::run_submit(a),

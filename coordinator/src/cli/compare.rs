@@ -1,0 +1,449 @@
+//! `sylva compare SCENE`: renders a scene with every lighting method,
+//! measures each one's pre-process and frame time and its error against
+//! the path-traced reference, and writes a table (JSON), an image grid in
+//! the style of the forest paper's Figure 2 and a chart of error against
+//! time. Optionally adds the LB failure-mode sweeps (LB against a Monte
+//! Carlo reference of the same medium), each as a chart.
+
+use anyhow::Context;
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use sylva_coordinator::chart::{Series, line_chart};
+use sylva_shared::accel::AccelKind;
+use sylva_shared::color::luminance;
+use sylva_shared::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
+use sylva_shared::scene::{ForestGridUse, LightingMode, Scene};
+use sylva_worker::GpuContext;
+use sylva_worker::prepare::{choose_lb_grids, prepare};
+use sylva_worker::trace::{FrameSettings, ReferenceOptions, render_reference};
+
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// Scene file (JSON).
+    pub scene: PathBuf,
+    /// Image width.
+    #[arg(long, default_value_t = 448)]
+    pub width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 224)]
+    pub height: u32,
+    /// Rays per pixel of the direct methods (the reference takes as many as it needs).
+    #[arg(long, default_value_t = 4)]
+    pub spp: u32,
+    /// LB grid sizes to compare.
+    #[arg(long, value_delimiter = ',', default_value = "16,32,64,128")]
+    pub grids: Vec<usize>,
+    /// `lb auto`: the largest relative difference from the next finer grid it accepts.
+    #[arg(long, default_value_t = 0.05)]
+    pub auto_tolerance: f64,
+    /// The reference stops once its own relative standard error is below this.
+    #[arg(long, default_value_t = 0.02)]
+    pub target_error: f64,
+    /// The reference stops after this many seconds, converged or not.
+    #[arg(long, default_value_t = 600.0)]
+    pub max_seconds: f64,
+    /// Also run the LB failure-mode sweeps (LB against Monte Carlo on small media).
+    #[arg(long)]
+    pub sweeps: bool,
+    /// Folder for the images, grid and sweep charts.
+    #[arg(long, default_value = "sylva-out/compare")]
+    pub out: PathBuf,
+    /// The error-against-time chart (SVG); default OUT/compare.svg.
+    #[arg(long)]
+    pub chart: Option<PathBuf>,
+    /// Print the table as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One method's figures.
+#[derive(Debug, Serialize)]
+struct MethodReport {
+    name: String,
+    lighting: LightingMode,
+    /// LB grid per model (empty: none).
+    lb_grids: Vec<usize>,
+    /// Whether the coarse forest grid scaled the instances' LB light.
+    forest_grid: Option<bool>,
+    /// Time to build the acceleration structures (the same work for every method).
+    build_ms: f64,
+    /// Time of the lighting's own pre-process (voxelize, LB, forest LB,
+    /// clouds, Boulanger precompute, ambient match, grid choice).
+    preprocess_ms: f64,
+    /// Time to render the frame.
+    frame_ms: f64,
+    /// RMSE of the linear RGB image against the reference, over lit pixels.
+    rmse: f64,
+    /// Mean of |method − reference| / reference luminance over lit pixels.
+    mean_relative_error: f64,
+    /// RMS of the indirect component's error (method − local against
+    /// reference − local) over the RMS of the reference's indirect light.
+    indirect_relative_error: f64,
+    /// Image file.
+    image: String,
+    /// What the method decided and why (grid choice, forest grid, warnings).
+    notes: serde_json::Value,
+}
+
+struct Rendered {
+    report: MethodReport,
+    image: HdrImage,
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+pub fn run(a: CompareArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(a.width >= 8 && a.height >= 8 && a.width <= 4096 && a.height <= 4096, "image sides in [8, 4096]");
+    anyhow::ensure!((1..=256).contains(&a.spp), "--spp {}: valid range [1, 256]", a.spp);
+    anyhow::ensure!(a.grids.iter().all(|g| (4..=256).contains(g)), "--grids: each in [4, 256]");
+    anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error must be > 0");
+    anyhow::ensure!(a.auto_tolerance.is_finite() && a.auto_tolerance > 0.0, "--auto-tolerance must be > 0");
+    std::fs::create_dir_all(&a.out).with_context(|| format!("{}: cannot create folder", a.out.display()))?;
+    let scene = Scene::load(&a.scene)?;
+    let ctx = GpuContext::new()?;
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let say = |m: &str| bar.set_message(m.to_string());
+    let settings = FrameSettings { width: a.width, height: a.height, spp: a.spp, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 };
+
+    // The reference first: every error is measured against it.
+    say("reference: path tracing");
+    let t = Instant::now();
+    let prepared = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|m| say(m))?;
+    let opts = ReferenceOptions { target_error: a.target_error, max_seconds: a.max_seconds, ..Default::default() };
+    let build_ms = prepared.phases.ms("build");
+    let pre = ms(t) - build_ms - prepared.phases.ms("upload");
+    let r = render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
+        bar.set_message(format!("reference: {} spp, relative standard error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
+    })?;
+    drop(prepared);
+    let reference = r.image.clone();
+    let lit: Vec<bool> = r.coverage.iter().zip(&reference.pixels).map(|(&c, &p)| c >= 0.5 && luminance(p) > 0.0).collect();
+    anyhow::ensure!(lit.iter().any(|&l| l), "no pixel of the frame shows a lit model: nothing to compare");
+    let (_, exposure) = reinhard(&reference, 0.18);
+
+    let mut methods: Vec<(String, LightingMode, Scene)> = vec![("local".into(), LightingMode::Local, scene.clone()), ("ambient".into(), LightingMode::Ambient, scene.clone())];
+    for &g in &a.grids {
+        methods.push((format!("lb {g}³"), LightingMode::Lb, with_lb(&scene, Some(g), Some(ForestGridUse::Never))));
+    }
+    let forest_grid = scene.models.first().map_or(32, |m| m.lb.grid);
+    methods.push((format!("lb {forest_grid}³ + forest grid"), LightingMode::Lb, with_lb(&scene, None, Some(ForestGridUse::Always))));
+    methods.push(("boulanger".into(), LightingMode::Boulanger, scene.clone()));
+
+    let mut rendered: Vec<Rendered> = Vec::new();
+    for (name, lighting, s) in &methods {
+        say(name);
+        rendered.push(render_method(&ctx, name, *lighting, s, &settings, &a.out, &exposure, &|m| say(m))?);
+    }
+    // `--lb-grid auto`: the smallest grid per species that agrees with the next finer one.
+    say("lb auto: choosing grids");
+    let t = Instant::now();
+    let candidates: Vec<usize> = {
+        let mut c = a.grids.clone();
+        c.sort_unstable();
+        c.dedup();
+        c
+    };
+    let choices = choose_lb_grids(&ctx, &scene, &candidates, a.auto_tolerance, &|m| say(m))?;
+    let choose_ms = ms(t);
+    let mut auto_scene = scene.clone();
+    for (m, c) in auto_scene.models.iter_mut().zip(&choices) {
+        m.lb.grid = c.grid;
+    }
+    let mut auto = render_method(&ctx, "lb auto", LightingMode::Lb, &auto_scene, &settings, &a.out, &exposure, &|m| say(m))?;
+    auto.report.preprocess_ms += choose_ms;
+    auto.report.notes["grid_choice"] = serde_json::to_value(&choices)?;
+    rendered.push(auto);
+    bar.finish_and_clear();
+
+    // Errors against the reference; the indirect part against reference − local.
+    let local = rendered[0].image.clone();
+    for m in &mut rendered {
+        let e = errors(&m.image, &reference, &local, &lit);
+        (m.report.rmse, m.report.mean_relative_error, m.report.indirect_relative_error) = e;
+    }
+    let ref_png = a.out.join("reference.png");
+    write_png(&ref_png, a.width, a.height, &reinhard_like(&reference, &exposure))?;
+    let grid_svg = a.out.join("figure2.svg");
+    write_figure(&grid_svg, &a, &rendered, &reference)?;
+    let mut reports: Vec<MethodReport> = rendered.iter_mut().map(|m| std::mem::replace(&mut m.report, empty_report())).collect();
+    reports.push(MethodReport {
+        name: "reference".into(),
+        lighting: LightingMode::Reference,
+        lb_grids: vec![],
+        forest_grid: None,
+        build_ms,
+        preprocess_ms: pre,
+        frame_ms: r.stats.ms,
+        rmse: 0.0,
+        mean_relative_error: 0.0,
+        indirect_relative_error: 0.0,
+        image: ref_png.display().to_string(),
+        notes: json!({ "spp": r.stats.spp, "batches": r.stats.batches, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "max_bounces": sylva_worker::trace::MAX_BOUNCES, "leaf_optics": scene.file.leaf_optics }),
+    });
+
+    let chart = a.chart.clone().unwrap_or_else(|| a.out.join("compare.svg"));
+    std::fs::write(&chart, error_chart(&reports)).with_context(|| format!("{}: cannot write", chart.display()))?;
+    let sweeps = if a.sweeps { Some(write_sweeps(&a.out)?) } else { None };
+    let best = winner(&reports);
+    let table = json!({
+        "scene": a.scene,
+        "image": [a.width, a.height],
+        "spp": a.spp,
+        "adapter": ctx.summary(),
+        "lit_pixels": lit.iter().filter(|&&l| l).count(),
+        "reference": { "spp": r.stats.spp, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "ms": r.stats.ms },
+        "methods": reports,
+        "summary": best,
+        "figure": grid_svg,
+        "chart": chart,
+        "sweeps": sweeps,
+    });
+    std::fs::write(a.out.join("compare.json"), serde_json::to_string_pretty(&table)? + "\n")?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&table)?);
+    } else {
+        println!("{:<28} {:>12} {:>10} {:>9} {:>10} {:>10}", "method", "pre-process", "frame", "RMSE", "rel. err", "indirect");
+        for m in &reports {
+            println!("{:<28} {:>9.0} ms {:>7.0} ms {:>9.4} {:>9.1} % {:>9.1} %", m.name, m.preprocess_ms, m.frame_ms, m.rmse, 100.0 * m.mean_relative_error, 100.0 * m.indirect_relative_error);
+        }
+        println!("{}", best);
+        println!("wrote {}, {} and {}", a.out.join("compare.json").display(), grid_svg.display(), chart.display());
+    }
+    Ok(())
+}
+
+fn empty_report() -> MethodReport {
+    MethodReport {
+        name: String::new(),
+        lighting: LightingMode::Local,
+        lb_grids: vec![],
+        forest_grid: None,
+        build_ms: 0.0,
+        preprocess_ms: 0.0,
+        frame_ms: 0.0,
+        rmse: 0.0,
+        mean_relative_error: 0.0,
+        indirect_relative_error: 0.0,
+        image: String::new(),
+        notes: serde_json::Value::Null,
+    }
+}
+
+/// The scene with every model's LB grid set to `grid` and the forest grid's use set.
+fn with_lb(scene: &Scene, grid: Option<usize>, forest: Option<ForestGridUse>) -> Scene {
+    let mut s = scene.clone();
+    if let Some(g) = grid {
+        for m in &mut s.models {
+            m.lb.grid = g;
+        }
+    }
+    if let Some(f) = forest {
+        s.file.forest_grid.use_grid = f;
+    }
+    s
+}
+
+/// Prepares and renders one method, writes its image with the reference's exposure.
+#[allow(clippy::too_many_arguments)]
+fn render_method(ctx: &GpuContext, name: &str, lighting: LightingMode, scene: &Scene, f: &FrameSettings, out: &Path, exposure: &ToneMapStats, say: &dyn Fn(&str)) -> anyhow::Result<Rendered> {
+    let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
+    let mut pre: f64 = prepared.phases.0.iter().filter(|p| !matches!(p.name, "build" | "upload")).map(|p| p.ms).sum::<f64>() + 0.0;
+    let mut settings = FrameSettings { lighting, ..*f };
+    if lighting == LightingMode::Ambient {
+        let t = Instant::now();
+        settings.ambient = prepared.renderer.matched_ambient(ctx, &settings)?;
+        pre += ms(t);
+    }
+    say(&format!("{name}: rendering"));
+    // One untimed strip first: the pipeline's first dispatch compiles it.
+    prepared.renderer.render_strip(ctx, &FrameSettings { width: 8, height: 8, spp: 1, ..settings }, 0, 8)?;
+    let t = Instant::now();
+    let strip = prepared.renderer.render_strip(ctx, &settings, 0, f.width)?;
+    let frame_ms = ms(t);
+    let image = HdrImage { width: f.width, height: f.height, pixels: strip.pixels };
+    let file = out.join(format!("{}.png", name.replace(['³', ' ', '+'], "").replace("lb", "lb-")));
+    write_png(&file, f.width, f.height, &reinhard_like(&image, exposure))?;
+    let notes = json!({
+        "lb": prepared.light,
+        "forest_grid": prepared.forest,
+        "boulanger": prepared.boulanger,
+        "ambient": settings.ambient,
+        "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
+    });
+    Ok(Rendered {
+        report: MethodReport {
+            name: name.into(),
+            lighting,
+            lb_grids: prepared.light.iter().map(|l| l.grid).collect(),
+            forest_grid: prepared.forest.as_ref().map(|f| f.used),
+            build_ms: prepared.phases.ms("build"),
+            preprocess_ms: pre,
+            frame_ms,
+            rmse: 0.0,
+            mean_relative_error: 0.0,
+            indirect_relative_error: 0.0,
+            image: file.display().to_string(),
+            notes,
+        },
+        image,
+    })
+}
+
+/// (RMSE, mean relative error, indirect relative error) over lit pixels.
+fn errors(m: &HdrImage, r: &HdrImage, local: &HdrImage, lit: &[bool]) -> (f64, f64, f64) {
+    let (mut se, mut rel, mut n) = (0.0f64, 0.0f64, 0usize);
+    let (mut ind_se, mut ind_ref) = (0.0f64, 0.0f64);
+    for i in 0..lit.len() {
+        if !lit[i] {
+            continue;
+        }
+        let (p, q, l) = (m.pixels[i], r.pixels[i], local.pixels[i]);
+        for c in 0..3 {
+            se += ((p[c] - q[c]) as f64).powi(2);
+            let (ind_m, ind_r) = ((p[c] - l[c]) as f64, (q[c] - l[c]) as f64);
+            ind_se += (ind_m - ind_r).powi(2);
+            ind_ref += ind_r.powi(2);
+        }
+        let lr = luminance(q) as f64;
+        rel += ((luminance(p) as f64) - lr).abs() / lr;
+        n += 1;
+    }
+    let n = n.max(1) as f64;
+    ((se / (3.0 * n)).sqrt(), rel / n, if ind_ref > 0.0 { (ind_se / ind_ref).sqrt() } else { 0.0 })
+}
+
+/// Which method wins where: the most accurate, the fastest that beats
+/// constant ambient, and the best error per unit time.
+fn winner(reports: &[MethodReport]) -> String {
+    let methods: Vec<&MethodReport> = reports.iter().filter(|m| m.lighting != LightingMode::Reference).collect();
+    let Some(best) = methods.iter().min_by(|a, b| a.mean_relative_error.total_cmp(&b.mean_relative_error)) else { return String::new() };
+    let ambient = methods.iter().find(|m| m.lighting == LightingMode::Ambient).map_or(f64::INFINITY, |m| m.mean_relative_error);
+    let cheapest_better = methods
+        .iter()
+        .filter(|m| m.mean_relative_error < ambient)
+        .min_by(|a, b| (a.preprocess_ms + a.frame_ms).total_cmp(&(b.preprocess_ms + b.frame_ms)));
+    let mut s = format!("most accurate: {} ({:.1} % mean relative error)", best.name, 100.0 * best.mean_relative_error);
+    match cheapest_better {
+        Some(c) => s += &format!("; cheapest to beat constant ambient ({:.1} %): {} ({:.1} %, {:.0} ms in all)", 100.0 * ambient, c.name, 100.0 * c.mean_relative_error, c.preprocess_ms + c.frame_ms),
+        None => s += &format!("; no method beats constant ambient ({:.1} %) here", 100.0 * ambient),
+    }
+    s
+}
+
+const COLORS: [&str; 12] = ["#444444", "#999999", "#1f77b4", "#2ca02c", "#17becf", "#9467bd", "#8c564b", "#d62728", "#ff7f0e", "#e377c2", "#bcbd22", "#000000"];
+
+/// Mean relative error against log10 of pre-process + frame time, every method a point.
+fn error_chart(reports: &[MethodReport]) -> String {
+    let series: Vec<Series> = reports
+        .iter()
+        .filter(|m| m.lighting != LightingMode::Reference)
+        .enumerate()
+        .map(|(i, m)| Series {
+            name: m.name.clone(),
+            color: COLORS[i % COLORS.len()],
+            dashed: false,
+            points: vec![((m.preprocess_ms + m.frame_ms).max(1.0).log10(), 100.0 * m.mean_relative_error)],
+        })
+        .collect();
+    let hi = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0f64, f64::max).ceil() as i32;
+    let ticks: Vec<f64> = (0..=hi).map(f64::from).collect();
+    line_chart("Error against time (reference = path tracer)", "log10 of pre-process + frame time, ms", "mean relative error over lit pixels, %", &ticks, &series)
+}
+
+/// Figure 2 of the forest paper as an SVG of PNG tiles: full (LB), local,
+/// ambient matched, LB visualization, reference, and error heat maps.
+fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: &HdrImage) -> anyhow::Result<()> {
+    let find = |pred: &dyn Fn(&MethodReport) -> bool| rendered.iter().find(|m| pred(&m.report));
+    let lb = find(&|m| m.name == "lb auto").or_else(|| find(&|m| m.lighting == LightingMode::Lb));
+    let mut tiles: Vec<(String, PathBuf)> = Vec::new();
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let name_of = |p: &str| PathBuf::from(p).file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_default();
+    if let Some(m) = lb {
+        tiles.push((format!("(a) full: {}", m.report.name), name_of(&m.report.image).into()));
+    }
+    for (label, l) in [("(b) local", LightingMode::Local), ("(c) ambient matched", LightingMode::Ambient)] {
+        if let Some(m) = find(&|m| m.lighting == l) {
+            tiles.push((label.into(), name_of(&m.report.image).into()));
+        }
+    }
+    // The LB light alone is a separate render of the auto scene's grids: the
+    // (a) − (b) difference shows it without another LB solve.
+    if let (Some(m), Some(l)) = (lb, find(&|m| m.lighting == LightingMode::Local)) {
+        let diff = HdrImage { width: a.width, height: a.height, pixels: m.image.pixels.iter().zip(&l.image.pixels).map(|(p, q)| std::array::from_fn(|c| (p[c] - q[c]).max(0.0))).collect() };
+        let (ldr, _) = reinhard(&diff, 0.18);
+        write_png(&dir.join("lb-visualize.png"), a.width, a.height, &ldr)?;
+        tiles.push(("(d) LB light alone".into(), "lb-visualize.png".into()));
+    }
+    tiles.push(("(e) reference (path traced)".into(), "reference.png".into()));
+    if let Some(m) = find(&|m| m.lighting == LightingMode::Boulanger) {
+        tiles.push(("(f) Boulanger et al.".into(), name_of(&m.report.image).into()));
+    }
+    for (label, m) in [("error: full", lb), ("error: ambient", find(&|m| m.lighting == LightingMode::Ambient)), ("error: Boulanger", find(&|m| m.lighting == LightingMode::Boulanger))] {
+        if let Some(m) = m {
+            let file = format!("error-{}.png", m.report.name.replace(['³', ' ', '+'], ""));
+            write_png(&dir.join(&file), a.width, a.height, &heat_map(&m.image, reference))?;
+            tiles.push((format!("{label} (black 0, red 50 %, yellow ≥ 100 %)"), file.into()));
+        }
+    }
+    let (tw, th) = (a.width as f64, a.height as f64 + 22.0);
+    let cols = 3usize;
+    let rows = tiles.len().div_ceil(cols);
+    let mut s = format!(r#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:xlink="http://www.w3.org/1999/xlink" width="{}" height="{}" font-family="sans-serif" font-size="13"><rect width="100%" height="100%" fill="white"/>"#, tw * cols as f64, th * rows as f64);
+    for (i, (label, file)) in tiles.iter().enumerate() {
+        let (x, y) = ((i % cols) as f64 * tw, (i / cols) as f64 * th);
+        s += &format!(r#"<text x="{}" y="{}">{}</text><image x="{x}" y="{}" width="{}" height="{}" href="{}" xlink:href="{1}"/>"#, x + 4.0, y + 15.0, label, y + 20.0, a.width, a.height, file.display());
+        let _ = file;
+    }
+    s += "</svg>\n";
+    std::fs::write(path, s).with_context(|| format!("{}: cannot write", path.display()))
+}
+
+/// Per-pixel relative luminance error as colour: black 0, red 0.5, yellow ≥ 1.
+fn heat_map(m: &HdrImage, r: &HdrImage) -> Vec<[u8; 3]> {
+    m.pixels
+        .iter()
+        .zip(&r.pixels)
+        .map(|(&p, &q)| {
+            let lr = luminance(q).max(1e-4);
+            let e = ((luminance(p) - lr).abs() / lr).clamp(0.0, 1.0);
+            let red = (2.0 * e).min(1.0);
+            let green = (2.0 * e - 1.0).max(0.0);
+            [(red * 255.0) as u8, (green * 255.0) as u8, 0]
+        })
+        .collect()
+}
+
+/// Runs the LB failure-mode sweeps and charts each: LB's error against
+/// the Monte Carlo reference beside the best constant's.
+fn write_sweeps(out: &Path) -> anyhow::Result<serde_json::Value> {
+    let mut all = Vec::new();
+    for sweep in sylva_shared::lb::failure_sweeps(true) {
+        let lb: Vec<(f64, f64)> = sweep.points.iter().map(|p| (p.x, 100.0 * p.lb_error)).collect();
+        let amb: Vec<(f64, f64)> = sweep.points.iter().map(|p| (p.x, 100.0 * p.ambient_error)).collect();
+        let warned: Vec<(f64, f64)> = sweep.points.iter().filter(|p| p.warned).map(|p| (p.x, 100.0 * p.lb_error)).collect();
+        let mut xs: Vec<f64> = sweep.points.iter().map(|p| p.x).collect();
+        xs.sort_by(f64::total_cmp);
+        let series = [
+            Series { name: "LB".into(), color: "#2ca02c", dashed: false, points: sorted(lb) },
+            Series { name: "constant ambient".into(), color: "#999999", dashed: true, points: sorted(amb) },
+            Series { name: "LB, warned".into(), color: "#d62728", dashed: false, points: sorted(warned) },
+        ];
+        let file = out.join(format!("failure-{}.svg", sweep.name.replace(' ', "-")));
+        std::fs::write(&file, line_chart(&format!("LB against Monte Carlo: {}", sweep.name), sweep.x_label, "relative RMS error of fluence, %", &xs, &series))?;
+        all.push(json!({ "name": sweep.name, "x_label": sweep.x_label, "chart": file, "points": sweep.points.iter().map(|p| json!({ "x": p.x, "lb_error": p.lb_error, "ambient_error": p.ambient_error, "warned": p.warned, "lb_ms": p.lb_ms, "mc_ms": p.mc_ms })).collect::<Vec<_>>() }));
+    }
+    Ok(serde_json::Value::Array(all))
+}
+
+fn sorted(mut v: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    v
+}
