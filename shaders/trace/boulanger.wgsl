@@ -39,11 +39,7 @@ fn boulanger_leaf(s: SurfacePoint, view: vec3<f32>) -> vec3<f32> {
     let n = normalize(cross(position(tri.v.y) - a, position(tri.v.z) - a));
     let wo = normalize(to_model_vector(inst, -view));
     let sun = normalize(to_model_vector(inst, frame.sun_towards));
-    var c: array<vec3<f32>, 4>;
-    c[0] = min(s.albedo * frame.leaf_reflect_front, vec3<f32>(1.0));
-    c[1] = min(s.albedo * frame.leaf_reflect_back, vec3<f32>(1.0));
-    c[2] = min(s.albedo * frame.leaf_transmit_front, vec3<f32>(1.0) - c[0]);
-    c[3] = min(s.albedo * frame.leaf_transmit_back, vec3<f32>(1.0) - c[1]);
+    let c = leaf_coefficients(s.albedo);
     var smax: array<f32, 8>;
     var mw: array<f32, 8>;
     var msum = 0.0;

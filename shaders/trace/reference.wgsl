@@ -139,15 +139,15 @@ fn sun_visibility(p: vec3<f32>) -> f32 {
     return cloud_transmittance(make_ray(p, frame.sun_towards), 3.0e38);
 }
 
-// A leaf's reflectance and transmittance seen from the side `wo` leaves:
-// (reflect, transmit) multipliers of its colour.
-fn leaf_optics(n: vec3<f32>, wo: vec3<f32>) -> array<vec3<f32>, 2> {
+// A leaf's reflectance and transmittance seen from the side `wo` leaves.
+fn leaf_optics(n: vec3<f32>, wo: vec3<f32>, albedo: vec3<f32>) -> array<vec3<f32>, 2> {
+    let c = leaf_coefficients(albedo);
     if dot(n, wo) >= 0.0 {
         // Seen from the front: light from the front is reflected (ρ_rf),
         // light entering the back face comes through (ρ_tb).
-        return array<vec3<f32>, 2>(frame.leaf_reflect_front, frame.leaf_transmit_back);
+        return array<vec3<f32>, 2>(c[0], c[3]);
     }
-    return array<vec3<f32>, 2>(frame.leaf_reflect_back, frame.leaf_transmit_front);
+    return array<vec3<f32>, 2>(c[1], c[2]);
 }
 
 fn mean3(v: vec3<f32>) -> f32 {
@@ -190,9 +190,9 @@ fn path_radiance(camera_ray: Ray, x: u32, y: u32, s: u32) -> vec4<f32> {
             var reflect_c = surf.albedo;
             var transmit_c = vec3<f32>(0.0);
             if surf.kind == KIND_LEAF {
-                let o = leaf_optics(surf.n, wo);
-                reflect_c = min(surf.albedo * o[0], vec3<f32>(1.0));
-                transmit_c = min(surf.albedo * o[1], vec3<f32>(1.0) - reflect_c);
+                let o = leaf_optics(surf.n, wo, surf.albedo);
+                reflect_c = o[0];
+                transmit_c = o[1];
             }
             // The sun: reflected when it lights the viewer's side, transmitted when the other.
             let cos_sun = dot(n, frame.sun_towards);

@@ -262,6 +262,19 @@ fn first_surface(ray: Ray) -> SurfacePoint {
     return SurfacePoint(ray.origin + ray.dir * hit.t, hit.t, n, select(KIND_LEAF, KIND_WOOD, mat.surface == 1u), albedo, hit.instance, hit.triangle);
 }
 
+// A leaf's (ρ_rf, ρ_rb, ρ_tf, ρ_tb) for texture colour `albedo`: the
+// frame's leaf optics times the colour, each side scaled back so it never
+// scatters more than it receives (as LeafOptics::coefficients does).
+fn leaf_coefficients(albedo: vec3<f32>) -> array<vec3<f32>, 4> {
+    var rf = albedo * frame.leaf_reflect_front;
+    var rb = albedo * frame.leaf_reflect_back;
+    var tf = albedo * frame.leaf_transmit_front;
+    var tb = albedo * frame.leaf_transmit_back;
+    let front = max(rf + tf, vec3<f32>(1.0));
+    let back = max(rb + tb, vec3<f32>(1.0));
+    return array<vec3<f32>, 4>(rf / front, rb / back, tf / front, tb / back);
+}
+
 // The sun's specular highlight (the paper's ks (V·R)^24) seen along
 // `view` from a surface of normal `n` (facing the viewer) and `kind`.
 fn sun_highlight(n: vec3<f32>, view: vec3<f32>, kind: u32) -> f32 {
