@@ -166,3 +166,49 @@ fn the_fern_example_renders() {
     assert_eq!(stats["triangles"]["unique"], 6232);
     assert!(stats["coverage"].as_f64().unwrap() > 0.1, "the ferns fill {} of the frame", stats["coverage"]);
 }
+
+#[test]
+fn compare_lists_every_method_with_its_time_and_error() {
+    let dir = scratch("compare");
+    let scene = dir.join("one-tree.json");
+    std::fs::write(
+        &scene,
+        r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 6000, "seed": 3 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 0] }, { "model": "maple", "position": [5, 0, 3], "rotate_y_deg": 50 } ],
+        "camera": { "position": [2, 6, -16], "look_at": [2, 5, 0], "fov_y_deg": 45 },
+        "sun": { "elevation_deg": 45, "azimuth_deg": 120 },
+        "ground": { "color": [0.1, 0.08, 0.05] },
+        "lb": { "grid": 12, "preset": "leaf" }
+    }"#,
+    )
+    .unwrap();
+    let out = dir.join("cmp");
+    let text = ok(&["compare", scene.to_str().unwrap(), "--width", "40", "--height", "24", "--spp", "1", "--grids", "8,12", "--target-error", "0.1", "--out", out.to_str().unwrap(), "--json"]);
+    let v: Value = serde_json::from_str(&text).unwrap();
+    let methods = v["methods"].as_array().unwrap();
+    let names: Vec<&str> = methods.iter().map(|m| m["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["local", "ambient", "lb 8³", "lb 12³", "lb 12³ + forest grid", "boulanger", "lb auto", "reference"]);
+    for m in methods {
+        let f = |k: &str| m[k].as_f64().unwrap_or_else(|| panic!("{k} of {m}"));
+        assert!(f("frame_ms") > 0.0 && f("preprocess_ms") >= 0.0, "{m}");
+        for k in ["rmse", "mean_relative_error", "indirect_relative_error"] {
+            assert!(f(k).is_finite() && f(k) >= 0.0, "{k} of {m}");
+        }
+        if m["name"] != "reference" {
+            assert!(f("mean_relative_error") > 0.0, "a method that is not the reference differs from it: {m}");
+        }
+        assert!(Path::new(m["image"].as_str().unwrap()).exists(), "{m}");
+    }
+    assert!(v["reference"]["converged"].as_bool().unwrap(), "{}", v["reference"]);
+    // The grid choice says what it chose and why.
+    let choice = &methods[6]["notes"]["grid_choice"][0];
+    assert!([8, 12].contains(&choice["grid"].as_u64().unwrap()) && !choice["reason"].as_str().unwrap().is_empty(), "{choice}");
+    assert!(methods[5]["notes"]["boulanger"][0]["tau"].as_f64().unwrap() > 0.0);
+    assert!(v["summary"].as_str().unwrap().starts_with("most accurate: "));
+    for f in ["figure2.svg", "compare.svg", "compare.json", "reference.png"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    let chart = std::fs::read_to_string(out.join("compare.svg")).unwrap();
+    assert_eq!(chart.matches("<circle").count(), 7, "one point per method but the reference");
+}

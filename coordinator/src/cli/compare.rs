@@ -38,7 +38,7 @@ pub struct CompareArgs {
     #[arg(long, value_delimiter = ',', default_value = "16,32,64,128")]
     pub grids: Vec<usize>,
     /// `lb auto`: the largest relative difference from the next finer grid it accepts.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.2)]
     pub auto_tolerance: f64,
     /// The reference stops once its own relative standard error is below this.
     #[arg(long, default_value_t = 0.02)]

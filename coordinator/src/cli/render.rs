@@ -84,6 +84,15 @@ pub struct RenderArgs {
     /// `--lighting reference` in this process: stop after this many seconds.
     #[arg(long, default_value_t = 600.0)]
     pub max_seconds: f64,
+    /// LB grid of every model: a size, or `auto` (the smallest of 16, 32, 64,
+    /// 128 whose light differs from the next finer grid's by less than
+    /// --lb-auto-tolerance; the stats say what it chose and why). In this
+    /// process only (--local-workers 0).
+    #[arg(long)]
+    pub lb_grid: Option<String>,
+    /// `--lb-grid auto`: the largest relative difference accepted.
+    #[arg(long, default_value_t = 0.2)]
+    pub lb_auto_tolerance: f64,
     /// Also write the linear HDR frame as OpenEXR beside the PNG.
     #[arg(long)]
     pub exr: bool,
@@ -131,8 +140,20 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     }
     let mut phases: Vec<(&str, f64)> = Vec::new();
     let t = Instant::now();
-    let scene = Scene::load(&a.scene)?;
+    let mut scene = Scene::load(&a.scene)?;
     phases.push(("load", ms(t)));
+    let grid_choice = match a.lb_grid.as_deref() {
+        None => None,
+        Some(_) if a.local_workers > 0 || !a.workers.is_empty() => bail!("--lb-grid works in this process only: add --local-workers 0, or set \"lb\": {{ \"grid\": N }} in the scene"),
+        Some("auto") => Some(()),
+        Some(n) => {
+            let n: usize = n.parse().ok().filter(|n| (4..=256).contains(n)).with_context(|| format!("--lb-grid {n:?}: a size in [4, 256] or auto"))?;
+            for m in &mut scene.models {
+                m.lb.grid = n;
+            }
+            None
+        }
+    };
     let lighting = match a.lighting {
         None => scene.lighting,
         Some(LightingArg::Local) => LightingMode::Local,
@@ -153,6 +174,16 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let ctx = GpuContext::new()?;
+    let mut choices = None;
+    if grid_choice.is_some() && lighting.needs_lb() {
+        let t = Instant::now();
+        let c = sylva_worker::prepare::choose_lb_grids(&ctx, &scene, &[16, 32, 64, 128], a.lb_auto_tolerance, &|m| bar.set_message(m.to_string()))?;
+        for (m, c) in scene.models.iter_mut().zip(&c) {
+            m.lb.grid = c.grid;
+        }
+        phases.push(("lb grid choice", ms(t)));
+        choices = Some(c);
+    }
     let prepared = prepare(&ctx, &scene, accel, lighting, &|m| bar.set_message(m.to_string()))?;
     for p in &prepared.phases.0 {
         phases.push((p.name, p.ms));
@@ -259,6 +290,8 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         "models": scene.models.len(),
         "gpu_memory_bytes": { "scene": prepared.renderer.scene_bytes(), "acceleration_structures": prepared.accel_bytes },
         "lb": prepared.light,
+        "lb_grid_choice": choices,
+        "boulanger": prepared.boulanger,
         "forest_grid": prepared.forest,
         "ambient": settings.ambient,
         "tone_map": tone,
