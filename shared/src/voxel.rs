@@ -56,6 +56,48 @@ pub enum VoxelError {
     GridTooSmall(usize),
 }
 
+/// Fills the inside of a closed surface: every empty cell that no path of
+/// empty cells (6-connected) links to the grid's shell becomes full (ρ = 1)
+/// of `class`. Solid objects (the chapter's PMMA teapot) scatter inside,
+/// not only in the shell of cells their triangles cross.
+pub fn fill_interior(v: &mut Voxelization, class: NodeClass) -> usize {
+    let d = v.medium.dims;
+    let mut outside = vec![false; d.len()];
+    let mut stack = Vec::new();
+    for z in 0..d.nz {
+        for y in 0..d.ny {
+            for x in 0..d.nx {
+                let i = d.index(x, y, z);
+                if d.is_boundary(x, y, z) && v.medium.density[i] == 0.0 {
+                    outside[i] = true;
+                    stack.push((x, y, z));
+                }
+            }
+        }
+    }
+    while let Some((x, y, z)) = stack.pop() {
+        let near = [(x.wrapping_sub(1), y, z), (x + 1, y, z), (x, y.wrapping_sub(1), z), (x, y + 1, z), (x, y, z.wrapping_sub(1)), (x, y, z + 1)];
+        for (a, b, c) in near {
+            if a < d.nx && b < d.ny && c < d.nz {
+                let j = d.index(a, b, c);
+                if !outside[j] && v.medium.density[j] == 0.0 {
+                    outside[j] = true;
+                    stack.push((a, b, c));
+                }
+            }
+        }
+    }
+    let mut filled = 0;
+    for i in 0..d.len() {
+        if !outside[i] && v.medium.density[i] == 0.0 {
+            v.medium.density[i] = 1.0;
+            v.medium.class[i] = class;
+            filled += 1;
+        }
+    }
+    filled
+}
+
 /// Voxelizes `mesh` into an `n³` grid.
 pub fn voxelize(mesh: &Model, n: usize) -> Result<Voxelization, VoxelError> {
     if n < 4 {
@@ -163,6 +205,38 @@ pub fn triangle_overlaps_box(tri: &[Vec3; 3], centre: Vec3, half: Vec3) -> bool 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_closed_box_fills_and_an_open_sheet_does_not() {
+        let mut cube = Model::default();
+        let m = cube.add_material(crate::model::Material::plain("pmma", Surface::Leaf, [0.9; 3]));
+        let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+        for (a, b, cc, d) in [
+            (c(0., 0., 0.), c(1., 0., 0.), c(1., 1., 0.), c(0., 1., 0.)),
+            (c(0., 0., 1.), c(1., 0., 1.), c(1., 1., 1.), c(0., 1., 1.)),
+            (c(0., 0., 0.), c(0., 1., 0.), c(0., 1., 1.), c(0., 0., 1.)),
+            (c(1., 0., 0.), c(1., 1., 0.), c(1., 1., 1.), c(1., 0., 1.)),
+            (c(0., 0., 0.), c(1., 0., 0.), c(1., 0., 1.), c(0., 0., 1.)),
+            (c(0., 1., 0.), c(1., 1., 0.), c(1., 1., 1.), c(0., 1., 1.)),
+        ] {
+            cube.push_quad([a, b, cc, d], m);
+        }
+        let mut v = voxelize(&cube, 12).unwrap();
+        let shell = v.medium.density.iter().filter(|&&d| d > 0.0).count();
+        let filled = fill_interior(&mut v, NodeClass::Medium);
+        assert!(filled > 0, "a closed cube has an inside");
+        let centre = v.medium.dims.index(6, 6, 6);
+        assert_eq!((v.medium.density[centre], v.medium.class[centre]), (1.0, NodeClass::Medium));
+        assert_eq!(v.medium.density.iter().filter(|&&d| d > 0.0).count(), shell + filled);
+        // Outside stays empty.
+        assert_eq!(v.medium.density[v.medium.dims.index(0, 0, 0)], 0.0);
+        // One open square: nothing inside.
+        let mut sheet = Model::default();
+        let m = sheet.add_material(crate::model::Material::plain("leaf", Surface::Leaf, [0.2; 3]));
+        sheet.push_quad([c(0., 0.5, 0.), c(0., 0.5, 1.), c(1., 0.5, 1.), c(1., 0.5, 0.)], m);
+        let mut v = voxelize(&sheet, 9).unwrap();
+        assert_eq!(fill_interior(&mut v, NodeClass::Medium), 0);
+    }
 
     #[test]
     fn overlap_test_agrees_with_obvious_cases() {

@@ -35,7 +35,22 @@ pub struct ModelLight {
 
 /// Voxelizes one model at `grid`³ and solves its LB light.
 fn solve_model(solver: &mut GpuSolver, m: &sylva_shared::scene::SceneModel, grid: usize, sun: &Sun) -> anyhow::Result<(LbGrid, ModelLight)> {
-    solve_voxels(solver, m, &voxelize(&m.model, grid)?, grid, sun)
+    solve_voxels(solver, m, &voxels_of(m, grid)?, grid, sun)
+}
+
+/// One model's LB medium: its voxels, filled inside when it is a solid;
+/// matter that is not a plant scatters without removing what it absorbs.
+fn voxels_of(m: &sylva_shared::scene::SceneModel, grid: usize) -> anyhow::Result<sylva_shared::voxel::Voxelization> {
+    use sylva_shared::lb::NodeClass;
+    let mut v = voxelize(&m.model, grid)?;
+    if !m.lb.preset.is_plant() {
+        v.medium.class.iter_mut().for_each(|c| *c = NodeClass::Medium);
+    }
+    if m.lb.solid {
+        let class = if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
+        sylva_shared::voxel::fill_interior(&mut v, class);
+    }
+    Ok(v)
 }
 
 /// Solves the LB light of one model's voxels.
@@ -198,7 +213,7 @@ pub fn prepare(
     if needs_lb {
         progress("voxelizing models");
         let voxels = phases.time("voxelize", || {
-            scene.models.iter().map(|m| voxelize(&m.model, m.lb.grid)).collect::<Result<Vec<_>, _>>()
+            scene.models.iter().map(|m| voxels_of(m, m.lb.grid)).collect::<Result<Vec<_>, _>>()
         })?;
         let sun = sun_of(scene)?;
         let mut solver = GpuSolver::new(ctx.clone());

@@ -231,6 +231,10 @@ pub struct LbSpec {
     /// Optical parameters.
     #[serde(default = "default_preset")]
     pub preset: Preset,
+    /// The model is a closed solid: its inside is medium too, not only the
+    /// cells its surface crosses (the PMMA teapot).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub solid: bool,
 }
 
 fn default_grid() -> usize {
@@ -242,7 +246,7 @@ fn default_preset() -> Preset {
 
 impl Default for LbSpec {
     fn default() -> Self {
-        Self { grid: default_grid(), preset: default_preset() }
+        Self { grid: default_grid(), preset: default_preset(), solid: false }
     }
 }
 
