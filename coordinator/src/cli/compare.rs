@@ -330,7 +330,9 @@ fn winner(reports: &[MethodReport]) -> String {
         .iter()
         .filter(|m| m.mean_relative_error < ambient)
         .min_by(|a, b| (a.preprocess_ms + a.frame_ms).total_cmp(&(b.preprocess_ms + b.frame_ms)));
-    let mut s = format!("most accurate: {} ({:.1} % mean relative error)", best.name, 100.0 * best.mean_relative_error);
+    let lowest_rmse = methods.iter().min_by(|a, b| a.rmse.total_cmp(&b.rmse)).expect("not empty");
+    // The relative error weighs dark pixels most, RMSE bright ones: say both.
+    let mut s = format!("most accurate: {} ({:.1} % mean relative error); lowest RMSE: {} ({:.4})", best.name, 100.0 * best.mean_relative_error, lowest_rmse.name, lowest_rmse.rmse);
     match cheapest_better {
         Some(c) => s += &format!("; cheapest to beat constant ambient ({:.1} %): {} ({:.1} %, {:.0} ms in all)", 100.0 * ambient, c.name, 100.0 * c.mean_relative_error, c.preprocess_ms + c.frame_ms),
         None => s += &format!("; no method beats constant ambient ({:.1} %) here", 100.0 * ambient),
