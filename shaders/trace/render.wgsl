@@ -67,6 +67,12 @@ const LIGHTING_LB: u32 = 2u;
 const LIGHTING_LB_VISUALIZE: u32 = 3u;
 const LIGHTING_REFERENCE: u32 = 4u;
 const LIGHTING_BOULANGER: u32 = 5u;
+
+// Which family of methods this pipeline renders: 0 the direct methods
+// (local, ambient, lb, lb-visualize, chosen per frame by frame.lighting),
+// 1 the reference, 2 Boulanger. One source, specialized per pipeline, so a
+// pipeline compiles only the code it runs.
+override LIGHTING_FAMILY: u32 = 0u;
 const SPECULAR_EXPONENT: f32 = 24.0;
 
 // PCG hash (Jarzynski & Olano 2020); shared/src/sampler.rs mirrors it.
@@ -307,7 +313,7 @@ fn surface_radiance(ray: Ray) -> Surface {
     if frame.lighting == LIGHTING_LB_VISUALIZE {
         return Surface(vec4<f32>(lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance, 1.0), s.t);
     }
-    if frame.lighting == LIGHTING_BOULANGER && s.kind == KIND_LEAF && models[inst.model].has_envelope == 1u {
+    if LIGHTING_FAMILY == 2u && s.kind == KIND_LEAF && models[inst.model].has_envelope == 1u {
         return Surface(vec4<f32>(boulanger_leaf(s, ray.dir), 1.0), s.t);
     }
     var color = vec3<f32>(0.0);
@@ -329,7 +335,7 @@ fn surface_radiance(ray: Ray) -> Surface {
 // One sample of pixel (x, y): the reference integrator's path, or the
 // direct methods' radiance.
 fn sample_radiance(ray: Ray, x: u32, y: u32, s: u32) -> vec4<f32> {
-    if frame.lighting == LIGHTING_REFERENCE {
+    if LIGHTING_FAMILY == 1u {
         return path_radiance(ray, x, y, s);
     }
     return radiance(ray);

@@ -122,7 +122,9 @@ pub struct Strip {
 /// The render pipeline over one uploaded scene.
 pub struct StripRenderer {
     scene: GpuScene,
-    pipeline: wgpu::ComputePipeline,
+    /// One pipeline per lighting family (direct methods, reference,
+    /// Boulanger); each compiles on its first dispatch.
+    pipelines: [wgpu::ComputePipeline; 3],
     layout: wgpu::BindGroupLayout,
     base: FrameUniform,
 }
@@ -155,16 +157,18 @@ impl StripRenderer {
             bind_group_layouts: &[Some(&gpu_scene.layout), Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("render"),
-            layout: Some(&pl),
-            module: &module,
-            entry_point: Some("render_strip"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[("ACCEL_KIND", gpu_scene.accel_kind as f64)],
-                ..Default::default()
-            },
-            cache: None,
+        let pipelines = [0u32, 1, 2].map(|family| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("render"),
+                layout: Some(&pl),
+                module: &module,
+                entry_point: Some("render_strip"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &[("ACCEL_KIND", gpu_scene.accel_kind as f64), ("LIGHTING_FAMILY", family as f64)],
+                    ..Default::default()
+                },
+                cache: None,
+            })
         });
         let c = &scene.camera;
         let sun = sylva_shared::lb::Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0).expect("scene checked the sun");
@@ -190,7 +194,7 @@ impl StripRenderer {
             bl_sky: sky_per_direction(scene),
             ..FrameUniform::zeroed()
         };
-        Self { scene: gpu_scene, pipeline, layout, base }
+        Self { scene: gpu_scene, pipelines, layout, base }
     }
 
     /// Bytes of scene data on the GPU.
@@ -253,7 +257,12 @@ impl StripRenderer {
             let mut enc = device.create_command_encoder(&Default::default());
             {
                 let mut pass = enc.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.pipeline);
+                let family = match f.lighting {
+                    LightingMode::Reference => 1,
+                    LightingMode::Boulanger => 2,
+                    _ => 0,
+                };
+                pass.set_pipeline(&self.pipelines[family]);
                 pass.set_bind_group(0, &self.scene.bind_group, &[]);
                 pass.set_bind_group(1, &bg, &[]);
                 pass.dispatch_workgroups(strip_width.div_ceil(8), f.height.div_ceil(8), 1);
