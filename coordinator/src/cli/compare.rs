@@ -402,7 +402,6 @@ fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: 
     for (i, (label, file)) in tiles.iter().enumerate() {
         let (x, y) = ((i % cols) as f64 * tw, (i / cols) as f64 * th);
         s += &format!(r#"<text x="{}" y="{}">{}</text><image x="{x}" y="{}" width="{}" height="{}" href="{}" xlink:href="{1}"/>"#, x + 4.0, y + 15.0, label, y + 20.0, a.width, a.height, file.display());
-        let _ = file;
     }
     s += "</svg>\n";
     std::fs::write(path, s).with_context(|| format!("{}: cannot write", path.display()))
