@@ -5,7 +5,8 @@
 # Idempotent: packages already present are not fetched again.
 set -euo pipefail
 
-packages=(mesa-vulkan-drivers libvulkan1 gcc pkg-config ca-certificates curl)
+# libc6-dev is only a recommendation of gcc, and rustc links through it (crt1.o, libc.so).
+packages=(mesa-vulkan-drivers libvulkan1 gcc libc6-dev pkg-config ca-certificates curl)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
