@@ -67,6 +67,14 @@ fn cloud_density(c: Cloud, p: vec3<f32>) -> f32 {
     return cloud_sample(c, 0u, (p - c.min) / cell - 0.5);
 }
 
+// The part of [0, t_max) of a ray inside cloud `c` (empty: x > y).
+fn cloud_span(c: Cloud, ray: Ray, t_max: f32) -> vec2<f32> {
+    if c.n == 0u {
+        return vec2<f32>(1.0, 0.0);
+    }
+    return clip_box(c.min, c.min + vec3<f32>(c.size), ray, 0.0, t_max);
+}
+
 // The first real collision with a cloud before `t_max` by delta tracking
 // (density ≤ 1, so the majorant is the cloud's extinction): (t, cloud) or
 // t < 0 when the ray gets through. Clouds do not overlap, so sampling each
@@ -76,10 +84,7 @@ fn cloud_collision(ray: Ray, t_max: f32) -> vec2<f32> {
     let len = length(ray.dir);
     for (var i = 0u; i < arrayLength(&clouds); i++) {
         let c = clouds[i];
-        if c.n == 0u {
-            continue;
-        }
-        let span = clip_box(c.min, c.min + vec3<f32>(c.size), ray, 0.0, t_max);
+        let span = cloud_span(c, ray, t_max);
         if span.x > span.y {
             continue;
         }
@@ -107,10 +112,7 @@ fn cloud_transmittance(ray: Ray, t_max: f32) -> f32 {
     let len = length(ray.dir);
     for (var i = 0u; i < arrayLength(&clouds); i++) {
         let c = clouds[i];
-        if c.n == 0u {
-            continue;
-        }
-        let span = clip_box(c.min, c.min + vec3<f32>(c.size), ray, 0.0, t_max);
+        let span = cloud_span(c, ray, t_max);
         if span.x > span.y {
             continue;
         }

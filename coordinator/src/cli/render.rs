@@ -225,22 +225,14 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         phases.push(("trace", ms(t)));
         bar.finish_and_clear();
         let (tone, exr) = write_image(&a, &r.image, &mut phases)?;
-        let stats = json!({
-            "scene": a.scene,
-            "image": a.out,
-            "exr": exr,
-            "width": a.width,
-            "height": a.height,
-            "accel": accel,
-            "lighting": lighting,
+        let stats = with_head(&a, exr, accel, lighting, &phases, json!({
             "adapter": ctx.summary(),
-            "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
             "reference": r.stats,
             "leaf_optics": scene.file.leaf_optics,
             "max_bounces": sylva_worker::trace::MAX_BOUNCES,
             "tone_map": tone,
             "coverage": r.coverage.iter().map(|&c| c as f64).sum::<f64>() / r.coverage.len() as f64,
-        });
+        }));
         let how = format!("{} spp in {:.0} ms, relative standard error {:.4}{}", r.stats.spp, r.stats.ms, r.stats.relative_error, if r.stats.converged { "" } else { " (not converged)" });
         return report(&a, &stats, accel, lighting, &how);
     }
@@ -268,17 +260,8 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
 
     let (tone, exr) = write_image(&a, &frame, &mut phases)?;
-    let stats = json!({
-        "scene": a.scene,
-        "image": a.out,
-        "exr": exr,
-        "width": a.width,
-        "height": a.height,
-        "spp": a.spp,
-        "accel": accel,
-        "lighting": lighting,
+    let stats = with_head(&a, exr, accel, lighting, &phases, json!({
         "adapter": ctx.summary(),
-        "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
         "rays": {
             "primary": rays.primary,
             "shadow": rays.shadow,
@@ -296,7 +279,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         "ambient": settings.ambient,
         "tone_map": tone,
         "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
-    });
+    }));
     let how = format!("in {:.0} ms of tracing, {:.2} Mrays/s", trace_ms, rays.traced() as f64 / (trace_ms / 1e3) / 1e6);
     report(&a, &stats, accel, lighting, &how)
 }
@@ -305,9 +288,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
 fn write_image(a: &RenderArgs, frame: &HdrImage, phases: &mut Vec<(&'static str, f64)>) -> anyhow::Result<(sylva_shared::film::ToneMapStats, Option<PathBuf>)> {
     let t = Instant::now();
     let (ldr, tone) = reinhard(frame, 0.18);
-    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
-    }
+    create_parent(&a.out)?;
     write_png(&a.out, a.width, a.height, &ldr)?;
     phases.push(("tone map", ms(t)));
     let exr = if a.exr {
@@ -318,6 +299,34 @@ fn write_image(a: &RenderArgs, frame: &HdrImage, phases: &mut Vec<(&'static str,
         None
     };
     Ok((tone, exr))
+}
+
+/// Stats every render path starts with (what was rendered, where it went,
+/// time per phase), followed by the path's own fields in `rest`.
+fn with_head(a: &RenderArgs, exr: Option<PathBuf>, accel: AccelKind, lighting: LightingMode, phases: &[(&str, f64)], rest: serde_json::Value) -> serde_json::Value {
+    let mut head = json!({
+        "scene": a.scene,
+        "image": a.out,
+        "exr": exr,
+        "width": a.width,
+        "height": a.height,
+        "spp": a.spp,
+        "accel": accel,
+        "lighting": lighting,
+        "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
+    });
+    if let (Some(h), serde_json::Value::Object(r)) = (head.as_object_mut(), rest) {
+        h.extend(r);
+    }
+    head
+}
+
+/// Creates the folder `path` goes in, if any.
+fn create_parent(path: &Path) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    }
+    Ok(())
 }
 
 /// Writes the stats beside the image and tells the user.
@@ -403,9 +412,7 @@ fn render_through_coordinator(
     phases.push(("frame", frame_ms));
     drop(processes);
 
-    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
-    }
+    create_parent(&a.out)?;
     std::fs::write(&a.out, &done.png).with_context(|| format!("{}: cannot write", a.out.display()))?;
     let exr = match &done.exr {
         Some(bytes) => {
@@ -415,23 +422,14 @@ fn render_through_coordinator(
         }
         None => None,
     };
-    let mut stats = json!({
-        "scene": a.scene,
-        "image": a.out,
-        "exr": exr,
-        "width": a.width,
-        "height": a.height,
-        "spp": a.spp,
-        "accel": accel,
-        "lighting": lighting,
+    let mut stats = with_head(a, exr, accel, lighting, &phases, json!({
         "coordinator": coordinator,
         "job": done.id,
         "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
-        "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
         "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
         "instances": scene.instances.len(),
         "models": scene.models.len(),
-    });
+    }));
     // The coordinator's own figures: schedule, strips, workers, rays, tone map.
     if let (Some(s), serde_json::Value::Object(c)) = (stats.as_object_mut(), done.stats) {
         s.extend(c);
