@@ -1,10 +1,13 @@
 //! Renders a frame on a set of gRPC workers: every worker gets the scene
-//! bundle, then pulls strips from one queue until the frame is done. A
-//! strip whose worker fails or misses its deadline goes back on the queue
-//! for another; a worker that fails three times is dropped for this frame;
-//! the frame fails only when no worker is left. Strips land by their
-//! columns, so the frame is the same whoever rendered what.
+//! bundle (all at once), then pulls strips from one queue until the frame
+//! is done. A strip whose worker fails, misses its deadline or returns a
+//! reply that does not fit the strip goes back on the queue for another; a
+//! worker that fails three times is dropped for this frame; the frame fails
+//! only when no worker is left, and then says what each worker last failed
+//! with. Strips land by their columns ([`Assembly`]), so the frame is the
+//! same whoever rendered what.
 
+use crate::assembly::{Assembly, StripPixels};
 use crate::schedule::Strip;
 use serde::Serialize;
 use std::collections::VecDeque;
@@ -14,6 +17,7 @@ use sylva_proto::pb;
 use sylva_proto::pb::worker_client::WorkerClient;
 use sylva_shared::bundle::SceneBundle;
 use sylva_shared::film::HdrImage;
+use sylva_shared::frame::FrameSettings;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig};
 
@@ -50,6 +54,8 @@ pub struct WorkerReport {
     pub failures: u32,
     /// Whether the worker was dropped.
     pub dropped: bool,
+    /// What it last failed with.
+    pub last_error: Option<String>,
 }
 
 /// A rendered frame.
@@ -71,15 +77,13 @@ pub struct FarmFrame {
 }
 
 /// A worker client that sends the bearer token, if any.
-pub type Client = WorkerClient<InterceptedService<Channel, Auth>>;
-type Auth = Box<dyn FnMut(tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> + Send + Sync>;
+pub type Client = WorkerClient<InterceptedService<Channel, sylva_proto::auth::Attach>>;
 
 /// Connects to a worker at `addr` (`host:port`), over TLS when `tls` is
 /// set, sending `token` with every call.
 pub async fn connect(addr: &str, token: Option<String>, tls: Option<&ClientTlsConfig>) -> anyhow::Result<Client> {
     let ch = sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.map_err(|e| anyhow::anyhow!("cannot reach worker {addr}: {e}"))?;
-    let auth: Auth = Box::new(sylva_proto::auth::attach(token));
-    Ok(WorkerClient::with_interceptor(ch, auth).max_decoding_message_size(1 << 30).max_encoding_message_size(1 << 30))
+    Ok(WorkerClient::with_interceptor(ch, sylva_proto::auth::attach(token)).max_decoding_message_size(1 << 30).max_encoding_message_size(1 << 30))
 }
 
 /// Sends `bundle` to a worker (a single empty chunk first, in case it is
@@ -104,7 +108,8 @@ pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<u64, to
 
 struct Shared {
     queue: Mutex<VecDeque<Strip>>,
-    done: Mutex<Vec<(pb::RenderStripReply, Strip, f64)>>,
+    /// Checked strips with their render and RPC times.
+    done: Mutex<Vec<(StripPixels, f64, f64)>>,
     total: usize,
 }
 
@@ -126,54 +131,79 @@ impl Workers {
     }
 }
 
+/// Decodes a worker's reply to `strip` and checks it before any use: a
+/// reply for other columns, of another size or with values that are no
+/// radiance is the worker's failure.
+pub fn decode_reply(r: &pb::RenderStripReply, strip: Strip, height: u32) -> Result<StripPixels, String> {
+    if r.x0 != strip.0 || r.width != strip.1 - strip.0 || r.height != height {
+        return Err(format!("worker replied with columns [{}, {}) × {} rows to a request for [{}, {}) × {height}", r.x0, r.x0.saturating_add(r.width), r.height, strip.0, strip.1));
+    }
+    let n = (strip.1 - strip.0) as usize * height as usize;
+    if r.rgb_f32.len() != n * 12 || r.coverage_f32.len() != n * 4 {
+        return Err(format!("worker replied with {} bytes of pixels and {} of coverage where {} and {} were due", r.rgb_f32.len(), r.coverage_f32.len(), n * 12, n * 4));
+    }
+    let f = |c: &[u8]| f32::from_le_bytes(c.try_into().expect("4 bytes"));
+    let rgb = r.rgb_f32.chunks_exact(12).map(|c| [f(&c[0..4]), f(&c[4..8]), f(&c[8..12])]).collect();
+    let coverage = r.coverage_f32.chunks_exact(4).map(f).collect();
+    let rays = r.rays.as_ref().map_or([0; 3], |c| [c.primary, c.shadow, c.transparent]);
+    let px = StripPixels { strip, rgb, coverage, rays };
+    px.check(height)?;
+    Ok(px)
+}
+
 /// Renders `frame` of `bundle` on `workers`, strips pulled in `plan` order;
 /// `deadline` bounds each strip's RPC.
 pub async fn render_frame(
     workers: &Workers,
     bundle: &SceneBundle,
-    frame: pb::FrameSettings,
+    frame: FrameSettings,
     plan: Vec<Strip>,
     deadline: Duration,
     events: impl Fn(FarmEvent) + Send + Sync + 'static,
 ) -> anyhow::Result<FarmFrame> {
     anyhow::ensure!(!workers.addrs.is_empty(), "no workers to render on");
     let t = Instant::now();
+    // Every worker gets the bundle at once; a slow one delays only itself.
+    let uploads = workers.addrs.iter().map(|w| {
+        let (w, token, tls) = (w.clone(), workers.token.clone(), workers.tls.clone());
+        async move {
+            let client = async {
+                let mut c = connect(&w, token, tls.as_ref()).await.map_err(|e| e.to_string())?;
+                let bytes = upload(&mut c, bundle).await.map_err(|e| format!("scene upload: {:?}: {}", e.code(), e.message()))?;
+                Ok::<_, String>((c, bytes))
+            }
+            .await;
+            (w, client)
+        }
+    });
+    let uploaded = futures_util::future::join_all(uploads).await;
+    let upload_ms = t.elapsed().as_secs_f64() * 1e3;
     let mut clients = Vec::new();
     let mut reports: Vec<WorkerReport> = Vec::new();
-    let mut sent = Vec::new();
-    for w in &workers.addrs {
+    for (w, r) in uploaded {
         let mut report = WorkerReport { worker: w.clone(), ..Default::default() };
-        match connect(w, workers.token.clone(), workers.tls.as_ref()).await {
-            Ok(mut c) => match upload(&mut c, bundle).await {
-                Ok(bytes) => {
-                    if bytes > 0 {
-                        sent.push((w.clone(), bytes));
-                    }
-                    clients.push(Some(c))
+        match r {
+            Ok((c, bytes)) => {
+                if bytes > 0 {
+                    events(FarmEvent::BundleSent { worker: w.clone(), bytes });
                 }
-                Err(e) => {
-                    report.dropped = true;
-                    events(FarmEvent::WorkerDropped { worker: w.clone(), error: format!("scene upload: {}", e.message()) });
-                    clients.push(None);
-                }
-            },
-            Err(e) => {
+                clients.push(Some(c));
+            }
+            Err(error) => {
                 report.dropped = true;
-                events(FarmEvent::WorkerDropped { worker: w.clone(), error: e.to_string() });
+                report.last_error = Some(error.clone());
+                events(FarmEvent::WorkerDropped { worker: w.clone(), error });
                 clients.push(None);
             }
         }
         reports.push(report);
     }
-    let upload_ms = t.elapsed().as_secs_f64() * 1e3;
-    for (w, b) in &sent {
-        events(FarmEvent::BundleSent { worker: w.clone(), bytes: *b });
-    }
+    let wire = pb::FrameSettings::from(&frame);
     let shared = Arc::new(Shared { total: plan.len(), queue: Mutex::new(plan.into_iter().collect()), done: Mutex::new(Vec::new()) });
     let events = Arc::new(events);
     let mut tasks = Vec::new();
     for (client, report) in clients.into_iter().zip(reports) {
-        let (shared, events, frame, hash) = (shared.clone(), events.clone(), frame.clone(), bundle.hash.clone());
+        let (shared, events, wire, hash, height) = (shared.clone(), events.clone(), wire.clone(), bundle.hash.clone(), frame.height);
         tasks.push(tokio::spawn(async move {
             let mut report = report;
             let Some(mut client) = client else { return report };
@@ -187,26 +217,30 @@ pub async fn render_frame(
                     tokio::time::sleep(Duration::from_millis(5)).await;
                     continue;
                 };
-                let mut req = tonic::Request::new(pb::RenderStripRequest { scene_hash: hash.clone(), frame: Some(frame.clone()), x0: strip.0, x1: strip.1 });
+                let mut req = tonic::Request::new(pb::RenderStripRequest { scene_hash: hash.clone(), frame: Some(wire.clone()), x0: strip.0, x1: strip.1 });
                 req.set_timeout(deadline);
                 let sent = Instant::now();
-                match tokio::time::timeout(deadline + Duration::from_secs(1), client.render_strip(req)).await {
+                let outcome = match tokio::time::timeout(deadline + Duration::from_secs(1), client.render_strip(req)).await {
                     Ok(Ok(reply)) => {
                         let r = reply.into_inner();
+                        decode_reply(&r, strip, height).map(|px| (r, px))
+                    }
+                    Ok(Err(status)) => Err(format!("{:?}: {}", status.code(), status.message())),
+                    Err(_) => Err("deadline passed".to_string()),
+                };
+                match outcome {
+                    Ok((r, px)) => {
                         report.strips += 1;
                         report.render_ms += r.render_ms;
                         report.prepare_ms += r.prepare_ms;
                         let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
                         events(FarmEvent::StripDone { strip, worker: report.worker.clone(), ms: r.render_ms, bytes });
-                        shared.done.lock().expect("lock").push((r, strip, sent.elapsed().as_secs_f64() * 1e3));
+                        shared.done.lock().expect("lock").push((px, r.render_ms, sent.elapsed().as_secs_f64() * 1e3));
                     }
-                    failure => {
-                        let error = match failure {
-                            Ok(Err(status)) => format!("{:?}: {}", status.code(), status.message()),
-                            _ => "deadline passed".to_string(),
-                        };
+                    Err(error) => {
                         shared.queue.lock().expect("lock").push_back(strip);
                         report.failures += 1;
+                        report.last_error = Some(error.clone());
                         events(FarmEvent::StripRetried { strip, worker: report.worker.clone(), error: error.clone() });
                         if report.failures >= MAX_FAILURES {
                             report.dropped = true;
@@ -225,28 +259,16 @@ pub async fn render_frame(
     }
     let done = std::mem::take(&mut *shared.done.lock().expect("lock"));
     if done.len() < shared.total {
-        let why: Vec<String> = reports.iter().filter(|r| r.dropped).map(|r| r.worker.clone()).collect();
-        anyhow::bail!("the frame failed: {} of {} strips rendered; no worker left that can finish it (dropped: {})", done.len(), shared.total, why.join(", "));
+        let why: Vec<String> = reports.iter().filter(|r| r.dropped).map(|r| format!("{}: {}", r.worker, r.last_error.as_deref().unwrap_or("dropped"))).collect();
+        anyhow::bail!("the frame failed: {} of {} strips rendered; no worker left that can finish it ({})", done.len(), shared.total, why.join("; "));
     }
-    let mut image = HdrImage::new(frame.width, frame.height);
-    let mut coverage = vec![0.0f32; (frame.width * frame.height) as usize];
-    let mut rays = [0u64; 3];
+    let mut frame_px = Assembly::new(frame.width, frame.height);
     let mut strip_ms = Vec::new();
-    for (r, strip, rpc_ms) in &done {
-        let px: Vec<[f32; 3]> = r.rgb_f32.chunks_exact(12).map(|c| std::array::from_fn(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes")))).collect();
-        anyhow::ensure!(px.len() == (r.width * frame.height) as usize && r.x0 == strip.0, "worker returned a malformed strip");
-        image.paste_strip(r.x0, r.width, &px);
-        for (i, c) in r.coverage_f32.chunks_exact(4).enumerate() {
-            let (y, x) = (i as u32 / r.width, i as u32 % r.width);
-            coverage[(y * frame.width + r.x0 + x) as usize] = f32::from_le_bytes(c.try_into().expect("4 bytes"));
-        }
-        if let Some(c) = &r.rays {
-            rays[0] += c.primary;
-            rays[1] += c.shadow;
-            rays[2] += c.transparent;
-        }
-        strip_ms.push((*strip, r.render_ms, *rpc_ms));
+    for (px, render_ms, rpc_ms) in &done {
+        frame_px.add(px).map_err(|e| anyhow::anyhow!("assembling the frame: {e}"))?;
+        strip_ms.push((px.strip, *render_ms, *rpc_ms));
     }
+    anyhow::ensure!(frame_px.complete(), "the strips do not cover the frame");
     strip_ms.sort_by_key(|s| s.0);
-    Ok(FarmFrame { image, coverage, rays, workers: reports, strip_ms, upload_ms })
+    Ok(FarmFrame { image: frame_px.image, coverage: frame_px.coverage, rays: frame_px.rays, workers: reports, strip_ms, upload_ms })
 }

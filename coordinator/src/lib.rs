@@ -1,9 +1,16 @@
 //! The coordinator: cuts frames into vertical strips ([`schedule`]), hands
-//! them to GPU workers over gRPC and assembles what comes back ([`farm`]).
+//! them to GPU workers over gRPC ([`farm`]) and assembles what comes back
+//! ([`assembly`]); the service that queues jobs ([`service`]) and its
+//! clients ([`client`]); the worker's registration ([`registration`]).
 
+pub mod assembly;
 pub mod chart;
+pub mod client;
 pub mod farm;
 pub mod metrics;
+pub mod registration;
+pub mod results;
 pub mod schedule;
 pub mod service;
+pub mod shutdown;
 pub mod simulate;

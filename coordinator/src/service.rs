@@ -1,22 +1,39 @@
 //! The coordinator's gRPC service: a queue of jobs (priority, then
 //! submission order), run over the registered workers by the strip farm;
-//! progress streamed to watchers; results kept in memory. A restart loses
-//! the queue, running jobs and results (clients resubmit); workers keep
-//! their cached scenes and re-register within one heartbeat.
+//! progress streamed to watchers; results kept for a retention time and a
+//! count and size budget, spilled to disk when large. A restart loses the
+//! queue, running jobs and results (clients resubmit; job ids never repeat,
+//! since each start draws a random prefix); workers keep their cached scenes
+//! and re-register within one period.
+//!
+//! Trust: a client's submission is checked completely (frame, schedule,
+//! scene, sizes) before it is queued; a worker that registers must prove it
+//! holds the farm's token before it is sent anything; a worker's reply is
+//! checked before use (see [`crate::farm`]).
 
 use crate::farm::{self, FarmEvent, Workers};
+use crate::results::{ResultStore, Retention};
 use crate::schedule::{ScheduleKind, scheduler};
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::pin::Pin;
-use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::{Coordinator, CoordinatorServer};
 use sylva_shared::bundle::{self, SceneBundle};
 use sylva_shared::film::reinhard;
+use sylva_shared::frame::FrameSettings;
+use sylva_shared::scene::SceneLimits;
+use sylva_shared::scene::files::clip;
 use tokio::sync::{Semaphore, broadcast};
 use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
+
+/// Longest job name accepted, bytes.
+pub const MAX_NAME: usize = 256;
+/// Longest job id or worker address looked at, bytes: longer ones cannot exist.
+pub const MAX_ID: usize = 128;
 
 /// How the coordinator runs.
 #[derive(Debug)]
@@ -25,6 +42,8 @@ pub struct CoordinatorConfig {
     pub max_running: usize,
     /// Largest bundle accepted, bytes.
     pub max_bundle_bytes: u64,
+    /// Per-scene caps checked at submit.
+    pub limits: SceneLimits,
     /// Bearer token clients must send and workers are sent.
     pub token: Option<String>,
     /// Workers known from the start.
@@ -33,6 +52,12 @@ pub struct CoordinatorConfig {
     pub strip_deadline: Duration,
     /// Time between worker heartbeats.
     pub heartbeat: Duration,
+    /// A registered worker not heard from for this long is forgotten.
+    pub registration_ttl: Duration,
+    /// How long, how many and how large finished jobs are kept.
+    pub retention: Retention,
+    /// Where large results and scene checks go; removed at shutdown.
+    pub work_dir: PathBuf,
     /// Serve Prometheus metrics here.
     pub metrics: Option<tokio::net::TcpListener>,
     /// Serve the API over TLS with this identity.
@@ -46,10 +71,14 @@ impl Default for CoordinatorConfig {
         Self {
             max_running: 2,
             max_bundle_bytes: 1 << 30,
+            limits: SceneLimits::default(),
             token: None,
             workers: Vec::new(),
             strip_deadline: Duration::from_secs(600),
             heartbeat: Duration::from_secs(2),
+            registration_ttl: Duration::from_secs(30),
+            retention: Retention::default(),
+            work_dir: std::env::temp_dir().join(format!("sylva-coordinator-{}", std::process::id())),
             metrics: None,
             tls: None,
             worker_tls: None,
@@ -57,24 +86,44 @@ impl Default for CoordinatorConfig {
     }
 }
 
+/// Locks `m` whatever a panicking holder left: the maps behind these locks
+/// are whole between statements.
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
 struct Job {
     seq: u64,
     spec: pb::JobSpec,
-    bundle: Arc<SceneBundle>,
+    frame: FrameSettings,
+    schedule: ScheduleKind,
+    /// Dropped when the job ends: only queued and running jobs need it.
+    bundle: Option<Arc<SceneBundle>>,
     summary: pb::JobSummary,
     events: broadcast::Sender<pb::JobEvent>,
-    png: Option<Vec<u8>>,
-    exr: Option<Vec<u8>>,
     task: Option<tokio::task::AbortHandle>,
+    finished: Option<Instant>,
+}
+
+/// A worker the coordinator knows.
+struct KnownWorker {
+    info: pb::WorkerInfo,
+    /// Named on the command line: never forgotten.
+    named: bool,
+    /// Last registration or answered heartbeat.
+    seen: Instant,
 }
 
 struct State {
     config: CoordinatorConfig,
     metrics: Arc<crate::metrics::Metrics>,
     jobs: Mutex<BTreeMap<String, Job>>,
-    workers: Mutex<BTreeMap<String, pb::WorkerInfo>>,
+    results: Mutex<ResultStore>,
+    workers: Mutex<BTreeMap<String, KnownWorker>>,
     /// Per-column cost of frames rendered before, by scene and frame shape.
     costs: Mutex<std::collections::HashMap<String, Vec<f64>>>,
+    /// This start's random id prefix: ids never repeat across restarts.
+    prefix: String,
     next: Mutex<u64>,
     slots: Arc<Semaphore>,
     wake: tokio::sync::Notify,
@@ -86,21 +135,32 @@ pub struct CoordinatorService {
     state: Arc<State>,
 }
 
+fn ended(state: &str) -> bool {
+    matches!(state, "done" | "failed" | "cancelled")
+}
+
 impl CoordinatorService {
     /// A coordinator; call [`CoordinatorService::spawn_background`] to run jobs.
     pub fn new(mut config: CoordinatorConfig) -> Self {
         let metrics_listener = config.metrics.take();
         // Named workers count as alive until a heartbeat says otherwise, so a
         // job submitted at once can use them (the farm copes if one is not).
-        let workers = config.workers.iter().map(|a| (a.clone(), pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() })).collect();
+        let workers = config
+            .workers
+            .iter()
+            .map(|a| (a.clone(), KnownWorker { info: pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() }, named: true, seen: Instant::now() }))
+            .collect();
         let slots = Arc::new(Semaphore::new(config.max_running.max(1)));
+        let results = ResultStore::new(config.work_dir.join("results"), config.retention);
         let service = Self {
             state: Arc::new(State {
                 config,
                 metrics: Arc::new(crate::metrics::Metrics::default()),
                 jobs: Mutex::new(BTreeMap::new()),
+                results: Mutex::new(results),
                 workers: Mutex::new(workers),
                 costs: Mutex::new(Default::default()),
+                prefix: sylva_proto::auth::random_hex(4),
                 next: Mutex::new(1),
                 slots,
                 wake: tokio::sync::Notify::new(),
@@ -121,44 +181,61 @@ impl CoordinatorService {
         tokio::spawn(async move { s.heartbeat_loop().await });
     }
 
-    /// The tonic server wrapper.
+    /// The tonic server wrapper. Messages are bounded by what the API
+    /// carries: bundle chunks of at most 4 MiB and images of at most
+    /// 16384² pixels.
     pub fn into_server(self) -> CoordinatorServer<Self> {
-        let limit = (self.state.config.max_bundle_bytes as usize).max(64 << 20);
-        CoordinatorServer::new(self).max_decoding_message_size(limit).max_encoding_message_size(limit)
+        CoordinatorServer::new(self).max_decoding_message_size(8 << 20).max_encoding_message_size(usize::MAX)
+    }
+
+    /// Removes what the coordinator wrote on disk.
+    pub fn clean_up(&self) {
+        let dir = &self.state.config.work_dir;
+        if dir.exists()
+            && let Err(e) = std::fs::remove_dir_all(dir)
+        {
+            tracing::warn!(dir = %dir.display(), "cannot remove the work folder: {e}");
+        }
     }
 }
 
 impl State {
     fn gauges(&self) -> crate::metrics::Gauges {
-        let jobs = self.jobs.lock().expect("lock");
-        let workers = self.workers.lock().expect("lock");
+        let jobs = lock(&self.jobs);
+        let workers = lock(&self.workers);
         crate::metrics::Gauges {
             queued: jobs.values().filter(|j| j.summary.state == "queued").count() as u64,
             running: jobs.values().filter(|j| j.summary.state == "running").count() as u64,
-            workers_alive: workers.values().filter(|w| w.alive).count() as u64,
+            workers_alive: workers.values().filter(|w| w.info.alive).count() as u64,
             workers: workers.len() as u64,
         }
     }
 
     fn event(&self, id: &str) -> pb::JobEvent {
-        let jobs = self.jobs.lock().expect("lock");
-        let j = &jobs[id];
-        pb::JobEvent {
-            id: id.to_string(),
-            state: j.summary.state.clone(),
-            strips_done: j.summary.strips_done,
-            strips_total: j.summary.strips_total,
-            ..Default::default()
+        let jobs = lock(&self.jobs);
+        match jobs.get(id) {
+            Some(j) => pb::JobEvent {
+                id: id.to_string(),
+                state: j.summary.state.clone(),
+                strips_done: j.summary.strips_done,
+                strips_total: j.summary.strips_total,
+                ..Default::default()
+            },
+            None => pb::JobEvent { id: id.to_string(), ..Default::default() },
         }
     }
 
-    fn set_state(&self, id: &str, state: &str, error: Option<String>) {
-        let mut jobs = self.jobs.lock().expect("lock");
+    /// Ends a job: its state and reason, its bundle dropped.
+    fn finish(&self, id: &str, state: &str, error: Option<String>) {
+        let mut jobs = lock(&self.jobs);
         if let Some(j) = jobs.get_mut(id) {
             j.summary.state = state.to_string();
             if let Some(e) = error {
                 j.summary.error = e;
             }
+            j.bundle = None;
+            j.task = None;
+            j.finished = Some(Instant::now());
         }
     }
 
@@ -168,7 +245,7 @@ impl State {
             let permit = self.slots.clone().acquire_owned().await.expect("semaphore open");
             let next = loop {
                 let pick = {
-                    let jobs = self.jobs.lock().expect("lock");
+                    let jobs = lock(&self.jobs);
                     jobs.iter()
                         .filter(|(_, j)| j.summary.state == "queued")
                         .max_by_key(|(_, j)| (j.spec.priority, std::cmp::Reverse(j.seq)))
@@ -179,67 +256,84 @@ impl State {
                     None => self.wake.notified().await,
                 }
             };
-            self.set_state(&next, "running", None);
+            if let Some(j) = lock(&self.jobs).get_mut(&next) {
+                j.summary.state = "running".into();
+            }
             let s = self.clone();
             let id = next.clone();
-            let handle = tokio::spawn(async move {
-                s.run_job(&id).await;
-                drop(permit);
-            });
-            if let Some(j) = self.jobs.lock().expect("lock").get_mut(&next) {
+            let handle = tokio::spawn(async move { s.run_job(&id).await });
+            if let Some(j) = lock(&self.jobs).get_mut(&next) {
                 j.task = Some(handle.abort_handle());
             }
+            // Whatever happens to the job's task, its slot comes back and a
+            // job left "running" by a panic is failed with the reason.
+            let s = self.clone();
+            tokio::spawn(async move {
+                if let Err(e) = handle.await
+                    && e.is_panic()
+                {
+                    let why = "the coordinator hit an internal error running this job";
+                    tracing::error!(id = %next, "job task panicked: {e}");
+                    s.finish(&next, "failed", Some(why.into()));
+                    let mut ev = s.event(&next);
+                    ev.message = why.into();
+                    if let Some(tx) = lock(&s.jobs).get(&next).map(|j| j.events.clone()) {
+                        let _ = tx.send(ev);
+                    }
+                }
+                drop(permit);
+            });
         }
     }
 
     async fn run_job(self: &Arc<Self>, id: &str) {
-        let (spec, bundle, tx) = {
-            let jobs = self.jobs.lock().expect("lock");
-            let j = &jobs[id];
-            (j.spec.clone(), j.bundle.clone(), j.events.clone())
+        let Some((frame, schedule, bundle, tx)) = ({
+            let jobs = lock(&self.jobs);
+            jobs.get(id).and_then(|j| Some((j.frame, j.schedule, j.bundle.clone()?, j.events.clone())))
+        }) else {
+            return;
         };
         let _ = tx.send(self.event(id));
-        let frame = spec.frame.clone().unwrap_or_default();
-        let addrs: Vec<String> = self.workers.lock().expect("lock").values().filter(|w| w.alive).map(|w| w.addr.clone()).collect();
-        if addrs.is_empty() {
-            let why = "no worker is registered and alive: start workers with --coordinator, or the coordinator with --workers";
-            self.set_state(id, "failed", Some(why.into()));
+        let fail = |why: String| {
+            self.finish(id, "failed", Some(why.clone()));
             let mut ev = self.event(id);
-            ev.message = why.into();
+            ev.message = why;
             let _ = tx.send(ev);
-            return;
+        };
+        let addrs: Vec<String> = lock(&self.workers).values().filter(|w| w.info.alive).map(|w| w.info.addr.clone()).collect();
+        if addrs.is_empty() {
+            return fail("no worker is registered and alive: start workers with --coordinator, or the coordinator with --workers".into());
         }
-        let kind = if spec.schedule == "static" { ScheduleKind::Static } else { ScheduleKind::Dynamic };
         // A frame seen before is cut by its measured cost; a new one by
         // guided self-scheduling alone, whose shrinking strips still let
         // the last ones finish close together.
-        let cost_key = format!("{}/{}x{}/{}/{}/{}", bundle.hash, frame.width, frame.height, frame.spp, frame.lighting, frame.accel);
-        let cost = self.costs.lock().expect("lock").get(&cost_key).cloned().unwrap_or_default();
+        let cost_key = format!("{}/{}x{}/{}/{:?}/{:?}", bundle.hash, frame.width, frame.height, frame.spp, frame.lighting, frame.accel);
+        let cost = lock(&self.costs).get(&cost_key).cloned().unwrap_or_default();
         let cost_source = if cost.is_empty() { "uniform (first frame of this scene and size)" } else { "measured on the previous frame" };
-        let plan = scheduler(kind).plan(frame.width, addrs.len().max(1), &cost);
-        if let Some(j) = self.jobs.lock().expect("lock").get_mut(id) {
+        let plan = scheduler(schedule).plan(frame.width, addrs.len().max(1), &cost);
+        if let Some(j) = lock(&self.jobs).get_mut(id) {
             j.summary.strips_total = plan.len() as u32;
         }
         let span = tracing::info_span!("job", %id, strips = plan.len(), workers = addrs.len());
         let _g = span.enter();
         let (me, jid, tx2) = (self.clone(), id.to_string(), tx.clone());
-        let started = std::time::Instant::now();
+        let started = Instant::now();
         let result = farm::render_frame(
             &Workers { addrs: addrs.clone(), token: self.config.token.clone(), tls: self.config.worker_tls.clone() },
             &bundle,
-            frame.clone(),
+            frame,
             plan,
             self.config.strip_deadline,
             move |e| {
-                let mut ev = pb::JobEvent { id: jid.clone(), state: "running".into(), ..Default::default() };
+                let mut ev = me.event(&jid);
+                ev.state = "running".into();
                 match e {
                     FarmEvent::StripDone { worker, ms, bytes, .. } => {
                         me.metrics.strip_done(ms / 1e3, bytes);
-                        let mut jobs = me.jobs.lock().expect("lock");
+                        let mut jobs = lock(&me.jobs);
                         if let Some(j) = jobs.get_mut(&jid) {
                             j.summary.strips_done += 1;
                             ev.strips_done = j.summary.strips_done;
-                            ev.strips_total = j.summary.strips_total;
                         }
                         ev.worker = worker;
                         ev.strip_ms = ms;
@@ -258,79 +352,133 @@ impl State {
             },
         )
         .await;
-        match result {
-            Ok(f) => {
-                let (ldr, tone) = reinhard(&f.image, 0.18);
-                let png = encode_png(frame.width, frame.height, &ldr);
-                let exr = encode_exr(&f.image);
-                let frame_ms = started.elapsed().as_secs_f64() * 1e3;
-                {
-                    let mut costs = self.costs.lock().expect("lock");
-                    if costs.len() >= 1024 {
-                        costs.clear();
-                    }
-                    costs.insert(cost_key, crate::schedule::column_cost(frame.width, &f.strip_ms));
-                }
-                let stats = serde_json::json!({
-                    "schedule": kind,
-                    "strip_cost": cost_source,
-                    "frame_ms": frame_ms,
-                    "upload_ms": f.upload_ms,
-                    "workers": f.workers,
-                    "strips": f.strip_ms.iter().map(|(s, ms, rpc)| serde_json::json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
-                    "rays": { "primary": f.rays[0], "shadow": f.rays[1], "transparent_passed": f.rays[2], "mrays_per_second": (f.rays[0] + f.rays[1]) as f64 / (frame_ms / 1e3) / 1e6 },
-                    "coverage": f.coverage.iter().map(|&c| c as f64).sum::<f64>() / f.coverage.len().max(1) as f64,
-                    "tone_map": tone,
-                });
-                {
-                    let mut jobs = self.jobs.lock().expect("lock");
-                    if let Some(j) = jobs.get_mut(id) {
-                        j.png = png.ok();
-                        j.exr = exr.ok();
-                        j.summary.state = "done".into();
-                    }
-                }
-                let mut ev = self.event(id);
-                ev.stats_json = stats.to_string();
-                let _ = tx.send(ev);
+        drop(bundle);
+        let f = match result {
+            Ok(f) => f,
+            Err(e) => return fail(format!("{e:#}")),
+        };
+        // Tone mapping and encoding are CPU work: off the async runtime.
+        let image = f.image.clone();
+        let encoded = tokio::task::spawn_blocking(move || {
+            let (ldr, tone) = reinhard(&image, 0.18);
+            let png = encode_png(image.width, image.height, &ldr);
+            let exr = encode_exr(&image);
+            (png, exr, tone)
+        })
+        .await;
+        let (png, exr, tone) = match encoded {
+            Ok((Ok(png), Ok(exr), tone)) => (png, exr, tone),
+            Ok((Err(e), _, _)) | Ok((_, Err(e), _)) => return fail(format!("the frame could not be encoded: {e:#}")),
+            Err(e) => return fail(format!("the frame could not be encoded: {e}")),
+        };
+        let frame_ms = started.elapsed().as_secs_f64() * 1e3;
+        {
+            let mut costs = lock(&self.costs);
+            if costs.len() >= 1024 {
+                costs.clear();
             }
-            Err(e) => {
-                self.set_state(id, "failed", Some(format!("{e:#}")));
-                let mut ev = self.event(id);
-                ev.message = format!("{e:#}");
-                let _ = tx.send(ev);
-            }
+            costs.insert(cost_key, crate::schedule::column_cost(frame.width, &f.strip_ms));
         }
+        let stats = serde_json::json!({
+            "schedule": schedule,
+            "strip_cost": cost_source,
+            "frame_ms": frame_ms,
+            "upload_ms": f.upload_ms,
+            "workers": f.workers,
+            "strips": f.strip_ms.iter().map(|(s, ms, rpc)| serde_json::json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
+            "rays": { "primary": f.rays[0], "shadow": f.rays[1], "transparent_passed": f.rays[2], "mrays_per_second": (f.rays[0] + f.rays[1]) as f64 / (frame_ms / 1e3) / 1e6 },
+            "coverage": f.coverage.iter().map(|&c| c as f64).sum::<f64>() / f.coverage.len().max(1) as f64,
+            "tone_map": tone,
+        });
+        let stored = lock(&self.results).put(id, png, exr);
+        if let Err(e) = stored {
+            return fail(format!("the result could not be stored: {e:#}"));
+        }
+        self.finish(id, "done", None);
+        let mut ev = self.event(id);
+        ev.stats_json = stats.to_string();
+        let _ = tx.send(ev);
     }
 
-    /// Polls every worker's status; a worker that does not answer is not
-    /// given new jobs until it does.
+    /// Polls every worker's status at once; a worker that does not answer
+    /// is not given new jobs until it does; registrations not renewed
+    /// within the TTL are forgotten, and so are finished jobs past their
+    /// retention.
     async fn heartbeat_loop(self: Arc<Self>) {
         loop {
-            let addrs: Vec<String> = self.workers.lock().expect("lock").keys().cloned().collect();
-            for a in addrs {
+            let addrs: Vec<String> = lock(&self.workers).keys().cloned().collect();
+            let config = &self.config;
+            let polls = addrs.into_iter().map(|a| async move {
                 let status = async {
-                    let mut c = farm::connect(&a, self.config.token.clone(), self.config.worker_tls.as_ref()).await.ok()?;
+                    let mut c = farm::connect(&a, config.token.clone(), config.worker_tls.as_ref()).await.ok()?;
                     let mut req = Request::new(pb::StatusRequest {});
                     req.set_timeout(Duration::from_secs(5));
                     c.status(req).await.ok().map(|r| r.into_inner())
                 }
                 .await;
-                if let Some(w) = self.workers.lock().expect("lock").get_mut(&a) {
+                (a, status)
+            });
+            for (a, status) in futures_util::future::join_all(polls).await {
+                if let Some(w) = lock(&self.workers).get_mut(&a) {
                     match status {
                         Some(s) => {
-                            w.alive = true;
-                            w.adapter = s.adapter;
-                            w.gpu_memory_bytes = s.gpu_memory_bytes;
-                            w.cached_scenes = s.cached_scenes;
-                            w.busy_strips = s.busy_strips;
+                            w.info.alive = true;
+                            w.seen = Instant::now();
+                            w.info.adapter = s.adapter;
+                            w.info.gpu_memory_bytes = s.gpu_memory_bytes;
+                            w.info.cached_scenes = s.cached_scenes;
+                            w.info.busy_strips = s.busy_strips;
                         }
-                        None => w.alive = false,
+                        None => w.info.alive = false,
                     }
                 }
             }
+            let ttl = self.config.registration_ttl;
+            lock(&self.workers).retain(|addr, w| {
+                let keep = w.named || w.seen.elapsed() < ttl;
+                if !keep {
+                    tracing::info!(%addr, "forgot a worker whose registration expired");
+                }
+                keep
+            });
+            self.sweep();
             tokio::time::sleep(self.config.heartbeat).await;
         }
+    }
+
+    /// Forgets finished jobs past the retention time or beyond the count,
+    /// with their results.
+    fn sweep(&self) {
+        let r = self.config.retention;
+        let mut jobs = lock(&self.jobs);
+        let mut finished: Vec<(Instant, String)> = jobs.iter().filter_map(|(id, j)| j.finished.map(|t| (t, id.clone()))).collect();
+        finished.sort();
+        let over = finished.len().saturating_sub(r.max_jobs);
+        let mut results = lock(&self.results);
+        for (i, (t, id)) in finished.iter().enumerate() {
+            if i < over || t.elapsed() > r.keep {
+                jobs.remove(id);
+                results.remove(id);
+            }
+        }
+    }
+
+    /// Checks that the worker at `addr` holds the farm's token: it must
+    /// answer a fresh nonce with the keyed hash only a token holder can make.
+    async fn verify_worker(&self, addr: &str) -> Result<(), Status> {
+        let refused = |why: &str| Status::permission_denied(format!("worker {}: {why}", clip(addr)));
+        let ch = sylva_proto::tls::connect(addr, self.config.worker_tls.as_ref(), Duration::from_secs(5))
+            .await
+            .map_err(|_| refused("cannot be reached at that address from the coordinator"))?;
+        let nonce = sylva_proto::auth::random_bytes(32);
+        let mut c = pb::worker_identity_client::WorkerIdentityClient::new(ch);
+        let mut req = Request::new(pb::ProveRequest { nonce: nonce.clone() });
+        req.set_timeout(Duration::from_secs(5));
+        let proof = c.prove(req).await.map_err(|_| refused("does not answer the identity check (is it a Sylva worker?)"))?.into_inner().proof;
+        if !sylva_proto::auth::check_proof(self.config.token.as_deref(), &nonce, &proof) {
+            return Err(refused("could not prove it holds the farm's token; start it with the coordinator's --token"));
+        }
+        Ok(())
     }
 }
 
@@ -349,7 +497,25 @@ fn encode_exr(img: &sylva_shared::film::HdrImage) -> anyhow::Result<Vec<u8>> {
     Ok(out.into_inner())
 }
 
+/// A job id as clients send it: one longer than any id can be is not found
+/// (and not echoed back).
+fn job_id(id: &str) -> Result<&str, Status> {
+    if id.len() > MAX_ID {
+        return Err(Status::not_found("no such job"));
+    }
+    Ok(id)
+}
+
 type EventStream = Pin<Box<dyn Stream<Item = Result<pb::JobEvent, Status>> + Send>>;
+
+/// The schedule a wire number names.
+fn schedule_from_wire(v: i32) -> Result<ScheduleKind, Status> {
+    match pb::Schedule::try_from(v) {
+        Ok(pb::Schedule::Dynamic) => Ok(ScheduleKind::Dynamic),
+        Ok(pb::Schedule::Static) => Ok(ScheduleKind::Static),
+        Err(_) => Err(Status::invalid_argument(format!("schedule {v}: static or dynamic"))),
+    }
+}
 
 #[tonic::async_trait]
 impl Coordinator for CoordinatorService {
@@ -357,18 +523,25 @@ impl Coordinator for CoordinatorService {
         let mut stream = request.into_inner();
         let first = stream.next().await.ok_or_else(|| Status::invalid_argument("empty submission"))??;
         let spec = first.spec.ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
-        let frame = spec.frame.clone().ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?;
-        sylva_worker::service::check_frame(&frame)?;
-        if !matches!(spec.schedule.as_str(), "" | "static" | "dynamic") {
-            return Err(Status::invalid_argument(format!("schedule {:?}: static or dynamic", spec.schedule)));
+        let frame = FrameSettings::try_from(spec.frame.as_ref().ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?)?;
+        let schedule = schedule_from_wire(spec.schedule)?;
+        if spec.name.len() > MAX_NAME {
+            return Err(Status::invalid_argument(format!("job name of {} bytes: at most {MAX_NAME}", spec.name.len())));
         }
-        if first.total_size > self.state.config.max_bundle_bytes {
-            return Err(Status::resource_exhausted(format!(
-                "bundle of {} bytes is over the limit of {} bytes",
-                first.total_size, self.state.config.max_bundle_bytes
-            )));
+        let hash = first.hash.to_ascii_lowercase();
+        if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(Status::invalid_argument(format!("hash {:?} is not a 64-digit hex BLAKE3 hash", clip(&first.hash))));
         }
+        let limit = self.state.config.max_bundle_bytes;
+        if first.total_size > limit {
+            return Err(Status::resource_exhausted(format!("bundle of {} bytes is over the limit of {limit} bytes", first.total_size)));
+        }
+        // Counted as the bytes arrive, against the declared size (itself
+        // within the limit); nothing is reserved from the claim.
         let mut bytes = first.data;
+        if bytes.len() as u64 > first.total_size {
+            return Err(Status::invalid_argument("upload is longer than its declared size"));
+        }
         while let Some(c) = stream.next().await {
             bytes.extend_from_slice(&c?.data);
             if bytes.len() as u64 > first.total_size {
@@ -378,28 +551,32 @@ impl Coordinator for CoordinatorService {
         if (bytes.len() as u64) != first.total_size {
             return Err(Status::invalid_argument(format!("truncated upload: {} of {} bytes", bytes.len(), first.total_size)));
         }
-        if bundle::hash_of(&bytes) != first.hash.to_ascii_lowercase() {
+        if bundle::hash_of(&bytes) != hash {
             return Err(Status::invalid_argument("the bundle's bytes do not match its hash"));
         }
-        // Check the scene here, so a bad one fails its client, not a worker.
-        let dir = std::env::temp_dir().join(format!("sylva-coordinator-{}", std::process::id())).join(&first.hash);
-        let check = bytes.clone();
-        tokio::task::spawn_blocking(move || bundle::unpack(&check, &dir).map(|_| ()))
-            .await
-            .map_err(|e| Status::internal(e.to_string()))?
-            .map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
+        // Check the scene here, so a bad one fails its client, not a worker;
+        // its files are unpacked for the check alone and removed after it.
         let seq = {
-            let mut n = self.state.next.lock().expect("lock");
+            let mut n = lock(&self.state.next);
             *n += 1;
             *n - 1
         };
-        let id = format!("job-{seq}");
+        let id = format!("job-{}-{seq}", self.state.prefix);
+        let dir = self.state.config.work_dir.join("check").join(&id);
+        let (check, limits) = (bytes.clone(), self.state.config.limits);
+        let checked = tokio::task::spawn_blocking(move || {
+            let r = bundle::unpack_with(&check, &dir, &limits).map(|_| ());
+            let _ = std::fs::remove_dir_all(&dir);
+            r
+        })
+        .await
+        .map_err(|_| Status::internal("the scene check failed unexpectedly"))?;
+        checked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
         let (tx, _) = broadcast::channel(1024);
         let summary = pb::JobSummary { id: id.clone(), state: "queued".into(), name: spec.name.clone(), priority: spec.priority, ..Default::default() };
-        let hash = first.hash.to_ascii_lowercase();
-        self.state.jobs.lock().expect("lock").insert(
+        lock(&self.state.jobs).insert(
             id.clone(),
-            Job { seq, spec, bundle: Arc::new(SceneBundle { bytes, hash }), summary, events: tx, png: None, exr: None, task: None },
+            Job { seq, spec, frame, schedule, bundle: Some(Arc::new(SceneBundle { bytes, hash })), summary, events: tx, task: None, finished: None },
         );
         self.state.wake.notify_one();
         tracing::info!(%id, "job queued");
@@ -410,20 +587,35 @@ impl Coordinator for CoordinatorService {
 
     async fn watch_job(&self, request: Request<pb::JobId>) -> Result<Response<Self::WatchJobStream>, Status> {
         let id = request.into_inner().id;
+        let id = job_id(&id)?.to_string();
         let (mut rx, current) = {
-            let jobs = self.state.jobs.lock().expect("lock");
+            let jobs = lock(&self.state.jobs);
             let j = jobs.get(&id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
             (j.events.subscribe(), j.summary.clone())
         };
         let (tx, out) = tokio::sync::mpsc::channel(64);
+        let state = self.state.clone();
         tokio::spawn(async move {
             let first = pb::JobEvent { id: current.id.clone(), state: current.state.clone(), strips_done: current.strips_done, strips_total: current.strips_total, message: current.error.clone(), ..Default::default() };
-            let finished = matches!(first.state.as_str(), "done" | "failed" | "cancelled");
-            if tx.send(Ok(first)).await.is_err() || finished {
+            if tx.send(Ok(first)).await.is_err() || ended(&current.state) {
                 return;
             }
-            while let Ok(ev) = rx.recv().await {
-                let end = matches!(ev.state.as_str(), "done" | "failed" | "cancelled");
+            loop {
+                let ev = match rx.recv().await {
+                    Ok(ev) => ev,
+                    // A slow watcher missed events: it gets the job's state
+                    // now and goes on, rather than a stream that just ends.
+                    Err(broadcast::error::RecvError::Lagged(n)) => {
+                        let mut ev = state.event(&id);
+                        ev.message = format!("{n} progress events skipped: this client reads slower than strips finish");
+                        if ended(&ev.state) {
+                            ev.message = lock(&state.jobs).get(&id).map(|j| j.summary.error.clone()).unwrap_or_default();
+                        }
+                        ev
+                    }
+                    Err(broadcast::error::RecvError::Closed) => break,
+                };
+                let end = ended(&ev.state);
                 // A vanished client ends the forwarding.
                 if tx.send(Ok(ev)).await.is_err() || end {
                     break;
@@ -435,64 +627,86 @@ impl Coordinator for CoordinatorService {
 
     async fn fetch_result(&self, request: Request<pb::FetchRequest>) -> Result<Response<pb::FetchReply>, Status> {
         let r = request.into_inner();
-        let jobs = self.state.jobs.lock().expect("lock");
-        let j = jobs.get(&r.id).ok_or_else(|| Status::not_found(format!("no job {}", r.id)))?;
-        if j.summary.state != "done" {
-            return Err(Status::failed_precondition(format!("job {} is {}", r.id, j.summary.state)));
-        }
-        let (data, format) = match r.format.as_str() {
-            "" | "png" => (j.png.clone(), "png"),
-            "exr" => (j.exr.clone(), "exr"),
-            o => return Err(Status::invalid_argument(format!("format {o:?}: png or exr"))),
+        let id = job_id(&r.id)?;
+        let format = match r.format.as_str() {
+            "" | "png" => "png",
+            "exr" => "exr",
+            o => return Err(Status::invalid_argument(format!("format {:?}: png or exr", clip(o)))),
         };
-        let data = data.ok_or_else(|| Status::internal("the image could not be encoded"))?;
+        {
+            let jobs = lock(&self.state.jobs);
+            let j = jobs.get(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            if j.summary.state != "done" {
+                return Err(Status::failed_precondition(format!("job {id} is {}", j.summary.state)));
+            }
+        }
+        let stored = lock(&self.state.results).get(id, format);
+        let data = match stored {
+            Some(s) => tokio::task::spawn_blocking(move || s.read()).await.map_err(|e| Status::internal(e.to_string()))?.map_err(|e| Status::internal(format!("the stored result cannot be read: {e}")))?,
+            None => return Err(Status::not_found(format!("job {id}'s result is no longer kept"))),
+        };
         Ok(Response::new(pb::FetchReply { data, format: format.into() }))
     }
 
     async fn cancel_job(&self, request: Request<pb::JobId>) -> Result<Response<pb::JobSummary>, Status> {
         let id = request.into_inner().id;
+        let id = job_id(&id)?;
         let (summary, tx) = {
-            let mut jobs = self.state.jobs.lock().expect("lock");
-            let j = jobs.get_mut(&id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            let mut jobs = lock(&self.state.jobs);
+            let j = jobs.get_mut(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
             if matches!(j.summary.state.as_str(), "queued" | "running") {
                 if let Some(t) = j.task.take() {
                     t.abort();
                 }
                 j.summary.state = "cancelled".into();
+                j.bundle = None;
+                j.finished = Some(Instant::now());
             }
             (j.summary.clone(), j.events.clone())
         };
-        let _ = tx.send(pb::JobEvent { id: id.clone(), state: summary.state.clone(), ..Default::default() });
+        let _ = tx.send(pb::JobEvent { id: id.to_string(), state: summary.state.clone(), strips_done: summary.strips_done, strips_total: summary.strips_total, ..Default::default() });
         Ok(Response::new(summary))
     }
 
     async fn list_jobs(&self, _: Request<pb::ListJobsRequest>) -> Result<Response<pb::JobList>, Status> {
-        let jobs = self.state.jobs.lock().expect("lock").values().map(|j| j.summary.clone()).collect();
+        let jobs = lock(&self.state.jobs).values().map(|j| j.summary.clone()).collect();
         Ok(Response::new(pb::JobList { jobs }))
     }
 
     async fn list_workers(&self, _: Request<pb::ListWorkersRequest>) -> Result<Response<pb::WorkerList>, Status> {
-        let workers = self.state.workers.lock().expect("lock").values().cloned().collect();
+        let workers = lock(&self.state.workers).values().map(|w| w.info.clone()).collect();
         Ok(Response::new(pb::WorkerList { workers }))
     }
 
     async fn register_worker(&self, request: Request<pb::RegisterWorkerRequest>) -> Result<Response<pb::RegisterWorkerReply>, Status> {
         let addr = request.into_inner().addr;
-        if addr.parse::<std::net::SocketAddr>().is_err() && !addr.contains(':') {
-            return Err(Status::invalid_argument(format!("worker address {addr:?} is not host:port")));
+        if addr.len() > MAX_ID || addr.parse::<std::net::SocketAddr>().is_err() && !addr.contains(':') {
+            return Err(Status::invalid_argument(format!("worker address {:?} is not host:port", clip(&addr))));
         }
-        let mut w = self.state.workers.lock().expect("lock");
-        let entry = w.entry(addr.clone()).or_insert_with(|| pb::WorkerInfo { addr: addr.clone(), ..Default::default() });
-        entry.alive = true;
-        tracing::info!(%addr, "worker registered");
+        let known = lock(&self.state.workers).get(&addr).is_some_and(|w| w.info.alive);
+        if !known {
+            // Nothing — not the token, not a bundle — goes to an address
+            // before it proves it is one of the farm's workers.
+            self.state.verify_worker(&addr).await?;
+        }
+        let mut w = lock(&self.state.workers);
+        let entry = w
+            .entry(addr.clone())
+            .or_insert_with(|| KnownWorker { info: pb::WorkerInfo { addr: addr.clone(), ..Default::default() }, named: false, seen: Instant::now() });
+        entry.info.alive = true;
+        entry.seen = Instant::now();
+        if !known {
+            tracing::info!(%addr, "worker registered");
+        }
         Ok(Response::new(pb::RegisterWorkerReply {}))
     }
 }
 
-/// Serves the coordinator API, health and reflection until `shutdown`.
+/// Serves the coordinator API, health and reflection until `shutdown`, then
+/// removes what it wrote on disk.
 pub async fn run(listener: tokio::net::TcpListener, mut config: CoordinatorConfig, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
-    let reflection = tonic_reflection::server::Builder::configure().register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET).build_v1()?;
+    let (reflection, reflection_alpha) = sylva_proto::reflection(&["sylva.v1.Coordinator"])?;
     let auth = sylva_proto::auth::require(config.token.clone());
     let mut builder = tonic::transport::Server::builder();
     if let Some(tls) = config.tls.take() {
@@ -501,11 +715,14 @@ pub async fn run(listener: tokio::net::TcpListener, mut config: CoordinatorConfi
     let service = CoordinatorService::new(config);
     service.spawn_background();
     reporter.set_serving::<CoordinatorServer<CoordinatorService>>().await;
-    builder
+    let served = builder
         .add_service(health)
         .add_service(tonic::service::interceptor::InterceptedService::new(reflection, auth.clone()))
-        .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), auth))
+        .add_service(tonic::service::interceptor::InterceptedService::new(reflection_alpha, auth.clone()))
+        .add_service(tonic::service::interceptor::InterceptedService::new(service.clone().into_server(), auth))
         .serve_with_incoming_shutdown(tokio_stream::wrappers::TcpListenerStream::new(listener), shutdown)
-        .await?;
+        .await;
+    service.clean_up();
+    served?;
     Ok(())
 }

@@ -2,40 +2,21 @@
 //! identical to a single in-process render, through a worker killed with
 //! SIGKILL mid-frame, and with several jobs at once.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
+use common::{Proc, spawn, sylva};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use sylva_coordinator::farm::{self, FarmEvent};
 use sylva_coordinator::schedule::{Dynamic, Scheduler, Static};
-use sylva_proto::pb;
+use sylva_shared::frame::FrameSettings;
 use sylva_shared::bundle;
 
-struct Worker {
-    child: Child,
-    addr: String,
-}
+type Worker = Proc;
 
 fn start_worker() -> Worker {
-    let runtime = std::env::temp_dir().join("sylva-xdg");
-    std::fs::create_dir_all(&runtime).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_sylva"))
-        .args(["worker", "--listen", "127.0.0.1:0"])
-        .env("XDG_RUNTIME_DIR", runtime)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-    Worker { addr: line.trim().rsplit(' ').next().unwrap().to_string(), child }
-}
-
-impl Drop for Worker {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+    spawn(&["worker", "--listen", "127.0.0.1:0"], &[])
 }
 
 fn scene(dir: &Path) -> PathBuf {
@@ -57,8 +38,8 @@ fn scene(dir: &Path) -> PathBuf {
     p
 }
 
-fn frame(seed: u32) -> pb::FrameSettings {
-    pb::FrameSettings { width: 96, height: 48, spp: 2, seed, lighting: "lb".into(), accel: "bvh".into(), lb_strength: 0.35, ambient: vec![] }
+fn frame(seed: u32) -> FrameSettings {
+    FrameSettings { width: 96, height: 48, spp: 2, seed, lighting: Some(sylva_shared::scene::LightingMode::Lb), ..Default::default() }
 }
 
 /// The same frame, rendered in this process without gRPC.
@@ -66,7 +47,7 @@ fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
     let scene = bundle::unpack(&b.bytes, dir).unwrap();
     let ctx = sylva_worker::GpuContext::new().unwrap();
     let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_shared::accel::AccelKind::Bvh, sylva_shared::scene::LightingMode::Lb, &|_| {}).unwrap();
-    let f = sylva_worker::trace::FrameSettings {
+    let f = sylva_worker::trace::RenderSettings {
         width: 96,
         height: 48,
         spp: 2,
@@ -163,13 +144,10 @@ fn the_scaling_benchmark_reports_measured_and_simulated_figures_and_a_chart() {
     let dir = std::env::temp_dir().join(format!("sylva-cluster-e-{}", std::process::id()));
     let scene = scene(&dir);
     let chart = dir.join("scaling.svg");
-    let runtime = std::env::temp_dir().join("sylva-xdg");
-    let out = Command::new(env!("CARGO_BIN_EXE_sylva"))
-        .args(["bench", "scaling", scene.to_str().unwrap(), "--workers", "1,2,4", "--width", "64", "--height", "32"])
-        .args(["--profile-strips", "8", "--local-real", "1", "--chart", chart.to_str().unwrap(), "--json"])
-        .env("XDG_RUNTIME_DIR", runtime)
-        .output()
-        .unwrap();
+    let out = sylva(
+        &["bench", "scaling", scene.to_str().unwrap(), "--workers", "1,2,4", "--width", "64", "--height", "32", "--profile-strips", "8", "--local-real", "1", "--chart", chart.to_str().unwrap(), "--json"],
+        &[],
+    );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let rows = v["rows"].as_array().unwrap();

@@ -1,34 +1,12 @@
 //! `sylva scene` and `sylva render` as a user runs them: real processes,
 //! real files, the real GPU adapter (lavapipe in CI).
 
+mod common;
+
+use common::{fails, ok, scratch, sylva};
+
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn sylva(args: &[&str]) -> Output {
-    let runtime = std::env::temp_dir().join("sylva-xdg");
-    std::fs::create_dir_all(&runtime).unwrap();
-    Command::new(env!("CARGO_BIN_EXE_sylva")).args(args).env("XDG_RUNTIME_DIR", runtime).output().expect("sylva runs")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = sylva(args);
-    assert!(out.status.success(), "sylva {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8(out.stdout).unwrap()
-}
-
-fn fails(args: &[&str]) -> String {
-    let out = sylva(args);
-    assert!(!out.status.success(), "sylva {args:?} should fail");
-    String::from_utf8(out.stderr).unwrap()
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("sylva-render-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 fn png_size(path: &Path) -> (u32, u32) {
     let b = std::fs::read(path).unwrap();

@@ -1,51 +1,13 @@
 //! A coordinator process and worker processes that register with it, driven
 //! by `sylva submit` clients and a raw gRPC client, all on loopback.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
+use common::{Proc, spawn, sylva};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_client::CoordinatorClient;
 use tonic::Code;
-
-struct Proc {
-    child: Child,
-    addr: String,
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn runtime() -> PathBuf {
-    let r = std::env::temp_dir().join("sylva-xdg");
-    std::fs::create_dir_all(&r).unwrap();
-    r
-}
-
-fn spawn(args: &[&str], env: &[(&str, &str)]) -> Proc {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_sylva"));
-    cmd.args(args).env("XDG_RUNTIME_DIR", runtime()).env_remove("SYLVA_TOKEN").stdout(Stdio::piped());
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    let mut child = cmd.spawn().unwrap();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-    Proc { addr: line.trim().rsplit(' ').next().unwrap().to_string(), child }
-}
-
-fn sylva(args: &[&str], env: &[(&str, &str)]) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_sylva"));
-    cmd.args(args).env("XDG_RUNTIME_DIR", runtime()).env_remove("SYLVA_TOKEN");
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    cmd.output().unwrap()
-}
 
 fn scene(dir: &Path) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
@@ -181,8 +143,8 @@ async fn submit_raw(
 ) -> (pb::JobEvent, Vec<u8>) {
     let b = sylva_shared::bundle::pack(scene).unwrap();
     let spec = pb::JobSpec {
-        frame: Some(pb::FrameSettings { width, height, spp: 2, seed: 1, lighting: "lb".into(), accel: "bvh".into(), lb_strength: 0.35, ambient: vec![] }),
-        schedule: "dynamic".into(),
+        frame: Some(pb::FrameSettings { width, height, spp: 2, seed: 1, lighting: pb::Lighting::Lb.into(), accel: pb::Accel::Bvh.into(), lb_strength: 0.35, ambient: vec![] }),
+        schedule: pb::Schedule::Dynamic.into(),
         priority: 0,
         name: "raw".into(),
     };

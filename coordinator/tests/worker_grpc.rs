@@ -1,46 +1,26 @@
 //! A real `sylva worker` process on loopback, spoken to over real gRPC.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
+use common::{Proc, spawn};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
 use sylva_proto::pb;
 use sylva_proto::pb::worker_client::WorkerClient;
 use sylva_shared::bundle;
 use tonic::Code;
 
 /// A worker process, killed when dropped.
-struct WorkerProcess {
-    child: Child,
-    addr: String,
-}
+struct WorkerProcess(Proc);
 
 impl WorkerProcess {
     fn start(extra: &[&str]) -> Self {
-        let runtime = std::env::temp_dir().join("sylva-xdg");
-        std::fs::create_dir_all(&runtime).unwrap();
-        let mut child = Command::new(env!("CARGO_BIN_EXE_sylva"))
-            .args(["worker", "--listen", "127.0.0.1:0"])
-            .args(extra)
-            .env("XDG_RUNTIME_DIR", runtime)
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("worker starts");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-        let addr = line.trim().rsplit(' ').next().expect("address").to_string();
-        assert!(line.starts_with("sylva worker listening on"), "{line}");
-        Self { child, addr }
+        let mut args = vec!["worker", "--listen", "127.0.0.1:0"];
+        args.extend_from_slice(extra);
+        Self(spawn(&args, &[]))
     }
 
     async fn client(&self) -> WorkerClient<tonic::transport::Channel> {
-        WorkerClient::connect(format!("http://{}", self.addr)).await.unwrap().max_decoding_message_size(256 << 20)
-    }
-}
-
-impl Drop for WorkerProcess {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        WorkerClient::connect(format!("http://{}", self.0.addr)).await.unwrap().max_decoding_message_size(256 << 20)
     }
 }
 
@@ -72,7 +52,7 @@ fn chunks(b: &bundle::SceneBundle, size: usize) -> Vec<pb::SceneChunk> {
 }
 
 fn frame() -> pb::FrameSettings {
-    pb::FrameSettings { width: 48, height: 24, spp: 2, seed: 3, lighting: "lb".into(), accel: "bvh".into(), lb_strength: 0.35, ambient: vec![] }
+    pb::FrameSettings { width: 48, height: 24, spp: 2, seed: 3, lighting: pb::Lighting::Lb.into(), accel: pb::Accel::Bvh.into(), lb_strength: 0.35, ambient: vec![] }
 }
 
 #[tokio::test]
@@ -103,7 +83,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
     let scene = bundle::unpack(&b.bytes, &dir.join("local")).unwrap();
     let ctx = sylva_worker::GpuContext::new().unwrap();
     let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_shared::accel::AccelKind::Bvh, sylva_shared::scene::LightingMode::Lb, &|_| {}).unwrap();
-    let f = sylva_worker::trace::FrameSettings {
+    let f = sylva_worker::trace::RenderSettings {
         width: 48,
         height: 24,
         spp: 2,
@@ -153,7 +133,7 @@ async fn bad_requests_get_their_codes_and_the_worker_stays_up() {
         (pb::FrameSettings { width: 20_000, ..frame() }, 0, 48),
         (pb::FrameSettings { spp: 5000, ..frame() }, 0, 48),
         (pb::FrameSettings { lb_strength: f32::NAN, ..frame() }, 0, 48),
-        (pb::FrameSettings { lighting: "sunny".into(), ..frame() }, 0, 48),
+        (pb::FrameSettings { lighting: 99, ..frame() }, 0, 48),
         (frame(), 40, 60),
     ] {
         assert_eq!(c.render_strip(req(f, x0, x1)).await.unwrap_err().code(), Code::InvalidArgument);
@@ -171,13 +151,13 @@ async fn with_a_token_calls_without_it_are_refused() {
     let mut c = w.client().await;
     assert_eq!(c.status(pb::StatusRequest {}).await.unwrap_err().code(), Code::Unauthenticated);
     assert_eq!(c.load_scene(tokio_stream::iter(chunks(&b, 4096))).await.unwrap_err().code(), Code::Unauthenticated);
-    let mut authed = sylva_coordinator::farm::connect(&w.addr, Some("s3cret".into()), None).await.unwrap();
+    let mut authed = sylva_coordinator::farm::connect(&w.0.addr, Some("s3cret".into()), None).await.unwrap();
     sylva_coordinator::farm::upload(&mut authed, &b).await.unwrap();
     assert_eq!(authed.status(pb::StatusRequest {}).await.unwrap().into_inner().cached_scenes, vec![b.hash.clone()]);
-    let mut wrong = sylva_coordinator::farm::connect(&w.addr, Some("guess".into()), None).await.unwrap();
+    let mut wrong = sylva_coordinator::farm::connect(&w.0.addr, Some("guess".into()), None).await.unwrap();
     assert_eq!(wrong.status(pb::StatusRequest {}).await.unwrap_err().code(), Code::Unauthenticated);
     // Health stays open for orchestrators' probes.
-    let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", w.addr)).unwrap().connect().await.unwrap();
+    let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", w.0.addr)).unwrap().connect().await.unwrap();
     let mut health = tonic_health::pb::health_client::HealthClient::new(ch);
     let h = health.check(tonic_health::pb::HealthCheckRequest { service: "sylva.v1.Worker".into() }).await.unwrap().into_inner();
     assert_eq!(h.status, tonic_health::pb::health_check_response::ServingStatus::Serving as i32);

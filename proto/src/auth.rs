@@ -25,7 +25,7 @@ pub fn load_token(flag: Option<&str>, file: Option<&std::path::Path>) -> std::io
 pub fn require(token: Option<String>) -> impl FnMut(Request<()>) -> Result<Request<()>, Status> + Clone {
     move |req: Request<()>| {
         let Some(want) = &token else { return Ok(req) };
-        let got = req.metadata().get("authorization").and_then(|v| v.to_str().ok()).and_then(|v| v.strip_prefix("Bearer "));
+        let got = req.metadata().get("authorization").and_then(|v| v.to_str().ok()).and_then(bearer);
         match got {
             Some(g) if constant_time_eq(g.as_bytes(), want.as_bytes()) => Ok(req),
             Some(_) => Err(Status::unauthenticated("wrong bearer token")),
@@ -34,15 +34,59 @@ pub fn require(token: Option<String>) -> impl FnMut(Request<()>) -> Result<Reque
     }
 }
 
-/// A client interceptor that attaches `token`, if any.
-pub fn attach(token: Option<String>) -> impl FnMut(Request<()>) -> Result<Request<()>, Status> + Clone {
-    let value: Option<MetadataValue<_>> = token.and_then(|t| format!("Bearer {t}").parse().ok());
-    move |mut req: Request<()>| {
-        if let Some(v) = &value {
+/// A client interceptor that attaches a bearer token, if any.
+#[derive(Clone, Debug)]
+pub struct Attach(Option<MetadataValue<tonic::metadata::Ascii>>);
+
+impl tonic::service::Interceptor for Attach {
+    fn call(&mut self, mut req: Request<()>) -> Result<Request<()>, Status> {
+        if let Some(v) = &self.0 {
             req.metadata_mut().insert("authorization", v.clone());
         }
         Ok(req)
     }
+}
+
+/// A client interceptor that attaches `token`, if any.
+pub fn attach(token: Option<String>) -> Attach {
+    Attach(token.and_then(|t| format!("Bearer {t}").parse().ok()))
+}
+
+/// The token of an `authorization` value: the scheme is case-insensitive
+/// (RFC 7235), surrounding spaces are ignored.
+fn bearer(value: &str) -> Option<&str> {
+    let (scheme, token) = value.trim().split_once(' ')?;
+    scheme.eq_ignore_ascii_case("bearer").then(|| token.trim())
+}
+
+/// `n` bytes from the operating system's random source, in hex.
+pub fn random_hex(n: usize) -> String {
+    random_bytes(n).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// `n` bytes from the operating system's random source.
+pub fn random_bytes(n: usize) -> Vec<u8> {
+    let mut b = vec![0u8; n];
+    getrandom::getrandom(&mut b).expect("the operating system's random source");
+    b
+}
+
+/// A fresh random token (256 bits) for processes only their starter talks to.
+pub fn random_token() -> String {
+    random_hex(32)
+}
+
+/// A worker's proof that it holds `token`, for the coordinator's `nonce`:
+/// BLAKE3 keyed by a key derived from the token, so the proof reveals
+/// nothing of the token and cannot be replayed for another nonce.
+pub fn prove(token: Option<&str>, nonce: &[u8]) -> [u8; 32] {
+    let key = blake3::derive_key("sylva 2026 worker identity v1", token.unwrap_or("").as_bytes());
+    *blake3::keyed_hash(&key, nonce).as_bytes()
+}
+
+/// Whether `proof` answers `nonce` for `token`, compared in constant time.
+pub fn check_proof(token: Option<&str>, nonce: &[u8], proof: &[u8]) -> bool {
+    constant_time_eq(&prove(token, nonce), proof)
 }
 
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
@@ -56,12 +100,29 @@ mod tests {
     #[test]
     fn tokens_are_checked() {
         let mut check = require(Some("s3cret".into()));
+        use tonic::service::Interceptor;
         let mut add = attach(Some("s3cret".into()));
-        assert!(check(add(Request::new(())).unwrap()).is_ok());
+        assert!(check(add.call(Request::new(())).unwrap()).is_ok());
         assert_eq!(check(Request::new(())).unwrap_err().code(), tonic::Code::Unauthenticated);
         let mut wrong = attach(Some("guess".into()));
-        assert_eq!(check(wrong(Request::new(())).unwrap()).unwrap_err().code(), tonic::Code::Unauthenticated);
+        assert_eq!(check(wrong.call(Request::new(())).unwrap()).unwrap_err().code(), tonic::Code::Unauthenticated);
         let mut open = require(None);
         assert!(open(Request::new(())).is_ok());
+        for form in ["bearer s3cret", "BEARER s3cret", "  Bearer   s3cret "] {
+            let mut r = Request::new(());
+            r.metadata_mut().insert("authorization", form.parse().unwrap());
+            assert!(check(r).is_ok(), "{form:?}");
+        }
+    }
+
+    #[test]
+    fn proofs_match_only_the_same_token_and_nonce() {
+        let p = prove(Some("s3cret"), b"nonce-1");
+        assert!(check_proof(Some("s3cret"), b"nonce-1", &p));
+        assert!(!check_proof(Some("s3cret"), b"nonce-2", &p));
+        assert!(!check_proof(Some("guess"), b"nonce-1", &p));
+        assert!(!check_proof(None, b"nonce-1", &p));
+        assert_ne!(random_token(), random_token());
+        assert_eq!(random_token().len(), 64);
     }
 }

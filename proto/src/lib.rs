@@ -1,6 +1,7 @@
 //! Sylva's wire format, generated from `proto/sylva/v1/*.proto`.
 
 pub mod auth;
+pub mod convert;
 pub mod tls;
 
 /// Package `sylva.v1`.
@@ -9,4 +10,26 @@ pub mod pb {
 
     /// The encoded file descriptors, for gRPC server reflection.
     pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("sylva_descriptor");
+}
+
+/// Server reflection in both protocol versions (`grpc.reflection.v1`, and
+/// `v1alpha`, which grpcurl and Python's grpcio still speak), listing just
+/// `services` and the health service.
+pub fn reflection(
+    services: &[&str],
+) -> Result<
+    (
+        tonic_reflection::server::v1::ServerReflectionServer<impl tonic_reflection::server::v1::ServerReflection>,
+        tonic_reflection::server::v1alpha::ServerReflectionServer<impl tonic_reflection::server::v1alpha::ServerReflection>,
+    ),
+    tonic_reflection::server::Error,
+> {
+    let builder = || {
+        let b = tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+            .with_service_name("grpc.health.v1.Health");
+        services.iter().fold(b, |b, s| b.with_service_name(*s))
+    };
+    Ok((builder().build_v1()?, builder().build_v1alpha()?))
 }

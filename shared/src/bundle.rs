@@ -6,7 +6,7 @@
 //! blob names, and each blob's name and length), then the blobs in order.
 //! The hash is BLAKE3 of the whole bundle, in hex.
 
-use crate::scene::{Scene, SceneError, SceneFile};
+use crate::scene::{FileAccess, Scene, SceneError, SceneFile, SceneLimits};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 use std::path::{Component, Path, PathBuf};
@@ -42,23 +42,30 @@ pub fn hash_of(bytes: &[u8]) -> String {
 }
 
 /// Packs the scene file at `path` and the glTF files it names (with the
-/// buffers and images a `.gltf` refers to by relative path).
+/// buffers and images a `.gltf` refers to by relative path), all of which
+/// must lie inside the scene file's folder.
 pub fn pack(path: &Path) -> anyhow::Result<SceneBundle> {
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    pack_with(path, &FileAccess::Inside(base))
+}
+
+/// Packs the scene file at `path`, reading its models as `access` allows.
+pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle> {
     let label = path.display().to_string();
     let text = std::fs::read_to_string(path).with_context(|| format!("{label}: cannot read"))?;
     let mut scene = crate::scene::parse(&text, &label)?;
-    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut blobs: Vec<(String, Vec<u8>)> = Vec::new();
     for (i, (name, spec)) in scene.models.iter_mut().enumerate() {
         let Some(rel) = spec.gltf.clone() else { continue };
-        let full = if rel.is_absolute() { rel.clone() } else { base.join(&rel) };
-        let bytes = std::fs::read(&full).with_context(|| format!("{label}: models.{name}.gltf: cannot read {}", full.display()))?;
+        let full = access.resolve(access.base(), &rel).map_err(|e| anyhow::anyhow!("{label}: models.{name}.gltf: {e}"))?;
+        let bytes = std::fs::read(&full).with_context(|| format!("{label}: models.{name}.gltf: cannot read {}", rel.display()))?;
         let dir = format!("m{i}");
         let file = full.file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_else(|| "model.glb".into());
         if file.to_ascii_lowercase().ends_with(".gltf") {
-            for uri in external_uris(&bytes).with_context(|| format!("{}: not glTF JSON", full.display()))? {
-                let dep = full.parent().unwrap_or(Path::new(".")).join(&uri);
-                let data = std::fs::read(&dep).with_context(|| format!("{}: cannot read {}", full.display(), dep.display()))?;
+            let folder = full.parent().unwrap_or(Path::new("."));
+            for uri in external_uris(&bytes).with_context(|| format!("{}: not glTF JSON", rel.display()))? {
+                let dep = access.resolve_uri(folder, &uri).map_err(|e| anyhow::anyhow!("{}: {e}", rel.display()))?.expect("not a data: URI");
+                let data = std::fs::read(&dep).with_context(|| format!("{}: cannot read {uri}", rel.display()))?;
                 blobs.push((format!("{dir}/{uri}"), data));
             }
         }
@@ -96,9 +103,17 @@ fn external_uris(gltf_json: &[u8]) -> anyhow::Result<Vec<String>> {
     Ok(out)
 }
 
-/// Unpacks a bundle into `dir` (blobs as files) and builds its scene.
-/// Refuses malformed bundles and blob names that would leave `dir`.
+/// Unpacks a bundle into `dir` (blobs as files) and builds its scene with
+/// the default limits.
 pub fn unpack(bytes: &[u8], dir: &Path) -> anyhow::Result<Scene> {
+    unpack_with(bytes, dir, &SceneLimits::default())
+}
+
+/// Unpacks a bundle into `dir` (blobs as files) and builds its scene, which
+/// reads files inside `dir` alone, within `limits`. Refuses malformed
+/// bundles and blob names that would leave `dir`; the scene is checked
+/// before any blob is written.
+pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> anyhow::Result<Scene> {
     if bytes.len() < 16 || &bytes[..8] != MAGIC {
         bail!("not a Sylva scene bundle (bad magic)");
     }
@@ -108,6 +123,8 @@ pub fn unpack(bytes: &[u8], dir: &Path) -> anyhow::Result<Scene> {
         bail!("truncated scene bundle: manifest of {len} bytes, {} present", body.len());
     }
     let manifest: Manifest = serde_json::from_slice(&body[..len]).context("malformed bundle manifest")?;
+    // The cheap checks first: a scene that would be refused costs no disk.
+    Scene::check(&manifest.scene, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))?;
     let mut at = len;
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     for b in &manifest.blobs {
@@ -127,7 +144,7 @@ pub fn unpack(bytes: &[u8], dir: &Path) -> anyhow::Result<Scene> {
     if at != body.len() {
         bail!("scene bundle has {} stray bytes after its blobs", body.len() - at);
     }
-    Scene::build(manifest.scene, dir, "bundle").map_err(|e: SceneError| anyhow::anyhow!(e))
+    Scene::build_with(manifest.scene, &FileAccess::Inside(dir.to_path_buf()), "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))
 }
 
 #[cfg(test)]

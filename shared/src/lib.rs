@@ -8,6 +8,7 @@ pub mod bundle;
 pub mod camera;
 pub mod color;
 pub mod film;
+pub mod frame;
 pub mod lb;
 pub mod leaf;
 pub mod model;

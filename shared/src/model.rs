@@ -3,6 +3,7 @@
 
 use anyhow::{Context, bail};
 use glam::{Mat4, Vec2, Vec3};
+use crate::scene::FileAccess;
 use std::path::Path;
 
 /// What a triangle is made of, for the LB medium: leaves make green nodes,
@@ -162,16 +163,74 @@ pub fn classify_material(name: Option<&str>) -> Surface {
     if WOOD_WORDS.iter().any(|w| name.contains(w)) { Surface::Wood } else { Surface::Leaf }
 }
 
+/// Loads every triangle of a glTF 2.0 file (`.gltf` or `.glb`) that the
+/// user named, reading buffers and images wherever its URIs point.
+pub fn load_gltf(path: &Path) -> anyhow::Result<Model> {
+    let folder = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let mut budget = GltfBudget::UNLIMITED;
+    load_gltf_with(path, &FileAccess::Anywhere(folder), &mut budget)
+}
+
+/// What a glTF file may still add to a scene; the loader counts its
+/// triangles and texels from the document and the image headers, before
+/// reading vertex data or decoding a texture, and takes them off.
+#[derive(Clone, Copy, Debug)]
+pub struct GltfBudget {
+    /// Triangles left.
+    pub triangles: u64,
+    /// Texels left.
+    pub texture_pixels: u64,
+}
+
+impl GltfBudget {
+    /// No caps.
+    pub const UNLIMITED: GltfBudget = GltfBudget { triangles: u64::MAX, texture_pixels: u64::MAX };
+}
+
 /// Loads every triangle of a glTF 2.0 file (`.gltf` or `.glb`) in the
 /// default scene, with node transforms applied, texture coordinates,
-/// base-colour textures and alpha modes (`BLEND` is treated as a mask at 0.5).
-pub fn load_gltf(path: &Path) -> anyhow::Result<Model> {
-    let (doc, buffers, images) =
-        gltf::import(path).with_context(|| format!("{}: cannot load glTF", path.display()))?;
-    let scene = doc
-        .default_scene()
-        .or_else(|| doc.scenes().next())
-        .with_context(|| format!("{}: the glTF file has no scene", path.display()))?;
+/// base-colour textures and alpha modes (`BLEND` is treated as a mask at
+/// 0.5). Buffers and images are read only where `access` allows, `data:`
+/// URIs always; sizes are checked against `budget` first.
+pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> anyhow::Result<Model> {
+    let shown = path.strip_prefix(access.base()).unwrap_or(path).display().to_string();
+    let bytes = std::fs::read(path).with_context(|| format!("{shown}: cannot load glTF: cannot read the file"))?;
+    let gltf::Gltf { document: doc, blob } = gltf::Gltf::from_slice(&bytes).with_context(|| format!("{shown}: cannot load glTF"))?;
+    drop(bytes);
+    let folder = path.parent().unwrap_or(Path::new("."));
+    // Every file the document names must be one we may read, before any is.
+    let mut files = std::collections::HashMap::new();
+    let uris = doc.buffers().filter_map(|b| match b.source() {
+        gltf::buffer::Source::Uri(u) => Some(u),
+        gltf::buffer::Source::Bin => None,
+    });
+    let image_uris = doc.images().filter_map(|i| match i.source() {
+        gltf::image::Source::Uri { uri, .. } => Some(uri),
+        gltf::image::Source::View { .. } => None,
+    });
+    for uri in uris.chain(image_uris) {
+        if let Some(p) = access.resolve_uri(folder, uri).map_err(|e| anyhow::anyhow!("{shown}: {e}"))? {
+            files.insert(uri.to_string(), p);
+        }
+    }
+    let scene = doc.default_scene().or_else(|| doc.scenes().next()).with_context(|| format!("{shown}: the glTF file has no scene"))?;
+    let triangles = scene.nodes().map(|n| node_triangles(&n, 0)).fold(0u64, u64::saturating_add);
+    if triangles > budget.triangles {
+        bail!("{shown}: {triangles} triangles is more than the {} this scene may still have", budget.triangles);
+    }
+    let buffers = gltf::import_buffers(&doc, Some(folder), blob).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF buffers: {}", gltf_error(&e)))?;
+    let mut texels = 0u64;
+    for img in doc.images() {
+        let (w, h) = image_size(&img, &files, &buffers).with_context(|| format!("{shown}: image {}: cannot read its size", img.index()))?;
+        texels = texels.saturating_add(u64::from(w) * u64::from(h));
+    }
+    if texels > budget.texture_pixels {
+        bail!("{shown}: {texels} texels of textures is more than the {} this scene may still have", budget.texture_pixels);
+    }
+    let images = gltf::import_images(&doc, Some(folder), &buffers).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF images: {}", gltf_error(&e)))?;
+    budget.triangles -= triangles;
+    budget.texture_pixels -= texels;
+    let path = Path::new(&shown);
     let mut model = Model::default();
     // glTF images decoded to RGBA8, as the textures of this model.
     let mut texture_of_image = vec![None; images.len()];
@@ -191,6 +250,16 @@ pub fn load_gltf(path: &Path) -> anyhow::Result<Model> {
             gltf::material::AlphaMode::Mask => Some(m.alpha_cutoff().unwrap_or(0.5)),
             gltf::material::AlphaMode::Blend => Some(0.5),
         };
+        let image = pbr.base_color_texture().and_then(|t| images.get(t.texture().source().index()));
+        if let (Some(_), Some(img)) = (alpha_cutoff, image)
+            && matches!(img.format, gltf::image::Format::R8G8B8 | gltf::image::Format::R8 | gltf::image::Format::R16G16B16 | gltf::image::Format::R32G32B32FLOAT)
+        {
+            tracing::warn!(
+                file = %shown,
+                material = m.name().unwrap_or("?"),
+                "the material is alpha-masked but its base-colour texture has no alpha channel, so the mask cuts nothing: the leaves render as solid cards"
+            );
+        }
         model.materials.push(Material {
             name: m.name().unwrap_or("").to_string(),
             surface: classify_material(m.name()),
@@ -217,6 +286,53 @@ pub fn load_gltf(path: &Path) -> anyhow::Result<Model> {
         bail!("{}: the glTF scene has no triangles", path.display());
     }
     Ok(model)
+}
+
+/// Triangles a node and its children would add (a mesh counts once per
+/// node that places it), from accessor counts alone.
+fn node_triangles(node: &gltf::Node, depth: u32) -> u64 {
+    // glTF forbids cycles, but a hostile file may still nest deeply.
+    if depth > 64 {
+        return u64::MAX;
+    }
+    let own = node.mesh().map_or(0, |m| {
+        m.primitives()
+            .filter(|p| p.mode() == gltf::mesh::Mode::Triangles)
+            .map(|p| p.indices().or_else(|| p.get(&gltf::Semantic::Positions)).map_or(0, |a| a.count() as u64 / 3))
+            .sum()
+    });
+    node.children().map(|c| node_triangles(&c, depth + 1)).fold(own, u64::saturating_add)
+}
+
+/// Width and height of a glTF image from its header, without decoding it.
+fn image_size(img: &gltf::Image, files: &std::collections::HashMap<String, std::path::PathBuf>, buffers: &[gltf::buffer::Data]) -> anyhow::Result<(u32, u32)> {
+    let reader = match img.source() {
+        gltf::image::Source::Uri { uri, .. } => match files.get(uri) {
+            Some(p) => image::ImageReader::new(std::io::BufReader::new(std::fs::File::open(p)?)).with_guessed_format()?.into_dimensions()?,
+            None => {
+                use base64::Engine as _;
+                // A data: URI; the bytes are base64 after the comma.
+                let b64 = uri.split_once(";base64,").map(|(_, d)| d).context("a data: URI that is not base64")?;
+                let bytes = base64::engine::general_purpose::STANDARD.decode(b64)?;
+                image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format()?.into_dimensions()?
+            }
+        },
+        gltf::image::Source::View { view, .. } => {
+            let data = buffers.get(view.buffer().index()).context("no such buffer")?;
+            let bytes = data.0.get(view.offset()..view.offset() + view.length()).context("buffer view runs past its buffer")?;
+            image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format()?.into_dimensions()?
+        }
+    };
+    Ok(reader)
+}
+
+/// A glTF loading error, in words that name no path outside the scene.
+fn gltf_error(e: &gltf::Error) -> String {
+    match e {
+        gltf::Error::Io(_) => "a file it names cannot be read".into(),
+        gltf::Error::BufferLength { buffer, expected, actual } => format!("buffer {buffer} holds {actual} bytes where it declares {expected}"),
+        other => other.to_string(),
+    }
 }
 
 fn to_rgba8(img: &gltf::image::Data) -> Option<Texture> {

@@ -1,27 +1,35 @@
 //! The worker's gRPC service: bundles cached by hash in a size-bounded LRU,
 //! scenes prepared once per (bundle, structure, lighting) and strips
-//! rendered one at a time on the GPU.
+//! rendered one at a time on the GPU. Uploads are counted as they arrive,
+//! against both their declared size and this worker's limits; a strip whose
+//! caller has gone is not started.
 
 use crate::gpu::GpuContext;
 use crate::prepare::{PreparedScene, prepare};
-use crate::trace::FrameSettings;
+use crate::trace::RenderSettings;
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 use sylva_proto::pb;
+use sylva_proto::pb::worker_identity_server::{WorkerIdentity, WorkerIdentityServer};
 use sylva_proto::pb::worker_server::{Worker, WorkerServer};
 use sylva_shared::accel::AccelKind;
 use sylva_shared::bundle;
-use sylva_shared::scene::{LightingMode, Scene};
+use sylva_shared::frame::FrameSettings;
+use sylva_shared::scene::{LightingMode, Scene, SceneLimits};
 use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status, Streaming};
 
-/// Largest image side a strip request may name.
-pub const MAX_SIDE: u32 = 16_384;
-/// Most rays per pixel a strip request may ask for.
-pub const MAX_SPP: u32 = 4_096;
+pub use sylva_shared::frame::{MAX_SIDE, MAX_SPP};
+
+/// Locks `m`, whether or not a thread panicked while holding it: every
+/// value behind these locks is whole between statements, so one panic in
+/// `prepare` must not break the worker for good.
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
 
 /// How a worker runs.
 #[derive(Clone, Debug)]
@@ -37,6 +45,10 @@ pub struct WorkerConfig {
     pub token: Option<String>,
     /// Serve over TLS with this identity.
     pub tls: Option<tonic::transport::ServerTlsConfig>,
+    /// Per-scene caps on models, instances, triangles, texels and LB nodes.
+    pub limits: SceneLimits,
+    /// Keep `cache_dir` when the worker stops (default: removed).
+    pub keep_cache: bool,
 }
 
 impl Default for WorkerConfig {
@@ -47,6 +59,8 @@ impl Default for WorkerConfig {
             cache_dir: std::env::temp_dir().join(format!("sylva-worker-{}", std::process::id())),
             token: None,
             tls: None,
+            limits: SceneLimits::default(),
+            keep_cache: false,
         }
     }
 }
@@ -69,6 +83,8 @@ struct State {
     ambient: Mutex<HashMap<String, [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
     gpu: Mutex<()>,
+    /// Bytes of uploads in progress, so concurrent uploads share the limit.
+    incoming: Mutex<u64>,
     busy: AtomicU32,
 }
 
@@ -89,6 +105,7 @@ impl WorkerService {
                 prepared: Mutex::new(HashMap::new()),
                 ambient: Mutex::new(HashMap::new()),
                 gpu: Mutex::new(()),
+                incoming: Mutex::new(0),
                 busy: AtomicU32::new(0),
             }),
         }
@@ -107,46 +124,57 @@ impl State {
         while bundles.values().map(|c| c.bytes).sum::<u64>() + incoming > self.config.cache_bytes && !bundles.is_empty() {
             let oldest = bundles.iter().min_by_key(|(_, c)| c.last_used).map(|(h, _)| h.clone()).expect("not empty");
             bundles.remove(&oldest);
-            self.prepared.lock().expect("lock").retain(|k, _| k.0 != oldest);
+            lock(&self.prepared).retain(|k, _| k.0 != oldest);
             let _ = std::fs::remove_dir_all(self.config.cache_dir.join(&oldest));
             tracing::info!(hash = %oldest, "evicted a scene bundle");
         }
     }
 }
 
-fn parse_lighting(s: &str, scene: &Scene) -> Result<LightingMode, Status> {
-    Ok(match s {
-        "" => scene.lighting,
-        o => LightingMode::from_name(o).ok_or_else(|| {
-            let names: Vec<&str> = LightingMode::ALL.iter().map(|m| m.name()).collect();
-            Status::invalid_argument(format!("lighting {o:?}: one of {}", names.join(", ")))
-        })?,
-    })
+/// Releases its share of the upload budget however the upload ends.
+struct Reservation<'a> {
+    incoming: &'a Mutex<u64>,
+    bytes: u64,
 }
 
-fn parse_accel(s: &str) -> Result<AccelKind, Status> {
-    match s {
-        "" | "bvh" => Ok(AccelKind::Bvh),
-        "kd" => Ok(AccelKind::Kd),
-        o => Err(Status::invalid_argument(format!("accel {o:?}: one of kd, bvh"))),
+impl Reservation<'_> {
+    /// Takes `more` bytes of `limit`, or says no.
+    fn grow(&mut self, more: u64, limit: u64) -> bool {
+        let mut inc = lock(self.incoming);
+        if *inc + more > limit {
+            return false;
+        }
+        *inc += more;
+        self.bytes += more;
+        true
     }
 }
 
-/// Checks a frame's sizes: the limits every render request obeys.
-pub fn check_frame(f: &pb::FrameSettings) -> Result<(), Status> {
-    if f.width == 0 || f.height == 0 || f.width > MAX_SIDE || f.height > MAX_SIDE {
-        return Err(Status::invalid_argument(format!("image {}×{}: each side must be in [1, {MAX_SIDE}]", f.width, f.height)));
+impl Drop for Reservation<'_> {
+    fn drop(&mut self) {
+        *lock(self.incoming) -= self.bytes;
     }
-    if f.spp == 0 || f.spp > MAX_SPP {
-        return Err(Status::invalid_argument(format!("spp {}: valid range [1, {MAX_SPP}]", f.spp)));
+}
+
+/// Sets its flag when dropped: a handler future dropped before it finished
+/// means the caller cancelled or went away.
+struct CancelOnDrop(Arc<AtomicBool>, bool);
+
+impl Drop for CancelOnDrop {
+    fn drop(&mut self) {
+        if !self.1 {
+            self.0.store(true, Ordering::SeqCst);
+        }
     }
-    if !(f.lb_strength.is_finite() && f.lb_strength >= 0.0) {
-        return Err(Status::invalid_argument(format!("lb_strength {}: must be finite and ≥ 0", f.lb_strength)));
+}
+
+/// A hash as the cache keys it: 64 lower-case hex digits.
+fn normalize_hash(h: &str) -> Result<String, Status> {
+    let hash = h.to_ascii_lowercase();
+    if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return Err(Status::invalid_argument(format!("hash {:?} is not a 64-digit hex BLAKE3 hash", sylva_shared::scene::files::clip(h))));
     }
-    if !(f.ambient.is_empty() || (f.ambient.len() == 3 && f.ambient.iter().all(|v| v.is_finite() && *v >= 0.0))) {
-        return Err(Status::invalid_argument("ambient: three finite values ≥ 0, or none"));
-    }
-    Ok(())
+    Ok(hash)
 }
 
 #[tonic::async_trait]
@@ -154,28 +182,32 @@ impl Worker for WorkerService {
     async fn load_scene(&self, request: Request<Streaming<pb::SceneChunk>>) -> Result<Response<pb::LoadSceneReply>, Status> {
         let mut stream = request.into_inner();
         let first = stream.next().await.ok_or_else(|| Status::invalid_argument("empty upload: no chunk"))??;
-        let hash = first.hash.to_ascii_lowercase();
-        if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
-            return Err(Status::invalid_argument(format!("hash {:?} is not a 64-digit hex BLAKE3 hash", first.hash)));
-        }
-        if let Some(c) = self.state.bundles.lock().expect("lock").get_mut(&hash) {
+        let hash = normalize_hash(&first.hash)?;
+        if let Some(c) = lock(&self.state.bundles).get_mut(&hash) {
             c.last_used = Instant::now();
             return Ok(Response::new(pb::LoadSceneReply { hash, was_cached: true }));
         }
-        let total = first.total_size;
-        if total > self.state.config.max_bundle_bytes {
-            return Err(Status::resource_exhausted(format!(
-                "bundle of {total} bytes is over this worker's limit of {} bytes",
-                self.state.config.max_bundle_bytes
-            )));
+        let (total, limit) = (first.total_size, self.state.config.max_bundle_bytes);
+        if total > limit {
+            return Err(Status::resource_exhausted(format!("bundle of {total} bytes is over this worker's limit of {limit} bytes")));
         }
-        let mut bytes = Vec::with_capacity(total as usize);
-        bytes.extend_from_slice(&first.data);
-        while let Some(chunk) = stream.next().await {
-            bytes.extend_from_slice(&chunk?.data);
-            if bytes.len() as u64 > total {
+        // Nothing is reserved from the client's claim: bytes are counted as
+        // they arrive, against the claim, this bundle's limit and the room
+        // all uploads in progress share.
+        let mut held = Reservation { incoming: &self.state.incoming, bytes: 0 };
+        let mut bytes = Vec::new();
+        let mut chunk = Some(first.data);
+        loop {
+            let Some(data) = chunk.take() else { break };
+            let n = data.len() as u64;
+            if bytes.len() as u64 + n > total {
                 return Err(Status::invalid_argument(format!("upload is longer than its declared {total} bytes")));
             }
+            if !held.grow(n, self.state.config.cache_bytes.max(limit)) {
+                return Err(Status::resource_exhausted("this worker is receiving as many bundle bytes as it can hold; try again"));
+            }
+            bytes.extend_from_slice(&data);
+            chunk = stream.next().await.transpose()?.map(|c| c.data);
         }
         if (bytes.len() as u64) < total {
             return Err(Status::invalid_argument(format!("truncated upload: {} of {total} bytes", bytes.len())));
@@ -184,56 +216,70 @@ impl Worker for WorkerService {
             return Err(Status::invalid_argument("the bundle's bytes do not match its hash"));
         }
         let dir = self.state.config.cache_dir.join(&hash);
-        let scene = tokio::task::spawn_blocking(move || bundle::unpack(&bytes, &dir))
-            .await
-            .map_err(|e| Status::internal(e.to_string()))?
-            .map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
-        let mut bundles = self.state.bundles.lock().expect("lock");
-        self.state.make_room(&mut bundles, total);
-        bundles.insert(hash.clone(), Cached { scene: Arc::new(scene), bytes: total, last_used: Instant::now() });
-        tracing::info!(%hash, bytes = total, "cached a scene bundle");
+        let limits = self.state.config.limits;
+        let unpacked = tokio::task::spawn_blocking(move || {
+            let r = bundle::unpack_with(&bytes, &dir, &limits);
+            if r.is_err() {
+                let _ = std::fs::remove_dir_all(&dir);
+            }
+            r
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?;
+        let scene = unpacked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
+        let size = held.bytes;
+        drop(held);
+        let mut bundles = lock(&self.state.bundles);
+        self.state.make_room(&mut bundles, size);
+        bundles.insert(hash.clone(), Cached { scene: Arc::new(scene), bytes: size, last_used: Instant::now() });
+        tracing::info!(%hash, bytes = size, "cached a scene bundle");
         Ok(Response::new(pb::LoadSceneReply { hash, was_cached: false }))
     }
 
     async fn render_strip(&self, request: Request<pb::RenderStripRequest>) -> Result<Response<pb::RenderStripReply>, Status> {
         let r = request.into_inner();
-        let f = r.frame.ok_or_else(|| Status::invalid_argument("frame settings missing"))?;
-        check_frame(&f)?;
+        let f = FrameSettings::try_from(r.frame.as_ref().ok_or_else(|| Status::invalid_argument("frame settings missing"))?)?;
         if r.x0 >= r.x1 || r.x1 > f.width {
             return Err(Status::invalid_argument(format!("strip [{}, {}) is not inside a frame {} wide", r.x0, r.x1, f.width)));
         }
+        let hash = normalize_hash(&r.scene_hash)?;
         let scene = {
-            let mut bundles = self.state.bundles.lock().expect("lock");
-            let c = bundles.get_mut(&r.scene_hash).ok_or_else(|| Status::not_found(format!("scene {} is not loaded here; LoadScene it first", r.scene_hash)))?;
+            let mut bundles = lock(&self.state.bundles);
+            let c = bundles.get_mut(&hash).ok_or_else(|| Status::not_found(format!("scene {hash} is not loaded here; LoadScene it first")))?;
             c.last_used = Instant::now();
             c.scene.clone()
         };
-        let lighting = parse_lighting(&f.lighting, &scene)?;
-        let accel = parse_accel(&f.accel)?;
-        let settings = FrameSettings {
+        let lighting = f.lighting_or(scene.lighting);
+        let accel = f.accel;
+        let settings = RenderSettings {
             width: f.width,
             height: f.height,
             spp: f.spp,
             seed: f.seed,
             lighting,
-            ambient: if f.ambient.len() == 3 { [f.ambient[0], f.ambient[1], f.ambient[2]] } else { [0.0; 3] },
+            ambient: f.ambient.unwrap_or([0.0; 3]),
             lb_strength: f.lb_strength,
         };
-        let ambient_given = f.ambient.len() == 3;
+        let ambient_given = f.ambient.is_some();
+        let cancelled = Arc::new(AtomicBool::new(false));
+        let mut guard = CancelOnDrop(cancelled.clone(), false);
         let state = self.state.clone();
         state.busy.fetch_add(1, Ordering::SeqCst);
-        let span = tracing::info_span!("strip", x0 = r.x0, x1 = r.x1, scene = %r.scene_hash);
+        let span = tracing::info_span!("strip", x0 = r.x0, x1 = r.x1, scene = %hash);
         let result = tokio::task::spawn_blocking(move || {
             let _g = span.enter();
-            let _gpu = state.gpu.lock().expect("lock");
-            let key = (r.scene_hash.clone(), accel, lighting.preparation());
+            let _gpu = lock(&state.gpu);
+            // Strips queue for the GPU; one whose caller left meanwhile is
+            // not worth starting.
+            anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
+            let key = (hash.clone(), accel, lighting.preparation());
             let t = Instant::now();
-            let cached = state.prepared.lock().expect("lock").get(&key).cloned();
+            let cached = lock(&state.prepared).get(&key).cloned();
             let prepared = match cached {
                 Some(p) => p,
                 None => {
                     let p = Arc::new(prepare(&state.ctx, &scene, accel, lighting, &|m| tracing::info!("{m}"))?);
-                    state.prepared.lock().expect("lock").insert(key, p.clone());
+                    lock(&state.prepared).insert(key, p.clone());
                     p
                 }
             };
@@ -241,25 +287,29 @@ impl Worker for WorkerService {
             if lighting == LightingMode::Ambient && !ambient_given {
                 // Matched here, once per frame shape, so every client gets
                 // the paper's ambient without a round of its own.
-                let key = format!("{}/{:?}/{}x{}/{}/{}", r.scene_hash, accel, settings.width, settings.height, settings.seed, settings.lb_strength);
-                let known = state.ambient.lock().expect("lock").get(&key).copied();
+                let key = format!("{hash}/{accel:?}/{}x{}/{}/{}", settings.width, settings.height, settings.seed, settings.lb_strength);
+                let known = lock(&state.ambient).get(&key).copied();
                 settings.ambient = match known {
                     Some(a) => a,
                     None => {
                         let a = prepared.renderer.matched_ambient(&state.ctx, &settings)?;
-                        state.ambient.lock().expect("lock").insert(key, a);
+                        lock(&state.ambient).insert(key, a);
                         a
                     }
                 };
             }
             let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
+            anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
             let t = Instant::now();
             let strip = prepared.renderer.render_strip(&state.ctx, &settings, r.x0, r.x1)?;
             anyhow::Ok((strip, prepare_ms, t.elapsed().as_secs_f64() * 1e3))
         })
         .await;
+        guard.1 = true;
         self.state.busy.fetch_sub(1, Ordering::SeqCst);
-        let (strip, prepare_ms, render_ms) = result.map_err(|e| Status::internal(e.to_string()))?.map_err(|e| Status::internal(format!("{e:#}")))?;
+        let (strip, prepare_ms, render_ms) = result
+            .map_err(|e| Status::internal(format!("the strip's render panicked: {e}")))?
+            .map_err(|e| if e.is::<Cancelled>() { Status::cancelled("the caller cancelled the strip") } else { Status::internal(format!("{e:#}")) })?;
         Ok(Response::new(pb::RenderStripReply {
             x0: strip.x0,
             width: strip.width,
@@ -273,8 +323,8 @@ impl Worker for WorkerService {
     }
 
     async fn status(&self, _: Request<pb::StatusRequest>) -> Result<Response<pb::WorkerStatus>, Status> {
-        let cached: Vec<String> = self.state.bundles.lock().expect("lock").keys().cloned().collect();
-        let gpu_bytes = self.state.prepared.lock().expect("lock").values().map(|p| p.renderer.scene_bytes()).sum();
+        let cached: Vec<String> = lock(&self.state.bundles).keys().cloned().collect();
+        let gpu_bytes = lock(&self.state.prepared).values().map(|p| p.renderer.scene_bytes()).sum();
         Ok(Response::new(pb::WorkerStatus {
             adapter: self.state.ctx.adapter_name(),
             gpu_memory_bytes: gpu_bytes,
@@ -284,8 +334,30 @@ impl Worker for WorkerService {
     }
 }
 
-/// Serves the worker API, health (SERVING once the GPU is open) and
-/// reflection on `listener` until `shutdown` resolves.
+/// Why a strip was not rendered: its caller went away first.
+#[derive(Debug, thiserror::Error)]
+#[error("cancelled")]
+struct Cancelled;
+
+/// Answers a coordinator's identity challenge with this worker's token.
+struct Identity {
+    token: Option<String>,
+}
+
+#[tonic::async_trait]
+impl WorkerIdentity for Identity {
+    async fn prove(&self, request: Request<pb::ProveRequest>) -> Result<Response<pb::ProveReply>, Status> {
+        let nonce = request.into_inner().nonce;
+        if nonce.len() < 16 || nonce.len() > 64 {
+            return Err(Status::invalid_argument("the nonce must be 16 to 64 bytes"));
+        }
+        Ok(Response::new(pb::ProveReply { proof: sylva_proto::auth::prove(self.token.as_deref(), &nonce).to_vec() }))
+    }
+}
+
+/// Serves the worker API, health (SERVING once the GPU is open),
+/// reflection and the identity check on `listener` until `shutdown`
+/// resolves; then removes the bundle cache unless asked to keep it.
 pub async fn run(
     listener: tokio::net::TcpListener,
     ctx: GpuContext,
@@ -293,22 +365,31 @@ pub async fn run(
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
-    reporter.set_not_serving::<pb::worker_server::WorkerServer<WorkerService>>().await;
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
-        .build_v1()?;
+    reporter.set_not_serving::<WorkerServer<WorkerService>>().await;
+    let (reflection, reflection_alpha) = sylva_proto::reflection(&["sylva.v1.Worker", "sylva.v1.WorkerIdentity"])?;
     let auth = sylva_proto::auth::require(config.token.clone());
     let mut builder = tonic::transport::Server::builder();
     if let Some(tls) = config.tls.clone() {
         builder = builder.tls_config(tls)?;
     }
+    let (cache_dir, keep) = (config.cache_dir.clone(), config.keep_cache);
+    let identity = Identity { token: config.token.clone() };
     let service = WorkerService::new(ctx, config);
-    reporter.set_serving::<pb::worker_server::WorkerServer<WorkerService>>().await;
-    builder
+    reporter.set_serving::<WorkerServer<WorkerService>>().await;
+    let served = builder
         .add_service(health)
+        .add_service(WorkerIdentityServer::new(identity))
         .add_service(tonic::service::interceptor::InterceptedService::new(reflection, auth.clone()))
+        .add_service(tonic::service::interceptor::InterceptedService::new(reflection_alpha, auth.clone()))
         .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), auth))
         .serve_with_incoming_shutdown(tokio_stream::wrappers::TcpListenerStream::new(listener), shutdown)
-        .await?;
+        .await;
+    if !keep && cache_dir.exists() {
+        match std::fs::remove_dir_all(&cache_dir) {
+            Ok(()) => tracing::info!(dir = %cache_dir.display(), "removed the bundle cache"),
+            Err(e) => tracing::warn!(dir = %cache_dir.display(), "cannot remove the bundle cache: {e}"),
+        }
+    }
+    served?;
     Ok(())
 }

@@ -9,7 +9,7 @@ use sylva_shared::color::luminance;
 use sylva_shared::scene::{LightingMode, Scene, parse};
 use sylva_worker::GpuContext;
 use sylva_worker::prepare::prepare;
-use sylva_worker::trace::{FrameSettings, ReferenceOptions, render_reference};
+use sylva_worker::trace::{RenderSettings, ReferenceOptions, render_reference};
 
 fn ctx() -> GpuContext {
     GpuContext::new().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
@@ -52,8 +52,8 @@ fn quad_scene(name: &str, material: &str, sky: &str, ground: &str) -> Scene {
     Scene::build(parse(&text, "quad.json").unwrap(), &dir, "quad.json").unwrap()
 }
 
-fn frame(w: u32, h: u32) -> FrameSettings {
-    FrameSettings { width: w, height: h, spp: 1, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 }
+fn frame(w: u32, h: u32) -> RenderSettings {
+    RenderSettings { width: w, height: h, spp: 1, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 }
 }
 
 #[test]
@@ -85,7 +85,7 @@ fn the_reference_error_falls_as_one_over_root_spp_and_it_says_so() {
     let f = frame(24, 24);
     let run = |seed: u32, batches: u32| {
         let opts = ReferenceOptions { batch_spp: 4, min_batches: batches, max_batches: batches, target_error: 1e-9, ..Default::default() };
-        render_reference(&ctx, &p.renderer, &FrameSettings { seed, ..f }, &opts, &|_| {}).unwrap()
+        render_reference(&ctx, &p.renderer, &RenderSettings { seed, ..f }, &opts, &|_| {}).unwrap()
     };
     let truth = run(1_000_000, 256);
     let rmse = |img: &sylva_worker::trace::ReferenceImage| -> f64 {
@@ -111,7 +111,7 @@ fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
     let ctx = ctx();
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Boulanger, &|_| {}).unwrap();
     assert_eq!(p.boulanger.len(), 1);
-    let s = p.renderer.render_strip(&ctx, &FrameSettings { lighting: LightingMode::Boulanger, ..frame(17, 17) }, 0, 17).unwrap();
+    let s = p.renderer.render_strip(&ctx, &RenderSettings { lighting: LightingMode::Boulanger, ..frame(17, 17) }, 0, 17).unwrap();
     let got = s.pixels[8 * 17 + 8];
 
     use glam::Vec3;

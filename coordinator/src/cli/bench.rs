@@ -185,7 +185,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     use sylva_shared::scene::{LightingMode, Scene};
     use sylva_worker::GpuContext;
     use sylva_worker::prepare::prepare;
-    use sylva_worker::trace::{FrameSettings, GpuRay, GpuScene, RayCaster};
+    use sylva_worker::trace::{RenderSettings, GpuRay, GpuScene, RayCaster};
     use rayon::prelude::*;
 
     let file = forest(&ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: 1 }).map_err(anyhow::Error::msg)?;
@@ -232,8 +232,8 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     for kind in [AccelKind::Kd, AccelKind::Bvh] {
         let prepared = prepare(&ctx, &scene, kind, LightingMode::Lb, &|_| {})?;
         for spp in [1u32, 4] {
-            let f = FrameSettings { width: a.width, height: a.height, spp, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
-            prepared.renderer.render_strip(&ctx, &FrameSettings { width: 64, height: 32, ..f }, 0, 64)?; // warm-up
+            let f = RenderSettings { width: a.width, height: a.height, spp, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
+            prepared.renderer.render_strip(&ctx, &RenderSettings { width: 64, height: 32, ..f }, 0, 64)?; // warm-up
             let t = Instant::now();
             let strip = prepared.renderer.render_strip(&ctx, &f, 0, a.width)?;
             let s = t.elapsed().as_secs_f64();
@@ -313,7 +313,7 @@ pub struct ScalingBenchArgs {
 const PAPER_TABLE_4: [(usize, f64); 4] = [(2, 1.162), (4, 0.666), (8, 0.351), (16, 0.170)];
 
 fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
-    use super::local::{LocalProcesses, fresh_token};
+    use super::local::LocalProcesses;
     use sylva_coordinator::chart::{Series, line_chart};
     use sylva_coordinator::farm::{self, Workers};
     use sylva_coordinator::schedule::{ScheduleKind, column_cost, scheduler};
@@ -333,30 +333,22 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(a.width > 0 && a.height > 0 && a.width <= 16384 && a.height <= 16384, "image sides in [1, 16384]");
     let scene = sylva_shared::scene::Scene::load(&a.scene)?;
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
-    let frame = sylva_proto::pb::FrameSettings {
-        width: a.width,
-        height: a.height,
-        spp: a.spp,
-        seed: 1,
-        lighting: serde_json::to_value(scene.lighting)?.as_str().unwrap_or("lb").to_string(),
-        accel: "bvh".into(),
-        lb_strength: 0.35,
-        ambient: vec![],
-    };
+    let frame = sylva_shared::frame::FrameSettings { width: a.width, height: a.height, spp: a.spp, lighting: Some(scene.lighting), ..Default::default() };
+    frame.check()?;
     let rt = tokio::runtime::Runtime::new()?;
     let deadline = std::time::Duration::from_secs(3600);
     // One worker profiles the frame: strips one at a time on one device.
-    let token = fresh_token();
+    let token = sylva_proto::auth::random_token();
     let mut profiler = LocalProcesses::default();
     let one = Workers { addrs: profiler.start_workers(1, &token)?, token: Some(token.clone()), tls: None };
     let whole = vec![(0, a.width)];
-    rt.block_on(farm::render_frame(&one, &bundle, frame.clone(), whole.clone(), deadline, |_| {}))?; // prepare + compile
+    rt.block_on(farm::render_frame(&one, &bundle, frame, whole.clone(), deadline, |_| {}))?; // prepare + compile
     let t = Instant::now();
-    let single = rt.block_on(farm::render_frame(&one, &bundle, frame.clone(), whole, deadline, |_| {}))?;
+    let single = rt.block_on(farm::render_frame(&one, &bundle, frame, whole, deadline, |_| {}))?;
     let single_ms = t.elapsed().as_secs_f64() * 1e3;
     let n = a.profile_strips.clamp(1, a.width);
     let fine: Vec<(u32, u32)> = (0..n).map(|i| (i * a.width / n, (i + 1) * a.width / n)).filter(|s| s.0 < s.1).collect();
-    let profile = rt.block_on(farm::render_frame(&one, &bundle, frame.clone(), fine, deadline, |_| {}))?;
+    let profile = rt.block_on(farm::render_frame(&one, &bundle, frame, fine, deadline, |_| {}))?;
     drop(profiler);
     let column_ms = column_cost(a.width, &profile.strip_ms);
     let overhead: f64 = profile.strip_ms.iter().map(|&(_, render, rpc)| (rpc - render).max(0.0)).sum();
@@ -382,9 +374,9 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
                 } else {
                     (None, Workers { addrs: a.real_workers[..w].to_vec(), token: a.auth.load()?, tls: a.tls.load()? })
                 };
-                rt.block_on(farm::render_frame(&workers, &bundle, frame.clone(), plan.clone(), deadline, |_| {}))?; // every worker prepares
+                rt.block_on(farm::render_frame(&workers, &bundle, frame, plan.clone(), deadline, |_| {}))?; // every worker prepares
                 let t = Instant::now();
-                rt.block_on(farm::render_frame(&workers, &bundle, frame.clone(), plan.clone(), deadline, |_| {}))?;
+                rt.block_on(farm::render_frame(&workers, &bundle, frame, plan.clone(), deadline, |_| {}))?;
                 Some(t.elapsed().as_secs_f64() * 1e3 + cost.assembly_ms)
             } else {
                 None

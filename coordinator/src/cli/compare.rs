@@ -19,7 +19,7 @@ use sylva_shared::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_
 use sylva_shared::scene::{ForestGridUse, LightingMode, Scene};
 use sylva_worker::GpuContext;
 use sylva_worker::prepare::{choose_lb_grids, prepare};
-use sylva_worker::trace::{FrameSettings, ReferenceOptions, render_reference};
+use sylva_worker::trace::{RenderSettings, ReferenceOptions, render_reference};
 
 #[derive(Debug, Args)]
 pub struct CompareArgs {
@@ -111,7 +111,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let say = |m: &str| bar.set_message(m.to_string());
-    let settings = FrameSettings { width: a.width, height: a.height, spp: a.spp, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 };
+    let settings = RenderSettings { width: a.width, height: a.height, spp: a.spp, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 };
 
     // The reference first: every error is measured against it.
     say("reference: path tracing");
@@ -253,10 +253,10 @@ fn with_lb(scene: &Scene, grid: Option<usize>, forest: Option<ForestGridUse>) ->
 
 /// Prepares and renders one method, writes its image with the reference's exposure.
 #[allow(clippy::too_many_arguments)]
-fn render_method(ctx: &GpuContext, name: &str, lighting: LightingMode, scene: &Scene, f: &FrameSettings, out: &Path, exposure: &ToneMapStats, say: &dyn Fn(&str)) -> anyhow::Result<Rendered> {
+fn render_method(ctx: &GpuContext, name: &str, lighting: LightingMode, scene: &Scene, f: &RenderSettings, out: &Path, exposure: &ToneMapStats, say: &dyn Fn(&str)) -> anyhow::Result<Rendered> {
     let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
     let mut pre: f64 = prepared.phases.0.iter().filter(|p| !matches!(p.name, "build" | "upload")).map(|p| p.ms).sum::<f64>() + 0.0;
-    let mut settings = FrameSettings { lighting, ..*f };
+    let mut settings = RenderSettings { lighting, ..*f };
     if lighting == LightingMode::Ambient {
         let t = Instant::now();
         settings.ambient = prepared.renderer.matched_ambient(ctx, &settings)?;
@@ -264,7 +264,7 @@ fn render_method(ctx: &GpuContext, name: &str, lighting: LightingMode, scene: &S
     }
     say(&format!("{name}: rendering"));
     // One untimed strip first: the pipeline's first dispatch compiles it.
-    prepared.renderer.render_strip(ctx, &FrameSettings { width: 8, height: 8, spp: 1, ..settings }, 0, 8)?;
+    prepared.renderer.render_strip(ctx, &RenderSettings { width: 8, height: 8, spp: 1, ..settings }, 0, 8)?;
     let t = Instant::now();
     let strip = prepared.renderer.render_strip(ctx, &settings, 0, f.width)?;
     let frame_ms = ms(t);

@@ -1,16 +1,14 @@
 //! `sylva coordinator --listen ADDR` and `sylva submit SCENE --coordinator ADDR`.
 
-use super::worker::shutdown_signal;
-use anyhow::{Context, bail};
+use anyhow::Context;
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
+use sylva_coordinator::client::submit_and_follow;
+use sylva_coordinator::results::Retention;
 use sylva_coordinator::service::{self, CoordinatorConfig};
-use sylva_proto::pb;
-use sylva_proto::pb::coordinator_client::CoordinatorClient;
-use tokio_stream::StreamExt;
+use sylva_shared::frame::FrameSettings;
 
 #[derive(Debug, Args)]
 pub struct CoordinatorArgs {
@@ -40,6 +38,21 @@ pub struct CoordinatorArgs {
     /// Serve Prometheus metrics on this address (`GET /metrics`).
     #[arg(long)]
     pub metrics: Option<String>,
+    #[command(flatten)]
+    pub limits: super::limits::LimitArgs,
+    /// Seconds a finished job (and its image) is kept for FetchResult.
+    #[arg(long, default_value_t = 3600)]
+    pub keep_results_s: u64,
+    /// Most finished jobs kept; the oldest are forgotten first.
+    #[arg(long, default_value_t = 1000)]
+    pub keep_jobs: usize,
+    /// Images kept in memory, MiB over all jobs; the rest go to disk.
+    #[arg(long, default_value_t = 256)]
+    pub results_memory_mib: u64,
+    /// Seconds after which a worker that registered itself and stopped
+    /// answering is forgotten.
+    #[arg(long, default_value_t = 30)]
+    pub registration_ttl_s: u64,
 }
 
 pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
@@ -60,6 +73,14 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             token,
             workers: a.workers.clone(),
             strip_deadline: Duration::from_secs(a.strip_deadline_s.max(1)),
+            limits: a.limits.limits(),
+            retention: Retention {
+                keep: Duration::from_secs(a.keep_results_s),
+                max_jobs: a.keep_jobs,
+                memory_bytes: a.results_memory_mib << 20,
+                ..Retention::default()
+            },
+            registration_ttl: Duration::from_secs(a.registration_ttl_s.max(1)),
             tls: a.tls.load()?,
             worker_tls: a.worker_tls.load()?,
             ..Default::default()
@@ -69,7 +90,7 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
         }
         println!("sylva coordinator listening on {addr}");
         std::io::stdout().flush()?;
-        service::run(listener, config, shutdown_signal()).await
+        service::run(listener, config, sylva_coordinator::shutdown::signal()).await
     })
 }
 
@@ -89,15 +110,15 @@ pub struct SubmitArgs {
     pub height: u32,
     #[arg(long, default_value_t = 1)]
     pub spp: u32,
-    /// kd or bvh.
-    #[arg(long, default_value = "bvh")]
-    pub accel: String,
-    /// local, ambient, lb or lb-visualize; default the scene's.
-    #[arg(long, default_value = "")]
-    pub lighting: String,
-    /// static or dynamic.
-    #[arg(long, default_value = "dynamic")]
-    pub schedule: String,
+    /// Acceleration structure.
+    #[arg(long, value_enum, default_value = "bvh")]
+    pub accel: super::render::AccelArg,
+    /// Lighting method; default the scene's.
+    #[arg(long, value_enum)]
+    pub lighting: Option<super::render::LightingArg>,
+    /// How the frame is cut into strips.
+    #[arg(long, value_enum, default_value = "dynamic")]
+    pub schedule: super::render::ScheduleArg,
     /// Higher runs first.
     #[arg(long, default_value_t = 0)]
     pub priority: i32,
@@ -116,21 +137,17 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     let token = a.auth.load()?;
     let tls = a.tls.load()?;
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
-    let spec = pb::JobSpec {
-        frame: Some(pb::FrameSettings {
-            width: a.width,
-            height: a.height,
-            spp: a.spp,
-            seed: a.seed,
-            lighting: a.lighting.clone(),
-            accel: a.accel.clone(),
-            lb_strength: 0.35,
-            ambient: vec![],
-        }),
-        schedule: a.schedule.clone(),
-        priority: a.priority,
-        name: a.scene.display().to_string(),
+    let frame = FrameSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        seed: a.seed,
+        lighting: a.lighting.map(Into::into),
+        accel: a.accel.into(),
+        ..FrameSettings::default()
     };
+    frame.check()?;
+    let spec = super::render::job_spec(&frame, a.schedule, a.priority, &a.scene.display().to_string());
     let rt = tokio::runtime::Runtime::new()?;
     let done = rt.block_on(submit_and_follow(&a.coordinator, token, tls.as_ref(), spec, &bundle, a.exr))?;
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -144,59 +161,3 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A finished job, fetched.
-pub struct FinishedJob {
-    /// Its id.
-    pub id: String,
-    /// The tone-mapped image.
-    pub png: Vec<u8>,
-    /// The linear HDR frame, when asked for.
-    pub exr: Option<Vec<u8>>,
-    /// The coordinator's stats of the frame.
-    pub stats: serde_json::Value,
-}
-
-/// Sends a job to the coordinator at `addr`, follows it with a progress
-/// bar and fetches its image.
-pub async fn submit_and_follow(
-    addr: &str,
-    token: Option<String>,
-    tls: Option<&tonic::transport::ClientTlsConfig>,
-    spec: pb::JobSpec,
-    bundle: &sylva_shared::bundle::SceneBundle,
-    exr: bool,
-) -> anyhow::Result<FinishedJob> {
-    let ch = sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.with_context(|| format!("cannot reach the coordinator at {addr}"))?;
-    let mut c = CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token))
-        .max_decoding_message_size(1 << 30)
-        .max_encoding_message_size(1 << 30);
-    let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: bundle.hash.clone(), total_size: bundle.bytes.len() as u64, data: vec![] }];
-    chunks.extend(bundle.bytes.chunks(1 << 20).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
-    let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?.into_inner().id;
-    let bar = ProgressBar::new(1);
-    bar.set_style(ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
-    bar.set_message(id.clone());
-    let mut events = c.watch_job(pb::JobId { id: id.clone() }).await?.into_inner();
-    let mut end = None;
-    while let Some(ev) = events.next().await {
-        let ev = ev?;
-        bar.set_length(ev.strips_total.max(1) as u64);
-        bar.set_position(ev.strips_done as u64);
-        if !ev.message.is_empty() {
-            tracing::warn!("{}", ev.message);
-        }
-        if matches!(ev.state.as_str(), "done" | "failed" | "cancelled") {
-            end = Some(ev);
-            break;
-        }
-    }
-    bar.finish_and_clear();
-    let end = end.context("the coordinator closed the job's event stream early")?;
-    if end.state != "done" {
-        bail!("job {id} {}: {}", end.state, end.message);
-    }
-    let png = c.fetch_result(pb::FetchRequest { id: id.clone(), format: "png".into() }).await?.into_inner().data;
-    let exr = if exr { Some(c.fetch_result(pb::FetchRequest { id: id.clone(), format: "exr".into() }).await?.into_inner().data) } else { None };
-    let stats = serde_json::from_str(&end.stats_json).unwrap_or(serde_json::Value::Null);
-    Ok(FinishedJob { id, png, exr, stats })
-}

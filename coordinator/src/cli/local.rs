@@ -66,8 +66,3 @@ impl Drop for LocalProcesses {
         }
     }
 }
-
-/// A fresh random token for processes only this one talks to.
-pub fn fresh_token() -> String {
-    sylva_shared::bundle::hash_of(format!("{:?} {}", std::time::SystemTime::now(), std::process::id()).as_bytes())
-}

@@ -4,6 +4,7 @@ mod bench;
 mod compare;
 mod coordinator;
 mod lb;
+mod limits;
 mod local;
 mod progress;
 mod render;

@@ -11,14 +11,16 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use sylva_shared::accel::AccelKind;
+use sylva_coordinator::assembly::{Assembly, StripPixels};
 use sylva_shared::film::{HdrImage, reinhard, write_png};
 use sylva_shared::scene::{LightingMode, Scene};
 use sylva_worker::GpuContext;
 use sylva_worker::prepare::prepare;
-use sylva_worker::trace::{FrameSettings, RayCounts};
+use sylva_worker::trace::RenderSettings;
 
-// The same limits every worker enforces on a strip request.
-use sylva_worker::service::{MAX_SIDE, MAX_SPP};
+use sylva_coordinator::schedule::ScheduleKind;
+use sylva_shared::frame::{FrameSettings, MAX_SPP};
+use sylva_shared::scene::{FileAccess, SceneLimits};
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
 
@@ -118,6 +120,11 @@ pub struct RenderArgs {
     /// How to reach the `--workers` over TLS.
     #[command(flatten)]
     pub tls: super::security::ConnectTlsArgs,
+    /// Let the scene read model files outside its own folder (in this
+    /// process only: a bundle for workers always holds just the scene
+    /// folder's files).
+    #[arg(long)]
+    pub allow_files_outside_scene: bool,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -128,19 +135,74 @@ pub enum ScheduleArg {
     Dynamic,
 }
 
+impl From<AccelArg> for AccelKind {
+    fn from(a: AccelArg) -> Self {
+        match a {
+            AccelArg::Kd => AccelKind::Kd,
+            AccelArg::Bvh => AccelKind::Bvh,
+        }
+    }
+}
+
+impl From<LightingArg> for LightingMode {
+    fn from(l: LightingArg) -> Self {
+        match l {
+            LightingArg::Local => LightingMode::Local,
+            LightingArg::Ambient => LightingMode::Ambient,
+            LightingArg::Lb => LightingMode::Lb,
+            LightingArg::LbVisualize => LightingMode::LbVisualize,
+            LightingArg::Reference => LightingMode::Reference,
+            LightingArg::Boulanger => LightingMode::Boulanger,
+        }
+    }
+}
+
+impl From<ScheduleArg> for ScheduleKind {
+    fn from(s: ScheduleArg) -> Self {
+        match s {
+            ScheduleArg::Static => ScheduleKind::Static,
+            ScheduleArg::Dynamic => ScheduleKind::Dynamic,
+        }
+    }
+}
+
+/// A job for the coordinator: the frame, how to cut it, its priority and label.
+pub fn job_spec(frame: &FrameSettings, schedule: ScheduleArg, priority: i32, name: &str) -> sylva_proto::pb::JobSpec {
+    use sylva_proto::pb;
+    sylva_proto::pb::JobSpec {
+        frame: Some(pb::FrameSettings::from(frame)),
+        schedule: match ScheduleKind::from(schedule) {
+            ScheduleKind::Static => pb::Schedule::Static,
+            ScheduleKind::Dynamic => pb::Schedule::Dynamic,
+        }
+        .into(),
+        priority,
+        // The coordinator keeps at most 256 bytes of a name.
+        name: sylva_shared::scene::files::clip(name).chars().take(200).collect(),
+    }
+}
+
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
-    if a.width == 0 || a.height == 0 || a.width > MAX_SIDE || a.height > MAX_SIDE {
-        bail!("image {}×{}: each side must be in [1, {MAX_SIDE}]", a.width, a.height);
-    }
-    if a.spp == 0 || a.spp > MAX_SPP {
-        bail!("--spp {}: valid range [1, {MAX_SPP}]", a.spp);
-    }
-    if !(a.lb_strength.is_finite() && a.lb_strength >= 0.0) {
-        bail!("--lb-strength {}: must be a finite number ≥ 0", a.lb_strength);
-    }
+    let request = FrameSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        seed: a.seed,
+        lighting: a.lighting.map(Into::into),
+        accel: a.accel.into(),
+        lb_strength: a.lb_strength,
+        ambient: None,
+    };
+    request.check()?;
     let mut phases: Vec<(&str, f64)> = Vec::new();
     let t = Instant::now();
-    let mut scene = Scene::load(&a.scene)?;
+    let folder = a.scene.parent().map(Path::to_path_buf).unwrap_or_default();
+    let remote = a.local_workers > 0 || !a.workers.is_empty();
+    if a.allow_files_outside_scene && remote {
+        bail!("--allow-files-outside-scene works in this process only (add --local-workers 0): a bundle holds just the scene folder's files");
+    }
+    let access = if a.allow_files_outside_scene { FileAccess::Anywhere(folder) } else { FileAccess::Inside(folder) };
+    let mut scene = Scene::load_with(&a.scene, &access, &SceneLimits::UNLIMITED)?;
     phases.push(("load", ms(t)));
     let grid_choice = match a.lb_grid.as_deref() {
         None => None,
@@ -154,21 +216,10 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             None
         }
     };
-    let lighting = match a.lighting {
-        None => scene.lighting,
-        Some(LightingArg::Local) => LightingMode::Local,
-        Some(LightingArg::Ambient) => LightingMode::Ambient,
-        Some(LightingArg::Lb) => LightingMode::Lb,
-        Some(LightingArg::LbVisualize) => LightingMode::LbVisualize,
-        Some(LightingArg::Reference) => LightingMode::Reference,
-        Some(LightingArg::Boulanger) => LightingMode::Boulanger,
-    };
-    let accel = match a.accel {
-        AccelArg::Kd => AccelKind::Kd,
-        AccelArg::Bvh => AccelKind::Bvh,
-    };
-    if a.local_workers > 0 || !a.workers.is_empty() {
-        return render_through_coordinator(&a, &scene, lighting, accel, phases);
+    let lighting = request.lighting_or(scene.lighting);
+    let accel = request.accel;
+    if remote {
+        return render_through_coordinator(&a, &request, &scene, lighting, accel, phases);
     }
     let bar = ProgressBar::new_spinner();
     bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
@@ -188,7 +239,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     for p in &prepared.phases.0 {
         phases.push((p.name, p.ms));
     }
-    let mut settings = FrameSettings {
+    let mut settings = RenderSettings {
         width: a.width,
         height: a.height,
         spp: a.spp,
@@ -240,21 +291,18 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let bar = ProgressBar::new(strips as u64);
     bar.set_style(ProgressStyle::with_template("tracing [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
     let t = Instant::now();
-    let mut frame = HdrImage::new(a.width, a.height);
-    let mut coverage = vec![0.0f32; (a.width * a.height) as usize];
-    let mut rays = RayCounts::default();
+    let mut frame = Assembly::new(a.width, a.height);
     for s in 0..strips {
         let (x0, x1) = (s * STRIP, ((s + 1) * STRIP).min(a.width));
         let strip = prepared.renderer.render_strip(&ctx, &settings, x0, x1)?;
-        frame.paste_strip(x0, strip.width, &strip.pixels);
-        for y in 0..a.height {
-            for x in 0..strip.width {
-                coverage[(y * a.width + x0 + x) as usize] = strip.coverage[(y * strip.width + x) as usize];
-            }
-        }
-        rays.add(&strip.rays);
+        let r = strip.rays;
+        let px = StripPixels { strip: (x0, x1), rgb: strip.pixels, coverage: strip.coverage, rays: [r.primary as u64, r.shadow as u64, r.transparent as u64] };
+        frame.add(&px).map_err(|e| anyhow::anyhow!("the renderer returned a strip that does not fit: {e}"))?;
         bar.inc(1);
     }
+    let [primary, shadow, transparent] = frame.rays;
+    let coverage = std::mem::take(&mut frame.coverage);
+    let frame = frame.image;
     let trace_ms = ms(t);
     phases.push(("trace", trace_ms));
     bar.finish_and_clear();
@@ -263,10 +311,10 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let stats = with_head(&a, exr, accel, lighting, &phases, json!({
         "adapter": ctx.summary(),
         "rays": {
-            "primary": rays.primary,
-            "shadow": rays.shadow,
-            "transparent_passed": rays.transparent,
-            "mrays_per_second": rays.traced() as f64 / (trace_ms / 1e3) / 1e6,
+            "primary": primary,
+            "shadow": shadow,
+            "transparent_passed": transparent,
+            "mrays_per_second": (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6,
         },
         "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
         "instances": scene.instances.len(),
@@ -280,7 +328,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         "tone_map": tone,
         "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
     }));
-    let how = format!("in {:.0} ms of tracing, {:.2} Mrays/s", trace_ms, rays.traced() as f64 / (trace_ms / 1e3) / 1e6);
+    let how = format!("in {:.0} ms of tracing, {:.2} Mrays/s", trace_ms, (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6);
     report(&a, &stats, accel, lighting, &how)
 }
 
@@ -364,12 +412,14 @@ fn ms(t: Instant) -> f64 {
 /// same gRPC path a farm's jobs take.
 fn render_through_coordinator(
     a: &RenderArgs,
+    request: &FrameSettings,
     scene: &Scene,
     lighting: LightingMode,
     accel: AccelKind,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
-    use super::local::{LocalProcesses, fresh_token};
+    use super::local::LocalProcesses;
+    use sylva_proto::auth::random_token;
     let t = Instant::now();
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
     phases.push(("bundle", ms(t)));
@@ -378,36 +428,19 @@ fn render_through_coordinator(
     let mut flags = vec!["--strip-deadline-s".to_string(), a.strip_deadline_s.max(1).to_string()];
     let (workers, token) = if a.workers.is_empty() {
         // Other users of this machine must not be able to use our processes.
-        let token = fresh_token();
+        let token = random_token();
         (processes.start_workers(a.local_workers, &token)?, token)
     } else {
         // The coordinator sends its own token to the workers, so it is theirs.
         flags.extend(a.tls.to_args());
-        (a.workers.clone(), a.auth.load()?.unwrap_or_else(fresh_token))
+        (a.workers.clone(), a.auth.load()?.unwrap_or_else(random_token))
     };
     let coordinator = processes.start_coordinator(&workers, &token, &flags)?;
     phases.push(("start processes", ms(t)));
-    let spec = sylva_proto::pb::JobSpec {
-        frame: Some(sylva_proto::pb::FrameSettings {
-            width: a.width,
-            height: a.height,
-            spp: a.spp,
-            seed: a.seed,
-            lighting: serde_json::to_value(lighting)?.as_str().unwrap_or("lb").to_string(),
-            accel: serde_json::to_value(accel)?.as_str().unwrap_or("bvh").to_string(),
-            lb_strength: a.lb_strength,
-            ambient: vec![],
-        }),
-        schedule: match a.schedule {
-            ScheduleArg::Static => "static".into(),
-            ScheduleArg::Dynamic => "dynamic".into(),
-        },
-        priority: 0,
-        name: a.scene.display().to_string(),
-    };
+    let spec = job_spec(request, a.schedule, 0, &a.scene.display().to_string());
     let rt = tokio::runtime::Runtime::new()?;
     let t = Instant::now();
-    let done = rt.block_on(super::coordinator::submit_and_follow(&coordinator, Some(token), None, spec, &bundle, a.exr))?;
+    let done = rt.block_on(sylva_coordinator::client::submit_and_follow(&coordinator, Some(token), None, spec, &bundle, a.exr))?;
     let frame_ms = ms(t);
     phases.push(("frame", frame_ms));
     drop(processes);

@@ -31,6 +31,14 @@ pub struct WorkerArgs {
     /// The address the coordinator should use for this worker (default: the bound one).
     #[arg(long)]
     pub advertise: Option<String>,
+    #[command(flatten)]
+    pub limits: super::limits::LimitArgs,
+    /// Where bundles are unpacked (default: a fresh folder under the system's temporary folder).
+    #[arg(long)]
+    pub cache_dir: Option<std::path::PathBuf>,
+    /// Keep the bundle cache folder when the worker stops.
+    #[arg(long)]
+    pub keep_cache: bool,
 }
 
 pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
@@ -41,7 +49,18 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         let ctx = GpuContext::new()?;
         let token = a.auth.load()?;
         let tls = a.tls.load()?;
-        let config = WorkerConfig { max_bundle_bytes: a.max_bundle_mib << 20, cache_bytes: a.cache_mib << 20, token, tls, ..WorkerConfig::default() };
+        let mut config = WorkerConfig {
+            max_bundle_bytes: a.max_bundle_mib << 20,
+            cache_bytes: a.cache_mib << 20,
+            token,
+            tls,
+            limits: a.limits.limits(),
+            keep_cache: a.keep_cache,
+            ..WorkerConfig::default()
+        };
+        if let Some(d) = &a.cache_dir {
+            config.cache_dir = d.clone();
+        }
         let coordinator_tls = a.coordinator_tls.load()?;
         tracing::info!(%addr, adapter = %ctx.adapter_name(), "worker ready");
         println!("sylva worker listening on {addr}");
@@ -49,46 +68,8 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         if let Some(coord) = a.coordinator.clone() {
             let me = a.advertise.clone().unwrap_or_else(|| addr.to_string());
             let token = config.token.clone();
-            tokio::spawn(register_loop(coord, me, token, coordinator_tls));
+            tokio::spawn(sylva_coordinator::registration::register_loop(coord, me, token, coordinator_tls));
         }
-        service::run(listener, ctx, config, shutdown_signal()).await
+        service::run(listener, ctx, config, sylva_coordinator::shutdown::signal()).await
     })
-}
-
-/// Resolves on Ctrl-C or SIGTERM.
-pub async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
-    #[cfg(unix)]
-    let term = async {
-        if let Ok(mut s) = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            s.recv().await;
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! {
-        _ = ctrl_c => {},
-        _ = term => {},
-    }
-    tracing::info!("shutting down");
-}
-
-/// Announces this worker to its coordinator, and again every few seconds
-/// (a restarted coordinator learns its workers back within one period).
-async fn register_loop(coordinator: String, me: String, token: Option<String>, tls: Option<tonic::transport::ClientTlsConfig>) {
-    use sylva_proto::pb;
-    loop {
-        let sent = async {
-            let ch = sylva_proto::tls::connect(&coordinator, tls.as_ref(), std::time::Duration::from_secs(10)).await.ok()?;
-            let mut c = pb::coordinator_client::CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token.clone()));
-            c.register_worker(pb::RegisterWorkerRequest { addr: me.clone() }).await.ok()
-        }
-        .await;
-        if sent.is_none() {
-            tracing::warn!(%coordinator, "cannot register with the coordinator; retrying");
-        }
-        tokio::time::sleep(std::time::Duration::from_secs(5)).await;
-    }
 }

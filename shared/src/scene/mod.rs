@@ -3,7 +3,9 @@
 //! ([`SceneFile`]) and checked field by field.
 
 pub mod file;
+pub mod files;
 pub mod forest;
+pub mod limits;
 
 pub use file::{
     CameraSpec, CloudSpec, ForestGridSpec, ForestGridUse, GroundSpec, InstanceSpec, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec,
@@ -12,10 +14,13 @@ pub use file::{
 
 use crate::camera::Camera;
 use crate::color::black_body_rgb;
-use crate::model::{Model, load_gltf};
+pub use files::FileAccess;
+pub use limits::SceneLimits;
+
+use crate::model::{GltfBudget, Model, load_gltf_with};
 use crate::trees;
 use glam::{Affine3A, Mat4, Vec3};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 /// A scene file that cannot be used: the file, the field and what is wrong.
@@ -83,8 +88,16 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Reads, parses and checks a scene file; glTF paths are relative to it.
+    /// Reads, parses and checks a scene file; glTF paths are relative to it
+    /// and must lie inside its folder; default limits.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Scene::load_with(path, &FileAccess::Inside(base), &SceneLimits::default())
+    }
+
+    /// Reads, parses and checks a scene file, reading its models as
+    /// `access` allows, within `limits`.
+    pub fn load_with(path: &Path, access: &FileAccess, limits: &SceneLimits) -> Result<Scene, SceneError> {
         let label = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| SceneError {
             file: label.clone(),
@@ -92,77 +105,35 @@ impl Scene {
             message: format!("cannot read: {e}"),
         })?;
         let file = parse(&text, &label)?;
-        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Scene::build(file, &base, &label)
+        Scene::build_with(file, access, &label, limits)
     }
 
     /// Checks a parsed scene and builds its models. `label` names the file
-    /// in errors; relative glTF paths are resolved against `base`.
+    /// in errors; glTF paths are relative to `base` and must lie inside it;
+    /// default limits.
     pub fn build(file: SceneFile, base: &Path, label: &str) -> Result<Scene, SceneError> {
+        Scene::build_with(file, &FileAccess::Inside(base.to_path_buf()), label, &SceneLimits::default())
+    }
+
+    /// Checks a parsed scene completely — every field, and its size against
+    /// `limits` from what the file declares — and only then builds its
+    /// models, reading files as `access` allows.
+    pub fn build_with(file: SceneFile, access: &FileAccess, label: &str, limits: &SceneLimits) -> Result<Scene, SceneError> {
+        let Checked { instances, camera, sun, declared_triangles } = check(&file, label, limits)?;
         let err = |field: String, message: String| SceneError { file: label.to_string(), field, message };
-        if file.models.is_empty() {
-            return Err(err("models".into(), "at least one model is needed".into()));
-        }
+        let mut budget = GltfBudget { triangles: limits.triangles - declared_triangles, texture_pixels: limits.texture_pixels };
         let mut models = Vec::with_capacity(file.models.len());
         for (name, spec) in &file.models {
             let field = format!("models.{name}");
-            let lb = spec.lb.unwrap_or(file.lb);
-            check_lb(&lb).map_err(|m| err(format!("{field}.lb"), m))?;
             let model = match (&spec.gltf, &spec.tree) {
                 (Some(p), None) => {
-                    let full: PathBuf = if p.is_absolute() { p.clone() } else { base.join(p) };
-                    if !full.exists() {
-                        return Err(err(format!("{field}.gltf"), format!("missing file {}", full.display())));
-                    }
-                    load_gltf(&full).map_err(|e| err(format!("{field}.gltf"), format!("{e:#}")))?
+                    let full = access.resolve(access.base(), p).map_err(|m| err(format!("{field}.gltf"), m))?;
+                    load_gltf_with(&full, access, &mut budget).map_err(|e| err(format!("{field}.gltf"), format!("{e:#}")))?
                 }
                 (None, Some(t)) => trees::generate(t).map_err(|e| err(format!("{field}.tree"), e.to_string()))?,
-                _ => return Err(err(field, "give exactly one of \"gltf\" and \"tree\"".into())),
+                _ => unreachable!("checked above"),
             };
-            models.push(SceneModel { name: name.clone(), model: Arc::new(model), lb });
-        }
-        check_lb(&file.lb).map_err(|m| err("lb".into(), m))?;
-        let fg = &file.forest_grid;
-        if !(4..=256).contains(&fg.grid) {
-            return Err(err("forest_grid.grid".into(), format!("{}: valid range [4, 256]", fg.grid)));
-        }
-        if !(fg.threshold.is_finite() && fg.threshold >= 0.0) {
-            return Err(err("forest_grid.threshold".into(), format!("{}: must be a finite number ≥ 0", fg.threshold)));
-        }
-        let mut instances = Vec::with_capacity(file.instances.len());
-        for (i, inst) in file.instances.iter().enumerate() {
-            let field = format!("instances[{i}]");
-            let model = models
-                .iter()
-                .position(|m| m.name == inst.model)
-                .ok_or_else(|| err(format!("{field}.model"), format!("unknown model {:?}", inst.model)))?;
-            let to_world = instance_transform(inst).map_err(|(f, m)| err(format!("{field}.{f}"), m))?;
-            instances.push(Instance { model: model as u32, to_world });
-        }
-        if instances.is_empty() {
-            return Err(err("instances".into(), "at least one instance is needed".into()));
-        }
-        let c = &file.camera;
-        finite3(&c.position).map_err(|m| err("camera.position".into(), m))?;
-        finite3(&c.look_at).map_err(|m| err("camera.look_at".into(), m))?;
-        let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg)
-            .map_err(|e| err("camera".into(), e.to_string()))?;
-        let sun = sun_light(&file.sun).map_err(|(f, m)| err(format!("sun.{f}"), m))?;
-        for (name, v) in [("zenith", file.sky.zenith), ("horizon", file.sky.horizon)] {
-            colour(&v).map_err(|m| err(format!("sky.{name}"), m))?;
-        }
-        file.leaf_optics.validate().map_err(|m| err("leaf_optics".into(), m))?;
-        if let Some(g) = &file.ground {
-            colour(&g.color).map_err(|m| err("ground.color".into(), m))?;
-        }
-        for (i, c) in file.clouds.iter().enumerate() {
-            finite3(&c.center).map_err(|m| err(format!("clouds[{i}].center"), m))?;
-            if !(c.size.is_finite() && c.size > 0.0) {
-                return Err(err(format!("clouds[{i}].size"), format!("{} must be a finite number > 0", c.size)));
-            }
-            if !(4..=512).contains(&c.grid) {
-                return Err(err(format!("clouds[{i}].grid"), format!("{}: valid range [4, 512]", c.grid)));
-            }
+            models.push(SceneModel { name: name.clone(), model: Arc::new(model), lb: spec.lb.unwrap_or(file.lb) });
         }
         Ok(Scene {
             models,
@@ -177,6 +148,14 @@ impl Scene {
         })
     }
 
+    /// Checks a parsed scene completely without reading or generating any
+    /// model: every field, and its size against `limits` from what the file
+    /// declares (a glTF model's own size is checked when it is read).
+    pub fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<(), SceneError> {
+        check(file, label, limits).map(|_| ())
+    }
+
+
     /// Triangles of the unique models.
     pub fn unique_triangles(&self) -> u64 {
         self.models.iter().map(|m| m.model.triangle_count() as u64).sum()
@@ -186,6 +165,93 @@ impl Scene {
     pub fn instanced_triangles(&self) -> u64 {
         self.instances.iter().map(|i| self.models[i.model as usize].model.triangle_count() as u64).sum()
     }
+}
+
+/// What the cheap checks of a scene produce.
+struct Checked {
+    instances: Vec<Instance>,
+    camera: Camera,
+    sun: SunLight,
+    declared_triangles: u64,
+}
+
+fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked, SceneError> {
+    let err = |field: String, message: String| SceneError { file: label.to_string(), field, message };
+    if file.models.is_empty() {
+        return Err(err("models".into(), "at least one model is needed".into()));
+    }
+    if file.models.len() > limits.models {
+        return Err(err("models".into(), format!("{} models: at most {} per scene", file.models.len(), limits.models)));
+    }
+    if file.instances.len() > limits.instances {
+        return Err(err("instances".into(), format!("{} instances: at most {} per scene", file.instances.len(), limits.instances)));
+    }
+    let mut lb_cells = 0u64;
+    for (name, spec) in &file.models {
+        let field = format!("models.{name}");
+        let lb = spec.lb.unwrap_or(file.lb);
+        check_lb(&lb).map_err(|m| err(format!("{field}.lb"), m))?;
+        lb_cells += (lb.grid as u64).pow(3);
+        match (&spec.gltf, &spec.tree) {
+            (Some(_), None) | (None, Some(_)) => {}
+            _ => return Err(err(field, "give exactly one of \"gltf\" and \"tree\"".into())),
+        }
+    }
+    check_lb(&file.lb).map_err(|m| err("lb".into(), m))?;
+    let fg = &file.forest_grid;
+    if !(4..=256).contains(&fg.grid) {
+        return Err(err("forest_grid.grid".into(), format!("{}: valid range [4, 256]", fg.grid)));
+    }
+    if !(fg.threshold.is_finite() && fg.threshold >= 0.0) {
+        return Err(err("forest_grid.threshold".into(), format!("{}: must be a finite number ≥ 0", fg.threshold)));
+    }
+    lb_cells += (fg.grid as u64).pow(3);
+    let names: Vec<&String> = file.models.keys().collect();
+    let mut instances = Vec::with_capacity(file.instances.len());
+    for (i, inst) in file.instances.iter().enumerate() {
+        let field = format!("instances[{i}]");
+        let model = names
+            .iter()
+            .position(|m| **m == inst.model)
+            .ok_or_else(|| err(format!("{field}.model"), format!("unknown model {:?}", files::clip(&inst.model))))?;
+        let to_world = instance_transform(inst).map_err(|(f, m)| err(format!("{field}.{f}"), m))?;
+        instances.push(Instance { model: model as u32, to_world });
+    }
+    if instances.is_empty() {
+        return Err(err("instances".into(), "at least one instance is needed".into()));
+    }
+    let c = &file.camera;
+    finite3(&c.position).map_err(|m| err("camera.position".into(), m))?;
+    finite3(&c.look_at).map_err(|m| err("camera.look_at".into(), m))?;
+    let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg)
+        .map_err(|e| err("camera".into(), e.to_string()))?;
+    let sun = sun_light(&file.sun).map_err(|(f, m)| err(format!("sun.{f}"), m))?;
+    for (name, v) in [("zenith", file.sky.zenith), ("horizon", file.sky.horizon)] {
+        colour(&v).map_err(|m| err(format!("sky.{name}"), m))?;
+    }
+    file.leaf_optics.validate().map_err(|m| err("leaf_optics".into(), m))?;
+    if let Some(g) = &file.ground {
+        colour(&g.color).map_err(|m| err("ground.color".into(), m))?;
+    }
+    for (i, c) in file.clouds.iter().enumerate() {
+        finite3(&c.center).map_err(|m| err(format!("clouds[{i}].center"), m))?;
+        if !(c.size.is_finite() && c.size > 0.0) {
+            return Err(err(format!("clouds[{i}].size"), format!("{} must be a finite number > 0", c.size)));
+        }
+        if !(4..=512).contains(&c.grid) {
+            return Err(err(format!("clouds[{i}].grid"), format!("{}: valid range [4, 512]", c.grid)));
+        }
+        lb_cells += (c.grid as u64).pow(3);
+    }
+    if lb_cells > limits.lb_cells {
+        return Err(err("lb".into(), format!("the LB grids of models, clouds and forest come to {lb_cells} nodes: at most {} per scene", limits.lb_cells)));
+    }
+    // Generated trees declare their size: refuse before generating any.
+    let declared: u64 = file.models.values().filter_map(|m| m.tree.as_ref()).map(|t| u64::from(t.triangles.unwrap_or(t.species.shape().paper_triangles))).sum();
+    if declared > limits.triangles {
+        return Err(err("models".into(), format!("the trees come to {declared} triangles: at most {} per scene", limits.triangles)));
+    }
+    Ok(Checked { instances, camera, sun, declared_triangles: declared })
 }
 
 /// Parses scene JSON; errors carry the path of the offending field.
@@ -329,7 +395,7 @@ mod tests {
             (SMALL.replace("\"position\": [0, 0, 0]", "\"position\": [0, NaN, 0]"), "test.json"),
             (SMALL.replace("\"rotate_y_deg\": 90, \"scale\": 1.2", "\"matrix\": [1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]"), "instances[1].matrix: degenerate transform"),
             (SMALL.replace("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {"), "models.maple: give exactly one"),
-            (SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"nowhere.glb\""), "models.maple.gltf: missing file ./nowhere.glb"),
+            (SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"nowhere.glb\""), "models.maple.gltf: \"nowhere.glb\" is not a file inside the scene's folder"),
             (SMALL.replace("red_maple", "oak"), "models.maple.tree.species: unknown variant `oak`"),
             (SMALL.replace("\"triangles\": 2000", "\"triangles\": 3"), "models.maple.tree: red_maple needs at least"),
             (SMALL.replace("\"look_at\": [0, 5, 0]", "\"look_at\": [0, 5, -30]"), "camera: camera position and look_at must be distinct"),

@@ -4,7 +4,7 @@
 //! pixel, so the spread of the batch means gives a per-pixel standard
 //! error: a reference states how far it may still be from the truth.
 
-use super::render::{FrameSettings, StripRenderer};
+use super::render::{RenderSettings, StripRenderer};
 use crate::gpu::GpuContext;
 use serde::Serialize;
 use std::time::Instant;
@@ -66,7 +66,7 @@ pub struct ReferenceStats {
 pub fn render_reference(
     ctx: &GpuContext,
     renderer: &StripRenderer,
-    f: &FrameSettings,
+    f: &RenderSettings,
     opts: &ReferenceOptions,
     progress: &dyn Fn(&ReferenceStats),
 ) -> anyhow::Result<ReferenceImage> {
@@ -80,7 +80,7 @@ pub fn render_reference(
     let mut batch = 0u32;
     loop {
         // Seeds far apart, so no batch repeats another's samples.
-        let settings = FrameSettings { spp: opts.batch_spp, seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)), lighting: LightingMode::Reference, ..*f };
+        let settings = RenderSettings { spp: opts.batch_spp, seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)), lighting: LightingMode::Reference, ..*f };
         let s = renderer.render_strip(ctx, &settings, 0, f.width)?;
         for i in 0..n {
             let p = s.pixels[i];

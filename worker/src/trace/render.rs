@@ -59,7 +59,7 @@ pub struct FrameUniform {
 
 /// What a frame is rendered with.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct FrameSettings {
+pub struct RenderSettings {
     /// Image width.
     pub width: u32,
     /// Image height.
@@ -203,7 +203,7 @@ impl StripRenderer {
     }
 
     /// Renders columns `[x0, x1)` of the frame.
-    pub fn render_strip(&self, ctx: &GpuContext, f: &FrameSettings, x0: u32, x1: u32) -> anyhow::Result<Strip> {
+    pub fn render_strip(&self, ctx: &GpuContext, f: &RenderSettings, x0: u32, x1: u32) -> anyhow::Result<Strip> {
         anyhow::ensure!(x0 < x1 && x1 <= f.width, "strip [{x0}, {x1}) is not inside a frame {} wide", f.width);
         let strip_width = x1 - x0;
         ctx.checked("rendering a strip", || {
@@ -287,8 +287,8 @@ impl StripRenderer {
     /// the LB light's (the paper's Figure 2c): the LB light alone, rendered
     /// at a quarter of `f`'s resolution, averaged over the pixels that see
     /// a model. Deterministic, so every worker of a frame finds the same.
-    pub fn matched_ambient(&self, ctx: &GpuContext, f: &FrameSettings) -> anyhow::Result<[f32; 3]> {
-        let small = FrameSettings { width: (f.width / 4).max(16), height: (f.height / 4).max(8), spp: 1, lighting: LightingMode::LbVisualize, ..*f };
+    pub fn matched_ambient(&self, ctx: &GpuContext, f: &RenderSettings) -> anyhow::Result<[f32; 3]> {
+        let small = RenderSettings { width: (f.width / 4).max(16), height: (f.height / 4).max(8), spp: 1, lighting: LightingMode::LbVisualize, ..*f };
         let s = self.render_strip(ctx, &small, 0, small.width)?;
         Ok(coverage_weighted_mean(&s.pixels, &s.coverage))
     }

@@ -1,0 +1,113 @@
+//! One frame put together from its strips, whoever rendered them: the
+//! in-process renderer and the gRPC farm both hand their strips here. A
+//! strip is checked before it touches the frame, so a wrong one is refused
+//! (and re-rendered elsewhere) rather than panicking or corrupting the image.
+
+use crate::schedule::Strip;
+use sylva_shared::film::HdrImage;
+
+/// A strip's pixels, decoded and checked.
+#[derive(Clone, Debug)]
+pub struct StripPixels {
+    /// Its columns.
+    pub strip: Strip,
+    /// Linear HDR, `width × height`, rows from the top.
+    pub rgb: Vec<[f32; 3]>,
+    /// Per pixel, the fraction of samples that hit a model.
+    pub coverage: Vec<f32>,
+    /// Rays: primary, shadow, transparent texels passed.
+    pub rays: [u64; 3],
+}
+
+impl StripPixels {
+    /// Checks a strip's sizes and values against the columns it was asked
+    /// for and the frame's height.
+    pub fn check(&self, height: u32) -> Result<(), String> {
+        let (x0, x1) = self.strip;
+        let n = (x1 - x0) as usize * height as usize;
+        if self.rgb.len() != n || self.coverage.len() != n {
+            return Err(format!("strip [{x0}, {x1}) came back with {} pixels and {} coverage values where {n} were due", self.rgb.len(), self.coverage.len()));
+        }
+        if let Some(p) = self.rgb.iter().find(|p| p.iter().any(|v| !v.is_finite() || *v < 0.0)) {
+            return Err(format!("strip [{x0}, {x1}) has a pixel {p:?} that is not a finite radiance ≥ 0"));
+        }
+        if self.coverage.iter().any(|c| !(0.0..=1.0).contains(c)) {
+            return Err(format!("strip [{x0}, {x1}) has a coverage outside [0, 1]"));
+        }
+        Ok(())
+    }
+}
+
+/// A frame being assembled.
+#[derive(Clone, Debug)]
+pub struct Assembly {
+    /// Linear HDR.
+    pub image: HdrImage,
+    /// Per pixel, the fraction of samples that hit a model.
+    pub coverage: Vec<f32>,
+    /// Rays: primary, shadow, transparent texels passed.
+    pub rays: [u64; 3],
+    /// Columns filled so far.
+    filled: Vec<bool>,
+}
+
+impl Assembly {
+    /// An empty frame.
+    pub fn new(width: u32, height: u32) -> Self {
+        Self { image: HdrImage::new(width, height), coverage: vec![0.0; (width * height) as usize], rays: [0; 3], filled: vec![false; width as usize] }
+    }
+
+    /// Puts a strip in place, after checking it fits the frame.
+    pub fn add(&mut self, s: &StripPixels) -> Result<(), String> {
+        let (x0, x1) = s.strip;
+        if x0 >= x1 || x1 > self.image.width {
+            return Err(format!("strip [{x0}, {x1}) is not inside a frame {} wide", self.image.width));
+        }
+        s.check(self.image.height)?;
+        let w = x1 - x0;
+        self.image.paste_strip(x0, w, &s.rgb);
+        for y in 0..self.image.height {
+            let row = (y * w) as usize;
+            let at = (y * self.image.width + x0) as usize;
+            self.coverage[at..at + w as usize].copy_from_slice(&s.coverage[row..row + w as usize]);
+        }
+        for k in 0..3 {
+            self.rays[k] += s.rays[k];
+        }
+        self.filled[x0 as usize..x1 as usize].fill(true);
+        Ok(())
+    }
+
+    /// Whether every column has been filled.
+    pub fn complete(&self) -> bool {
+        self.filled.iter().all(|&f| f)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn strip(x0: u32, x1: u32, h: u32) -> StripPixels {
+        let n = ((x1 - x0) * h) as usize;
+        StripPixels { strip: (x0, x1), rgb: vec![[0.5; 3]; n], coverage: vec![1.0; n], rays: [n as u64, 0, 0] }
+    }
+
+    #[test]
+    fn wrong_strips_are_refused_and_right_ones_fill_the_frame() {
+        let mut a = Assembly::new(10, 4);
+        let mut short = strip(0, 5, 4);
+        short.rgb.pop();
+        assert!(a.add(&short).is_err());
+        assert!(a.add(&strip(5, 11, 4)).is_err(), "wider than the frame");
+        assert!(a.add(&StripPixels { strip: (3, 3), rgb: vec![], coverage: vec![], rays: [0; 3] }).is_err(), "zero width");
+        let mut nan = strip(0, 5, 4);
+        nan.rgb[3] = [f32::NAN, 0.0, 0.0];
+        assert!(a.add(&nan).is_err());
+        assert!(!a.complete());
+        a.add(&strip(0, 5, 4)).unwrap();
+        a.add(&strip(5, 10, 4)).unwrap();
+        assert!(a.complete());
+        assert_eq!(a.rays[0], 40);
+    }
+}

@@ -1,0 +1,70 @@
+//! A client of the coordinator: submit a job, follow it with a progress
+//! bar, fetch its image.
+
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::time::Duration;
+use sylva_proto::pb;
+use sylva_proto::pb::coordinator_client::CoordinatorClient;
+use tokio_stream::StreamExt;
+
+/// A finished job, fetched.
+pub struct FinishedJob {
+    /// Its id.
+    pub id: String,
+    /// The tone-mapped image.
+    pub png: Vec<u8>,
+    /// The linear HDR frame, when asked for.
+    pub exr: Option<Vec<u8>>,
+    /// The coordinator's stats of the frame.
+    pub stats: serde_json::Value,
+}
+
+/// Sends a job to the coordinator at `addr`, follows it with a progress
+/// bar and fetches its image.
+pub async fn submit_and_follow(
+    addr: &str,
+    token: Option<String>,
+    tls: Option<&tonic::transport::ClientTlsConfig>,
+    spec: pb::JobSpec,
+    bundle: &sylva_shared::bundle::SceneBundle,
+    exr: bool,
+) -> anyhow::Result<FinishedJob> {
+    let ch = sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.with_context(|| format!("cannot reach the coordinator at {addr}"))?;
+    let mut c = CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token))
+        .max_decoding_message_size(1 << 30)
+        .max_encoding_message_size(1 << 30);
+    let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: bundle.hash.clone(), total_size: bundle.bytes.len() as u64, data: vec![] }];
+    chunks.extend(bundle.bytes.chunks(1 << 20).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
+    let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?.into_inner().id;
+    let bar = ProgressBar::new(1);
+    bar.set_style(ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
+    bar.set_message(id.clone());
+    let mut events = c.watch_job(pb::JobId { id: id.clone() }).await?.into_inner();
+    let mut end = None;
+    while let Some(ev) = events.next().await {
+        let ev = ev?;
+        bar.set_length(ev.strips_total.max(1) as u64);
+        bar.set_position(ev.strips_done as u64);
+        if !ev.message.is_empty() && !ended(&ev.state) {
+            tracing::warn!("{}", ev.message);
+        }
+        if matches!(ev.state.as_str(), "done" | "failed" | "cancelled") {
+            end = Some(ev);
+            break;
+        }
+    }
+    bar.finish_and_clear();
+    let end = end.context("the coordinator closed the job's event stream early")?;
+    if end.state != "done" {
+        bail!("job {id} {}: {}", end.state, end.message);
+    }
+    let png = c.fetch_result(pb::FetchRequest { id: id.clone(), format: "png".into() }).await?.into_inner().data;
+    let exr = if exr { Some(c.fetch_result(pb::FetchRequest { id: id.clone(), format: "exr".into() }).await?.into_inner().data) } else { None };
+    let stats = serde_json::from_str(&end.stats_json).unwrap_or(serde_json::Value::Null);
+    Ok(FinishedJob { id, png, exr, stats })
+}
+
+fn ended(state: &str) -> bool {
+    matches!(state, "done" | "failed" | "cancelled")
+}

@@ -1,0 +1,113 @@
+//! The wire form of Sylva's typed values, converted in one place: frames
+//! ([`FrameSettings`]), lighting methods, structures and schedules. A value
+//! the wire cannot name (an enum number this build does not know) or a
+//! frame that fails its checks is refused here, with INVALID_ARGUMENT.
+
+use crate::pb;
+use sylva_shared::accel::AccelKind;
+use sylva_shared::frame::FrameSettings;
+use sylva_shared::scene::LightingMode;
+use tonic::Status;
+
+/// The wire's lighting for a method (`None`: the scene's).
+pub fn lighting_to_wire(l: Option<LightingMode>) -> pb::Lighting {
+    match l {
+        None => pb::Lighting::Scene,
+        Some(LightingMode::Local) => pb::Lighting::Local,
+        Some(LightingMode::Ambient) => pb::Lighting::Ambient,
+        Some(LightingMode::Lb) => pb::Lighting::Lb,
+        Some(LightingMode::LbVisualize) => pb::Lighting::LbVisualize,
+        Some(LightingMode::Reference) => pb::Lighting::Reference,
+        Some(LightingMode::Boulanger) => pb::Lighting::Boulanger,
+    }
+}
+
+/// The method a wire lighting number names.
+pub fn lighting_from_wire(v: i32) -> Result<Option<LightingMode>, Status> {
+    Ok(match pb::Lighting::try_from(v).map_err(|_| Status::invalid_argument(format!("lighting {v}: not a lighting method this worker knows")))? {
+        pb::Lighting::Scene => None,
+        pb::Lighting::Local => Some(LightingMode::Local),
+        pb::Lighting::Ambient => Some(LightingMode::Ambient),
+        pb::Lighting::Lb => Some(LightingMode::Lb),
+        pb::Lighting::LbVisualize => Some(LightingMode::LbVisualize),
+        pb::Lighting::Reference => Some(LightingMode::Reference),
+        pb::Lighting::Boulanger => Some(LightingMode::Boulanger),
+    })
+}
+
+/// The structure a wire number names.
+pub fn accel_from_wire(v: i32) -> Result<AccelKind, Status> {
+    match pb::Accel::try_from(v) {
+        Ok(pb::Accel::Bvh) => Ok(AccelKind::Bvh),
+        Ok(pb::Accel::Kd) => Ok(AccelKind::Kd),
+        Err(_) => Err(Status::invalid_argument(format!("accel {v}: not a structure this worker knows (bvh, kd)"))),
+    }
+}
+
+impl TryFrom<&pb::FrameSettings> for FrameSettings {
+    type Error = Status;
+
+    /// Reads and checks a frame from the wire.
+    fn try_from(f: &pb::FrameSettings) -> Result<Self, Status> {
+        let ambient = match f.ambient.as_slice() {
+            [] => None,
+            [r, g, b] => Some([*r, *g, *b]),
+            other => return Err(Status::invalid_argument(format!("ambient: three values or none, not {}", other.len()))),
+        };
+        let frame = FrameSettings {
+            width: f.width,
+            height: f.height,
+            spp: f.spp,
+            seed: f.seed,
+            lighting: lighting_from_wire(f.lighting)?,
+            accel: accel_from_wire(f.accel)?,
+            lb_strength: f.lb_strength,
+            ambient,
+        };
+        frame.check().map_err(|e| Status::invalid_argument(e.to_string()))?;
+        Ok(frame)
+    }
+}
+
+impl From<&FrameSettings> for pb::FrameSettings {
+    fn from(f: &FrameSettings) -> Self {
+        pb::FrameSettings {
+            width: f.width,
+            height: f.height,
+            spp: f.spp,
+            seed: f.seed,
+            lighting: lighting_to_wire(f.lighting).into(),
+            accel: match f.accel {
+                AccelKind::Bvh => pb::Accel::Bvh,
+                AccelKind::Kd => pb::Accel::Kd,
+            }
+            .into(),
+            lb_strength: f.lb_strength,
+            ambient: f.ambient.map(|a| a.to_vec()).unwrap_or_default(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_round_trip_and_unknown_enums_are_refused() {
+        for lighting in [None, Some(LightingMode::Boulanger), Some(LightingMode::LbVisualize)] {
+            let f = FrameSettings { lighting, accel: AccelKind::Kd, ambient: Some([0.1, 0.2, 0.3]), ..Default::default() };
+            assert_eq!(FrameSettings::try_from(&pb::FrameSettings::from(&f)).unwrap(), f);
+        }
+        let mut wire = pb::FrameSettings::from(&FrameSettings::default());
+        wire.lighting = 99;
+        let e = FrameSettings::try_from(&wire).unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument);
+        assert!(e.message().contains("lighting 99"), "{}", e.message());
+        let mut wire = pb::FrameSettings::from(&FrameSettings::default());
+        wire.accel = 7;
+        assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("accel 7"));
+        let mut wire = pb::FrameSettings::from(&FrameSettings::default());
+        wire.spp = 0;
+        assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("spp 0"));
+    }
+}
