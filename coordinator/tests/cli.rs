@@ -9,7 +9,7 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 
 fn fern() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/fern_02.glb")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/fern_02.glb")
 }
 
 /// The shape in a `.npy` header.

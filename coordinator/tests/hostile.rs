@@ -41,7 +41,7 @@ fn scene_with_model(model: serde_json::Value) -> serde_json::Value {
 }
 
 fn fern() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/fern_02.glb")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/fern_02.glb")
 }
 
 async fn submit_error(c: &mut Client, b: &SceneBundle) -> tonic::Status {

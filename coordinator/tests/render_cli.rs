@@ -117,7 +117,7 @@ fn bad_render_requests_get_clear_errors() {
     let dir = scratch("bad");
     let scene = small_forest(&dir);
     let s = scene.to_str().unwrap();
-    assert!(fails(&["render", s, "--spp", "5000"]).contains("--spp 5000: valid range [1, 4096]"));
+    assert!(fails(&["render", s, "--spp", "5000"]).contains("spp 5000: valid range [1, 4096]"));
     assert!(fails(&["render", s, "--width", "20000"]).contains("each side must be in [1, 16384]"));
     assert!(fails(&["render", "/nonexistent/scene.json"]).contains("/nonexistent/scene.json: (file): cannot read"));
     let text = std::fs::read_to_string(&scene).unwrap();

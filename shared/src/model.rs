@@ -406,7 +406,7 @@ mod tests {
     use super::*;
 
     fn fern() -> std::path::PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/fern_02.glb")
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/fern_02.glb")
     }
 
     #[test]

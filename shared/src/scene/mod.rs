@@ -412,7 +412,7 @@ mod tests {
 
     #[test]
     fn the_fern_loads_from_a_scene_relative_path() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data");
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models");
         let text = SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"fern_02.glb\"");
         let s = Scene::build(parse(&text, "t.json").unwrap(), &dir, "t.json").unwrap();
         assert_eq!(s.unique_triangles(), 6232);
