@@ -24,6 +24,13 @@ if ! command -v cargo >/dev/null 2>&1; then
     :
   else
     echo "installing Rust through rustup" >&2
-    curl --proto '=https' --tlsv1.2 -sSf https://sh.rustup.rs | sh -s -- -y --profile minimal
+    curl --proto '=https' --tlsv1.2 -sSf https://sh.rustup.rs | sh -s -- -y --profile minimal --component rustfmt,clippy
   fi
+fi
+
+# The test command checks formatting and lints too.
+export PATH="$HOME/.cargo/bin:$PATH"
+if ! cargo fmt --version >/dev/null 2>&1 || ! cargo clippy --version >/dev/null 2>&1; then
+  echo "installing rustfmt and clippy" >&2
+  rustup component add rustfmt clippy
 fi

@@ -8,6 +8,7 @@
 //! same whoever rendered what.
 
 use crate::assembly::{Assembly, StripPixels};
+use crate::executor::RenderedFrame;
 use crate::schedule::Strip;
 use serde::Serialize;
 use std::collections::VecDeque;
@@ -16,7 +17,6 @@ use std::time::{Duration, Instant};
 use sylva_proto::pb;
 use sylva_proto::pb::worker_client::WorkerClient;
 use sylva_shared::bundle::SceneBundle;
-use sylva_shared::film::HdrImage;
 use sylva_shared::frame::FrameSettings;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig};
@@ -56,24 +56,6 @@ pub struct WorkerReport {
     pub dropped: bool,
     /// What it last failed with.
     pub last_error: Option<String>,
-}
-
-/// A rendered frame.
-#[derive(Clone, Debug)]
-pub struct FarmFrame {
-    /// Linear HDR.
-    pub image: HdrImage,
-    /// Per pixel, the fraction of samples that hit a model.
-    pub coverage: Vec<f32>,
-    /// Rays: primary, shadow, transparent texels passed.
-    pub rays: [u64; 3],
-    /// Per worker.
-    pub workers: Vec<WorkerReport>,
-    /// Every strip: its render time on the worker and the whole RPC's time
-    /// as the coordinator saw it (render plus transfer), by strip.
-    pub strip_ms: Vec<(Strip, f64, f64)>,
-    /// Time to send the bundle to every worker.
-    pub upload_ms: f64,
 }
 
 /// A worker client that sends the bearer token, if any.
@@ -160,7 +142,7 @@ pub async fn render_frame(
     plan: Vec<Strip>,
     deadline: Duration,
     events: impl Fn(FarmEvent) + Send + Sync + 'static,
-) -> anyhow::Result<FarmFrame> {
+) -> anyhow::Result<RenderedFrame> {
     anyhow::ensure!(!workers.addrs.is_empty(), "no workers to render on");
     let t = Instant::now();
     // Every worker gets the bundle at once; a slow one delays only itself.
@@ -270,5 +252,5 @@ pub async fn render_frame(
     }
     anyhow::ensure!(frame_px.complete(), "the strips do not cover the frame");
     strip_ms.sort_by_key(|s| s.0);
-    Ok(FarmFrame { image: frame_px.image, coverage: frame_px.coverage, rays: frame_px.rays, workers: reports, strip_ms, upload_ms })
+    Ok(RenderedFrame { image: frame_px.image, coverage: frame_px.coverage, rays: frame_px.rays, workers: reports, strip_ms, upload_ms })
 }

@@ -6,6 +6,7 @@
 pub mod assembly;
 pub mod chart;
 pub mod client;
+pub mod executor;
 pub mod farm;
 pub mod metrics;
 pub mod registration;

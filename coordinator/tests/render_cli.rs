@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{fails, ok, scratch, sylva};
+use common::{fails, ok, scratch};
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};

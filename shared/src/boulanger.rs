@@ -750,8 +750,8 @@ mod tests {
             }
         }
         // Ground: albedo × (1/π)∫(1 + cos θ) cos θ dω = albedo × (1 + 2/3).
-        for j in 0..4 {
-            assert!((l[j][0] - 0.5 * (1.0 + 2.0 / 3.0)).abs() < 2e-3 && (l[j][1] - 0.25 * 2.0).abs() < 1e-4, "{:?}", l[j]);
+        for lj in &l[..4] {
+            assert!((lj[0] - 0.5 * (1.0 + 2.0 / 3.0)).abs() < 2e-3 && (lj[1] - 0.25 * 2.0).abs() < 1e-4, "{lj:?}");
         }
     }
 

@@ -88,8 +88,8 @@ pub fn fill_interior(v: &mut Voxelization, class: NodeClass) -> usize {
         }
     }
     let mut filled = 0;
-    for i in 0..d.len() {
-        if !outside[i] && v.medium.density[i] == 0.0 {
+    for (i, out) in outside.iter().enumerate().take(d.len()) {
+        if !out && v.medium.density[i] == 0.0 {
             v.medium.density[i] = 1.0;
             v.medium.class[i] = class;
             filled += 1;

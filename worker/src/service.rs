@@ -72,13 +72,17 @@ struct Cached {
     last_used: Instant,
 }
 
+/// A prepared scene's key: bundle hash, structure, and what the lighting
+/// needs prepared.
+type PreparedKey = (String, AccelKind, &'static str);
+
 /// What the service shares between requests.
 struct State {
     ctx: GpuContext,
     config: WorkerConfig,
     bundles: Mutex<HashMap<String, Cached>>,
     /// Prepared scenes by (hash, structure, what the lighting needs prepared).
-    prepared: Mutex<HashMap<(String, AccelKind, &'static str), Arc<PreparedScene>>>,
+    prepared: Mutex<HashMap<PreparedKey, Arc<PreparedScene>>>,
     /// Matched ambient constants by scene and frame shape.
     ambient: Mutex<HashMap<String, [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
@@ -197,8 +201,7 @@ impl Worker for WorkerService {
         let mut held = Reservation { incoming: &self.state.incoming, bytes: 0 };
         let mut bytes = Vec::new();
         let mut chunk = Some(first.data);
-        loop {
-            let Some(data) = chunk.take() else { break };
+        while let Some(data) = chunk.take() {
             let n = data.len() as u64;
             if bytes.len() as u64 + n > total {
                 return Err(Status::invalid_argument(format!("upload is longer than its declared {total} bytes")));

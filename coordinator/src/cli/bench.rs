@@ -8,6 +8,7 @@ use anyhow::bail;
 use clap::{Args, Subcommand, ValueEnum};
 use serde_json::json;
 use std::time::Instant;
+use sylva_coordinator::executor::{InProcess, StripExecutor};
 use sylva_shared::lb::solver::BYTES_PER_NODE_UPDATE;
 use sylva_shared::lb::{GridDims, MediumGrid, NodeClass, Preset, SolveOptions, Sun, solve};
 use sylva_shared::rng::SplitMix64;
@@ -235,14 +236,15 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             let f = RenderSettings { width: a.width, height: a.height, spp, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
             prepared.renderer.render_strip(&ctx, &RenderSettings { width: 64, height: 32, ..f }, 0, 64)?; // warm-up
             let t = Instant::now();
-            let strip = prepared.renderer.render_strip(&ctx, &f, 0, a.width)?;
+            let frame = InProcess::new(&ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;
             let s = t.elapsed().as_secs_f64();
+            let [primary, shadow, transparent] = frame.rays;
             frames.push(json!({
                 "accel": kind,
                 "spp": spp,
                 "frame_ms": s * 1e3,
-                "rays": strip.rays,
-                "mrays_per_second": strip.rays.traced() as f64 / s / 1e6,
+                "rays": { "primary": primary, "shadow": shadow, "transparent": transparent },
+                "mrays_per_second": (primary + shadow) as f64 / s / 1e6,
                 "prepare_ms": prepared.phases,
             }));
         }
@@ -315,7 +317,8 @@ const PAPER_TABLE_4: [(usize, f64); 4] = [(2, 1.162), (4, 0.666), (8, 0.351), (1
 fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     use super::local::LocalProcesses;
     use sylva_coordinator::chart::{Series, line_chart};
-    use sylva_coordinator::farm::{self, Workers};
+    use sylva_coordinator::executor::Farm;
+    use sylva_coordinator::farm::Workers;
     use sylva_coordinator::schedule::{ScheduleKind, column_cost, scheduler};
     use sylva_coordinator::simulate::FrameCost;
     use sylva_shared::film::reinhard;
@@ -342,13 +345,13 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     let mut profiler = LocalProcesses::default();
     let one = Workers { addrs: profiler.start_workers(1, &token)?, token: Some(token.clone()), tls: None };
     let whole = vec![(0, a.width)];
-    rt.block_on(farm::render_frame(&one, &bundle, frame, whole.clone(), deadline, |_| {}))?; // prepare + compile
+    Farm::new(&rt, one.clone(), &bundle, frame, deadline).render(&whole, &|_| {})?; // prepare + compile
     let t = Instant::now();
-    let single = rt.block_on(farm::render_frame(&one, &bundle, frame, whole, deadline, |_| {}))?;
+    let single = Farm::new(&rt, one.clone(), &bundle, frame, deadline).render(&whole, &|_| {})?;
     let single_ms = t.elapsed().as_secs_f64() * 1e3;
     let n = a.profile_strips.clamp(1, a.width);
     let fine: Vec<(u32, u32)> = (0..n).map(|i| (i * a.width / n, (i + 1) * a.width / n)).filter(|s| s.0 < s.1).collect();
-    let profile = rt.block_on(farm::render_frame(&one, &bundle, frame, fine, deadline, |_| {}))?;
+    let profile = Farm::new(&rt, one, &bundle, frame, deadline).render(&fine, &|_| {})?;
     drop(profiler);
     let column_ms = column_cost(a.width, &profile.strip_ms);
     let overhead: f64 = profile.strip_ms.iter().map(|&(_, render, rpc)| (rpc - render).max(0.0)).sum();
@@ -374,9 +377,10 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
                 } else {
                     (None, Workers { addrs: a.real_workers[..w].to_vec(), token: a.auth.load()?, tls: a.tls.load()? })
                 };
-                rt.block_on(farm::render_frame(&workers, &bundle, frame, plan.clone(), deadline, |_| {}))?; // every worker prepares
+                let mut farm = Farm::new(&rt, workers, &bundle, frame, deadline);
+                farm.render(&plan, &|_| {})?; // every worker prepares
                 let t = Instant::now();
-                rt.block_on(farm::render_frame(&workers, &bundle, frame, plan.clone(), deadline, |_| {}))?;
+                farm.render(&plan, &|_| {})?;
                 Some(t.elapsed().as_secs_f64() * 1e3 + cost.assembly_ms)
             } else {
                 None

@@ -13,6 +13,7 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use sylva_coordinator::chart::{Series, line_chart};
+use sylva_coordinator::executor::{InProcess, StripExecutor};
 use sylva_shared::accel::AccelKind;
 use sylva_shared::color::luminance;
 use sylva_shared::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
@@ -266,9 +267,8 @@ fn render_method(ctx: &GpuContext, name: &str, lighting: LightingMode, scene: &S
     // One untimed strip first: the pipeline's first dispatch compiles it.
     prepared.renderer.render_strip(ctx, &RenderSettings { width: 8, height: 8, spp: 1, ..settings }, 0, 8)?;
     let t = Instant::now();
-    let strip = prepared.renderer.render_strip(ctx, &settings, 0, f.width)?;
+    let image = InProcess::new(ctx, &prepared.renderer, settings).render(&[(0, f.width)], &|_| {})?.image;
     let frame_ms = ms(t);
-    let image = HdrImage { width: f.width, height: f.height, pixels: strip.pixels };
     let file = out.join(format!("{}.png", name.replace(['³', ' ', '+'], "").replace("lb", "lb-")));
     write_png(&file, f.width, f.height, &reinhard_like(&image, exposure))?;
     let notes = json!({
@@ -301,10 +301,7 @@ fn render_method(ctx: &GpuContext, name: &str, lighting: LightingMode, scene: &S
 fn errors(m: &HdrImage, r: &HdrImage, local: &HdrImage, lit: &[bool]) -> (f64, f64, f64) {
     let (mut se, mut rel, mut n) = (0.0f64, 0.0f64, 0usize);
     let (mut ind_se, mut ind_ref) = (0.0f64, 0.0f64);
-    for i in 0..lit.len() {
-        if !lit[i] {
-            continue;
-        }
+    for (i, _) in lit.iter().enumerate().filter(|(_, lit)| **lit) {
         let (p, q, l) = (m.pixels[i], r.pixels[i], local.pixels[i]);
         for c in 0..3 {
             se += ((p[c] - q[c]) as f64).powi(2);

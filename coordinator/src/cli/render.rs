@@ -11,7 +11,7 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use sylva_shared::accel::AccelKind;
-use sylva_coordinator::assembly::{Assembly, StripPixels};
+use sylva_coordinator::executor::{InProcess, StripExecutor, even_strips};
 use sylva_shared::film::{HdrImage, reinhard, write_png};
 use sylva_shared::scene::{LightingMode, Scene};
 use sylva_worker::GpuContext;
@@ -287,22 +287,13 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         let how = format!("{} spp in {:.0} ms, relative standard error {:.4}{}", r.stats.spp, r.stats.ms, r.stats.relative_error, if r.stats.converged { "" } else { " (not converged)" });
         return report(&a, &stats, accel, lighting, &how);
     }
-    let strips = a.width.div_ceil(STRIP);
-    let bar = ProgressBar::new(strips as u64);
+    let plan = even_strips(a.width, STRIP);
+    let bar = ProgressBar::new(plan.len() as u64);
     bar.set_style(ProgressStyle::with_template("tracing [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
     let t = Instant::now();
-    let mut frame = Assembly::new(a.width, a.height);
-    for s in 0..strips {
-        let (x0, x1) = (s * STRIP, ((s + 1) * STRIP).min(a.width));
-        let strip = prepared.renderer.render_strip(&ctx, &settings, x0, x1)?;
-        let r = strip.rays;
-        let px = StripPixels { strip: (x0, x1), rgb: strip.pixels, coverage: strip.coverage, rays: [r.primary as u64, r.shadow as u64, r.transparent as u64] };
-        frame.add(&px).map_err(|e| anyhow::anyhow!("the renderer returned a strip that does not fit: {e}"))?;
-        bar.inc(1);
-    }
-    let [primary, shadow, transparent] = frame.rays;
-    let coverage = std::mem::take(&mut frame.coverage);
-    let frame = frame.image;
+    let rendered = InProcess::new(&ctx, &prepared.renderer, settings).render(&plan, &|_| bar.inc(1))?;
+    let [primary, shadow, transparent] = rendered.rays;
+    let (frame, coverage) = (rendered.image, rendered.coverage);
     let trace_ms = ms(t);
     phases.push(("trace", trace_ms));
     bar.finish_and_clear();
