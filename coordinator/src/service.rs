@@ -239,6 +239,15 @@ impl State {
         }
     }
 
+    /// Lets go of a finished job's event channel once its last event is
+    /// sent: watchers that come later are answered from its summary, and
+    /// the channel's buffer would otherwise stay for the job's retention.
+    fn close_events(&self, id: &str) {
+        if let Some(j) = lock(&self.jobs).get_mut(id) {
+            j.events = broadcast::channel(1).0;
+        }
+    }
+
     /// Starts queued jobs, best first, as running slots free up.
     async fn schedule_loop(self: Arc<Self>) {
         loop {
@@ -280,6 +289,7 @@ impl State {
                     if let Some(tx) = lock(&s.jobs).get(&next).map(|j| j.events.clone()) {
                         let _ = tx.send(ev);
                     }
+                    s.close_events(&next);
                 }
                 drop(permit);
             });
@@ -299,6 +309,7 @@ impl State {
             let mut ev = self.event(id);
             ev.message = why;
             let _ = tx.send(ev);
+            self.close_events(id);
         };
         let addrs: Vec<String> = lock(&self.workers).values().filter(|w| w.info.alive).map(|w| w.info.addr.clone()).collect();
         if addrs.is_empty() {
@@ -398,6 +409,7 @@ impl State {
         let mut ev = self.event(id);
         ev.stats_json = stats.to_string();
         let _ = tx.send(ev);
+        self.close_events(id);
     }
 
     /// Polls every worker's status at once; a worker that does not answer
@@ -572,7 +584,7 @@ impl Coordinator for CoordinatorService {
         .await
         .map_err(|_| Status::internal("the scene check failed unexpectedly"))?;
         checked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
-        let (tx, _) = broadcast::channel(1024);
+        let (tx, _) = broadcast::channel(256);
         let summary = pb::JobSummary { id: id.clone(), state: "queued".into(), name: spec.name.clone(), priority: spec.priority, ..Default::default() };
         lock(&self.state.jobs).insert(
             id.clone(),
@@ -665,6 +677,9 @@ impl Coordinator for CoordinatorService {
             (j.summary.clone(), j.events.clone())
         };
         let _ = tx.send(pb::JobEvent { id: id.to_string(), state: summary.state.clone(), strips_done: summary.strips_done, strips_total: summary.strips_total, ..Default::default() });
+        if ended(&summary.state) {
+            self.state.close_events(id);
+        }
         Ok(Response::new(summary))
     }
 

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 use sylva_shared::lb::verify::{self, Check};
 use sylva_shared::lb::{
-    CpuSolver, GridDims, LbParams, LightingSolver, MediumGrid, NodeClass, Preset, Solution, SolveOptions, Sun, solve,
+    GridDims, LbParams, LightingSolver, MediumGrid, NodeClass, Preset, Solution, SolveOptions, Sun, solve,
 };
 use sylva_shared::voxel::{self, GridFrame};
 use sylva_shared::{model, npy, shapes, visualize};
@@ -125,11 +125,11 @@ pub fn parse_sun(s: &str, intensity: f64) -> anyhow::Result<Sun> {
     sun.with_context(|| format!("--sun {s:?}"))
 }
 
-/// A solver for `backend`.
+/// A solver for `backend` (the chooser lives beside the solvers).
 pub fn open_solver(backend: Backend) -> anyhow::Result<Box<dyn LightingSolver>> {
-    Ok(match backend {
-        Backend::Cpu => Box::new(CpuSolver),
-        Backend::Gpu => Box::new(GpuSolver::open()?),
+    sylva_worker::lb::open_solver(match backend {
+        Backend::Cpu => sylva_worker::lb::Backend::Cpu,
+        Backend::Gpu => sylva_worker::lb::Backend::Gpu,
     })
 }
 
