@@ -193,7 +193,13 @@ impl GltfBudget {
 /// 0.5). Buffers and images are read only where `access` allows, `data:`
 /// URIs always; sizes are checked against `budget` first.
 pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> anyhow::Result<Model> {
-    let shown = path.strip_prefix(access.base()).unwrap_or(path).display().to_string();
+    // Inside a bundle, name files as the bundle does: its folder is ours.
+    let shown = match access {
+        FileAccess::Inside(base) => path.strip_prefix(base.canonicalize().unwrap_or_else(|_| base.clone())).or_else(|_| path.strip_prefix(base)).unwrap_or(path),
+        FileAccess::Anywhere(_) => path,
+    }
+    .display()
+    .to_string();
     let bytes = std::fs::read(path).with_context(|| format!("{shown}: cannot load glTF: cannot read the file"))?;
     let gltf::Gltf { document: doc, blob } = gltf::Gltf::from_slice(&bytes).with_context(|| format!("{shown}: cannot load glTF"))?;
     drop(bytes);

@@ -118,7 +118,8 @@ mod tests {
         let outside = [d.join("secret.glb"), PathBuf::from("../secret.glb"), PathBuf::from("sub/../../secret.glb"), PathBuf::from("/etc/passwd")];
         for p in &outside {
             let e = a.resolve(&root, p).unwrap_err();
-            assert!(!e.contains("exist") && !e.contains("bytes") && !e.contains(&d.display().to_string()), "{e}");
+            // It names the path as given, and says nothing of what is there.
+            assert!(!e.contains("exist") && !e.contains("bytes") && !e.contains("No such file"), "{e}");
         }
         // Existing and missing files outside get the same answer.
         assert_eq!(
