@@ -26,7 +26,11 @@ impl StripPixels {
         let (x0, x1) = self.strip;
         let n = (x1 - x0) as usize * height as usize;
         if self.rgb.len() != n || self.coverage.len() != n {
-            return Err(format!("strip [{x0}, {x1}) came back with {} pixels and {} coverage values where {n} were due", self.rgb.len(), self.coverage.len()));
+            return Err(format!(
+                "strip [{x0}, {x1}) came back with {} pixels and {} coverage values where {n} were due",
+                self.rgb.len(),
+                self.coverage.len()
+            ));
         }
         if let Some(p) = self.rgb.iter().find(|p| p.iter().any(|v| !v.is_finite() || *v < 0.0)) {
             return Err(format!("strip [{x0}, {x1}) has a pixel {p:?} that is not a finite radiance ≥ 0"));
@@ -54,7 +58,12 @@ pub struct Assembly {
 impl Assembly {
     /// An empty frame.
     pub fn new(width: u32, height: u32) -> Self {
-        Self { image: HdrImage::new(width, height), coverage: vec![0.0; (width * height) as usize], rays: [0; 3], filled: vec![false; width as usize] }
+        Self {
+            image: HdrImage::new(width, height),
+            coverage: vec![0.0; (width * height) as usize],
+            rays: [0; 3],
+            filled: vec![false; width as usize],
+        }
     }
 
     /// Puts a strip in place, after checking it fits the frame.

@@ -30,7 +30,8 @@ pub async fn submit_and_follow(
     bundle: &sylva_shared::bundle::SceneBundle,
     exr: bool,
 ) -> anyhow::Result<FinishedJob> {
-    let ch = sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.with_context(|| format!("cannot reach the coordinator at {addr}"))?;
+    let ch =
+        sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.with_context(|| format!("cannot reach the coordinator at {addr}"))?;
     let mut c = CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token))
         .max_decoding_message_size(1 << 30)
         .max_encoding_message_size(1 << 30);

@@ -118,11 +118,24 @@ impl Workers {
 /// radiance is the worker's failure.
 pub fn decode_reply(r: &pb::RenderStripReply, strip: Strip, height: u32) -> Result<StripPixels, String> {
     if r.x0 != strip.0 || r.width != strip.1 - strip.0 || r.height != height {
-        return Err(format!("worker replied with columns [{}, {}) × {} rows to a request for [{}, {}) × {height}", r.x0, r.x0.saturating_add(r.width), r.height, strip.0, strip.1));
+        return Err(format!(
+            "worker replied with columns [{}, {}) × {} rows to a request for [{}, {}) × {height}",
+            r.x0,
+            r.x0.saturating_add(r.width),
+            r.height,
+            strip.0,
+            strip.1
+        ));
     }
     let n = (strip.1 - strip.0) as usize * height as usize;
     if r.rgb_f32.len() != n * 12 || r.coverage_f32.len() != n * 4 {
-        return Err(format!("worker replied with {} bytes of pixels and {} of coverage where {} and {} were due", r.rgb_f32.len(), r.coverage_f32.len(), n * 12, n * 4));
+        return Err(format!(
+            "worker replied with {} bytes of pixels and {} of coverage where {} and {} were due",
+            r.rgb_f32.len(),
+            r.coverage_f32.len(),
+            n * 12,
+            n * 4
+        ));
     }
     let f = |c: &[u8]| f32::from_le_bytes(c.try_into().expect("4 bytes"));
     let rgb = r.rgb_f32.chunks_exact(12).map(|c| [f(&c[0..4]), f(&c[4..8]), f(&c[8..12])]).collect();
@@ -199,7 +212,8 @@ pub async fn render_frame(
                     tokio::time::sleep(Duration::from_millis(5)).await;
                     continue;
                 };
-                let mut req = tonic::Request::new(pb::RenderStripRequest { scene_hash: hash.clone(), frame: Some(wire.clone()), x0: strip.0, x1: strip.1 });
+                let mut req =
+                    tonic::Request::new(pb::RenderStripRequest { scene_hash: hash.clone(), frame: Some(wire.clone()), x0: strip.0, x1: strip.1 });
                 req.set_timeout(deadline);
                 let sent = Instant::now();
                 let outcome = match tokio::time::timeout(deadline + Duration::from_secs(1), client.render_strip(req)).await {
@@ -241,7 +255,8 @@ pub async fn render_frame(
     }
     let done = std::mem::take(&mut *shared.done.lock().expect("lock"));
     if done.len() < shared.total {
-        let why: Vec<String> = reports.iter().filter(|r| r.dropped).map(|r| format!("{}: {}", r.worker, r.last_error.as_deref().unwrap_or("dropped"))).collect();
+        let why: Vec<String> =
+            reports.iter().filter(|r| r.dropped).map(|r| format!("{}: {}", r.worker, r.last_error.as_deref().unwrap_or("dropped"))).collect();
         anyhow::bail!("the frame failed: {} of {} strips rendered; no worker left that can finish it ({})", done.len(), shared.total, why.join("; "));
     }
     let mut frame_px = Assembly::new(frame.width, frame.height);

@@ -8,9 +8,7 @@ use clap::Parser;
 fn main() {
     let args = cli::Cli::parse();
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| args.log_filter().into()),
-        )
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| args.log_filter().into()))
         .with_writer(std::io::stderr)
         .init();
     if let Err(e) = cli::run(args) {

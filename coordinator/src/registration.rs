@@ -15,7 +15,10 @@ pub const PERIOD: Duration = Duration::from_secs(5);
 pub async fn register_once(coordinator: &str, me: &str, token: Option<String>, tls: Option<&ClientTlsConfig>) -> Result<(), String> {
     let ch = sylva_proto::tls::connect(coordinator, tls, Duration::from_secs(10)).await.map_err(|e| format!("cannot reach the coordinator: {e}"))?;
     let mut c = pb::coordinator_client::CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token));
-    c.register_worker(pb::RegisterWorkerRequest { addr: me.to_string() }).await.map(|_| ()).map_err(|s| format!("the coordinator refused: {:?}: {}", s.code(), s.message()))
+    c.register_worker(pb::RegisterWorkerRequest { addr: me.to_string() })
+        .await
+        .map(|_| ())
+        .map_err(|s| format!("the coordinator refused: {:?}: {}", s.code(), s.message()))
 }
 
 /// Registers forever, logging each change between success and failure.

@@ -148,7 +148,12 @@ impl CoordinatorService {
         let workers = config
             .workers
             .iter()
-            .map(|a| (a.clone(), KnownWorker { info: pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() }, named: true, seen: Instant::now() }))
+            .map(|a| {
+                (
+                    a.clone(),
+                    KnownWorker { info: pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() }, named: true, seen: Instant::now() },
+                )
+            })
             .collect();
         let slots = Arc::new(Semaphore::new(config.max_running.max(1)));
         let results = ResultStore::new(config.work_dir.join("results"), config.retention);
@@ -585,7 +590,8 @@ impl Coordinator for CoordinatorService {
         .map_err(|_| Status::internal("the scene check failed unexpectedly"))?;
         checked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
         let (tx, _) = broadcast::channel(256);
-        let summary = pb::JobSummary { id: id.clone(), state: "queued".into(), name: spec.name.clone(), priority: spec.priority, ..Default::default() };
+        let summary =
+            pb::JobSummary { id: id.clone(), state: "queued".into(), name: spec.name.clone(), priority: spec.priority, ..Default::default() };
         lock(&self.state.jobs).insert(
             id.clone(),
             Job { seq, spec, frame, schedule, bundle: Some(Arc::new(SceneBundle { bytes, hash })), summary, events: tx, task: None, finished: None },
@@ -608,7 +614,14 @@ impl Coordinator for CoordinatorService {
         let (tx, out) = tokio::sync::mpsc::channel(64);
         let state = self.state.clone();
         tokio::spawn(async move {
-            let first = pb::JobEvent { id: current.id.clone(), state: current.state.clone(), strips_done: current.strips_done, strips_total: current.strips_total, message: current.error.clone(), ..Default::default() };
+            let first = pb::JobEvent {
+                id: current.id.clone(),
+                state: current.state.clone(),
+                strips_done: current.strips_done,
+                strips_total: current.strips_total,
+                message: current.error.clone(),
+                ..Default::default()
+            };
             if tx.send(Ok(first)).await.is_err() || ended(&current.state) {
                 return;
             }
@@ -654,7 +667,10 @@ impl Coordinator for CoordinatorService {
         }
         let stored = lock(&self.state.results).get(id, format);
         let data = match stored {
-            Some(s) => tokio::task::spawn_blocking(move || s.read()).await.map_err(|e| Status::internal(e.to_string()))?.map_err(|e| Status::internal(format!("the stored result cannot be read: {e}")))?,
+            Some(s) => tokio::task::spawn_blocking(move || s.read())
+                .await
+                .map_err(|e| Status::internal(e.to_string()))?
+                .map_err(|e| Status::internal(format!("the stored result cannot be read: {e}")))?,
             None => return Err(Status::not_found(format!("job {id}'s result is no longer kept"))),
         };
         Ok(Response::new(pb::FetchReply { data, format: format.into() }))
@@ -676,7 +692,13 @@ impl Coordinator for CoordinatorService {
             }
             (j.summary.clone(), j.events.clone())
         };
-        let _ = tx.send(pb::JobEvent { id: id.to_string(), state: summary.state.clone(), strips_done: summary.strips_done, strips_total: summary.strips_total, ..Default::default() });
+        let _ = tx.send(pb::JobEvent {
+            id: id.to_string(),
+            state: summary.state.clone(),
+            strips_done: summary.strips_done,
+            strips_total: summary.strips_total,
+            ..Default::default()
+        });
         if ended(&summary.state) {
             self.state.close_events(id);
         }
@@ -705,9 +727,11 @@ impl Coordinator for CoordinatorService {
             self.state.verify_worker(&addr).await?;
         }
         let mut w = lock(&self.state.workers);
-        let entry = w
-            .entry(addr.clone())
-            .or_insert_with(|| KnownWorker { info: pb::WorkerInfo { addr: addr.clone(), ..Default::default() }, named: false, seen: Instant::now() });
+        let entry = w.entry(addr.clone()).or_insert_with(|| KnownWorker {
+            info: pb::WorkerInfo { addr: addr.clone(), ..Default::default() },
+            named: false,
+            seen: Instant::now(),
+        });
         entry.info.alive = true;
         entry.seen = Instant::now();
         if !known {
@@ -719,7 +743,11 @@ impl Coordinator for CoordinatorService {
 
 /// Serves the coordinator API, health and reflection until `shutdown`, then
 /// removes what it wrote on disk.
-pub async fn run(listener: tokio::net::TcpListener, mut config: CoordinatorConfig, shutdown: impl std::future::Future<Output = ()>) -> anyhow::Result<()> {
+pub async fn run(
+    listener: tokio::net::TcpListener,
+    mut config: CoordinatorConfig,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
     let (reflection, reflection_alpha) = sylva_proto::reflection(&["sylva.v1.Coordinator"])?;
     let auth = sylva_proto::auth::require(config.token.clone());

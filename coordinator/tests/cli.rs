@@ -39,8 +39,7 @@ fn verify_reports_every_check_passing_as_json() {
 fn solving_the_builtin_plant_writes_grid_picture_and_summary() {
     let dir = scratch("plant");
     let out = dir.to_str().unwrap();
-    let summary: Value =
-        serde_json::from_str(&ok(&["lb", "solve", "plant", "--grid", "20", "--backend", "cpu", "-o", out, "--json"])).unwrap();
+    let summary: Value = serde_json::from_str(&ok(&["lb", "solve", "plant", "--grid", "20", "--backend", "cpu", "-o", out, "--json"])).unwrap();
     assert_eq!(npy_shape(&dir.join("density.npy")), "3, 20, 20, 20");
     let png = image_size(&dir.join("density.png"));
     assert!(png.0 > 200 && png.1 > 100, "{png:?}");
@@ -71,8 +70,20 @@ fn gpu_and_cpu_solve_a_gltf_model_alike() {
     let (cpu, gpu) = (dir.join("cpu"), dir.join("gpu"));
     let run = |backend: &str, out: &Path| -> Value {
         serde_json::from_str(&ok(&[
-            "lb", "solve", model.to_str().unwrap(), "--grid", "24", "--backend", backend, "--max-steps", "30",
-            "--tolerance", "0", "-o", out.to_str().unwrap(), "--json",
+            "lb",
+            "solve",
+            model.to_str().unwrap(),
+            "--grid",
+            "24",
+            "--backend",
+            backend,
+            "--max-steps",
+            "30",
+            "--tolerance",
+            "0",
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
         ]))
         .unwrap()
     };
@@ -102,10 +113,8 @@ fn a_density_grid_from_npy_is_solved_with_its_own_shape() {
     }
     sylva_shared::npy::write_density(&grid, &m).unwrap();
     let out = dir.join("out");
-    let s: Value = serde_json::from_str(&ok(&[
-        "lb", "solve", grid.to_str().unwrap(), "--preset", "cloud", "-o", out.to_str().unwrap(), "--json",
-    ]))
-    .unwrap();
+    let s: Value =
+        serde_json::from_str(&ok(&["lb", "solve", grid.to_str().unwrap(), "--preset", "cloud", "-o", out.to_str().unwrap(), "--json"])).unwrap();
     assert_eq!(npy_shape(&out.join("density.npy")), "3, 6, 7, 8");
     assert_eq!(s["preset"], "cloud");
     assert_eq!(s["channels"][0]["report"]["max_steps"], 16);

@@ -10,8 +10,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use sylva_coordinator::farm::{self, FarmEvent};
 use sylva_coordinator::schedule::{Dynamic, Scheduler, Static};
-use sylva_shared::frame::FrameSettings;
 use sylva_shared::bundle;
+use sylva_shared::frame::FrameSettings;
 
 type Worker = Proc;
 
@@ -46,7 +46,8 @@ fn frame(seed: u32) -> FrameSettings {
 fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
     let scene = bundle::unpack(&b.bytes, dir).unwrap();
     let ctx = sylva_worker::GpuContext::new().unwrap();
-    let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_shared::accel::AccelKind::Bvh, sylva_shared::scene::LightingMode::Lb, &|_| {}).unwrap();
+    let p =
+        sylva_worker::prepare::prepare(&ctx, &scene, sylva_shared::accel::AccelKind::Bvh, sylva_shared::scene::LightingMode::Lb, &|_| {}).unwrap();
     let f = sylva_worker::trace::RenderSettings {
         width: 96,
         height: 48,
@@ -121,7 +122,9 @@ async fn three_jobs_at_once_all_complete_correctly() {
     let addrs: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
     let jobs = (0..3u32).map(|s| {
         let (addrs, b) = (addrs.clone(), b.clone());
-        tokio::spawn(async move { farm::render_frame(&farm::Workers::open(&addrs), &b, frame(20 + s), Dynamic::default().plan(96, 3, &[]), DEADLINE, |_| {}).await })
+        tokio::spawn(async move {
+            farm::render_frame(&farm::Workers::open(&addrs), &b, frame(20 + s), Dynamic::default().plan(96, 3, &[]), DEADLINE, |_| {}).await
+        })
     });
     for (job, want) in jobs.collect::<Vec<_>>().into_iter().zip(&want) {
         let f = job.await.unwrap().unwrap();
@@ -145,7 +148,24 @@ fn the_scaling_benchmark_reports_measured_and_simulated_figures_and_a_chart() {
     let scene = scene(&dir);
     let chart = dir.join("scaling.svg");
     let out = sylva(
-        &["bench", "scaling", scene.to_str().unwrap(), "--workers", "1,2,4", "--width", "64", "--height", "32", "--profile-strips", "8", "--local-real", "1", "--chart", chart.to_str().unwrap(), "--json"],
+        &[
+            "bench",
+            "scaling",
+            scene.to_str().unwrap(),
+            "--workers",
+            "1,2,4",
+            "--width",
+            "64",
+            "--height",
+            "32",
+            "--profile-strips",
+            "8",
+            "--local-real",
+            "1",
+            "--chart",
+            chart.to_str().unwrap(),
+            "--json",
+        ],
         &[],
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));

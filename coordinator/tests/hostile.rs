@@ -54,7 +54,11 @@ async fn load_error(addr: &str, b: &SceneBundle, declared: u64) -> tonic::Status
         .bytes
         .chunks(1 << 16)
         .enumerate()
-        .map(|(i, d)| pb::SceneChunk { hash: if i == 0 { b.hash.clone() } else { String::new() }, total_size: if i == 0 { declared } else { 0 }, data: d.to_vec() })
+        .map(|(i, d)| pb::SceneChunk {
+            hash: if i == 0 { b.hash.clone() } else { String::new() },
+            total_size: if i == 0 { declared } else { 0 },
+            data: d.to_vec(),
+        })
         .collect();
     w.load_scene(tokio_stream::iter(chunks)).await.unwrap_err()
 }
@@ -108,10 +112,25 @@ async fn scenes_read_no_file_outside_their_bundle() {
     let out = sylva(&["submit", outside.to_str().unwrap(), "--coordinator", &coord.addr, "-o", dir.join("o.png").to_str().unwrap()], &[]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("is not a file inside the scene's folder"), "{}", String::from_utf8_lossy(&out.stderr));
     // A local render may, when the user says so.
-    let out = sylva(&["render", outside.to_str().unwrap(), "-o", dir.join("o.png").to_str().unwrap(), "--local-workers", "0", "--width", "16", "--height", "8"], &[]);
+    let out = sylva(
+        &["render", outside.to_str().unwrap(), "-o", dir.join("o.png").to_str().unwrap(), "--local-workers", "0", "--width", "16", "--height", "8"],
+        &[],
+    );
     assert!(!out.status.success());
     let out = sylva(
-        &["render", outside.to_str().unwrap(), "-o", dir.join("o.png").to_str().unwrap(), "--local-workers", "0", "--width", "16", "--height", "8", "--allow-files-outside-scene"],
+        &[
+            "render",
+            outside.to_str().unwrap(),
+            "-o",
+            dir.join("o.png").to_str().unwrap(),
+            "--local-workers",
+            "0",
+            "--width",
+            "16",
+            "--height",
+            "8",
+            "--allow-files-outside-scene",
+        ],
         &[],
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -188,7 +207,14 @@ impl pb::worker_server::Worker for BadWorker {
             _ => 0,
         };
         let px = (width * h).saturating_sub(if n == 0 { 1 } else { 0 }) as usize;
-        Ok(tonic::Response::new(pb::RenderStripReply { x0: r.x0, width, height: h, rgb_f32: vec![0; px * 12], coverage_f32: vec![0; px * 4], ..Default::default() }))
+        Ok(tonic::Response::new(pb::RenderStripReply {
+            x0: r.x0,
+            width,
+            height: h,
+            rgb_f32: vec![0; px * 12],
+            coverage_f32: vec![0; px * 4],
+            ..Default::default()
+        }))
     }
 
     async fn status(&self, r: tonic::Request<pb::StatusRequest>) -> Result<tonic::Response<pb::WorkerStatus>, tonic::Status> {
@@ -332,10 +358,17 @@ async fn finished_jobs_and_folders_are_freed() {
     assert_eq!(&png[1..4], b"PNG");
     assert!(work.join("results").read_dir().unwrap().count() >= 1);
     // A refused scene leaves nothing behind either.
-    let broken = raw_bundle(scene_with_model(serde_json::json!({ "tree": { "species": "red_maple", "triangles": 2000 } })).as_object().cloned().map(|mut o| {
-        o.insert("camera".into(), serde_json::json!({ "position": [0, 0, 0], "look_at": [0, 0, 0] }));
-        serde_json::Value::Object(o)
-    }).unwrap(), &[]);
+    let broken = raw_bundle(
+        scene_with_model(serde_json::json!({ "tree": { "species": "red_maple", "triangles": 2000 } }))
+            .as_object()
+            .cloned()
+            .map(|mut o| {
+                o.insert("camera".into(), serde_json::json!({ "position": [0, 0, 0], "look_at": [0, 0, 0] }));
+                serde_json::Value::Object(o)
+            })
+            .unwrap(),
+        &[],
+    );
     assert_eq!(submit_error(&mut c, &broken).await.code(), Code::InvalidArgument);
     let checks = work.join("check");
     assert!(!checks.exists() || checks.read_dir().unwrap().count() == 0, "scene checks are cleaned up");
@@ -463,11 +496,17 @@ async fn metrics_and_reflection_answer_as_standard_clients_expect() {
     assert!(http_get(&metrics, "/metrics").await.starts_with("HTTP/1.1 200"));
     assert!(http_get(&metrics, "/etc/passwd").await.starts_with("HTTP/1.1 404"));
     let worker = spawn(&["worker", "--listen", "127.0.0.1:0"], &[]);
-    for (addr, want) in [(&coord.addr, vec!["grpc.health.v1.Health", "sylva.v1.Coordinator"]), (&worker.addr, vec!["grpc.health.v1.Health", "sylva.v1.Worker", "sylva.v1.WorkerIdentity"])] {
+    for (addr, want) in [
+        (&coord.addr, vec!["grpc.health.v1.Health", "sylva.v1.Coordinator"]),
+        (&worker.addr, vec!["grpc.health.v1.Health", "sylva.v1.Worker", "sylva.v1.WorkerIdentity"]),
+    ] {
         let ch = tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap().connect().await.unwrap();
         use tonic_reflection::pb::v1alpha as alpha;
         let mut c = alpha::server_reflection_client::ServerReflectionClient::new(ch.clone());
-        let req = alpha::ServerReflectionRequest { host: String::new(), message_request: Some(alpha::server_reflection_request::MessageRequest::ListServices(String::new())) };
+        let req = alpha::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(alpha::server_reflection_request::MessageRequest::ListServices(String::new())),
+        };
         let mut replies = c.server_reflection_info(tokio_stream::iter(vec![req])).await.unwrap().into_inner();
         let reply = tokio_stream::StreamExt::next(&mut replies).await.unwrap().unwrap();
         let Some(alpha::server_reflection_response::MessageResponse::ListServicesResponse(l)) = reply.message_response else { panic!("{reply:?}") };
@@ -476,7 +515,10 @@ async fn metrics_and_reflection_answer_as_standard_clients_expect() {
         assert_eq!(names, want, "v1alpha on {addr}");
         use tonic_reflection::pb::v1;
         let mut c = v1::server_reflection_client::ServerReflectionClient::new(ch);
-        let req = v1::ServerReflectionRequest { host: String::new(), message_request: Some(v1::server_reflection_request::MessageRequest::ListServices(String::new())) };
+        let req = v1::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(v1::server_reflection_request::MessageRequest::ListServices(String::new())),
+        };
         let mut replies = c.server_reflection_info(tokio_stream::iter(vec![req])).await.unwrap().into_inner();
         assert!(tokio_stream::StreamExt::next(&mut replies).await.unwrap().is_ok(), "v1 on {addr}");
     }

@@ -16,10 +16,9 @@ fn png_size(path: &Path) -> (u32, u32) {
 
 fn small_forest(dir: &Path) -> PathBuf {
     let scene = dir.join("forest.json");
-    let v: Value = serde_json::from_str(&ok(&[
-        "scene", "forest", "--scale", "0.01", "--triangle-scale", "0.01", "-o", scene.to_str().unwrap(), "--json",
-    ]))
-    .unwrap();
+    let v: Value =
+        serde_json::from_str(&ok(&["scene", "forest", "--scale", "0.01", "--triangle-scale", "0.01", "-o", scene.to_str().unwrap(), "--json"]))
+            .unwrap();
     assert_eq!(v["instances"], 11);
     scene
 }
@@ -47,8 +46,20 @@ fn render_writes_image_and_stats() {
     let scene = small_forest(&dir);
     let out = dir.join("frame.png");
     let stats: Value = serde_json::from_str(&ok(&[
-        "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "96", "--height", "48", "--spp", "2", "--exr",
-        "--local-workers", "0", "--json",
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "96",
+        "--height",
+        "48",
+        "--spp",
+        "2",
+        "--exr",
+        "--local-workers",
+        "0",
+        "--json",
     ]))
     .unwrap();
     assert_eq!(png_size(&out), (96, 48));
@@ -79,7 +90,17 @@ fn the_forest_grid_can_be_switched_off() {
     std::fs::write(&scene, serde_json::to_string(&v).unwrap()).unwrap();
     let out = dir.join("f.png");
     let stats: Value = serde_json::from_str(&ok(&[
-        "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "32", "--height", "16", "--local-workers", "0", "--json",
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "32",
+        "--height",
+        "16",
+        "--local-workers",
+        "0",
+        "--json",
     ]))
     .unwrap();
     assert_eq!(stats["forest_grid"]["used"], false);
@@ -94,8 +115,21 @@ fn every_lighting_method_and_structure_renders() {
     for (lighting, accel) in [("local", "kd"), ("ambient", "bvh"), ("lb", "kd"), ("lb-visualize", "bvh")] {
         let out = dir.join(format!("{lighting}.png"));
         let stats: Value = serde_json::from_str(&ok(&[
-            "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "64", "--height", "32", "--lighting", lighting,
-            "--accel", accel, "--local-workers", "0", "--json",
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--width",
+            "64",
+            "--height",
+            "32",
+            "--lighting",
+            lighting,
+            "--accel",
+            accel,
+            "--local-workers",
+            "0",
+            "--json",
         ]))
         .unwrap();
         assert_eq!(stats["lighting"], lighting);
@@ -137,10 +171,9 @@ fn the_fern_example_renders() {
     let dir = scratch("fern");
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/ferns.json");
     let out = dir.join("ferns.png");
-    let stats: Value = serde_json::from_str(&ok(&[
-        "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "64", "--height", "48", "--json",
-    ]))
-    .unwrap();
+    let stats: Value =
+        serde_json::from_str(&ok(&["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "64", "--height", "48", "--json"]))
+            .unwrap();
     assert_eq!(stats["triangles"]["unique"], 6232);
     assert!(stats["coverage"].as_f64().unwrap() > 0.1, "the ferns fill {} of the frame", stats["coverage"]);
 }
@@ -162,7 +195,23 @@ fn compare_lists_every_method_with_its_time_and_error() {
     )
     .unwrap();
     let out = dir.join("cmp");
-    let text = ok(&["compare", scene.to_str().unwrap(), "--width", "40", "--height", "24", "--spp", "1", "--grids", "8,12", "--target-error", "0.1", "--out", out.to_str().unwrap(), "--json"]);
+    let text = ok(&[
+        "compare",
+        scene.to_str().unwrap(),
+        "--width",
+        "40",
+        "--height",
+        "24",
+        "--spp",
+        "1",
+        "--grids",
+        "8,12",
+        "--target-error",
+        "0.1",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
     let v: Value = serde_json::from_str(&text).unwrap();
     let methods = v["methods"].as_array().unwrap();
     let names: Vec<&str> = methods.iter().map(|m| m["name"].as_str().unwrap()).collect();

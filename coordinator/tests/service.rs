@@ -81,7 +81,12 @@ async fn three_clients_at_once_get_the_single_process_image() {
     let mut text = String::new();
     sock.read_to_string(&mut text).unwrap();
     let value = |name: &str| -> f64 {
-        text.lines().find(|l| l.starts_with(&format!("{name} "))).and_then(|l| l.rsplit(' ').next()).unwrap_or_else(|| panic!("{name} in {text}")).parse().unwrap()
+        text.lines()
+            .find(|l| l.starts_with(&format!("{name} ")))
+            .and_then(|l| l.rsplit(' ').next())
+            .unwrap_or_else(|| panic!("{name} in {text}"))
+            .parse()
+            .unwrap()
     };
     let strips: u32 = jobs.iter().map(|j| j.strips_total).sum();
     assert_eq!(value("sylva_strips_done_total"), strips as f64);
@@ -124,12 +129,14 @@ async fn named_workers_serve_at_once_and_no_workers_is_a_clear_failure() {
     let png = dir.join("out.png");
     // No workers at all: the job fails with the reason.
     let lonely = spawn(&["coordinator", "--listen", "127.0.0.1:0"], &[]);
-    let out = sylva(&["submit", s.to_str().unwrap(), "--coordinator", &lonely.addr, "-o", png.to_str().unwrap(), "--width", "16", "--height", "8"], &[]);
+    let out =
+        sylva(&["submit", s.to_str().unwrap(), "--coordinator", &lonely.addr, "-o", png.to_str().unwrap(), "--width", "16", "--height", "8"], &[]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("no worker is registered"), "{}", String::from_utf8_lossy(&out.stderr));
     // A worker named on the command line is used by a job submitted straight away.
     let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[]);
     let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr], &[]);
-    let out = sylva(&["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "16", "--height", "8"], &[]);
+    let out =
+        sylva(&["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "16", "--height", "8"], &[]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(png.exists());
 }
@@ -145,7 +152,16 @@ async fn submit_raw(
 ) -> (pb::JobEvent, Vec<u8>) {
     let b = sylva_shared::bundle::pack(scene).unwrap();
     let spec = pb::JobSpec {
-        frame: Some(pb::FrameSettings { width, height, spp: 2, seed: 1, lighting: pb::Lighting::Lb.into(), accel: pb::Accel::Bvh.into(), lb_strength: 0.35, ambient: vec![] }),
+        frame: Some(pb::FrameSettings {
+            width,
+            height,
+            spp: 2,
+            seed: 1,
+            lighting: pb::Lighting::Lb.into(),
+            accel: pb::Accel::Bvh.into(),
+            lb_strength: 0.35,
+            ambient: vec![],
+        }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,
         name: "raw".into(),
@@ -174,7 +190,10 @@ async fn a_worker_killed_mid_job_loses_nothing_through_the_coordinator() {
     let dir = std::env::temp_dir().join(format!("sylva-service-d-{}", std::process::id()));
     let s = scene(&dir);
     let reference = dir.join("reference.png");
-    let out = sylva(&["render", s.to_str().unwrap(), "-o", reference.to_str().unwrap(), "--local-workers", "0", "--width", "192", "--height", "48", "--spp", "2"], &[]);
+    let out = sylva(
+        &["render", s.to_str().unwrap(), "-o", reference.to_str().unwrap(), "--local-workers", "0", "--width", "192", "--height", "48", "--spp", "2"],
+        &[],
+    );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let mut workers: Vec<Proc> = (0..3).map(|_| spawn(&["worker", "--listen", "127.0.0.1:0"], &[])).collect();
     let names: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
@@ -231,10 +250,12 @@ async fn tls_on_both_services_with_a_token() {
     let (ca, cert, key) = (ca.to_str().unwrap(), cert.to_str().unwrap(), key.to_str().unwrap());
     let token = [("SYLVA_TOKEN", "s3cret")];
     let w = spawn(&["worker", "--listen", "127.0.0.1:0", "--tls-cert", cert, "--tls-key", key], &token);
-    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--tls-cert", cert, "--tls-key", key, "--tls-ca", ca], &token);
+    let coord =
+        spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--tls-cert", cert, "--tls-key", key, "--tls-ca", ca], &token);
     let png = dir.join("out.png");
     let submit = |extra: &[&str], env: &[(&str, &str)]| {
-        let mut args = vec!["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "32", "--height", "16"];
+        let mut args =
+            vec!["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "32", "--height", "16"];
         args.extend_from_slice(extra);
         sylva(&args, env)
     };

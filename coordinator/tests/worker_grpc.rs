@@ -52,7 +52,16 @@ fn chunks(b: &bundle::SceneBundle, size: usize) -> Vec<pb::SceneChunk> {
 }
 
 fn frame() -> pb::FrameSettings {
-    pb::FrameSettings { width: 48, height: 24, spp: 2, seed: 3, lighting: pb::Lighting::Lb.into(), accel: pb::Accel::Bvh.into(), lb_strength: 0.35, ambient: vec![] }
+    pb::FrameSettings {
+        width: 48,
+        height: 24,
+        spp: 2,
+        seed: 3,
+        lighting: pb::Lighting::Lb.into(),
+        accel: pb::Accel::Bvh.into(),
+        lb_strength: 0.35,
+        ambient: vec![],
+    }
 }
 
 #[tokio::test]
@@ -63,7 +72,10 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
     let mut c = w.client().await;
     let r = c.load_scene(tokio_stream::iter(chunks(&b, 1000))).await.unwrap().into_inner();
     assert_eq!((r.hash.as_str(), r.was_cached), (b.hash.as_str(), false));
-    let again = c.load_scene(tokio_stream::iter(vec![pb::SceneChunk { hash: b.hash.clone(), total_size: b.bytes.len() as u64, data: vec![] }])).await.unwrap();
+    let again = c
+        .load_scene(tokio_stream::iter(vec![pb::SceneChunk { hash: b.hash.clone(), total_size: b.bytes.len() as u64, data: vec![] }]))
+        .await
+        .unwrap();
     assert!(again.into_inner().was_cached);
 
     let mut remote = vec![0f32; 48 * 24 * 3];
@@ -82,7 +94,8 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
     // The same frame rendered here, in this process.
     let scene = bundle::unpack(&b.bytes, &dir.join("local")).unwrap();
     let ctx = sylva_worker::GpuContext::new().unwrap();
-    let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_shared::accel::AccelKind::Bvh, sylva_shared::scene::LightingMode::Lb, &|_| {}).unwrap();
+    let p =
+        sylva_worker::prepare::prepare(&ctx, &scene, sylva_shared::accel::AccelKind::Bvh, sylva_shared::scene::LightingMode::Lb, &|_| {}).unwrap();
     let f = sylva_worker::trace::RenderSettings {
         width: 48,
         height: 24,

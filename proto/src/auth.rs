@@ -11,9 +11,10 @@ pub fn load_token(flag: Option<&str>, file: Option<&std::path::Path>) -> std::io
         return Ok(Some(t.to_string()));
     }
     if let Ok(t) = std::env::var("SYLVA_TOKEN")
-        && !t.is_empty() {
-            return Ok(Some(t));
-        }
+        && !t.is_empty()
+    {
+        return Ok(Some(t));
+    }
     match file {
         Some(p) => Ok(Some(std::fs::read_to_string(p)?.trim_end().to_string()).filter(|t| !t.is_empty())),
         None => Ok(None),

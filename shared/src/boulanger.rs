@@ -76,11 +76,7 @@ pub fn directions() -> [Vec3; N_DIR] {
 
 /// The index of the direction nearest to `d` (its octant), by signs only.
 pub fn bin_of(d: Vec3) -> usize {
-    if d.y < 0.0 {
-        (d.x > 0.0) as usize + 2 * (d.z > 0.0) as usize
-    } else {
-        4 + (d.x < 0.0) as usize + 2 * (d.z < 0.0) as usize
-    }
+    if d.y < 0.0 { (d.x > 0.0) as usize + 2 * (d.z > 0.0) as usize } else { 4 + (d.x < 0.0) as usize + 2 * (d.z < 0.0) as usize }
 }
 
 /// M(x) = max(x, 0).
@@ -483,13 +479,7 @@ mod tests {
     }
 
     fn sphere_env(p: Vec3, r: f32, tau: f32, area: f32) -> LeafEnvelope {
-        LeafEnvelope {
-            s_max: vec![directions().map(|w| chord(p, w, r))],
-            tau,
-            leaf_density: 2.0 * tau / area,
-            leaf_area: area,
-            ..Default::default()
-        }
+        LeafEnvelope { s_max: vec![directions().map(|w| chord(p, w, r))], tau, leaf_density: 2.0 * tau / area, leaf_area: area, ..Default::default() }
     }
 
     #[test]
@@ -523,7 +513,11 @@ mod tests {
             let (refl, trans) = ((refl / n as f64) as f32, (trans / n as f64) as f32);
             let (er, et) = (normal_average(PI - alpha), normal_average(alpha));
             let (rel_r, rel_t) = ((refl / er - 1.0).abs(), (trans / et - 1.0).abs());
-            eprintln!("alpha {alpha}: reflection {refl:.6e} vs {er:.6e} ({:.3} %), transmission {trans:.6e} vs {et:.6e} ({:.3} %)", 100.0 * rel_r, 100.0 * rel_t);
+            eprintln!(
+                "alpha {alpha}: reflection {refl:.6e} vs {er:.6e} ({:.3} %), transmission {trans:.6e} vs {et:.6e} ({:.3} %)",
+                100.0 * rel_r,
+                100.0 * rel_t
+            );
             assert!(rel_r < 0.02 && rel_t < 0.02, "alpha {alpha}: {rel_r} {rel_t}");
             // Paper's A_vr(α) = (sin α − α cos α)/(6π).
             assert!((er - (alpha.sin() - alpha * alpha.cos()) / (6.0 * PI)).abs() < 1e-6);
@@ -581,7 +575,11 @@ mod tests {
                 }
             }
         }
-        eprintln!("Lo_sample closed form vs eq. 17 slice sum: worst {:.4} %; vs exact sphere irradiance: worst {:.1} %", 100.0 * worst, 100.0 * worst_true);
+        eprintln!(
+            "Lo_sample closed form vs eq. 17 slice sum: worst {:.4} %; vs exact sphere irradiance: worst {:.1} %",
+            100.0 * worst,
+            100.0 * worst_true
+        );
     }
 
     /// Lo_ind as an explicit sum over random leaves around `p`, and the
@@ -599,7 +597,8 @@ mod tests {
         let t = sun_terms(&env, sun);
         let dirs = directions();
         let (normal, to_eye) = (Vec3::new(0.2, 0.9, -0.3).normalize(), Vec3::new(0.5, 0.4, 0.7).normalize());
-        let closed: f32 = area * (0..N_DIR).map(|j| bsdf(normal, to_eye, COEFFS, dirs[j]) * lo_sample_from(&t, &s, j, COEFFS, e_sun, r0)).sum::<f32>();
+        let closed: f32 =
+            area * (0..N_DIR).map(|j| bsdf(normal, to_eye, COEFFS, dirs[j]) * lo_sample_from(&t, &s, j, COEFFS, e_sun, r0)).sum::<f32>();
         // Leaves uniform in a ball around `centre` of radius `radius`.
         let (centre, radius) = if model_geometry { (p, s.iter().cloned().fold(0.0, f32::max)) } else { (Vec3::ZERO, r) };
         let count = (density * 4.0 / 3.0 * PI * radius.powi(3)).round() as usize;
@@ -632,9 +631,13 @@ mod tests {
     #[test]
     fn closed_form_lo_ind_matches_a_sum_over_random_leaves() {
         let mut worst = 0.0f32;
-        for (k, (p, sun)) in [(Vec3::ZERO, Vec3::new(0.3, 1.0, 0.2)), (Vec3::new(0.4, -0.3, 0.2), Vec3::new(-1.0, 0.2, 0.5)), (Vec3::new(0.1, 0.5, 0.3), Vec3::new(0.2, 1.0, -0.6))]
-            .into_iter()
-            .enumerate()
+        for (k, (p, sun)) in [
+            (Vec3::ZERO, Vec3::new(0.3, 1.0, 0.2)),
+            (Vec3::new(0.4, -0.3, 0.2), Vec3::new(-1.0, 0.2, 0.5)),
+            (Vec3::new(0.1, 0.5, 0.3), Vec3::new(0.2, 1.0, -0.6)),
+        ]
+        .into_iter()
+        .enumerate()
         {
             let (closed, explicit) = lo_ind_explicit(p, sun, true, 100 + k as u64);
             let rel = (closed / explicit - 1.0).abs();
@@ -654,7 +657,10 @@ mod tests {
     fn precompute_on_a_generated_tree() {
         let model = generate(&TreeParams { species: Species::RedMaple, triangles: Some(20_000), seed: 1 }).unwrap();
         let env = precompute(&model);
-        eprintln!("tree: {} leaves, tau {} (paper fit {}), density {}, area {}, {:.1} ms", env.leaves, env.tau, env.tau_fit, env.leaf_density, env.leaf_area, env.precompute_ms);
+        eprintln!(
+            "tree: {} leaves, tau {} (paper fit {}), density {}, area {}, {:.1} ms",
+            env.leaves, env.tau, env.tau_fit, env.leaf_density, env.leaf_area, env.precompute_ms
+        );
         assert!(env.tau > 0.0 && env.tau.is_finite() && env.tau_fit > 0.0 && env.tau_fit.is_finite());
         assert_eq!(env.s_max.len(), model.triangle_count());
         assert!(env.s_max.iter().flatten().all(|s| s.is_finite() && *s >= 0.0));
@@ -683,7 +689,12 @@ mod tests {
             ratio_out += env.s_max[t][fewest] as f64;
         }
         let frac = more as f32 / cards.len() as f32;
-        eprintln!("tree: s_max towards the fullest octant > towards the emptiest for {:.1} % of leaves; means {:.3} vs {:.3}", 100.0 * frac, ratio_in / cards.len() as f64, ratio_out / cards.len() as f64);
+        eprintln!(
+            "tree: s_max towards the fullest octant > towards the emptiest for {:.1} % of leaves; means {:.3} vs {:.3}",
+            100.0 * frac,
+            ratio_in / cards.len() as f64,
+            ratio_out / cards.len() as f64
+        );
         assert!(frac > 0.8 && ratio_in > 2.0 * ratio_out, "{frac} {ratio_in} {ratio_out}");
         // The shading terms are finite on a real tree.
         let t = sun_terms(&env, Vec3::Y);

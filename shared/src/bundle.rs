@@ -72,10 +72,7 @@ pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle
         blobs.push((format!("{dir}/{file}"), bytes));
         spec.gltf = Some(PathBuf::from(format!("{dir}/{file}")));
     }
-    let manifest = Manifest {
-        scene,
-        blobs: blobs.iter().map(|(n, b)| BlobEntry { name: n.clone(), len: b.len() as u64 }).collect(),
-    };
+    let manifest = Manifest { scene, blobs: blobs.iter().map(|(n, b)| BlobEntry { name: n.clone(), len: b.len() as u64 }).collect() };
     let json = serde_json::to_vec(&manifest)?;
     let mut bytes = Vec::with_capacity(16 + json.len() + blobs.iter().map(|b| b.1.len()).sum::<usize>());
     bytes.extend_from_slice(MAGIC);
@@ -95,9 +92,10 @@ fn external_uris(gltf_json: &[u8]) -> anyhow::Result<Vec<String>> {
     for key in ["buffers", "images"] {
         for item in v[key].as_array().into_iter().flatten() {
             if let Some(uri) = item["uri"].as_str()
-                && !uri.starts_with("data:") {
-                    out.push(uri.to_string());
-                }
+                && !uri.starts_with("data:")
+            {
+                out.push(uri.to_string());
+            }
         }
     }
     Ok(out)

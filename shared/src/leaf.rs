@@ -46,7 +46,8 @@ impl LeafOptics {
     /// never scatters more than it receives (ρ_r + ρ_t ≤ 1 per side).
     pub fn coefficients(&self, albedo: [f32; 3], c: usize) -> [f32; 4] {
         let a = albedo[c];
-        let (mut rf, mut rb, mut tf, mut tb) = (a * self.reflect_front[c], a * self.reflect_back[c], a * self.transmit_front[c], a * self.transmit_back[c]);
+        let (mut rf, mut rb, mut tf, mut tb) =
+            (a * self.reflect_front[c], a * self.reflect_back[c], a * self.transmit_front[c], a * self.transmit_back[c]);
         // Front face: light arriving on the front is reflected (ρ_rf) or transmitted (ρ_tf).
         let front = rf + tf;
         if front > 1.0 {
@@ -63,7 +64,12 @@ impl LeafOptics {
 
     /// Refuses negative or non-finite coefficients.
     pub fn validate(&self) -> Result<(), String> {
-        for (name, v) in [("reflect_front", self.reflect_front), ("reflect_back", self.reflect_back), ("transmit_front", self.transmit_front), ("transmit_back", self.transmit_back)] {
+        for (name, v) in [
+            ("reflect_front", self.reflect_front),
+            ("reflect_back", self.reflect_back),
+            ("transmit_front", self.transmit_front),
+            ("transmit_back", self.transmit_back),
+        ] {
             if v.iter().any(|x| !x.is_finite() || *x < 0.0) {
                 return Err(format!("leaf optics {name} = {v:?}: each must be a finite number ≥ 0"));
             }

@@ -1,9 +1,9 @@
 //! Models: triangle meshes with texture coordinates and materials (leaf or
 //! wood, base colour, alpha-masked texture), and their loading from glTF 2.0.
 
+use crate::scene::FileAccess;
 use anyhow::{Context, bail};
 use glam::{Mat4, Vec2, Vec3};
-use crate::scene::FileAccess;
 use std::path::Path;
 
 /// What a triangle is made of, for the LB medium: leaves make green nodes,
@@ -193,9 +193,26 @@ impl GltfBudget {
 /// 0.5). Buffers and images are read only where `access` allows, `data:`
 /// URIs always; sizes are checked against `budget` first.
 pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> anyhow::Result<Model> {
+    // The glTF crates assert on some malformed accessors instead of
+    // returning errors; a hostile file must cost its scene, not the process.
+    let mut b = *budget;
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load_unguarded(path, access, &mut b)));
+    match r {
+        Ok(Ok(m)) => {
+            *budget = b;
+            Ok(m)
+        }
+        Ok(Err(e)) => Err(e),
+        Err(_) => bail!("{}: malformed glTF: the loader failed on it", path.file_name().map(|f| f.to_string_lossy()).unwrap_or_default()),
+    }
+}
+
+fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> anyhow::Result<Model> {
     // Inside a bundle, name files as the bundle does: its folder is ours.
     let shown = match access {
-        FileAccess::Inside(base) => path.strip_prefix(base.canonicalize().unwrap_or_else(|_| base.clone())).or_else(|_| path.strip_prefix(base)).unwrap_or(path),
+        FileAccess::Inside(base) => {
+            path.strip_prefix(base.canonicalize().unwrap_or_else(|_| base.clone())).or_else(|_| path.strip_prefix(base)).unwrap_or(path)
+        }
         FileAccess::Anywhere(_) => path,
     }
     .display()
@@ -220,11 +237,13 @@ pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget)
         }
     }
     let scene = doc.default_scene().or_else(|| doc.scenes().next()).with_context(|| format!("{shown}: the glTF file has no scene"))?;
-    let triangles = scene.nodes().map(|n| node_triangles(&n, 0)).fold(0u64, u64::saturating_add);
+    let triangles = scene_triangles(&scene).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    check_accessors(&doc).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     if triangles > budget.triangles {
         bail!("{shown}: {triangles} triangles is more than the {} this scene may still have", budget.triangles);
     }
-    let buffers = gltf::import_buffers(&doc, Some(folder), blob).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF buffers: {}", gltf_error(&e)))?;
+    let buffers =
+        gltf::import_buffers(&doc, Some(folder), blob).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF buffers: {}", gltf_error(&e)))?;
     let mut texels = 0u64;
     for img in doc.images() {
         let (w, h) = image_size(&img, &files, &buffers).with_context(|| format!("{shown}: image {}: cannot read its size", img.index()))?;
@@ -233,7 +252,8 @@ pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget)
     if texels > budget.texture_pixels {
         bail!("{shown}: {texels} texels of textures is more than the {} this scene may still have", budget.texture_pixels);
     }
-    let images = gltf::import_images(&doc, Some(folder), &buffers).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF images: {}", gltf_error(&e)))?;
+    let images =
+        gltf::import_images(&doc, Some(folder), &buffers).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF images: {}", gltf_error(&e)))?;
     budget.triangles -= triangles;
     budget.texture_pixels -= texels;
     let path = Path::new(&shown);
@@ -258,7 +278,10 @@ pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget)
         };
         let image = pbr.base_color_texture().and_then(|t| images.get(t.texture().source().index()));
         if let (Some(_), Some(img)) = (alpha_cutoff, image)
-            && matches!(img.format, gltf::image::Format::R8G8B8 | gltf::image::Format::R8 | gltf::image::Format::R16G16B16 | gltf::image::Format::R32G32B32FLOAT)
+            && matches!(
+                img.format,
+                gltf::image::Format::R8G8B8 | gltf::image::Format::R8 | gltf::image::Format::R16G16B16 | gltf::image::Format::R32G32B32FLOAT
+            )
         {
             tracing::warn!(
                 file = %shown,
@@ -294,24 +317,88 @@ pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget)
     Ok(model)
 }
 
-/// Triangles a node and its children would add (a mesh counts once per
-/// node that places it), from accessor counts alone.
-fn node_triangles(node: &gltf::Node, depth: u32) -> u64 {
-    // glTF forbids cycles, but a hostile file may still nest deeply.
-    if depth > 64 {
-        return u64::MAX;
+/// Deepest node hierarchy read: glTF forbids cycles, and a file with one
+/// shows up as a hierarchy deeper than this.
+const MAX_NODE_DEPTH: usize = 64;
+/// Most node placements (a node counts once per path that reaches it).
+const MAX_NODE_PLACEMENTS: u64 = 1 << 20;
+
+/// Triangles the scene's nodes would place (a mesh counts once per node
+/// path that reaches it), from accessor counts alone; refuses cycles and
+/// graphs whose shared children multiply past [`MAX_NODE_PLACEMENTS`].
+fn scene_triangles(scene: &gltf::Scene) -> Result<u64, String> {
+    let mut stack: Vec<(gltf::Node, usize)> = scene.nodes().map(|n| (n, 0)).collect();
+    let (mut triangles, mut placements) = (0u64, 0u64);
+    while let Some((node, depth)) = stack.pop() {
+        if depth >= MAX_NODE_DEPTH {
+            return Err(format!("the node hierarchy is deeper than {MAX_NODE_DEPTH} (a node that is its own descendant?)"));
+        }
+        placements += 1;
+        if placements > MAX_NODE_PLACEMENTS {
+            return Err(format!("the nodes place meshes more than {MAX_NODE_PLACEMENTS} times"));
+        }
+        if let Some(m) = node.mesh() {
+            for p in m.primitives().filter(|p| p.mode() == gltf::mesh::Mode::Triangles) {
+                let n = p.indices().or_else(|| p.get(&gltf::Semantic::Positions)).map_or(0, |a| a.count() as u64 / 3);
+                triangles = triangles.saturating_add(n);
+            }
+        }
+        stack.extend(node.children().map(|c| (c, depth + 1)));
     }
-    let own = node.mesh().map_or(0, |m| {
-        m.primitives()
-            .filter(|p| p.mode() == gltf::mesh::Mode::Triangles)
-            .map(|p| p.indices().or_else(|| p.get(&gltf::Semantic::Positions)).map_or(0, |a| a.count() as u64 / 3))
-            .sum()
-    });
-    node.children().map(|c| node_triangles(&c, depth + 1)).fold(own, u64::saturating_add)
+    Ok(triangles)
+}
+
+/// Checks every accessor a triangle primitive reads — the type and
+/// component type the reader expects, a count of at least one, a stride
+/// and offsets inside its view — since the glTF reader asserts rather
+/// than erring on these.
+fn check_accessors(doc: &gltf::Document) -> Result<(), String> {
+    use gltf::accessor::{DataType as D, Dimensions as N};
+    for m in doc.meshes() {
+        let mesh = m.name().unwrap_or("?");
+        for p in m.primitives().filter(|p| p.mode() == gltf::mesh::Mode::Triangles) {
+            let uses = [
+                (p.get(&gltf::Semantic::Positions), "POSITION", &[N::Vec3][..], &[D::F32][..]),
+                (p.indices(), "indices", &[N::Scalar][..], &[D::U8, D::U16, D::U32][..]),
+                (p.get(&gltf::Semantic::TexCoords(0)), "TEXCOORD_0", &[N::Vec2][..], &[D::F32, D::U8, D::U16][..]),
+            ];
+            for (acc, what, dims, types) in uses {
+                let Some(a) = acc else { continue };
+                let bad = |m: String| Err(format!("mesh {mesh:?}: {what} accessor {}: {m}", a.index()));
+                if !dims.contains(&a.dimensions()) || !types.contains(&a.data_type()) {
+                    return bad(format!("{:?} of {:?} cannot be read as {what}", a.dimensions(), a.data_type()));
+                }
+                if a.count() == 0 || a.count() > 1 << 28 {
+                    return bad(format!("count {} outside [1, 2^28]", a.count()));
+                }
+                if a.sparse().is_some() {
+                    return bad("sparse accessors are not read".into());
+                }
+                let Some(view) = a.view() else { return bad("no buffer view".into()) };
+                let element = a.size();
+                let stride = view.stride().unwrap_or(element);
+                if stride < element {
+                    return bad(format!("stride {stride} is less than the element's {element} bytes"));
+                }
+                let end_of_first = (a.offset() as u64).checked_add(element as u64);
+                let span = (a.count() as u64 - 1).checked_mul(stride as u64).zip(end_of_first).and_then(|(v, e)| v.checked_add(e));
+                if span.is_none_or(|s| s > view.length() as u64)
+                    || (view.offset() as u64).checked_add(view.length() as u64).is_none_or(|end| end > view.buffer().length() as u64)
+                {
+                    return bad("runs past its buffer view or the view past its buffer".into());
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Width and height of a glTF image from its header, without decoding it.
-fn image_size(img: &gltf::Image, files: &std::collections::HashMap<String, std::path::PathBuf>, buffers: &[gltf::buffer::Data]) -> anyhow::Result<(u32, u32)> {
+fn image_size(
+    img: &gltf::Image,
+    files: &std::collections::HashMap<String, std::path::PathBuf>,
+    buffers: &[gltf::buffer::Data],
+) -> anyhow::Result<(u32, u32)> {
     let reader = match img.source() {
         gltf::image::Source::Uri { uri, .. } => match files.get(uri) {
             Some(p) => image::ImageReader::new(std::io::BufReader::new(std::fs::File::open(p)?)).with_guessed_format()?.into_dimensions()?,
@@ -385,7 +472,12 @@ fn add_node(
                 None => model.uvs.extend(std::iter::repeat_n(Vec2::ZERO, count as usize)),
             }
             if model.uvs.len() != model.positions.len() {
-                bail!("{}: mesh {:?} has {} texture coordinates for {count} vertices", path.display(), m.name().unwrap_or("?"), model.uvs.len() - base as usize);
+                bail!(
+                    "{}: mesh {:?} has {} texture coordinates for {count} vertices",
+                    path.display(),
+                    m.name().unwrap_or("?"),
+                    model.uvs.len() - base as usize
+                );
             }
             let indices: Vec<u32> = match reader.read_indices() {
                 Some(ix) => ix.into_u32().collect(),

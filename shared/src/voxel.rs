@@ -159,11 +159,7 @@ pub fn voxelize(mesh: &Model, n: usize) -> Result<Voxelization, VoxelError> {
             (any as f32 / (SUB * SUB * SUB) as f32, class)
         })
         .collect();
-    let medium = MediumGrid {
-        dims,
-        density: cells.iter().map(|c| c.0).collect(),
-        class: cells.iter().map(|c| c.1).collect(),
-    };
+    let medium = MediumGrid { dims, density: cells.iter().map(|c| c.0).collect(), class: cells.iter().map(|c| c.1).collect() };
     Ok(Voxelization { medium, frame })
 }
 
@@ -257,10 +253,7 @@ mod tests {
         let leaf = mesh.add_material(crate::model::Material::plain("leaf", Surface::Leaf, [0.2, 0.5, 0.1]));
         // A square in the plane y = 0.5 spanning x, z ∈ [0, 1].
         let y = 0.5;
-        mesh.push_quad(
-            [Vec3::new(0.0, y, 0.0), Vec3::new(0.0, y, 1.0), Vec3::new(1.0, y, 1.0), Vec3::new(1.0, y, 0.0)],
-            leaf,
-        );
+        mesh.push_quad([Vec3::new(0.0, y, 0.0), Vec3::new(0.0, y, 1.0), Vec3::new(1.0, y, 1.0), Vec3::new(1.0, y, 0.0)], leaf);
         // Odd n puts the plane through the middle of the centre cell's
         // middle layer of sub-cells: 9 of 27 marked, density 1/3.
         let n = 9;

@@ -1,16 +1,12 @@
 //! The LB model against its Monte Carlo reference, and the warnings that
 //! say where it stops being trustworthy (`lb::montecarlo`, `lb::limits`).
 
-use sylva_shared::lb::limits::{
-    self, Comparison, LB_ERROR_BOUND, Sweep, SweepKind, failure_sweep, medium_mask, slab, sphere,
-};
+use sylva_shared::lb::limits::{self, Comparison, LB_ERROR_BOUND, Sweep, SweepKind, failure_sweep, medium_mask, slab, sphere};
 use sylva_shared::lb::montecarlo::{self, fluence};
 use sylva_shared::lb::*;
 
 fn interior(dims: GridDims) -> Vec<bool> {
-    (0..dims.len())
-        .map(|i| !dims.is_boundary(i % dims.nx, (i / dims.nx) % dims.ny, i / (dims.nx * dims.ny)))
-        .collect()
+    (0..dims.len()).map(|i| !dims.is_boundary(i % dims.nx, (i / dims.nx) % dims.ny, i / (dims.nx * dims.ny))).collect()
 }
 
 fn masked_mean(v: &[f32], mask: &[bool]) -> f64 {
@@ -106,7 +102,11 @@ fn lb_agrees_with_monte_carlo_inside_a_thick_slab() {
     let err = c.lb_error(&mask);
     let all = c.lb_error(&medium_mask(&medium));
     let ambient = c.ambient_error(&mask);
-    println!("thick slab: LB relative RMS {err:.4} inside (all slab nodes {all:.4}), constant {ambient:.4}, MC noise {:.4}, {} LB steps", c.mc_noise(&mask), c.lb_steps);
+    println!(
+        "thick slab: LB relative RMS {err:.4} inside (all slab nodes {all:.4}), constant {ambient:.4}, MC noise {:.4}, {} LB steps",
+        c.mc_noise(&mask),
+        c.lb_steps
+    );
     assert!(err < THICK_SLAB_TOLERANCE, "LB error {err} inside a thick slab");
     assert!(err < 0.5 * ambient, "LB {err} should beat a constant ({ambient}) clearly");
 }
@@ -115,10 +115,7 @@ fn print(s: &Sweep) {
     println!("== {} — x: {}", s.name, s.x_label);
     println!("{:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>6}", "x", "lb_error", "ambient", "mc_noise", "lb_ms", "mc_ms", "warned");
     for p in &s.points {
-        println!(
-            "{:>8.3} {:>9.4} {:>9.4} {:>8.4} {:>7.0} {:>7.0} {:>6}",
-            p.x, p.lb_error, p.ambient_error, p.mc_noise, p.lb_ms, p.mc_ms, p.warned
-        );
+        println!("{:>8.3} {:>9.4} {:>9.4} {:>8.4} {:>7.0} {:>7.0} {:>6}", p.x, p.lb_error, p.ambient_error, p.mc_noise, p.lb_ms, p.mc_ms, p.warned);
     }
 }
 

@@ -27,21 +27,14 @@ impl GpuContext {
     async fn open() -> anyhow::Result<Self> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = instance
-            .request_adapter(&wgpu::RequestAdapterOptions {
-                power_preference: wgpu::PowerPreference::HighPerformance,
-                ..Default::default()
-            })
+            .request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() })
             .await
             .context(
                 "no GPU adapter found: install a Vulkan driver (on Debian, `apt-get install mesa-vulkan-drivers` gives the lavapipe CPU driver)",
             )?;
         let limits = adapter.limits();
         let (device, queue) = adapter
-            .request_device(&wgpu::DeviceDescriptor {
-                label: Some("sylva"),
-                required_limits: limits.clone(),
-                ..Default::default()
-            })
+            .request_device(&wgpu::DeviceDescriptor { label: Some("sylva"), required_limits: limits.clone(), ..Default::default() })
             .await
             .with_context(|| format!("cannot open a device on {}", adapter.get_info().name))?;
         device.on_uncaptured_error(std::sync::Arc::new(|e| tracing::error!("wgpu: {e}")));

@@ -6,10 +6,10 @@ use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
 use crate::trace::{CloudGrid, GpuScene, LbGrid, SceneLight, StripRenderer};
 use serde::Serialize;
-use sylva_shared::accel::{AccelKind, SceneAccel};
-use sylva_shared::lb::solver::PhaseTimer;
 use sylva_shared::accel::Aabb;
+use sylva_shared::accel::{AccelKind, SceneAccel};
 use sylva_shared::lb::coarse::{Occupant, WorldGrid, forest_medium};
+use sylva_shared::lb::solver::PhaseTimer;
 use sylva_shared::lb::{Preset, SolveOptions, Sun, solve};
 use sylva_shared::scene::{ForestGridUse, LightingMode, Scene};
 use sylva_shared::voxel::voxelize;
@@ -54,7 +54,13 @@ fn voxels_of(m: &sylva_shared::scene::SceneModel, grid: usize) -> anyhow::Result
 }
 
 /// Solves the LB light of one model's voxels.
-fn solve_voxels(solver: &mut GpuSolver, m: &sylva_shared::scene::SceneModel, v: &sylva_shared::voxel::Voxelization, grid: usize, sun: &Sun) -> anyhow::Result<(LbGrid, ModelLight)> {
+fn solve_voxels(
+    solver: &mut GpuSolver,
+    m: &sylva_shared::scene::SceneModel,
+    v: &sylva_shared::voxel::Voxelization,
+    grid: usize,
+    sun: &Sun,
+) -> anyhow::Result<(LbGrid, ModelLight)> {
     let params = m.lb.preset.params();
     let s = solve(solver, &v.medium, &params, sun, &SolveOptions::default(), &|_, _, _| {})?;
     let warnings = sylva_shared::lb::lb_warnings(&params, &v.medium, sun).into_iter().map(|w| format!("{}: {}", w.kind, w.message)).collect();
@@ -110,14 +116,21 @@ pub struct GridChoice {
 /// Picks per model the smallest of `candidates` (ascending) whose LB light,
 /// where the image samples it (every triangle's centre), differs from the
 /// next finer grid's by less than `tolerance` (relative RMS).
-pub fn choose_lb_grids(ctx: &GpuContext, scene: &Scene, candidates: &[usize], tolerance: f64, progress: &dyn Fn(&str)) -> anyhow::Result<Vec<GridChoice>> {
+pub fn choose_lb_grids(
+    ctx: &GpuContext,
+    scene: &Scene,
+    candidates: &[usize],
+    tolerance: f64,
+    progress: &dyn Fn(&str),
+) -> anyhow::Result<Vec<GridChoice>> {
     anyhow::ensure!(candidates.len() >= 2 && candidates.windows(2).all(|w| w[0] < w[1]), "auto grid candidates must be at least two, ascending");
     let sun = sun_of(scene)?;
     let mut solver = GpuSolver::new(ctx.clone());
     let mut out = Vec::new();
     for m in &scene.models {
         let t = std::time::Instant::now();
-        let pts: Vec<glam::Vec3> = m.model.triangles.iter().map(|t| t.iter().map(|&i| m.model.positions[i as usize]).sum::<glam::Vec3>() / 3.0).collect();
+        let pts: Vec<glam::Vec3> =
+            m.model.triangles.iter().map(|t| t.iter().map(|&i| m.model.positions[i as usize]).sum::<glam::Vec3>() / 3.0).collect();
         let light_at = |g: &LbGrid| -> Vec<f32> { pts.iter().map(|&p| sample_lb(g, p).iter().sum::<f32>()).collect() };
         progress(&format!("choosing the LB grid of {} ({}³)", m.name, candidates[0]));
         let mut coarse = light_at(&solve_model(&mut solver, m, candidates[0], &sun)?.0);
@@ -137,7 +150,8 @@ pub fn choose_lb_grids(ctx: &GpuContext, scene: &Scene, candidates: &[usize], to
             coarse = fine;
         }
         let last = *candidates.last().expect("two or more");
-        let (grid, reason) = chosen.unwrap_or((last, format!("no grid up to {last}³ agreed with the next within {:.1} %: the finest was used", 100.0 * tolerance)));
+        let (grid, reason) =
+            chosen.unwrap_or((last, format!("no grid up to {last}³ agreed with the next within {:.1} %: the finest was used", 100.0 * tolerance)));
         out.push(GridChoice { model: m.name.clone(), grid, compared, reason, ms: t.elapsed().as_secs_f64() * 1e3 });
     }
     Ok(out)
@@ -197,13 +211,7 @@ pub struct ModelEnvelope {
 
 /// Prepares `scene` for tracing with `kind` structures; `lighting` decides
 /// whether the LB pre-process runs. `progress` hears each step.
-pub fn prepare(
-    ctx: &GpuContext,
-    scene: &Scene,
-    kind: AccelKind,
-    lighting: LightingMode,
-    progress: &dyn Fn(&str),
-) -> anyhow::Result<PreparedScene> {
+pub fn prepare(ctx: &GpuContext, scene: &Scene, kind: AccelKind, lighting: LightingMode, progress: &dyn Fn(&str)) -> anyhow::Result<PreparedScene> {
     let mut phases = PhaseTimer::default();
     progress("building acceleration structures");
     let accel = phases.time("build", || SceneAccel::build(scene, kind));
@@ -212,9 +220,7 @@ pub fn prepare(
     let mut light = Vec::new();
     if needs_lb {
         progress("voxelizing models");
-        let voxels = phases.time("voxelize", || {
-            scene.models.iter().map(|m| voxels_of(m, m.lb.grid)).collect::<Result<Vec<_>, _>>()
-        })?;
+        let voxels = phases.time("voxelize", || scene.models.iter().map(|m| voxels_of(m, m.lb.grid)).collect::<Result<Vec<_>, _>>())?;
         let sun = sun_of(scene)?;
         let mut solver = GpuSolver::new(ctx.clone());
         phases.time("lb", || -> anyhow::Result<()> {
@@ -245,7 +251,14 @@ pub fn prepare(
         phases.time("boulanger precompute", || {
             for m in &scene.models {
                 let e = sylva_shared::boulanger::precompute(&m.model);
-                boulanger.push(ModelEnvelope { model: m.name.clone(), leaves: e.leaves, tau: e.tau, leaf_density: e.leaf_density, leaf_area: e.leaf_area, ms: e.precompute_ms });
+                boulanger.push(ModelEnvelope {
+                    model: m.name.clone(),
+                    leaves: e.leaves,
+                    tau: e.tau,
+                    leaf_density: e.leaf_density,
+                    leaf_area: e.leaf_area,
+                    ms: e.precompute_ms,
+                });
                 envelopes.push(Some(std::sync::Arc::new(e)));
             }
         });
@@ -283,13 +296,7 @@ fn crown_fill(grid: Option<&LbGrid>, model: &sylva_shared::model::Model) -> f32 
 
 /// Solves the coarse forest grid, decides whether to use it, and writes the
 /// per-instance scales (normalized so the best-lit instance gets 1).
-fn forest_light(
-    ctx: &GpuContext,
-    scene: &Scene,
-    fills: &[f32],
-    sun: &Sun,
-    scales: &mut [f32],
-) -> anyhow::Result<ForestLight> {
+fn forest_light(ctx: &GpuContext, scene: &Scene, fills: &[f32], sun: &Sun, scales: &mut [f32]) -> anyhow::Result<ForestLight> {
     let spec = scene.file.forest_grid;
     let unused = |reason: String| ForestLight { used: false, reason, grid: None, spread: 0.0, scale_min: 1.0, scale_mean: 1.0, scale_max: 1.0 };
     if spec.use_grid == ForestGridUse::Never {

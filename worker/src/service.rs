@@ -310,16 +310,20 @@ impl Worker for WorkerService {
         .await;
         guard.1 = true;
         self.state.busy.fetch_sub(1, Ordering::SeqCst);
-        let (strip, prepare_ms, render_ms) = result
-            .map_err(|e| Status::internal(format!("the strip's render panicked: {e}")))?
-            .map_err(|e| if e.is::<Cancelled>() { Status::cancelled("the caller cancelled the strip") } else { Status::internal(format!("{e:#}")) })?;
+        let (strip, prepare_ms, render_ms) = result.map_err(|e| Status::internal(format!("the strip's render panicked: {e}")))?.map_err(|e| {
+            if e.is::<Cancelled>() { Status::cancelled("the caller cancelled the strip") } else { Status::internal(format!("{e:#}")) }
+        })?;
         Ok(Response::new(pb::RenderStripReply {
             x0: strip.x0,
             width: strip.width,
             height: f.height,
             rgb_f32: strip.pixels.iter().flatten().flat_map(|v| v.to_le_bytes()).collect(),
             coverage_f32: strip.coverage.iter().flat_map(|v| v.to_le_bytes()).collect(),
-            rays: Some(pb::RayCounts { primary: strip.rays.primary as u64, shadow: strip.rays.shadow as u64, transparent: strip.rays.transparent as u64 }),
+            rays: Some(pb::RayCounts {
+                primary: strip.rays.primary as u64,
+                shadow: strip.rays.shadow as u64,
+                transparent: strip.rays.transparent as u64,
+            }),
             render_ms,
             prepare_ms,
         }))

@@ -9,7 +9,7 @@ use sylva_shared::color::luminance;
 use sylva_shared::scene::{LightingMode, Scene, parse};
 use sylva_worker::GpuContext;
 use sylva_worker::prepare::prepare;
-use sylva_worker::trace::{RenderSettings, ReferenceOptions, render_reference};
+use sylva_worker::trace::{ReferenceOptions, RenderSettings, render_reference};
 
 fn ctx() -> GpuContext {
     GpuContext::new().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
@@ -79,7 +79,12 @@ fn with_nothing_to_bounce_off_the_reference_is_the_local_image() {
 fn the_reference_error_falls_as_one_over_root_spp_and_it_says_so() {
     // A leaf square over a ground under a blue sky: sky light, transmission
     // and bounces between leaf and ground, all random.
-    let scene = quad_scene("converge", "leaf", r#"{ "zenith": [0.2, 0.3, 0.6], "horizon": [0.5, 0.5, 0.5] }"#, r#", "ground": { "color": [0.3, 0.25, 0.2] }"#);
+    let scene = quad_scene(
+        "converge",
+        "leaf",
+        r#"{ "zenith": [0.2, 0.3, 0.6], "horizon": [0.5, 0.5, 0.5] }"#,
+        r#", "ground": { "color": [0.3, 0.25, 0.2] }"#,
+    );
     let ctx = ctx();
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|_| {}).unwrap();
     let f = frame(24, 24);
@@ -107,7 +112,12 @@ fn the_reference_error_falls_as_one_over_root_spp_and_it_says_so() {
 
 #[test]
 fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
-    let scene = quad_scene("boulanger", "leaf", r#"{ "zenith": [0.2, 0.3, 0.6], "horizon": [0.5, 0.5, 0.5] }"#, r#", "ground": { "color": [0.3, 0.25, 0.2] }"#);
+    let scene = quad_scene(
+        "boulanger",
+        "leaf",
+        r#"{ "zenith": [0.2, 0.3, 0.6], "horizon": [0.5, 0.5, 0.5] }"#,
+        r#", "ground": { "color": [0.3, 0.25, 0.2] }"#,
+    );
     let ctx = ctx();
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Boulanger, &|_| {}).unwrap();
     assert_eq!(p.boulanger.len(), 1);

@@ -80,7 +80,10 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
                     }
                     // Did this ray pass through a transparent texel before its hit?
                     let m = scene.instances[c.instance as usize].model as usize;
-                    let local = Ray::new(accel.to_model[c.instance as usize].transform_point3(r.origin), accel.to_model[c.instance as usize].transform_vector3(r.dir));
+                    let local = Ray::new(
+                        accel.to_model[c.instance as usize].transform_point3(r.origin),
+                        accel.to_model[c.instance as usize].transform_vector3(r.dir),
+                    );
                     let mut first = None;
                     accel.models[m].closest(&local, 1e-4, f32::MAX, &mut |t, lim| {
                         let [a, b, cc] = scene.models[m].model.triangle(t as usize);
@@ -94,6 +97,12 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
         }
         assert!(hit_count > 20_000, "{kind:?}: only {hit_count} hits");
         assert!(transparent_passed > 100, "{kind:?}: only {transparent_passed} rays crossed a transparent texel");
-        assert!(mismatches.is_empty(), "{kind:?}: {} of {} rays differ, e.g.\n{}", mismatches.len(), rays.len(), mismatches.iter().take(8).cloned().collect::<Vec<_>>().join("\n"));
+        assert!(
+            mismatches.is_empty(),
+            "{kind:?}: {} of {} rays differ, e.g.\n{}",
+            mismatches.len(),
+            rays.len(),
+            mismatches.iter().take(8).cloned().collect::<Vec<_>>().join("\n")
+        );
     }
 }

@@ -181,13 +181,13 @@ pub struct TraceBenchArgs {
 /// against BVH, GPU against CPU, on the same primary rays, then whole frames
 /// at 1 and 4 rays per pixel.
 fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
+    use rayon::prelude::*;
     use sylva_shared::accel::{AccelKind, Ray, SceneAccel};
     use sylva_shared::scene::forest::{ForestOptions, forest};
     use sylva_shared::scene::{LightingMode, Scene};
     use sylva_worker::GpuContext;
     use sylva_worker::prepare::prepare;
-    use sylva_worker::trace::{RenderSettings, GpuRay, GpuScene, RayCaster};
-    use rayon::prelude::*;
+    use sylva_worker::trace::{GpuRay, GpuScene, RayCaster, RenderSettings};
 
     let file = forest(&ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: 1 }).map_err(anyhow::Error::msg)?;
     let t = Instant::now();
@@ -233,7 +233,8 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     for kind in [AccelKind::Kd, AccelKind::Bvh] {
         let prepared = prepare(&ctx, &scene, kind, LightingMode::Lb, &|_| {})?;
         for spp in [1u32, 4] {
-            let f = RenderSettings { width: a.width, height: a.height, spp, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
+            let f =
+                RenderSettings { width: a.width, height: a.height, spp, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
             prepared.renderer.render_strip(&ctx, &RenderSettings { width: 64, height: 32, ..f }, 0, 64)?; // warm-up
             let t = Instant::now();
             let frame = InProcess::new(&ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;
@@ -336,7 +337,8 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(a.width > 0 && a.height > 0 && a.width <= 16384 && a.height <= 16384, "image sides in [1, 16384]");
     let scene = sylva_shared::scene::Scene::load(&a.scene)?;
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
-    let frame = sylva_shared::frame::FrameSettings { width: a.width, height: a.height, spp: a.spp, lighting: Some(scene.lighting), ..Default::default() };
+    let frame =
+        sylva_shared::frame::FrameSettings { width: a.width, height: a.height, spp: a.spp, lighting: Some(scene.lighting), ..Default::default() };
     frame.check()?;
     let rt = tokio::runtime::Runtime::new()?;
     let deadline = std::time::Duration::from_secs(3600);

@@ -20,7 +20,7 @@ use sylva_shared::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_
 use sylva_shared::scene::{ForestGridUse, LightingMode, Scene};
 use sylva_worker::GpuContext;
 use sylva_worker::prepare::{choose_lb_grids, prepare};
-use sylva_worker::trace::{RenderSettings, ReferenceOptions, render_reference};
+use sylva_worker::trace::{ReferenceOptions, RenderSettings, render_reference};
 
 #[derive(Debug, Args)]
 pub struct CompareArgs {
@@ -112,7 +112,8 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let say = |m: &str| bar.set_message(m.to_string());
-    let settings = RenderSettings { width: a.width, height: a.height, spp: a.spp, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 };
+    let settings =
+        RenderSettings { width: a.width, height: a.height, spp: a.spp, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 };
 
     // The reference first: every error is measured against it.
     say("reference: path tracing");
@@ -130,7 +131,8 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     anyhow::ensure!(lit.iter().any(|&l| l), "no pixel of the frame shows a lit model: nothing to compare");
     let (_, exposure) = reinhard(&reference, 0.18);
 
-    let mut methods: Vec<(String, LightingMode, Scene)> = vec![("local".into(), LightingMode::Local, scene.clone()), ("ambient".into(), LightingMode::Ambient, scene.clone())];
+    let mut methods: Vec<(String, LightingMode, Scene)> =
+        vec![("local".into(), LightingMode::Local, scene.clone()), ("ambient".into(), LightingMode::Ambient, scene.clone())];
     for &g in &a.grids {
         methods.push((format!("lb {g}³"), LightingMode::Lb, with_lb(&scene, Some(g), Some(ForestGridUse::Never))));
     }
@@ -213,7 +215,15 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     } else {
         println!("{:<28} {:>12} {:>10} {:>9} {:>10} {:>10}", "method", "pre-process", "frame", "RMSE", "rel. err", "indirect");
         for m in &reports {
-            println!("{:<28} {:>9.0} ms {:>7.0} ms {:>9.4} {:>9.1} % {:>9.1} %", m.name, m.preprocess_ms, m.frame_ms, m.rmse, 100.0 * m.mean_relative_error, 100.0 * m.indirect_relative_error);
+            println!(
+                "{:<28} {:>9.0} ms {:>7.0} ms {:>9.4} {:>9.1} % {:>9.1} %",
+                m.name,
+                m.preprocess_ms,
+                m.frame_ms,
+                m.rmse,
+                100.0 * m.mean_relative_error,
+                100.0 * m.indirect_relative_error
+            );
         }
         println!("{}", best);
         println!("wrote {}, {} and {}", a.out.join("compare.json").display(), grid_svg.display(), chart.display());
@@ -254,7 +264,16 @@ fn with_lb(scene: &Scene, grid: Option<usize>, forest: Option<ForestGridUse>) ->
 
 /// Prepares and renders one method, writes its image with the reference's exposure.
 #[allow(clippy::too_many_arguments)]
-fn render_method(ctx: &GpuContext, name: &str, lighting: LightingMode, scene: &Scene, f: &RenderSettings, out: &Path, exposure: &ToneMapStats, say: &dyn Fn(&str)) -> anyhow::Result<Rendered> {
+fn render_method(
+    ctx: &GpuContext,
+    name: &str,
+    lighting: LightingMode,
+    scene: &Scene,
+    f: &RenderSettings,
+    out: &Path,
+    exposure: &ToneMapStats,
+    say: &dyn Fn(&str),
+) -> anyhow::Result<Rendered> {
     let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
     let mut pre: f64 = prepared.phases.0.iter().filter(|p| !matches!(p.name, "build" | "upload")).map(|p| p.ms).sum::<f64>() + 0.0;
     let mut settings = RenderSettings { lighting, ..*f };
@@ -329,15 +348,30 @@ fn winner(reports: &[MethodReport]) -> String {
         .min_by(|a, b| (a.preprocess_ms + a.frame_ms).total_cmp(&(b.preprocess_ms + b.frame_ms)));
     let lowest_rmse = methods.iter().min_by(|a, b| a.rmse.total_cmp(&b.rmse)).expect("not empty");
     // The relative error weighs dark pixels most, RMSE bright ones: say both.
-    let mut s = format!("most accurate: {} ({:.1} % mean relative error); lowest RMSE: {} ({:.4})", best.name, 100.0 * best.mean_relative_error, lowest_rmse.name, lowest_rmse.rmse);
+    let mut s = format!(
+        "most accurate: {} ({:.1} % mean relative error); lowest RMSE: {} ({:.4})",
+        best.name,
+        100.0 * best.mean_relative_error,
+        lowest_rmse.name,
+        lowest_rmse.rmse
+    );
     match cheapest_better {
-        Some(c) => s += &format!("; cheapest to beat constant ambient ({:.1} %): {} ({:.1} %, {:.0} ms in all)", 100.0 * ambient, c.name, 100.0 * c.mean_relative_error, c.preprocess_ms + c.frame_ms),
+        Some(c) => {
+            s += &format!(
+                "; cheapest to beat constant ambient ({:.1} %): {} ({:.1} %, {:.0} ms in all)",
+                100.0 * ambient,
+                c.name,
+                100.0 * c.mean_relative_error,
+                c.preprocess_ms + c.frame_ms
+            )
+        }
         None => s += &format!("; no method beats constant ambient ({:.1} %) here", 100.0 * ambient),
     }
     s
 }
 
-const COLORS: [&str; 12] = ["#444444", "#999999", "#1f77b4", "#2ca02c", "#17becf", "#9467bd", "#8c564b", "#d62728", "#ff7f0e", "#e377c2", "#bcbd22", "#000000"];
+const COLORS: [&str; 12] =
+    ["#444444", "#999999", "#1f77b4", "#2ca02c", "#17becf", "#9467bd", "#8c564b", "#d62728", "#ff7f0e", "#e377c2", "#bcbd22", "#000000"];
 
 /// Mean relative error against log10 of pre-process + frame time, every method a point.
 fn error_chart(reports: &[MethodReport]) -> String {
@@ -354,7 +388,13 @@ fn error_chart(reports: &[MethodReport]) -> String {
         .collect();
     let hi = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0f64, f64::max).ceil() as i32;
     let ticks: Vec<f64> = (0..=hi).map(f64::from).collect();
-    line_chart("Error against time (reference = path tracer)", "log10 of pre-process + frame time, ms", "mean relative error over lit pixels, %", &ticks, &series)
+    line_chart(
+        "Error against time (reference = path tracer)",
+        "log10 of pre-process + frame time, ms",
+        "mean relative error over lit pixels, %",
+        &ticks,
+        &series,
+    )
 }
 
 /// Figure 2 of the forest paper as an SVG of PNG tiles: full (LB), local,
@@ -376,7 +416,11 @@ fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: 
     // The LB light alone is a separate render of the auto scene's grids: the
     // (a) − (b) difference shows it without another LB solve.
     if let (Some(m), Some(l)) = (lb, find(&|m| m.lighting == LightingMode::Local)) {
-        let diff = HdrImage { width: a.width, height: a.height, pixels: m.image.pixels.iter().zip(&l.image.pixels).map(|(p, q)| std::array::from_fn(|c| (p[c] - q[c]).max(0.0))).collect() };
+        let diff = HdrImage {
+            width: a.width,
+            height: a.height,
+            pixels: m.image.pixels.iter().zip(&l.image.pixels).map(|(p, q)| std::array::from_fn(|c| (p[c] - q[c]).max(0.0))).collect(),
+        };
         let (ldr, _) = reinhard(&diff, 0.18);
         write_png(&dir.join("lb-visualize.png"), a.width, a.height, &ldr)?;
         tiles.push(("(d) LB light alone".into(), "lb-visualize.png".into()));
@@ -385,7 +429,11 @@ fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: 
     if let Some(m) = find(&|m| m.lighting == LightingMode::Boulanger) {
         tiles.push(("(f) Boulanger et al.".into(), name_of(&m.report.image).into()));
     }
-    for (label, m) in [("error: full", lb), ("error: ambient", find(&|m| m.lighting == LightingMode::Ambient)), ("error: Boulanger", find(&|m| m.lighting == LightingMode::Boulanger))] {
+    for (label, m) in [
+        ("error: full", lb),
+        ("error: ambient", find(&|m| m.lighting == LightingMode::Ambient)),
+        ("error: Boulanger", find(&|m| m.lighting == LightingMode::Boulanger)),
+    ] {
         if let Some(m) = m {
             let file = format!("error-{}.png", m.report.name.replace(['³', ' ', '+'], ""));
             write_png(&dir.join(&file), a.width, a.height, &heat_map(&m.image, reference))?;
@@ -395,10 +443,23 @@ fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: 
     let (tw, th) = (a.width as f64, a.height as f64 + 22.0);
     let cols = 3usize;
     let rows = tiles.len().div_ceil(cols);
-    let mut s = format!(r#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:xlink="http://www.w3.org/1999/xlink" width="{}" height="{}" font-family="sans-serif" font-size="13"><rect width="100%" height="100%" fill="white"/>"#, tw * cols as f64, th * rows as f64);
+    let mut s = format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:xlink="http://www.w3.org/1999/xlink" width="{}" height="{}" font-family="sans-serif" font-size="13"><rect width="100%" height="100%" fill="white"/>"#,
+        tw * cols as f64,
+        th * rows as f64
+    );
     for (i, (label, file)) in tiles.iter().enumerate() {
         let (x, y) = ((i % cols) as f64 * tw, (i / cols) as f64 * th);
-        s += &format!(r#"<text x="{}" y="{}">{}</text><image x="{x}" y="{}" width="{}" height="{}" href="{}" xlink:href="{1}"/>"#, x + 4.0, y + 15.0, label, y + 20.0, a.width, a.height, file.display());
+        s += &format!(
+            r#"<text x="{}" y="{}">{}</text><image x="{x}" y="{}" width="{}" height="{}" href="{}" xlink:href="{1}"/>"#,
+            x + 4.0,
+            y + 15.0,
+            label,
+            y + 20.0,
+            a.width,
+            a.height,
+            file.display()
+        );
     }
     s += "</svg>\n";
     std::fs::write(path, s).with_context(|| format!("{}: cannot write", path.display()))
@@ -435,7 +496,10 @@ fn write_sweeps(out: &Path) -> anyhow::Result<serde_json::Value> {
             Series { name: "LB, warned".into(), color: "#d62728", dashed: false, points: sorted(warned) },
         ];
         let file = out.join(format!("failure-{}.svg", sweep.name.replace(' ', "-")));
-        std::fs::write(&file, line_chart(&format!("LB against Monte Carlo: {}", sweep.name), sweep.x_label, "relative RMS error of fluence, %", &xs, &series))?;
+        std::fs::write(
+            &file,
+            line_chart(&format!("LB against Monte Carlo: {}", sweep.name), sweep.x_label, "relative RMS error of fluence, %", &xs, &series),
+        )?;
         all.push(json!({ "name": sweep.name, "x_label": sweep.x_label, "chart": file, "points": sweep.points.iter().map(|p| json!({ "x": p.x, "lb_error": p.lb_error, "ambient_error": p.ambient_error, "warned": p.warned, "lb_ms": p.lb_ms, "mc_ms": p.mc_ms })).collect::<Vec<_>>() }));
     }
     Ok(serde_json::Value::Array(all))

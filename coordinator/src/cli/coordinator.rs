@@ -174,4 +174,3 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     println!("{} done: wrote {}", done.id, a.out.display());
     Ok(())
 }
-

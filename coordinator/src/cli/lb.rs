@@ -8,9 +8,7 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use sylva_shared::lb::verify::{self, Check};
-use sylva_shared::lb::{
-    GridDims, LbParams, LightingSolver, MediumGrid, NodeClass, Preset, Solution, SolveOptions, Sun, solve,
-};
+use sylva_shared::lb::{GridDims, LbParams, LightingSolver, MediumGrid, NodeClass, Preset, Solution, SolveOptions, Sun, solve};
 use sylva_shared::voxel::{self, GridFrame};
 use sylva_shared::{model, npy, shapes, visualize};
 use sylva_worker::GpuSolver;
@@ -260,11 +258,8 @@ fn summary_json(
     png_path: &Path,
 ) -> serde_json::Value {
     let d: GridDims = solution.dims;
-    let channels: Vec<_> = ["red", "green", "blue"]
-        .iter()
-        .zip(&solution.channels)
-        .map(|(name, c)| json!({ "channel": name, "report": c.report }))
-        .collect();
+    let channels: Vec<_> =
+        ["red", "green", "blue"].iter().zip(&solution.channels).map(|(name, c)| json!({ "channel": name, "report": c.report })).collect();
     json!({
         "input": a.input,
         "triangles": input.triangles,

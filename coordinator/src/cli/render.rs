@@ -10,8 +10,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use sylva_shared::accel::AccelKind;
 use sylva_coordinator::executor::{InProcess, StripExecutor, even_strips};
+use sylva_shared::accel::AccelKind;
 use sylva_shared::film::{HdrImage, reinhard, write_png};
 use sylva_shared::scene::{LightingMode, Scene};
 use sylva_worker::GpuContext;
@@ -206,10 +206,13 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     phases.push(("load", ms(t)));
     let grid_choice = match a.lb_grid.as_deref() {
         None => None,
-        Some(_) if a.local_workers > 0 || !a.workers.is_empty() => bail!("--lb-grid works in this process only: add --local-workers 0, or set \"lb\": {{ \"grid\": N }} in the scene"),
+        Some(_) if a.local_workers > 0 || !a.workers.is_empty() => {
+            bail!("--lb-grid works in this process only: add --local-workers 0, or set \"lb\": {{ \"grid\": N }} in the scene")
+        }
         Some("auto") => Some(()),
         Some(n) => {
-            let n: usize = n.parse().ok().filter(|n| (4..=256).contains(n)).with_context(|| format!("--lb-grid {n:?}: a size in [4, 256] or auto"))?;
+            let n: usize =
+                n.parse().ok().filter(|n| (4..=256).contains(n)).with_context(|| format!("--lb-grid {n:?}: a size in [4, 256] or auto"))?;
             for m in &mut scene.models {
                 m.lb.grid = n;
             }
@@ -239,15 +242,8 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     for p in &prepared.phases.0 {
         phases.push((p.name, p.ms));
     }
-    let mut settings = RenderSettings {
-        width: a.width,
-        height: a.height,
-        spp: a.spp,
-        seed: a.seed,
-        lighting,
-        ambient: [0.0; 3],
-        lb_strength: a.lb_strength,
-    };
+    let mut settings =
+        RenderSettings { width: a.width, height: a.height, spp: a.spp, seed: a.seed, lighting, ambient: [0.0; 3], lb_strength: a.lb_strength };
     if lighting == LightingMode::Ambient {
         bar.set_message("matching the ambient constant to the LB image");
         let t = Instant::now();
@@ -276,15 +272,28 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         phases.push(("trace", ms(t)));
         bar.finish_and_clear();
         let (tone, exr) = write_image(&a, &r.image, &mut phases)?;
-        let stats = with_head(&a, exr, accel, lighting, &phases, json!({
-            "adapter": ctx.summary(),
-            "reference": r.stats,
-            "leaf_optics": scene.file.leaf_optics,
-            "max_bounces": sylva_worker::trace::MAX_BOUNCES,
-            "tone_map": tone,
-            "coverage": r.coverage.iter().map(|&c| c as f64).sum::<f64>() / r.coverage.len() as f64,
-        }));
-        let how = format!("{} spp in {:.0} ms, relative standard error {:.4}{}", r.stats.spp, r.stats.ms, r.stats.relative_error, if r.stats.converged { "" } else { " (not converged)" });
+        let stats = with_head(
+            &a,
+            exr,
+            accel,
+            lighting,
+            &phases,
+            json!({
+                "adapter": ctx.summary(),
+                "reference": r.stats,
+                "leaf_optics": scene.file.leaf_optics,
+                "max_bounces": sylva_worker::trace::MAX_BOUNCES,
+                "tone_map": tone,
+                "coverage": r.coverage.iter().map(|&c| c as f64).sum::<f64>() / r.coverage.len() as f64,
+            }),
+        );
+        let how = format!(
+            "{} spp in {:.0} ms, relative standard error {:.4}{}",
+            r.stats.spp,
+            r.stats.ms,
+            r.stats.relative_error,
+            if r.stats.converged { "" } else { " (not converged)" }
+        );
         return report(&a, &stats, accel, lighting, &how);
     }
     let plan = even_strips(a.width, STRIP);
@@ -299,32 +308,43 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
 
     let (tone, exr) = write_image(&a, &frame, &mut phases)?;
-    let stats = with_head(&a, exr, accel, lighting, &phases, json!({
-        "adapter": ctx.summary(),
-        "rays": {
-            "primary": primary,
-            "shadow": shadow,
-            "transparent_passed": transparent,
-            "mrays_per_second": (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6,
-        },
-        "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
-        "instances": scene.instances.len(),
-        "models": scene.models.len(),
-        "gpu_memory_bytes": { "scene": prepared.renderer.scene_bytes(), "acceleration_structures": prepared.accel_bytes },
-        "lb": prepared.light,
-        "lb_grid_choice": choices,
-        "boulanger": prepared.boulanger,
-        "forest_grid": prepared.forest,
-        "ambient": settings.ambient,
-        "tone_map": tone,
-        "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
-    }));
+    let stats = with_head(
+        &a,
+        exr,
+        accel,
+        lighting,
+        &phases,
+        json!({
+            "adapter": ctx.summary(),
+            "rays": {
+                "primary": primary,
+                "shadow": shadow,
+                "transparent_passed": transparent,
+                "mrays_per_second": (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6,
+            },
+            "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
+            "instances": scene.instances.len(),
+            "models": scene.models.len(),
+            "gpu_memory_bytes": { "scene": prepared.renderer.scene_bytes(), "acceleration_structures": prepared.accel_bytes },
+            "lb": prepared.light,
+            "lb_grid_choice": choices,
+            "boulanger": prepared.boulanger,
+            "forest_grid": prepared.forest,
+            "ambient": settings.ambient,
+            "tone_map": tone,
+            "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
+        }),
+    );
     let how = format!("in {:.0} ms of tracing, {:.2} Mrays/s", trace_ms, (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6);
     report(&a, &stats, accel, lighting, &how)
 }
 
 /// Tone-maps the whole frame once and writes the PNG (and the EXR when asked).
-fn write_image(a: &RenderArgs, frame: &HdrImage, phases: &mut Vec<(&'static str, f64)>) -> anyhow::Result<(sylva_shared::film::ToneMapStats, Option<PathBuf>)> {
+fn write_image(
+    a: &RenderArgs,
+    frame: &HdrImage,
+    phases: &mut Vec<(&'static str, f64)>,
+) -> anyhow::Result<(sylva_shared::film::ToneMapStats, Option<PathBuf>)> {
     let t = Instant::now();
     let (ldr, tone) = reinhard(frame, 0.18);
     create_parent(&a.out)?;
@@ -342,7 +362,14 @@ fn write_image(a: &RenderArgs, frame: &HdrImage, phases: &mut Vec<(&'static str,
 
 /// Stats every render path starts with (what was rendered, where it went,
 /// time per phase), followed by the path's own fields in `rest`.
-fn with_head(a: &RenderArgs, exr: Option<PathBuf>, accel: AccelKind, lighting: LightingMode, phases: &[(&str, f64)], rest: serde_json::Value) -> serde_json::Value {
+fn with_head(
+    a: &RenderArgs,
+    exr: Option<PathBuf>,
+    accel: AccelKind,
+    lighting: LightingMode,
+    phases: &[(&str, f64)],
+    rest: serde_json::Value,
+) -> serde_json::Value {
     let mut head = json!({
         "scene": a.scene,
         "image": a.out,
@@ -446,14 +473,21 @@ fn render_through_coordinator(
         }
         None => None,
     };
-    let mut stats = with_head(a, exr, accel, lighting, &phases, json!({
-        "coordinator": coordinator,
-        "job": done.id,
-        "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
-        "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
-        "instances": scene.instances.len(),
-        "models": scene.models.len(),
-    }));
+    let mut stats = with_head(
+        a,
+        exr,
+        accel,
+        lighting,
+        &phases,
+        json!({
+            "coordinator": coordinator,
+            "job": done.id,
+            "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
+            "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
+            "instances": scene.instances.len(),
+            "models": scene.models.len(),
+        }),
+    );
     // The coordinator's own figures: schedule, strips, workers, rays, tone map.
     if let (Some(s), serde_json::Value::Object(c)) = (stats.as_object_mut(), done.stats) {
         s.extend(c);

@@ -37,8 +37,7 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
         SceneCommand::Forest(a) => {
             let o = ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: a.seed };
             let scene = forest(&o).map_err(anyhow::Error::msg)?;
-            std::fs::write(&a.out, serde_json::to_string_pretty(&scene)? + "\n")
-                .with_context(|| format!("{}: cannot write", a.out.display()))?;
+            std::fs::write(&a.out, serde_json::to_string_pretty(&scene)? + "\n").with_context(|| format!("{}: cannot write", a.out.display()))?;
             let per_species: Vec<_> = Species::ALL
                 .iter()
                 .map(|&sp| {
@@ -46,10 +45,8 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
                     json!({ "species": sp.name(), "instances": instances_at(sp, a.scale), "triangles_per_instance": tris })
                 })
                 .collect();
-            let instanced: u64 = per_species
-                .iter()
-                .map(|s| s["instances"].as_u64().unwrap_or(0) * s["triangles_per_instance"].as_u64().unwrap_or(0))
-                .sum();
+            let instanced: u64 =
+                per_species.iter().map(|s| s["instances"].as_u64().unwrap_or(0) * s["triangles_per_instance"].as_u64().unwrap_or(0)).sum();
             let unique: u64 = per_species.iter().map(|s| s["triangles_per_instance"].as_u64().unwrap_or(0)).sum();
             let summary = json!({
                 "scene": a.out,
@@ -62,13 +59,7 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
             if a.json {
                 println!("{}", serde_json::to_string_pretty(&summary)?);
             } else {
-                println!(
-                    "wrote {}: {} instances of 5 species, {} triangles ({} unique)",
-                    a.out.display(),
-                    scene.instances.len(),
-                    instanced,
-                    unique
-                );
+                println!("wrote {}: {} instances of 5 species, {} triangles ({} unique)", a.out.display(), scene.instances.len(), instanced, unique);
             }
             Ok(())
         }

@@ -31,7 +31,8 @@ impl StripExecutor for InProcess<'_> {
             let s = self.renderer.render_strip(self.ctx, f, x0, x1)?;
             let ms = t.elapsed().as_secs_f64() * 1e3;
             let r = s.rays;
-            let px = StripPixels { strip: (x0, x1), rgb: s.pixels, coverage: s.coverage, rays: [r.primary.into(), r.shadow.into(), r.transparent.into()] };
+            let px =
+                StripPixels { strip: (x0, x1), rgb: s.pixels, coverage: s.coverage, rays: [r.primary.into(), r.shadow.into(), r.transparent.into()] };
             frame.add(&px).map_err(|e| anyhow::anyhow!("the renderer returned a strip that does not fit: {e}"))?;
             strip_ms.push(((x0, x1), ms, ms));
             on_strip((x0, x1));

@@ -60,7 +60,10 @@ mod tests {
     fn covers(strips: &[Strip], width: u32) -> bool {
         let mut s = strips.to_vec();
         s.sort();
-        s.first().map(|f| f.0) == Some(0) && s.last().map(|l| l.1) == Some(width) && s.windows(2).all(|w| w[0].1 == w[1].0) && s.iter().all(|x| x.0 < x.1)
+        s.first().map(|f| f.0) == Some(0)
+            && s.last().map(|l| l.1) == Some(width)
+            && s.windows(2).all(|w| w[0].1 == w[1].0)
+            && s.iter().all(|x| x.0 < x.1)
     }
 
     #[test]

@@ -140,7 +140,16 @@ pub fn submission(spec: pb::JobSpec, hash: &str, bytes: &[u8], declared: u64) ->
 /// A job spec for a `width`×`height` frame, 1 spp, the scene's lighting.
 pub fn spec(width: u32, height: u32) -> pb::JobSpec {
     pb::JobSpec {
-        frame: Some(pb::FrameSettings { width, height, spp: 1, seed: 1, lighting: pb::Lighting::Scene.into(), accel: pb::Accel::Bvh.into(), lb_strength: 0.35, ambient: vec![] }),
+        frame: Some(pb::FrameSettings {
+            width,
+            height,
+            spp: 1,
+            seed: 1,
+            lighting: pb::Lighting::Scene.into(),
+            accel: pb::Accel::Bvh.into(),
+            lb_strength: 0.35,
+            ambient: vec![],
+        }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,
         name: "test".into(),
@@ -148,7 +157,12 @@ pub fn spec(width: u32, height: u32) -> pb::JobSpec {
 }
 
 /// Submits a packed bundle and follows the job to its end; the last event.
-pub async fn submit_and_wait(c: &mut Client, spec: pb::JobSpec, b: &sylva_shared::bundle::SceneBundle, mut on_event: impl FnMut(&pb::JobEvent)) -> pb::JobEvent {
+pub async fn submit_and_wait(
+    c: &mut Client,
+    spec: pb::JobSpec,
+    b: &sylva_shared::bundle::SceneBundle,
+    mut on_event: impl FnMut(&pb::JobEvent),
+) -> pb::JobEvent {
     let id = c.submit_job(tokio_stream::iter(submission(spec, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap().into_inner().id;
     let mut events = c.watch_job(pb::JobId { id }).await.unwrap().into_inner();
     while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
@@ -163,7 +177,21 @@ pub async fn submit_and_wait(c: &mut Client, spec: pb::JobSpec, b: &sylva_shared
 
 /// The same frame rendered in a `sylva render --local-workers 0` process.
 pub fn reference_png(scene: &Path, out: &Path, width: u32, height: u32) -> Vec<u8> {
-    let o = sylva(&["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--local-workers", "0", "--width", &width.to_string(), "--height", &height.to_string()], &[]);
+    let o = sylva(
+        &[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--local-workers",
+            "0",
+            "--width",
+            &width.to_string(),
+            "--height",
+            &height.to_string(),
+        ],
+        &[],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     std::fs::read(out).unwrap()
 }

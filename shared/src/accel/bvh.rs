@@ -83,10 +83,12 @@ impl Bvh {
             if n.count > 0 {
                 for &p in &self.prims[n.first as usize..(n.first + n.count) as usize] {
                     if let Some(t) = hit(p, closest)
-                        && t < closest && t > t_min {
-                            closest = t;
-                            best = Some((p, t));
-                        }
+                        && t < closest
+                        && t > t_min
+                    {
+                        closest = t;
+                        best = Some((p, t));
+                    }
                 }
             } else {
                 let (a, b) = (n.first, n.first + 1);

@@ -134,10 +134,12 @@ impl KdTree {
             let n = &self.nodes[node as usize];
             for &p in &self.prims[n.first as usize..(n.first + n.count) as usize] {
                 if let Some(t) = hit(p, closest)
-                    && t < closest && t > t_min {
-                        closest = t;
-                        best = Some((p, t));
-                    }
+                    && t < closest
+                    && t > t_min
+                {
+                    closest = t;
+                    best = Some((p, t));
+                }
             }
             if closest <= hi {
                 return best;

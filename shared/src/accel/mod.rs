@@ -156,10 +156,11 @@ mod tests {
     fn assert_same_hit(got: Option<(u32, f32)>, want: Option<(u32, f32)>, tris: &[[Vec3; 3]], r: &Ray, kind: AccelKind) {
         assert_eq!(got.map(|h| h.1), want.map(|h| h.1), "{kind:?} ray {r:?}");
         if let (Some(g), Some(w)) = (got, want)
-            && g.0 != w.0 {
-                let t = &tris[g.0 as usize];
-                assert_eq!(intersect(r, t[0], t[1], t[2], 0.0, f32::INFINITY).map(|h| h.0), Some(w.1), "{kind:?} ray {r:?}");
-            }
+            && g.0 != w.0
+        {
+            let t = &tris[g.0 as usize];
+            assert_eq!(intersect(r, t[0], t[1], t[2], 0.0, f32::INFINITY).map(|h| h.0), Some(w.1), "{kind:?} ray {r:?}");
+        }
     }
 
     fn check(kind: AccelKind, tris: &[[Vec3; 3]], rays: &[Ray]) {
@@ -227,7 +228,9 @@ mod tests {
             .collect();
         let mut rng = SplitMix64::new(5);
         let rs: Vec<Ray> = (0..3000)
-            .map(|_| Ray::new(Vec3::new(-1.0, rng.range(-0.6, 0.6), rng.range(-0.6, 0.6)), Vec3::new(1.0, rng.range(-0.02, 0.02), rng.range(-0.02, 0.02))))
+            .map(|_| {
+                Ray::new(Vec3::new(-1.0, rng.range(-0.6, 0.6), rng.range(-0.6, 0.6)), Vec3::new(1.0, rng.range(-0.02, 0.02), rng.range(-0.02, 0.02)))
+            })
             .collect();
         check(AccelKind::Kd, &tris, &rs);
     }

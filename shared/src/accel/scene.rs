@@ -41,11 +41,7 @@ impl SceneAccel {
     /// Builds both levels (the models' in parallel).
     pub fn build(scene: &Scene, kind: AccelKind) -> Self {
         let models: Vec<Accel> = scene.models.par_iter().map(|m| Accel::build(kind, &triangle_bounds(&m.model))).collect();
-        let world: Vec<Aabb> = scene
-            .instances
-            .iter()
-            .map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world))
-            .collect();
+        let world: Vec<Aabb> = scene.instances.iter().map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world)).collect();
         let top = Accel::build(kind, &world);
         let to_model = scene.instances.iter().map(|i| i.to_world.inverse()).collect();
         Self { kind, top, models, to_model }
@@ -131,9 +127,10 @@ mod tests {
                 let [a, b, c] = m.triangle(t).map(|p| inst.to_world.transform_point3(p));
                 let limit = best.map_or(f32::INFINITY, |h| h.t);
                 if let Some((d, u, v)) = intersect(ray, a, b, c, 1e-4, limit)
-                    && !m.is_transparent(t, uv_at(m, t as u32, u, v)) {
-                        best = Some(SceneHit { instance: i as u32, triangle: t as u32, t: d, u, v });
-                    }
+                    && !m.is_transparent(t, uv_at(m, t as u32, u, v))
+                {
+                    best = Some(SceneHit { instance: i as u32, triangle: t as u32, t: d, u, v });
+                }
             }
         }
         best

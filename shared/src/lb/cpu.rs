@@ -12,9 +12,7 @@ use super::collision::{Collision, Omega};
 use super::lattice::{DIRECTIONS, Q};
 use super::medium::{MediumGrid, NodeClass};
 use super::params::ChannelParams;
-use super::solver::{
-    ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, initial_state,
-};
+use super::solver::{ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, initial_state};
 use rayon::prelude::*;
 
 /// Nodes collided together: two AVX2 registers per direction (measured
@@ -50,9 +48,10 @@ impl LightingSolver for CpuSolver {
                     progress(step, conv.cap());
                 }
                 if let Some(t) = total
-                    && conv.record(step, t) {
-                        break;
-                    }
+                    && conv.record(step, t)
+                {
+                    break;
+                }
             }
             step
         });

@@ -197,13 +197,8 @@ pub fn lb_warnings(params: &LbParams, medium: &MediumGrid, sun: &Sun) -> Vec<LbW
     }
 
     // Stability margin.
-    let ringing: Vec<(&str, f32)> = params
-        .channels
-        .iter()
-        .zip(CHANNELS)
-        .map(|(p, n)| (n, max_rho * p.sigma_t()))
-        .filter(|&(_, s)| s > MAX_RHO_SIGMA_T)
-        .collect();
+    let ringing: Vec<(&str, f32)> =
+        params.channels.iter().zip(CHANNELS).map(|(p, n)| (n, max_rho * p.sigma_t())).filter(|&(_, s)| s > MAX_RHO_SIGMA_T).collect();
     if !ringing.is_empty() {
         let worst = ringing.iter().map(|r| r.1).fold(0.0f32, f32::max);
         let names: Vec<&str> = ringing.iter().map(|r| r.0).collect();
@@ -445,8 +440,7 @@ pub enum SweepKind {
 
 impl SweepKind {
     /// Every sweep, in order.
-    pub const ALL: [SweepKind; 5] =
-        [SweepKind::Thickness, SweepKind::Anisotropy, SweepKind::Stability, SweepKind::Elevation, SweepKind::GridSize];
+    pub const ALL: [SweepKind; 5] = [SweepKind::Thickness, SweepKind::Anisotropy, SweepKind::Stability, SweepKind::Elevation, SweepKind::GridSize];
 }
 
 /// Photons per Monte Carlo reference (noise ≈ 3 % RMS at 24³ when quick).
@@ -479,17 +473,13 @@ pub fn failure_sweep(kind: SweepKind, quick: bool) -> Sweep {
             let s = Sun::from_elevation_azimuth(60.0, 30.0, 1.0).expect("valid sun");
             let sigma_t = (4.0 / radius) as f32;
             let gs = [0.0, 0.3, -0.3, 0.5, -0.5, 0.7, 0.8, -0.8, 0.9, -0.9, 0.95, -0.95];
-            let points =
-                gs.iter().enumerate().map(|(k, &g)| point(g, &ball, channel(sigma_t, g as f32), &s, photons, 200 + k as u64)).collect();
+            let points = gs.iter().enumerate().map(|(k, &g)| point(g, &ball, channel(sigma_t, g as f32), &s, photons, 200 + k as u64)).collect();
             Sweep { name: "anisotropy", x_label: "Henyey–Greenstein g (ball of optical radius 4, sun at 60°)", points }
         }
         SweepKind::Stability => {
             let sts = [0.5, 0.67, 0.8, 1.0, 1.2, 1.5, 1.7, 1.8, 1.9, 1.99];
-            let points = sts
-                .iter()
-                .enumerate()
-                .map(|(k, &st)| point(st, &slab_medium, channel(st as f32, 0.0), &sun, photons, 300 + k as u64))
-                .collect();
+            let points =
+                sts.iter().enumerate().map(|(k, &st)| point(st, &slab_medium, channel(st as f32, 0.0), &sun, photons, 300 + k as u64)).collect();
             Sweep { name: "stability", x_label: "ρσ_t (slab lit from above)", points }
         }
         SweepKind::Elevation => {

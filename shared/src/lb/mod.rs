@@ -36,7 +36,7 @@ pub mod verify;
 pub use boundary::{Boundary, Sun};
 pub use collision::{Collision, Omega};
 pub use cpu::CpuSolver;
-pub use lattice::{Q, DIRECTIONS};
+pub use lattice::{DIRECTIONS, Q};
 pub use limits::{LbWarning, Sweep, SweepKind, SweepPoint, failure_sweep, failure_sweeps, lb_warnings};
 pub use medium::{GridDims, MediumGrid, NodeClass};
 pub use montecarlo::McFluence;

@@ -238,11 +238,7 @@ impl<'m> Scene<'m> {
     /// `1 + σ_a` where the LB keeps a resting density (medium and brown nodes
     /// with ρ > 0), 1 elsewhere.
     fn rest_factor(&self, i: usize) -> f64 {
-        if self.medium.density[i] > 0.0 && self.medium.class[i] != NodeClass::Green {
-            1.0 + self.params.sigma_a as f64
-        } else {
-            1.0
-        }
+        if self.medium.density[i] > 0.0 && self.medium.class[i] != NodeClass::Green { 1.0 + self.params.sigma_a as f64 } else { 1.0 }
     }
 
     fn index(&self, c: [i64; 3]) -> usize {

@@ -65,13 +65,7 @@ impl ChannelParams {
         check(&name("sigma_s"), self.sigma_s, SIGMA_RANGE, self.sigma_s >= 0.0, "")?;
         check(&name("g"), self.g, G_RANGE, self.g.abs() <= 1.0, "")?;
         let t = self.sigma_t();
-        check(
-            &name("sigma_t"),
-            t,
-            "(0, 2]",
-            t > 0.0 && t <= 2.0,
-            " (rho * sigma_t above 2 makes the LB step unstable; 0 scatters nothing)",
-        )
+        check(&name("sigma_t"), t, "(0, 2]", t > 0.0 && t <= 2.0, " (rho * sigma_t above 2 makes the LB step unstable; 0 scatters nothing)")
     }
 }
 
@@ -139,9 +133,8 @@ impl Preset {
 
     /// The preset's parameters.
     pub fn params(self) -> LbParams {
-        let rgb = |a: [f32; 3], s: [f32; 3], g: [f32; 3]| LbParams {
-            channels: [0, 1, 2].map(|i| ChannelParams { sigma_a: a[i], sigma_s: s[i], g: g[i] }),
-        };
+        let rgb =
+            |a: [f32; 3], s: [f32; 3], g: [f32; 3]| LbParams { channels: [0, 1, 2].map(|i| ChannelParams { sigma_a: a[i], sigma_s: s[i], g: g[i] }) };
         match self {
             Preset::Leaf => rgb([0.109, 0.091, 0.118], [0.891, 0.909, 0.882], [-0.120, 0.091, -0.333]),
             Preset::Dogrose => rgb([0.109, 0.091, 0.118], [0.891, 0.909, 0.882], [-0.231, 0.103, -0.750]),

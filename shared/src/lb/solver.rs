@@ -73,14 +73,13 @@ impl Convergence {
     /// should stop here.
     pub fn record(&mut self, step: usize, total: f64) -> bool {
         if let Some((s, prev)) = self.previous
-            && s + 1 == step {
-                self.last_change = Some(if total > 0.0 { (total - prev).abs() / total } else { 0.0 });
-                if step.is_multiple_of(self.opts.check_every.max(1))
-                    && self.last_change.is_some_and(|c| c < self.opts.tolerance)
-                {
-                    return true;
-                }
+            && s + 1 == step
+        {
+            self.last_change = Some(if total > 0.0 { (total - prev).abs() / total } else { 0.0 });
+            if step.is_multiple_of(self.opts.check_every.max(1)) && self.last_change.is_some_and(|c| c < self.opts.tolerance) {
+                return true;
             }
+        }
         self.previous = Some((step, total));
         false
     }

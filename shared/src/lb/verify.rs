@@ -6,11 +6,11 @@
 use super::boundary::{Boundary, Sun};
 use super::collision::Omega;
 use super::cpu::{CpuLattice, CpuSolver};
-use super::params::Preset;
-use super::solver::{LightingSolver, SolveOptions, solve};
 use super::lattice::{DIRECTIONS, Q};
 use super::medium::{GridDims, MediumGrid, NodeClass};
 use super::params::ChannelParams;
+use super::params::Preset;
+use super::solver::{LightingSolver, SolveOptions, solve};
 use serde::Serialize;
 
 /// One check's outcome.
@@ -47,9 +47,7 @@ pub fn column_sums() -> Check {
     for g in std::iter::once(0.0).chain(CHECKED_G) {
         for (sa, ss) in [(0.109, 0.891), (0.008, 0.792), (0.3, 1.2)] {
             let w = Omega::new(&ChannelParams { sigma_a: sa, sigma_s: ss, g });
-            let case = (0..Q)
-                .map(|j| (0..Q).map(|i| w.0[i][j] as f64).sum::<f64>().abs())
-                .fold(0.0, f64::max);
+            let case = (0..Q).map(|j| (0..Q).map(|i| w.0[i][j] as f64).sum::<f64>().abs()).fold(0.0, f64::max);
             worst = worst.max(case);
             cases.push(format!("g={g} σa={sa} σs={ss}: {case:.2e}"));
         }
@@ -283,12 +281,7 @@ pub fn random_medium(dims: GridDims, seed: u64) -> MediumGrid {
 /// Solves a random medium of `dims` for `steps` steps with the leaf preset
 /// on `candidate` and on the CPU reference; returns the maximum relative
 /// difference per channel.
-pub fn compare_with_reference(
-    candidate: &mut dyn LightingSolver,
-    dims: GridDims,
-    steps: usize,
-    seed: u64,
-) -> anyhow::Result<[f64; 3]> {
+pub fn compare_with_reference(candidate: &mut dyn LightingSolver, dims: GridDims, steps: usize, seed: u64) -> anyhow::Result<[f64; 3]> {
     let medium = random_medium(dims, seed);
     let params = Preset::Leaf.params();
     let sun = Sun::from_elevation_azimuth(50.0, 20.0, 1.0)?;

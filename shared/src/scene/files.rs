@@ -40,7 +40,8 @@ impl FileAccess {
             FileAccess::Inside(root) => {
                 // One answer for every refusal, so it tells nothing of outside.
                 let outside = || format!("{shown:?} is not a file inside the scene's folder (scenes name files by relative paths, without \"..\")");
-                if rel.as_os_str().is_empty() || rel.is_absolute() || rel.components().any(|c| !matches!(c, Component::Normal(_) | Component::CurDir)) {
+                if rel.as_os_str().is_empty() || rel.is_absolute() || rel.components().any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
+                {
                     return Err(outside());
                 }
                 let full = from.join(rel);
@@ -142,7 +143,15 @@ mod tests {
         assert_eq!(a.resolve_uri(&root, "data:application/octet-stream;base64,AAAA").unwrap(), None);
         assert!(a.resolve_uri(&root, "sub/model.glb").unwrap().is_some());
         assert!(a.resolve_uri(&root, "sub%2Fmodel.glb").unwrap().is_some());
-        for bad in ["file:///etc/passwd", "file:../secret.glb", "../../../../etc/passwd", "http://example.com/x.bin", "%2E%2E/secret.glb", "%FF%FE", "/etc/shadow"] {
+        for bad in [
+            "file:///etc/passwd",
+            "file:../secret.glb",
+            "../../../../etc/passwd",
+            "http://example.com/x.bin",
+            "%2E%2E/secret.glb",
+            "%FF%FE",
+            "/etc/shadow",
+        ] {
             assert!(a.resolve_uri(&root, bad).is_err(), "{bad}");
         }
         std::fs::remove_dir_all(&d).ok();

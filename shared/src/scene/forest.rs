@@ -73,12 +73,7 @@ pub fn forest(o: &ForestOptions) -> Result<SceneFile, String> {
         models,
         instances,
         // From the southern edge, above the understorey, looking into the stand.
-        camera: CameraSpec {
-            position: [0.0, 14.0, -side / 2.0 - 12.0],
-            look_at: [0.0, 7.0, 0.0],
-            up: [0.0, 1.0, 0.0],
-            fov_y_deg: 35.0,
-        },
+        camera: CameraSpec { position: [0.0, 14.0, -side / 2.0 - 12.0], look_at: [0.0, 7.0, 0.0], up: [0.0, 1.0, 0.0], fov_y_deg: 35.0 },
         sun: SunSpec { elevation_deg: Some(45.0), azimuth_deg: Some(60.0), direction: None, temperature_k: 6500.0, intensity: 3.0 },
         sky: SkySpec::default(),
         ground: Some(GroundSpec { color: [0.1, 0.08, 0.05] }),
@@ -131,11 +126,7 @@ mod tests {
     fn scale_one_is_the_papers_table_2() {
         let f = forest(&ForestOptions::default()).unwrap();
         assert_eq!(f.instances.len(), 962);
-        let tris: u64 = f
-            .instances
-            .iter()
-            .map(|i| f.models[&i.model].tree.unwrap().triangles.unwrap() as u64)
-            .sum();
+        let tris: u64 = f.instances.iter().map(|i| f.models[&i.model].tree.unwrap().triangles.unwrap() as u64).sum();
         assert_eq!(tris, 273_376_528);
         for sp in Species::ALL {
             let count = f.instances.iter().filter(|i| i.model == sp.name()).count() as u32;

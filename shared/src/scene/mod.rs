@@ -8,8 +8,7 @@ pub mod forest;
 pub mod limits;
 
 pub use file::{
-    CameraSpec, CloudSpec, ForestGridSpec, ForestGridUse, GroundSpec, InstanceSpec, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec,
-    SunSpec,
+    CameraSpec, CloudSpec, ForestGridSpec, ForestGridUse, GroundSpec, InstanceSpec, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec, SunSpec,
 };
 
 use crate::camera::Camera;
@@ -155,7 +154,6 @@ impl Scene {
         check(file, label, limits).map(|_| ())
     }
 
-
     /// Triangles of the unique models.
     pub fn unique_triangles(&self) -> u64 {
         self.models.iter().map(|m| m.model.triangle_count() as u64).sum()
@@ -221,10 +219,10 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
         return Err(err("instances".into(), "at least one instance is needed".into()));
     }
     let c = &file.camera;
-    finite3(&c.position).map_err(|m| err("camera.position".into(), m))?;
-    finite3(&c.look_at).map_err(|m| err("camera.look_at".into(), m))?;
-    let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg)
-        .map_err(|e| err("camera".into(), e.to_string()))?;
+    bounded3(&c.position).map_err(|m| err("camera.position".into(), m))?;
+    bounded3(&c.look_at).map_err(|m| err("camera.look_at".into(), m))?;
+    bounded3(&c.up).map_err(|m| err("camera.up".into(), m))?;
+    let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg).map_err(|e| err("camera".into(), e.to_string()))?;
     let sun = sun_light(&file.sun).map_err(|(f, m)| err(format!("sun.{f}"), m))?;
     for (name, v) in [("zenith", file.sky.zenith), ("horizon", file.sky.horizon)] {
         colour(&v).map_err(|m| err(format!("sky.{name}"), m))?;
@@ -244,10 +242,14 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
         lb_cells += (c.grid as u64).pow(3);
     }
     if lb_cells > limits.lb_cells {
-        return Err(err("lb".into(), format!("the LB grids of models, clouds and forest come to {lb_cells} nodes: at most {} per scene", limits.lb_cells)));
+        return Err(err(
+            "lb".into(),
+            format!("the LB grids of models, clouds and forest come to {lb_cells} nodes: at most {} per scene", limits.lb_cells),
+        ));
     }
     // Generated trees declare their size: refuse before generating any.
-    let declared: u64 = file.models.values().filter_map(|m| m.tree.as_ref()).map(|t| u64::from(t.triangles.unwrap_or(t.species.shape().paper_triangles))).sum();
+    let declared: u64 =
+        file.models.values().filter_map(|m| m.tree.as_ref()).map(|t| u64::from(t.triangles.unwrap_or(t.species.shape().paper_triangles))).sum();
     if declared > limits.triangles {
         return Err(err("models".into(), format!("the trees come to {declared} triangles: at most {} per scene", limits.triangles)));
     }
@@ -259,17 +261,25 @@ pub fn parse(text: &str, label: &str) -> Result<SceneFile, SceneError> {
     let de = &mut serde_json::Deserializer::from_str(text);
     serde_path_to_error::deserialize(de).map_err(|e| {
         let field = e.path().to_string();
-        SceneError {
-            file: label.to_string(),
-            field: if field == "." { "(document)".into() } else { field },
-            message: e.into_inner().to_string(),
-        }
+        SceneError { file: label.to_string(), field: if field == "." { "(document)".into() } else { field }, message: e.into_inner().to_string() }
     })
 }
 
 fn check_lb(lb: &LbSpec) -> Result<(), String> {
     if !(4..=512).contains(&lb.grid) {
         return Err(format!("grid {}: valid range [4, 512]", lb.grid));
+    }
+    Ok(())
+}
+
+/// Coordinates beyond this, metres, are refused: their squares would
+/// overflow f32 and turn directions into zero or NaN.
+const MAX_COORDINATE: f32 = 1e9;
+
+fn bounded3(v: &[f32; 3]) -> Result<(), String> {
+    finite3(v)?;
+    if v.iter().any(|x| x.abs() > MAX_COORDINATE) {
+        return Err(format!("{v:?}: each component must be within ±{MAX_COORDINATE:e}"));
     }
     Ok(())
 }
@@ -324,7 +334,7 @@ fn sun_light(s: &SunSpec) -> Result<SunLight, (&'static str, String)> {
     let towards = match (s.direction, s.elevation_deg, s.azimuth_deg) {
         (Some(d), None, None) => {
             let v = Vec3::from(d);
-            if !v.is_finite() || v.length_squared() < 1e-12 {
+            if !v.is_finite() || v.abs().max_element() > MAX_COORDINATE || v.length_squared() < 1e-12 {
                 return Err(("direction", format!("{d:?} must be a finite, non-zero vector")));
             }
             v.normalize()
@@ -344,8 +354,8 @@ fn sun_light(s: &SunSpec) -> Result<SunLight, (&'static str, String)> {
     if !(s.temperature_k.is_finite() && (1000.0..=40000.0).contains(&s.temperature_k)) {
         return Err(("temperature_k", format!("{}: valid range [1000, 40000]", s.temperature_k)));
     }
-    if !(s.intensity.is_finite() && s.intensity >= 0.0) {
-        return Err(("intensity", format!("{}: must be a finite number ≥ 0", s.intensity)));
+    if !(s.intensity.is_finite() && (0.0..=1e6).contains(&s.intensity)) {
+        return Err(("intensity", format!("{}: valid range [0, 1e6]", s.intensity)));
     }
     let c = black_body_rgb(s.temperature_k);
     Ok(SunLight { towards, radiance: c.map(|x| x * s.intensity) })
@@ -389,13 +399,22 @@ mod tests {
     fn malformed_scenes_name_file_field_and_fault() {
         let cases = [
             (SMALL.replace("\"ground\"", "\"grund\""), "test.json: grund: unknown field `grund`, expected one of"),
-            (SMALL.replace("\"model\": \"maple\", \"position\": [10", "\"model\": \"oak\", \"position\": [10"), "instances[1].model: unknown model \"oak\""),
+            (
+                SMALL.replace("\"model\": \"maple\", \"position\": [10", "\"model\": \"oak\", \"position\": [10"),
+                "instances[1].model: unknown model \"oak\"",
+            ),
             (SMALL.replace("\"scale\": 1.2", "\"scale\": 0"), "instances[1].scale: 0: must be a finite number > 0"),
             (SMALL.replace("\"scale\": 1.2", "\"scale\": 1e39"), "instances[1].scale"),
             (SMALL.replace("\"position\": [0, 0, 0]", "\"position\": [0, NaN, 0]"), "test.json"),
-            (SMALL.replace("\"rotate_y_deg\": 90, \"scale\": 1.2", "\"matrix\": [1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]"), "instances[1].matrix: degenerate transform"),
+            (
+                SMALL.replace("\"rotate_y_deg\": 90, \"scale\": 1.2", "\"matrix\": [1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]"),
+                "instances[1].matrix: degenerate transform",
+            ),
             (SMALL.replace("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {"), "models.maple: give exactly one"),
-            (SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"nowhere.glb\""), "models.maple.gltf: \"nowhere.glb\" is not a file inside the scene's folder"),
+            (
+                SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"nowhere.glb\""),
+                "models.maple.gltf: \"nowhere.glb\" is not a file inside the scene's folder",
+            ),
             (SMALL.replace("red_maple", "oak"), "models.maple.tree.species: unknown variant `oak`"),
             (SMALL.replace("\"triangles\": 2000", "\"triangles\": 3"), "models.maple.tree: red_maple needs at least"),
             (SMALL.replace("\"look_at\": [0, 5, 0]", "\"look_at\": [0, 5, -30]"), "camera: camera position and look_at must be distinct"),

@@ -159,8 +159,7 @@ fn leaf_quad(m: &mut Model, rng: &mut SplitMix64, at: Vec3, reach: f32, size: f3
     let scatter = Vec3::new(rng.range(-1.0, 1.0), rng.range(-0.6, 1.0), rng.range(-1.0, 1.0)) * reach * 0.45;
     let base = at + scatter;
     let outward = Vec3::new(base.x, 0.0, base.z).normalize_or(Vec3::X);
-    let normal = (Vec3::Y * 0.8 + outward * 0.5 + Vec3::new(rng.range(-0.6, 0.6), rng.range(-0.3, 0.3), rng.range(-0.6, 0.6)))
-        .normalize_or(Vec3::Y);
+    let normal = (Vec3::Y * 0.8 + outward * 0.5 + Vec3::new(rng.range(-0.6, 0.6), rng.range(-0.3, 0.3), rng.range(-0.6, 0.6))).normalize_or(Vec3::Y);
     let tip = normal.any_orthonormal_vector();
     let tip = Quat::from_axis_angle(normal, rng.range(0.0, std::f32::consts::TAU)) * tip;
     let across = normal.cross(tip);

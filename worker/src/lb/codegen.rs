@@ -146,10 +146,7 @@ pub fn step_shader(layout: &StateLayout, collision: &Collision) -> String {
 fn collide(omega: &Omega) -> String {
     let mut out = String::new();
     for m in 0..Q {
-        let terms: Vec<String> = (0..Q)
-            .filter(|&n| omega.0[m][n] != 0.0)
-            .map(|n| format!("{} * f{n}", literal(omega.0[m][n])))
-            .collect();
+        let terms: Vec<String> = (0..Q).filter(|&n| omega.0[m][n] != 0.0).map(|n| format!("{} * f{n}", literal(omega.0[m][n]))).collect();
         if terms.is_empty() {
             writeln!(out, "        o{m} = f{m};").unwrap();
         } else {

@@ -6,9 +6,7 @@ use crate::gpu::GpuContext;
 use anyhow::Context;
 use sylva_shared::lb::lattice::Q;
 use sylva_shared::lb::solver::{Convergence, PhaseTimer, initial_state};
-use sylva_shared::lb::{
-    Boundary, ChannelParams, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions,
-};
+use sylva_shared::lb::{Boundary, ChannelParams, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions};
 use wgpu::util::DeviceExt;
 
 /// Solves LB channels on a GPU.
@@ -64,55 +62,55 @@ impl LightingSolver for GpuSolver {
         let dims = medium.dims;
         let layout = StateLayout::new(dims, &self.ctx.limits)?;
         let source = phases.time("codegen", || codegen::step_shader(&layout, &Collision::new(params)));
-        let k = phases.time("upload", || {
-            self.ctx.checked("building the LB kernels", || self.build(&layout, &source, medium, boundary))
-        })?;
+        let k = phases.time("upload", || self.ctx.checked("building the LB kernels", || self.build(&layout, &source, medium, boundary)))?;
         let mut conv = Convergence::new(*opts, dims);
         let cap = conv.cap();
         let check = opts.check_every.max(1);
         let [gx, gy] = layout.groups;
-        let steps = phases.time("steps", || self.ctx.checked("running the LB steps", || {
-            let mut step = 0;
-            while step < cap {
-                let batch_end = cap.min((step / check + 1) * check);
-                let mut enc = self.ctx.device.create_command_encoder(&Default::default());
-                let mut measured = Vec::new();
-                for s in step + 1..=batch_end {
-                    let mut pass = enc.begin_compute_pass(&Default::default());
-                    pass.set_pipeline(&k.step);
-                    pass.set_bind_group(0, &k.bind_groups[(s - 1) % 2], &[]);
-                    pass.dispatch_workgroups(gx, gy, 1);
-                    if conv.wants_total(s) {
-                        // After step s the state is in the copy bind group s % 2 reads.
-                        pass.set_pipeline(&k.totals);
-                        pass.set_bind_group(0, &k.bind_groups[s % 2], &[]);
+        let steps = phases.time("steps", || {
+            self.ctx.checked("running the LB steps", || {
+                let mut step = 0;
+                while step < cap {
+                    let batch_end = cap.min((step / check + 1) * check);
+                    let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+                    let mut measured = Vec::new();
+                    for s in step + 1..=batch_end {
+                        let mut pass = enc.begin_compute_pass(&Default::default());
+                        pass.set_pipeline(&k.step);
+                        pass.set_bind_group(0, &k.bind_groups[(s - 1) % 2], &[]);
                         pass.dispatch_workgroups(gx, gy, 1);
-                        drop(pass);
-                        let bytes = layout.group_count() as u64 * 4;
-                        enc.copy_buffer_to_buffer(&k.group_sum, 0, &k.sums_staging, measured.len() as u64 * bytes, bytes);
-                        measured.push(s);
-                    }
-                }
-                self.ctx.queue.submit([enc.finish()]);
-                step = batch_end;
-                if !measured.is_empty() {
-                    let raw = self.ctx.map_read(&k.sums_staging)?;
-                    let sums: &[f32] = bytemuck::cast_slice(&raw);
-                    let per = layout.group_count() as usize;
-                    for (i, &s) in measured.iter().enumerate() {
-                        let total: f64 = sums[i * per..(i + 1) * per].iter().map(|&v| v as f64).sum();
-                        if conv.record(s, total) {
-                            step = s;
-                            progress(step, cap);
-                            return Ok(step);
+                        if conv.wants_total(s) {
+                            // After step s the state is in the copy bind group s % 2 reads.
+                            pass.set_pipeline(&k.totals);
+                            pass.set_bind_group(0, &k.bind_groups[s % 2], &[]);
+                            pass.dispatch_workgroups(gx, gy, 1);
+                            drop(pass);
+                            let bytes = layout.group_count() as u64 * 4;
+                            enc.copy_buffer_to_buffer(&k.group_sum, 0, &k.sums_staging, measured.len() as u64 * bytes, bytes);
+                            measured.push(s);
                         }
                     }
+                    self.ctx.queue.submit([enc.finish()]);
+                    step = batch_end;
+                    if !measured.is_empty() {
+                        let raw = self.ctx.map_read(&k.sums_staging)?;
+                        let sums: &[f32] = bytemuck::cast_slice(&raw);
+                        let per = layout.group_count() as usize;
+                        for (i, &s) in measured.iter().enumerate() {
+                            let total: f64 = sums[i * per..(i + 1) * per].iter().map(|&v| v as f64).sum();
+                            if conv.record(s, total) {
+                                step = s;
+                                progress(step, cap);
+                                return Ok(step);
+                            }
+                        }
+                    }
+                    progress(step, cap);
                 }
-                progress(step, cap);
-            }
-            self.ctx.wait()?;
-            Ok(step)
-        }))?;
+                self.ctx.wait()?;
+                Ok(step)
+            })
+        })?;
         let total = phases.time("read-back", || -> anyhow::Result<Vec<f32>> {
             let mut enc = self.ctx.device.create_command_encoder(&Default::default());
             {
@@ -139,11 +137,7 @@ impl GpuSolver {
         let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
+            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only }, has_dynamic_offset: false, min_binding_size: None },
             count: None,
         };
         let b = layout.buffers as u32;
@@ -203,11 +197,7 @@ impl GpuSolver {
         let groups = layout.group_count() as u64;
         let node_total = scratch("lb node totals", n as u64 * 4, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
         let group_sum = scratch("lb group sums", groups * 4, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
-        let sums_staging = scratch(
-            "lb sums staging",
-            SUM_SLOTS * groups * 4,
-            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        );
+        let sums_staging = scratch("lb sums staging", SUM_SLOTS * groups * 4, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
         let bind_group = |src: &[wgpu::Buffer], dst: &[wgpu::Buffer]| {
             let mut e: Vec<wgpu::BindGroupEntry> = Vec::with_capacity(2 * src.len() + 4);
             for (i, buf) in src.iter().chain(dst).enumerate() {

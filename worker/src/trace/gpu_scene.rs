@@ -241,9 +241,8 @@ impl GpuScene {
             let root = f.push_accel(&accel.models[m], tri0);
             f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
             f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
-            f.triangles.extend(
-                model.triangles.iter().zip(&model.material).map(|(t, &mat)| GpuTriangle { v: t.map(|i| i + vert0), material: mat + mat0 }),
-            );
+            f.triangles
+                .extend(model.triangles.iter().zip(&model.material).map(|(t, &mat)| GpuTriangle { v: t.map(|i| i + vert0), material: mat + mat0 }));
             f.materials.extend(model.materials.iter().map(|mt| GpuMaterial {
                 base_color: mt.base_color,
                 texture: mt.texture.map_or(u32::MAX, |t| t + tex0),
@@ -258,7 +257,15 @@ impl GpuScene {
             let mut gm = GpuModel { root, ..GpuModel::zeroed() };
             if let Some(Some(g)) = lb.get(m) {
                 anyhow::ensure!(g.n >= 2 && g.rgb.len() == 3 * g.n * g.n * g.n, "LB grid of model {} has the wrong size", sm.name);
-                gm = GpuModel { root, lb_offset: f.lb.len() as u32, lb_n: g.n as u32, has_lb: 1, lb_origin: g.frame.origin, lb_cell: g.frame.cell, ..GpuModel::zeroed() };
+                gm = GpuModel {
+                    root,
+                    lb_offset: f.lb.len() as u32,
+                    lb_n: g.n as u32,
+                    has_lb: 1,
+                    lb_origin: g.frame.origin,
+                    lb_cell: g.frame.cell,
+                    ..GpuModel::zeroed()
+                };
                 f.lb.extend_from_slice(&g.rgb);
             }
             // Envelope distances are indexed by global triangle: eight per triangle.
@@ -337,11 +344,7 @@ impl GpuScene {
                 contents.len(),
                 ctx.limits.max_storage_buffer_binding_size
             );
-            Ok(device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage: wgpu::BufferUsages::STORAGE,
-            }))
+            Ok(device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage: wgpu::BufferUsages::STORAGE }))
         };
         let buffers = [
             buffer("nodes", bytemuck::cast_slice(&f.nodes))?,
@@ -372,11 +375,8 @@ impl GpuScene {
             })
             .collect();
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("scene"), entries: &entries });
-        let bg_entries: Vec<wgpu::BindGroupEntry> = buffers
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
-            .collect();
+        let bg_entries: Vec<wgpu::BindGroupEntry> =
+            buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("scene"), layout: &layout, entries: &bg_entries });
         Ok(Self { layout, bind_group, triangle_offsets, bytes, accel_kind })
     }

@@ -12,5 +12,5 @@ pub use gpu_scene::{CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, Gpu
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use reference::{ReferenceImage, ReferenceOptions, ReferenceStats, render_reference};
 pub use render::MAX_BOUNCES;
-pub use render::{RenderSettings, FrameUniform, RayCounts, Strip, StripRenderer};
+pub use render::{FrameUniform, RayCounts, RenderSettings, Strip, StripRenderer};
 pub use shaders::tracer_source;

@@ -59,17 +59,11 @@ impl RayCaster {
         let entry = |binding, read_only| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
+            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only }, has_dynamic_offset: false, min_binding_size: None },
             count: None,
         };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("rays"),
-            entries: &[entry(0, true), entry(1, false)],
-        });
+        let layout =
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("rays"), entries: &[entry(0, true), entry(1, false)] });
         let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("rays"),
             bind_group_layouts: &[Some(&scene.layout), Some(&layout)],
@@ -80,10 +74,7 @@ impl RayCaster {
             layout: Some(&pl),
             module: &module,
             entry_point: Some("cast_rays"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[("ACCEL_KIND", scene.accel_kind as f64)],
-                ..Default::default()
-            },
+            compilation_options: wgpu::PipelineCompilationOptions { constants: &[("ACCEL_KIND", scene.accel_kind as f64)], ..Default::default() },
             cache: None,
         });
         Self { pipeline, layout }

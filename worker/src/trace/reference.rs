@@ -80,7 +80,12 @@ pub fn render_reference(
     let mut batch = 0u32;
     loop {
         // Seeds far apart, so no batch repeats another's samples.
-        let settings = RenderSettings { spp: opts.batch_spp, seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)), lighting: LightingMode::Reference, ..*f };
+        let settings = RenderSettings {
+            spp: opts.batch_spp,
+            seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)),
+            lighting: LightingMode::Reference,
+            ..*f
+        };
         let s = renderer.render_strip(ctx, &settings, 0, f.width)?;
         for i in 0..n {
             let p = s.pixels[i];
