@@ -1,6 +1,7 @@
 //! A client of the coordinator: submit a job, follow it with a progress
 //! bar, fetch its image.
 
+use crate::service::ended;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::time::Duration;
@@ -50,7 +51,7 @@ pub async fn submit_and_follow(
         if !ev.message.is_empty() && !ended(&ev.state) {
             tracing::warn!("{}", ev.message);
         }
-        if matches!(ev.state.as_str(), "done" | "failed" | "cancelled") {
+        if ended(&ev.state) {
             end = Some(ev);
             break;
         }
@@ -64,8 +65,4 @@ pub async fn submit_and_follow(
     let exr = if exr { Some(c.fetch_result(pb::FetchRequest { id: id.clone(), format: "exr".into() }).await?.into_inner().data) } else { None };
     let stats = serde_json::from_str(&end.stats_json).unwrap_or(serde_json::Value::Null);
     Ok(FinishedJob { id, png, exr, stats })
-}
-
-fn ended(state: &str) -> bool {
-    matches!(state, "done" | "failed" | "cancelled")
 }

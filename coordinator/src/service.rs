@@ -135,7 +135,8 @@ pub struct CoordinatorService {
     state: Arc<State>,
 }
 
-fn ended(state: &str) -> bool {
+/// Whether a job in `state` has ended (done, failed or cancelled).
+pub fn ended(state: &str) -> bool {
     matches!(state, "done" | "failed" | "cancelled")
 }
 

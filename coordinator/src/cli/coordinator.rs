@@ -8,7 +8,6 @@ use std::time::Duration;
 use sylva_coordinator::client::submit_and_follow;
 use sylva_coordinator::results::Retention;
 use sylva_coordinator::service::{self, CoordinatorConfig};
-use sylva_shared::frame::FrameSettings;
 
 #[derive(Debug, Args)]
 pub struct CoordinatorArgs {
@@ -118,26 +117,14 @@ pub struct SubmitArgs {
     /// Output PNG (an EXR beside it with --exr).
     #[arg(short, long, default_value = "sylva-out/render.png")]
     pub out: PathBuf,
-    #[arg(long, default_value_t = 896)]
-    pub width: u32,
-    #[arg(long, default_value_t = 448)]
-    pub height: u32,
-    #[arg(long, default_value_t = 1)]
-    pub spp: u32,
-    /// Acceleration structure.
-    #[arg(long, value_enum, default_value = "bvh")]
-    pub accel: super::render::AccelArg,
-    /// Lighting method; default the scene's.
-    #[arg(long, value_enum)]
-    pub lighting: Option<super::render::LightingArg>,
+    #[command(flatten)]
+    pub frame: super::render::FrameArgs,
     /// How the frame is cut into strips.
     #[arg(long, value_enum, default_value = "dynamic")]
     pub schedule: super::render::ScheduleArg,
     /// Higher runs first.
     #[arg(long, default_value_t = 0)]
     pub priority: i32,
-    #[arg(long, default_value_t = 1)]
-    pub seed: u32,
     /// Also fetch the linear HDR frame as OpenEXR.
     #[arg(long)]
     pub exr: bool,
@@ -151,15 +138,7 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     let token = a.auth.load()?;
     let tls = a.tls.load()?;
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
-    let frame = FrameSettings {
-        width: a.width,
-        height: a.height,
-        spp: a.spp,
-        seed: a.seed,
-        lighting: a.lighting.map(Into::into),
-        accel: a.accel.into(),
-        ..FrameSettings::default()
-    };
+    let frame = a.frame.settings();
     frame.check()?;
     let spec = super::render::job_spec(&frame, a.schedule, a.priority, &a.scene.display().to_string());
     let rt = tokio::runtime::Runtime::new()?;

@@ -19,6 +19,7 @@ use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
 
 use sylva_coordinator::schedule::ScheduleKind;
+use sylva_coordinator::service::MAX_NAME;
 use sylva_shared::frame::{FrameSettings, MAX_SPP};
 use sylva_shared::scene::{FileAccess, SceneLimits};
 /// Columns per strip, for the progress bar.
@@ -51,13 +52,9 @@ pub enum LightingArg {
     Boulanger,
 }
 
+/// What a frame asks for, as `render` and `submit` take it.
 #[derive(Debug, Args)]
-pub struct RenderArgs {
-    /// Scene file (JSON); see `sylva scene forest` and docs/scene-format.md.
-    pub scene: PathBuf,
-    /// Output PNG; stats go beside it as NAME.stats.json.
-    #[arg(short, long, default_value = "sylva-out/render.png")]
-    pub out: PathBuf,
+pub struct FrameArgs {
     /// Image width.
     #[arg(long, default_value_t = 896)]
     pub width: u32,
@@ -79,6 +76,33 @@ pub struct RenderArgs {
     /// Weight of the LB light relative to the sun's.
     #[arg(long, default_value_t = 0.35)]
     pub lb_strength: f32,
+}
+
+impl FrameArgs {
+    /// The frame these flags ask for (checked by its user).
+    pub fn settings(&self) -> FrameSettings {
+        FrameSettings {
+            width: self.width,
+            height: self.height,
+            spp: self.spp,
+            seed: self.seed,
+            lighting: self.lighting.map(Into::into),
+            accel: self.accel.into(),
+            lb_strength: self.lb_strength,
+            ambient: None,
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Scene file (JSON); see `sylva scene forest` and docs/scene-format.md.
+    pub scene: PathBuf,
+    /// Output PNG; stats go beside it as NAME.stats.json.
+    #[arg(short, long, default_value = "sylva-out/render.png")]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub frame: FrameArgs,
     /// `--lighting reference` in this process: stop once the image's own
     /// relative standard error is below this (each batch has --spp samples).
     #[arg(long, default_value_t = 0.02)]
@@ -177,22 +201,13 @@ pub fn job_spec(frame: &FrameSettings, schedule: ScheduleArg, priority: i32, nam
         }
         .into(),
         priority,
-        // The coordinator keeps at most 256 bytes of a name.
-        name: sylva_shared::scene::files::clip(name).chars().take(200).collect(),
+        // The coordinator refuses names over MAX_NAME bytes: cut at a character.
+        name: name.char_indices().take_while(|(i, c)| i + c.len_utf8() <= MAX_NAME).map(|(_, c)| c).collect(),
     }
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
-    let request = FrameSettings {
-        width: a.width,
-        height: a.height,
-        spp: a.spp,
-        seed: a.seed,
-        lighting: a.lighting.map(Into::into),
-        accel: a.accel.into(),
-        lb_strength: a.lb_strength,
-        ambient: None,
-    };
+    let request = a.frame.settings();
     request.check()?;
     let mut phases: Vec<(&str, f64)> = Vec::new();
     let t = Instant::now();
@@ -242,8 +257,15 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     for p in &prepared.phases.0 {
         phases.push((p.name, p.ms));
     }
-    let mut settings =
-        RenderSettings { width: a.width, height: a.height, spp: a.spp, seed: a.seed, lighting, ambient: [0.0; 3], lb_strength: a.lb_strength };
+    let mut settings = RenderSettings {
+        width: a.frame.width,
+        height: a.frame.height,
+        spp: a.frame.spp,
+        seed: a.frame.seed,
+        lighting,
+        ambient: [0.0; 3],
+        lb_strength: a.frame.lb_strength,
+    };
     if lighting == LightingMode::Ambient {
         bar.set_message("matching the ambient constant to the LB image");
         let t = Instant::now();
@@ -256,10 +278,10 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error {}: must be a finite number > 0", a.target_error);
         anyhow::ensure!(a.max_seconds.is_finite() && a.max_seconds > 0.0, "--max-seconds {}: must be a finite number > 0", a.max_seconds);
         let opts = sylva_worker::trace::ReferenceOptions {
-            batch_spp: a.spp.max(4),
+            batch_spp: a.frame.spp.max(4),
             target_error: a.target_error,
             max_seconds: a.max_seconds,
-            max_batches: (MAX_SPP / a.spp.max(4)).max(4),
+            max_batches: (MAX_SPP / a.frame.spp.max(4)).max(4),
             ..Default::default()
         };
         let bar = ProgressBar::new_spinner();
@@ -296,7 +318,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         );
         return report(&a, &stats, accel, lighting, &how);
     }
-    let plan = even_strips(a.width, STRIP);
+    let plan = even_strips(a.frame.width, STRIP);
     let bar = ProgressBar::new(plan.len() as u64);
     bar.set_style(ProgressStyle::with_template("tracing [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
     let t = Instant::now();
@@ -348,7 +370,7 @@ fn write_image(
     let t = Instant::now();
     let (ldr, tone) = reinhard(frame, 0.18);
     create_parent(&a.out)?;
-    write_png(&a.out, a.width, a.height, &ldr)?;
+    write_png(&a.out, a.frame.width, a.frame.height, &ldr)?;
     phases.push(("tone map", ms(t)));
     let exr = if a.exr {
         let p = a.out.with_extension("exr");
@@ -374,9 +396,9 @@ fn with_head(
         "scene": a.scene,
         "image": a.out,
         "exr": exr,
-        "width": a.width,
-        "height": a.height,
-        "spp": a.spp,
+        "width": a.frame.width,
+        "height": a.frame.height,
+        "spp": a.frame.spp,
         "accel": accel,
         "lighting": lighting,
         "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
@@ -405,9 +427,9 @@ fn report(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting:
         println!(
             "rendered {} ({}×{}, {} spp, {accel:?}, {lighting:?}) {how}; wrote {} and {}",
             a.scene.display(),
-            a.width,
-            a.height,
-            a.spp,
+            a.frame.width,
+            a.frame.height,
+            a.frame.spp,
             a.out.display(),
             path.display()
         );
