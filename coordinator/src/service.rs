@@ -442,9 +442,10 @@ impl State {
                         Some(s) => {
                             w.info.alive = true;
                             w.seen = Instant::now();
-                            w.info.adapter = s.adapter;
+                            // A worker's reply is bounded before it is kept and listed.
+                            w.info.adapter = clip(&s.adapter);
                             w.info.gpu_memory_bytes = s.gpu_memory_bytes;
-                            w.info.cached_scenes = s.cached_scenes;
+                            w.info.cached_scenes = s.cached_scenes.iter().take(1024).map(|h| clip(h)).collect();
                             w.info.busy_strips = s.busy_strips;
                         }
                         None => w.info.alive = false,

@@ -27,7 +27,8 @@ impl Proc {
     pub fn terminate(mut self) {
         #[cfg(unix)]
         {
-            let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
+            // SAFETY: signals our own child; no `kill` binary needed (Debian's minimal images lack one).
+            unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
             for _ in 0..100 {
                 if self.child.try_wait().ok().flatten().is_some() {
                     return;
