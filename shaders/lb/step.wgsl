@@ -59,8 +59,10 @@ fn step(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 var<workgroup> wg_partial: array<f32, WORKGROUP>;
 
-// Writes sum_m f_m per node (in direction order, as the CPU reference sums)
-// and one partial sum per workgroup for the convergence measure.
+// Writes each node's incoming field sum_m f_m(r - c_m) (what arrives
+// before the collision; boundary nodes their fixed values), in direction
+// order as the CPU reference sums, and per workgroup a partial sum of the
+// state itself for the convergence measure (the CPU step's own sum).
 @compute @workgroup_size(WORKGROUP)
 fn totals(
     @builtin(global_invocation_id) gid: vec3<u32>,
@@ -72,7 +74,11 @@ fn totals(
     var t = 0.0;
     if idx < NODES {
         t = {{SUM}};
-        node_total[idx] = t;
+        if is_boundary(idx) {
+            node_total[idx] = t;
+        } else {
+            node_total[idx] = {{INCOMING}};
+        }
     }
     wg_partial[lid] = t;
     workgroupBarrier();

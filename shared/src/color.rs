@@ -64,3 +64,9 @@ mod tests {
         assert!((luminance(day) - 1.0).abs() < 0.01);
     }
 }
+
+/// An 8-bit sRGB-encoded value as linear light in [0, 1].
+pub fn srgb8_to_linear(v: u8) -> f32 {
+    let c = v as f32 / 255.0;
+    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+}

@@ -3,6 +3,9 @@
 //! marked when a triangle overlaps it, and the cell's density is the marked
 //! fraction. Cells whose marks come mostly from wood are brown, others green.
 
+use crate::color::srgb8_to_linear;
+use crate::leaf::LeafOptics;
+use crate::lb::radiometry::LeafScattering;
 use crate::lb::{GridDims, MediumGrid, NodeClass};
 use crate::model::{Model, Surface};
 use glam::Vec3;
@@ -42,6 +45,27 @@ impl GridFrame {
         let centre = (min + max) * 0.5;
         let origin = centre - Vec3::splat(cell * n as f32 * 0.5);
         Self { origin: origin.to_array(), cell }
+    }
+
+    /// A frame and grid of about `n³` nodes with cubic cells fitted to
+    /// `(min, max)`: the box's sides keep their proportions, so a tall
+    /// narrow tree gets as many cells across its crown as its shape
+    /// allows, and one node of shell lies all round. No side is given
+    /// less than a sixteenth of the longest, so a flat model still has a
+    /// few cells of height.
+    pub fn fit(min: Vec3, max: Vec3, n: usize) -> (Self, GridDims) {
+        let n = n.max(4);
+        let e = (max - min).max(Vec3::splat(f32::EPSILON));
+        let e = e.max(Vec3::splat(e.max_element() / 16.0));
+        let inner = (n - 2) as f32;
+        // Cubic cells whose count over the box is (n − 2)³, with slack so
+        // faces stay off the shell; no side longer than 4n cells.
+        let cell = ((e.x * e.y * e.z).cbrt() / inner).max(e.max_element() / (4 * n) as f32) * (1.0 + 1e-3);
+        let nodes = |x: f32| ((x / cell).ceil() as usize).max(2) + 2;
+        let dims = GridDims { nx: nodes(e.x), ny: nodes(e.y), nz: nodes(e.z) };
+        let centre = (min + max) * 0.5;
+        let size = Vec3::new(dims.nx as f32, dims.ny as f32, dims.nz as f32) * cell;
+        (Self { origin: (centre - size * 0.5).to_array(), cell }, dims)
     }
 }
 
@@ -98,15 +122,26 @@ pub fn fill_interior(v: &mut Voxelization, class: NodeClass) -> usize {
     filled
 }
 
-/// Voxelizes `mesh` into an `n³` grid.
+/// Voxelizes `mesh` into an `n³` grid over its bounding cube (the papers' grid).
 pub fn voxelize(mesh: &Model, n: usize) -> Result<Voxelization, VoxelError> {
     if n < 4 {
         return Err(VoxelError::GridTooSmall(n));
     }
     let (min, max) = mesh.bounds().ok_or(VoxelError::Empty)?;
-    let frame = GridFrame::around(min, max, n);
-    let s = n * SUB;
-    let words = (s * s * s).div_ceil(64);
+    voxelize_in(mesh, GridFrame::around(min, max, n), GridDims::cube(n))
+}
+
+/// Voxelizes `mesh` into the grid `dims` placed by `frame`: each cell's
+/// density is the fraction of its 3 × 3 × 3 sub-cells a triangle overlaps.
+pub fn voxelize_in(mesh: &Model, frame: GridFrame, dims: GridDims) -> Result<Voxelization, VoxelError> {
+    if dims.nx < 4 || dims.ny < 4 || dims.nz < 4 {
+        return Err(VoxelError::GridTooSmall(dims.nx.min(dims.ny).min(dims.nz)));
+    }
+    if mesh.triangle_count() == 0 {
+        return Err(VoxelError::Empty);
+    }
+    let (sx, sy, sz) = (dims.nx * SUB, dims.ny * SUB, dims.nz * SUB);
+    let words = (sx * sy * sz).div_ceil(64);
     let leaf: Vec<AtomicU64> = (0..words).map(|_| AtomicU64::new(0)).collect();
     let wood: Vec<AtomicU64> = (0..words).map(|_| AtomicU64::new(0)).collect();
     let origin = Vec3::from(frame.origin);
@@ -121,15 +156,16 @@ pub fn voxelize(mesh: &Model, n: usize) -> Result<Voxelization, VoxelError> {
         let lo = tri[0].min(tri[1]).min(tri[2]);
         let hi = tri[0].max(tri[1]).max(tri[2]);
         // Never mark the boundary shell: its nodes hold the sun's densities.
-        let to_index = |v: f32| -> usize { (v.max(SUB as f32) as usize).min(s - SUB - 1) };
-        let a = ((lo - origin) / sub).to_array().map(|v| to_index(v.floor()));
-        let b = ((hi - origin) / sub).to_array().map(|v| to_index(v.floor()));
+        let to_index = |v: f32, s: usize| -> usize { (v.max(SUB as f32) as usize).min(s - SUB - 1) };
+        let (l, h) = (((lo - origin) / sub).floor(), ((hi - origin) / sub).floor());
+        let a = [to_index(l.x, sx), to_index(l.y, sy), to_index(l.z, sz)];
+        let b = [to_index(h.x, sx), to_index(h.y, sy), to_index(h.z, sz)];
         for k in a[2]..=b[2] {
             for j in a[1]..=b[1] {
                 for i in a[0]..=b[0] {
                     let centre = origin + (Vec3::new(i as f32, j as f32, k as f32) + 0.5) * sub;
                     if triangle_overlaps_box(&tri, centre, half) {
-                        let bit = i + s * (j + s * k);
+                        let bit = i + sx * (j + sy * k);
                         bits[bit / 64].fetch_or(1 << (bit % 64), Ordering::Relaxed);
                     }
                 }
@@ -137,17 +173,16 @@ pub fn voxelize(mesh: &Model, n: usize) -> Result<Voxelization, VoxelError> {
         }
     });
 
-    let dims = GridDims::cube(n);
     let is_set = |bits: &[AtomicU64], bit: usize| bits[bit / 64].load(Ordering::Relaxed) >> (bit % 64) & 1 == 1;
     let cells: Vec<(f32, NodeClass)> = (0..dims.len())
         .into_par_iter()
         .map(|idx| {
-            let (x, y, z) = (idx % n, (idx / n) % n, idx / (n * n));
+            let (x, y, z) = (idx % dims.nx, (idx / dims.nx) % dims.ny, idx / (dims.nx * dims.ny));
             let (mut l, mut w, mut any) = (0, 0, 0);
             for dz in 0..SUB {
                 for dy in 0..SUB {
                     for dx in 0..SUB {
-                        let bit = (x * SUB + dx) + s * ((y * SUB + dy) + s * (z * SUB + dz));
+                        let bit = (x * SUB + dx) + sx * ((y * SUB + dy) + sy * (z * SUB + dz));
                         let (il, iw) = (is_set(&leaf, bit), is_set(&wood, bit));
                         l += il as u32;
                         w += iw as u32;
@@ -161,6 +196,143 @@ pub fn voxelize(mesh: &Model, n: usize) -> Result<Voxelization, VoxelError> {
         .collect();
     let medium = MediumGrid { dims, density: cells.iter().map(|c| c.0).collect(), class: cells.iter().map(|c| c.1).collect() };
     Ok(Voxelization { medium, frame })
+}
+
+/// A model's leaf area per cell of a grid, and the optics of what fills it.
+#[derive(Clone, Debug)]
+pub struct LeafArea {
+    /// Per node: the area that blocks light, as one-sided leaf area: a
+    /// leaf's own area (mean projection G = ½ of it) plus half of a wood
+    /// surface's (a closed surface's mean projection is a quarter of its area).
+    pub area: Vec<f32>,
+    /// Area-weighted mean reflectance and transmittance of what blocks
+    /// light (leaves by the leaf optics × texture colour, wood by its colour).
+    pub scattering: LeafScattering,
+    /// Σ area, in model units².
+    pub total_area: f64,
+    /// Fraction of the leaf triangles' area their alpha masks cut away.
+    pub cut_fraction: f64,
+}
+
+/// Samples per triangle edge: at least two per cell edge, and at least 4
+/// (16 samples) on alpha-masked triangles, whose mask cuts within a card.
+fn subdivisions(tri: &[Vec3; 3], cell: f32, masked: bool) -> usize {
+    let edge = (tri[1] - tri[0]).length().max((tri[2] - tri[1]).length()).max((tri[0] - tri[2]).length());
+    let m = (2.0 * edge / cell).ceil() as usize;
+    m.max(if masked { 4 } else { 1 }).min(32)
+}
+
+/// Where `mesh`'s opaque area lies in the grid `dims` placed by `frame`.
+/// Each triangle is cut into m² equal sub-triangles whose centres carry
+/// their area to the cell they fall in, unless the alpha mask cuts them.
+pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, dims: GridDims) -> LeafArea {
+    let origin = Vec3::from(frame.origin);
+    let n = dims.len();
+    #[derive(Clone)]
+    struct Acc {
+        area: Vec<f64>,
+        reflect: [f64; 3],
+        transmit: [f64; 3],
+        weight: f64,
+        leaf: f64,
+        cut: f64,
+    }
+    let empty = || Acc { area: vec![0.0; n], reflect: [0.0; 3], transmit: [0.0; 3], weight: 0.0, leaf: 0.0, cut: 0.0 };
+    let acc = (0..mesh.triangle_count())
+        .into_par_iter()
+        .with_min_len(4096)
+        .fold(empty, |mut acc, t| {
+            let tri = mesh.triangle(t);
+            let uv = mesh.triangles[t].map(|i| mesh.uvs.get(i as usize).copied().unwrap_or_default());
+            let mat = &mesh.materials[mesh.material[t] as usize];
+            let wood = mat.surface == Surface::Wood;
+            let masked = mat.alpha_cutoff.is_some();
+            let area = 0.5 * (tri[1] - tri[0]).cross(tri[2] - tri[0]).length() as f64;
+            let m = subdivisions(&tri, frame.cell, masked);
+            let share = area / (m * m) as f64;
+            let mut sample = |u: f32, v: f32| {
+                let uvp = uv[0] + (uv[1] - uv[0]) * u + (uv[2] - uv[0]) * v;
+                if !wood {
+                    acc.leaf += share;
+                }
+                if masked && mesh.is_transparent(t, uvp) {
+                    acc.cut += share;
+                    return;
+                }
+                let p = tri[0] + (tri[1] - tri[0]) * u + (tri[2] - tri[0]) * v;
+                let g = ((p - origin) / frame.cell).floor();
+                let (x, y, z) = (g.x.max(0.0) as usize, g.y.max(0.0) as usize, g.z.max(0.0) as usize);
+                if x >= dims.nx || y >= dims.ny || z >= dims.nz {
+                    return;
+                }
+                let mut albedo = [mat.base_color[0], mat.base_color[1], mat.base_color[2]];
+                if let Some(tex) = mat.texture {
+                    let px = mesh.textures[tex as usize].texel(uvp);
+                    for c in 0..3 {
+                        albedo[c] *= srgb8_to_linear(px[c]);
+                    }
+                }
+                let w = if wood { 0.5 * share } else { share };
+                acc.area[dims.index(x, y, z)] += w;
+                acc.weight += w;
+                for c in 0..3 {
+                    if wood {
+                        acc.reflect[c] += w * albedo[c] as f64;
+                    } else {
+                        let k = optics.coefficients(albedo, c);
+                        acc.reflect[c] += w * 0.5 * (k[0] + k[1]) as f64;
+                        acc.transmit[c] += w * 0.5 * (k[2] + k[3]) as f64;
+                    }
+                }
+            };
+            let inv = 1.0 / m as f32;
+            for i in 0..m {
+                for j in 0..m - i {
+                    sample((i as f32 + 1.0 / 3.0) * inv, (j as f32 + 1.0 / 3.0) * inv);
+                    if i + j + 1 < m {
+                        sample((i as f32 + 2.0 / 3.0) * inv, (j as f32 + 2.0 / 3.0) * inv);
+                    }
+                }
+            }
+            acc
+        })
+        .reduce(empty, |mut a, b| {
+            a.area.iter_mut().zip(&b.area).for_each(|(x, y)| *x += y);
+            for c in 0..3 {
+                a.reflect[c] += b.reflect[c];
+                a.transmit[c] += b.transmit[c];
+            }
+            a.weight += b.weight;
+            a.leaf += b.leaf;
+            a.cut += b.cut;
+            a
+        });
+    let w = acc.weight.max(f64::MIN_POSITIVE);
+    LeafArea {
+        area: acc.area.iter().map(|&a| a as f32).collect(),
+        scattering: LeafScattering { reflect: acc.reflect.map(|r| r / w), transmit: acc.transmit.map(|t| t / w) },
+        total_area: acc.weight,
+        cut_fraction: if acc.leaf > 0.0 { acc.cut / acc.leaf } else { 0.0 },
+    }
+}
+
+/// The grounded LB medium of a leaf-area grid: each node's density is the
+/// probability that light crossing its cell meets a leaf (see
+/// [`density_from_leaf_area`](crate::lb::radiometry::density_from_leaf_area));
+/// every occupied node absorbs for real (green). The shell stays empty.
+pub fn medium_from_leaf_area(area: &[f32], dims: GridDims, cell: f32) -> MediumGrid {
+    let mut m = MediumGrid::empty(dims).with_class(NodeClass::Green);
+    for z in 0..dims.nz {
+        for y in 0..dims.ny {
+            for x in 0..dims.nx {
+                if !dims.is_boundary(x, y, z) {
+                    let i = dims.index(x, y, z);
+                    m.density[i] = crate::lb::radiometry::density_from_leaf_area(area[i] as f64, cell as f64);
+                }
+            }
+        }
+    }
+    m
 }
 
 /// Triangle–box overlap by the separating axis theorem (Akenine-Möller

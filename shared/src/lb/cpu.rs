@@ -96,15 +96,24 @@ impl<'m> CpuLattice<'m> {
         &mut self.state
     }
 
-    /// `Σ_m f_m` per node, summed in direction order in f32 as the GPU does.
+    /// The incoming field per node, `Σ_m f_m(r − c_m)`: what arrives at
+    /// each node before it collides (the model's equation reads a node's
+    /// density there; after the collision a green node has already lost
+    /// what its leaves absorbed). Boundary nodes report their fixed values.
+    /// Summed in direction order in f32, as the GPU does.
     pub fn node_totals(&self) -> Vec<f32> {
-        let n = self.medium.dims.len();
+        let dims = self.medium.dims;
+        let n = dims.len();
+        let offsets: [isize; Q] = std::array::from_fn(|m| dims.offset(DIRECTIONS[m]));
         (0..n)
             .into_par_iter()
             .map(|i| {
+                let (x, y, z) = (i % dims.nx, (i / dims.nx) % dims.ny, i / (dims.nx * dims.ny));
+                let boundary = dims.is_boundary(x, y, z);
                 let mut s = 0.0f32;
                 for m in 0..Q {
-                    s += self.state[m * n + i];
+                    let from = if boundary { i } else { (i as isize - offsets[m]) as usize };
+                    s += self.state[m * n + from];
                 }
                 s
             })

@@ -12,6 +12,8 @@
 //! - [`collision`]: the collision matrix Ω, isotropic and Henyey–Greenstein.
 //! - [`medium`]: the density grid and the class (medium, green, brown) of each node.
 //! - [`boundary`]: the sun's boundary condition.
+//! - [`radiometry`]: units, sun and sky on the boundary, leaf area to density, leaf optics to σ_a, σ_s, g.
+//! - [`indirect`]: the field split into the uncollided sun (the tracer's) and the rest (the LB's).
 //! - [`solver`]: the [`LightingSolver`] seam, its options and its report.
 //! - [`cpu`]: the CPU reference solver (rayon) that the GPU solver is tested against.
 //! - [`montecarlo`]: an analog Monte Carlo reference in the same medium and sun.
@@ -25,11 +27,13 @@ pub mod boundary;
 pub mod coarse;
 pub mod collision;
 pub mod cpu;
+pub mod indirect;
 pub mod lattice;
 pub mod limits;
 pub mod medium;
 pub mod montecarlo;
 pub mod params;
+pub mod radiometry;
 pub mod solver;
 pub mod verify;
 
@@ -41,4 +45,6 @@ pub use limits::{LbWarning, Sweep, SweepKind, SweepPoint, failure_sweep, failure
 pub use medium::{GridDims, MediumGrid, NodeClass};
 pub use montecarlo::McFluence;
 pub use params::{ChannelParams, LbParams, ParamError, Preset};
+pub use indirect::{IndirectSolution, solve_indirect};
+pub use radiometry::{Illumination, LeafScattering};
 pub use solver::{ChannelReport, ChannelSolution, LightingSolver, Solution, SolveOptions, solve};

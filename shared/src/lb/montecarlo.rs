@@ -129,13 +129,24 @@ pub fn lb_flux_ratio(sun: &Sun) -> f64 {
 ///
 /// Panics if `photons` is 0 or the medium's arrays disagree with its dimensions.
 pub fn fluence(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: u64, seed: u64) -> McFluence {
+    fluence_of(medium, params, sun, photons, seed, false)
+}
+
+/// The part of [`fluence`] carried by photons that have scattered at least
+/// once: what the LB's indirect term ([`solve_indirect`](super::indirect))
+/// must equal. Shell nodes report 0 (the sun alone lights the boundary).
+pub fn scattered_fluence(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: u64, seed: u64) -> McFluence {
+    fluence_of(medium, params, sun, photons, seed, true)
+}
+
+fn fluence_of(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: u64, seed: u64, scattered_only: bool) -> McFluence {
     assert!(photons > 0, "at least one photon");
     let start = Instant::now();
     let dims = medium.dims;
     let n = dims.len();
     assert_eq!(medium.density.len(), n);
     assert_eq!(medium.class.len(), n);
-    let scene = Scene::new(medium, params, sun);
+    let scene = Scene { scattered_only, ..Scene::new(medium, params, sun) };
     let batches = BATCHES.min(photons);
     let per_batch = photons / batches;
     let mut master = SplitMix64::new(seed);
@@ -163,7 +174,7 @@ pub fn fluence(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: 
             for x in 0..dims.nx {
                 let i = dims.index(x, y, z);
                 if dims.is_boundary(x, y, z) {
-                    values[i] = s0 as f32;
+                    values[i] = if scattered_only { 0.0 } else { s0 as f32 };
                     continue;
                 }
                 let k = s0 * scene.projected_area * scene.rest_factor(i) / per_batch as f64;
@@ -198,6 +209,8 @@ struct Scene<'m> {
     majorant: f64,
     faces: Vec<Face>,
     projected_area: f64,
+    /// Score only photons that have scattered at least once.
+    scattered_only: bool,
 }
 
 impl<'m> Scene<'m> {
@@ -232,7 +245,7 @@ impl<'m> Scene<'m> {
         for f in &mut faces {
             f.cumulative /= area;
         }
-        Self { medium, params: *params, dir, lo, hi, majorant, faces, projected_area: area }
+        Self { medium, params: *params, dir, lo, hi, majorant, faces, projected_area: area, scattered_only: false }
     }
 
     /// `1 + σ_a` where the LB keeps a resting density (medium and brown nodes
@@ -255,9 +268,10 @@ impl<'m> Scene<'m> {
         for _ in 0..photons {
             let (mut pos, mut cell) = self.emit(&mut rng);
             let mut dir = self.dir;
+            let mut scattered = false;
             loop {
                 let flight = if self.majorant > 0.0 { -(1.0 - rng.next_f64()).ln() / self.majorant } else { f64::INFINITY };
-                if !self.fly(&mut pos, &mut cell, dir, flight, &mut tally) {
+                if !self.fly(&mut pos, &mut cell, dir, flight, &mut tally, scattered || !self.scattered_only) {
                     break;
                 }
                 let i = self.index(cell);
@@ -266,6 +280,7 @@ impl<'m> Scene<'m> {
                     continue; // a null collision
                 }
                 let class = self.medium.class[i];
+                scattered = true;
                 if rng.next_f64() < absorb {
                     if class == NodeClass::Green {
                         break;
@@ -303,7 +318,8 @@ impl<'m> Scene<'m> {
 
     /// Moves the photon `dist` along `dir` through the cells (a 3-D DDA),
     /// scoring each cell's chord. Returns false when it leaves the box.
-    fn fly(&self, pos: &mut [f64; 3], cell: &mut [i64; 3], dir: [f64; 3], dist: f64, tally: &mut [f64]) -> bool {
+    fn fly(&self, pos: &mut [f64; 3], cell: &mut [i64; 3], dir: [f64; 3], dist: f64, tally: &mut [f64], score: bool) -> bool {
+        let score = if score { 1.0 } else { 0.0 };
         let mut t_next = [f64::INFINITY; 3];
         let mut t_step = [f64::INFINITY; 3];
         for a in 0..3 {
@@ -326,7 +342,7 @@ impl<'m> Scene<'m> {
             };
             let i = self.index(*cell);
             if t_next[a] >= dist {
-                tally[i] += dist - t;
+                tally[i] += score * (dist - t);
                 for k in 0..3 {
                     pos[k] += dir[k] * dist;
                     // Keep the position in the tracked cell despite round-off.
@@ -334,7 +350,7 @@ impl<'m> Scene<'m> {
                 }
                 return true;
             }
-            tally[i] += t_next[a] - t;
+            tally[i] += score * (t_next[a] - t);
             t = t_next[a];
             cell[a] += if dir[a] > 0.0 { 1 } else { -1 };
             if cell[a] < self.lo[a] || cell[a] >= self.hi[a] {

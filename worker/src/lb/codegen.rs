@@ -112,6 +112,7 @@ pub fn step_shader(layout: &StateLayout, collision: &Collision) -> String {
     let mut store = String::new();
     let mut declare = String::new();
     let mut sum = Vec::new();
+    let mut incoming = Vec::new();
     for (m, &c) in DIRECTIONS.iter().enumerate() {
         let (buf, at) = layout.location(m);
         let off = d.offset(c);
@@ -124,6 +125,7 @@ pub fn step_shader(layout: &StateLayout, collision: &Collision) -> String {
         writeln!(store, "    dst{buf}[{at}u + idx] = o{m};").unwrap();
         writeln!(declare, "    var o{m}: f32;").unwrap();
         sum.push(format!("src{buf}[{at}u + idx]"));
+        incoming.push(format!("src{buf}[{at}u + idx{shift}]"));
     }
     TEMPLATE
         .replace("{{NX}}", &d.nx.to_string())
@@ -139,6 +141,7 @@ pub fn step_shader(layout: &StateLayout, collision: &Collision) -> String {
         .replace("{{COLLIDE_BROWN}}", &collide(&collision.brown))
         .replace("{{STORE}}", store.trim_end())
         .replace("{{SUM}}", &sum.join(" + "))
+        .replace("{{INCOMING}}", &incoming.join(" + "))
 }
 
 /// `o_m = f_m + rho * (Σ_n Ω[m][n] f_n)`, summed in `n` order as the CPU
