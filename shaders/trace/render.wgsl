@@ -28,9 +28,9 @@ struct Frame {
     ambient: vec3<f32>,
     // 0 local, 1 ambient, 2 lb, 3 lb-visualize.
     lighting: u32,
-    // LB total density of unobstructed sunlight: LB values are divided by it.
+    // Paper LB model: total density of unobstructed sunlight (LB values are
+    // divided by it) and the non-physical strength of the LB term.
     lb_free: f32,
-    // How much of the sun's light the LB term adds where nothing blocks it.
     lb_strength: f32,
     // Offset that keeps secondary rays off the surface they leave.
     epsilon: f32,
@@ -47,6 +47,15 @@ struct Frame {
     pad3: u32,
     // Boulanger et al.: mean sky (or ground) radiance over each direction's octant.
     bl_sky: array<vec4<f32>, 8>,
+    // The ground's light under the stand (grounded LB): x, z of the corner
+    // of node (0, 0), cell; then nx, nz, offset in lb_data, 1 when present.
+    ground_grid: vec4<f32>,
+    ground_dims: vec4<u32>,
+    // 0: the grounded LB model (docs/lighting.md), 1: the papers' as written.
+    lb_model: u32,
+    pad4: u32,
+    pad5: u32,
+    pad6: u32,
 }
 
 // Rays traced, by kind: primary, shadow, transparent texels passed.
@@ -100,33 +109,132 @@ fn in_shadow(p: vec3<f32>) -> bool {
     return occluded(make_ray(p, frame.sun_towards), frame.epsilon, 3.0e38);
 }
 
-// LB total density at a model-space point of an instance, trilinear,
-// normalized by free-space sunlight; zero where the model has no grid.
+// The LB grid's value at a model-space point of an instance, trilinear
+// between node centres (as GridDims::trilinear), times the instance's
+// forest scale; zero where the model has no grid.
 fn lb_light(inst: Instance, p_model: vec3<f32>) -> vec3<f32> {
     let m = models[inst.model];
     if m.has_lb == 0u {
         return vec3<f32>(0.0);
     }
     let p = vec3<f32>(dot(inst.to_lb[0].xyz, p_model), dot(inst.to_lb[1].xyz, p_model), dot(inst.to_lb[2].xyz, p_model));
-    let n = m.lb_n;
-    // Node centres sit at origin + (i + 0.5) · cell.
-    let g = clamp((p - m.lb_origin) / m.lb_cell - 0.5, vec3<f32>(0.0), vec3<f32>(f32(n - 1u)));
-    let i0 = vec3<u32>(min(floor(g), vec3<f32>(f32(n - 2u))));
+    let d = m.lb_dims;
+    let top = vec3<f32>(d - vec3<u32>(1u));
+    let g = clamp((p - m.lb_origin) / m.lb_cell - 0.5, vec3<f32>(0.0), top);
+    let i0 = vec3<u32>(min(floor(g), top - 1.0));
     let f = g - vec3<f32>(i0);
-    let plane = n * n * n;
+    let plane = d.x * d.y * d.z;
     var rgb = vec3<f32>(0.0);
     for (var c = 0u; c < 3u; c++) {
         let base = m.lb_offset + c * plane;
         var acc = 0.0;
         for (var k = 0u; k < 8u; k++) {
-            let d = vec3<u32>(k & 1u, (k >> 1u) & 1u, (k >> 2u) & 1u);
-            let q = i0 + d;
-            let w = select(1.0 - f.x, f.x, d.x == 1u) * select(1.0 - f.y, f.y, d.y == 1u) * select(1.0 - f.z, f.z, d.z == 1u);
-            acc += w * lb_data[base + q.x + n * (q.y + n * q.z)];
+            let o = vec3<u32>(k & 1u, (k >> 1u) & 1u, (k >> 2u) & 1u);
+            let q = i0 + o;
+            let w = select(1.0 - f.x, f.x, o.x == 1u) * select(1.0 - f.y, f.y, o.y == 1u) * select(1.0 - f.z, f.z, o.z == 1u);
+            acc += w * lb_data[base + q.x + d.x * (q.y + d.y * q.z)];
         }
         rgb[c] = acc;
     }
-    return rgb * inst.lb_scale / frame.lb_free;
+    return rgb * inst.lb_scale;
+}
+
+const INV_FOUR_PI: f32 = 0.07957747;
+
+// What the LB adds at a surface point, per unit of the surface's albedo
+// (its reflectance plus transmittance): grounded, the indirect fluence φ
+// over 4π (each side of a surface in a diffuse field receives φ/4, and a
+// Lambertian surface sends ρE/π); paper, LB / LB_free × lb_strength × sun.
+fn lb_indirect(inst: Instance, p_model: vec3<f32>) -> vec3<f32> {
+    let raw = lb_light(inst, p_model);
+    if frame.lb_model == 1u {
+        return raw / frame.lb_free * frame.lb_strength * frame.sun_radiance;
+    }
+    return raw * INV_FOUR_PI;
+}
+
+// Whether this frame's direct methods use the papers' shading as written
+// (the paper LB model's `lb`): texture colour only, no leaf transmission.
+fn paper_shading() -> bool {
+    return frame.lb_model == 1u && (frame.lighting == LIGHTING_LB || frame.lighting == LIGHTING_AMBIENT);
+}
+
+// The albedo a diffuse field sees on surface `s` viewed from the side of
+// `n`: a leaf's reflectance on that side plus its transmittance from the
+// other (the leaf optics, one BSDF for every method); wood its colour.
+fn diffuse_albedo(s: SurfacePoint, n: vec3<f32>) -> vec3<f32> {
+    if s.kind != KIND_LEAF || paper_shading() {
+        return s.albedo;
+    }
+    let c = leaf_coefficients(s.albedo);
+    if dot(s.n, n) >= 0.0 {
+        return c[0] + c[3];
+    }
+    return c[1] + c[2];
+}
+
+// The sun's direct light on `s` seen along `view` (n faces the viewer):
+// reflected when it lights the viewer's side, transmitted through a leaf
+// when it lights the other; shadow rays honour alpha.
+fn direct_sun(s: SurfacePoint, n: vec3<f32>, view: vec3<f32>) -> vec3<f32> {
+    let n_dot_l = dot(n, frame.sun_towards);
+    if n_dot_l > 0.0 {
+        atomicAdd(&counters.shadow, 1u);
+        if in_shadow(s.p + n * frame.epsilon) {
+            return vec3<f32>(0.0);
+        }
+        var reflect_c = s.albedo;
+        if s.kind == KIND_LEAF && !paper_shading() {
+            let c = leaf_coefficients(s.albedo);
+            reflect_c = select(c[1], c[0], dot(s.n, n) >= 0.0);
+        }
+        return frame.sun_radiance * (reflect_c * n_dot_l + vec3<f32>(sun_highlight(n, view, s.kind)));
+    }
+    if n_dot_l < 0.0 && s.kind == KIND_LEAF && !paper_shading() {
+        atomicAdd(&counters.shadow, 1u);
+        if in_shadow(s.p - n * frame.epsilon) {
+            return vec3<f32>(0.0);
+        }
+        let c = leaf_coefficients(s.albedo);
+        // Seen from the front, the light entered the back face (ρ_tb); from the back, the front (ρ_tf).
+        let t = select(c[2], c[3], dot(s.n, n) >= 0.0);
+        return frame.sun_radiance * t * (-n_dot_l);
+    }
+    return vec3<f32>(0.0);
+}
+
+// Sky irradiance over π on open ground: the cosine-weighted integral of the
+// sky gradient, 0.2 horizon + 0.8 zenith (docs/lighting.md).
+fn open_sky_on_ground() -> vec3<f32> {
+    return 0.2 * frame.sky_horizon + 0.8 * frame.sky_zenith;
+}
+
+// Irradiance over π that the ground at world (x, z) receives besides the
+// direct sun: under the stand, from the forest grid's indirect fluence φ
+// (light from above only: E = φ/2); elsewhere, the open sky.
+fn ground_indirect(p: vec3<f32>) -> vec3<f32> {
+    let d = frame.ground_dims;
+    if d.w == 0u || frame.lighting != LIGHTING_LB {
+        return open_sky_on_ground();
+    }
+    let cell = frame.ground_grid.z;
+    let g = (vec2<f32>(p.x, p.z) - frame.ground_grid.xy) / cell - 0.5;
+    let top = vec2<f32>(f32(d.x - 1u), f32(d.y - 1u));
+    if any(g < vec2<f32>(0.0)) || any(g > top) {
+        return open_sky_on_ground();
+    }
+    let i0 = vec2<u32>(min(floor(g), top - 1.0));
+    let f = g - vec2<f32>(i0);
+    var rgb = vec3<f32>(0.0);
+    for (var c = 0u; c < 3u; c++) {
+        let base = d.z + c * d.x * d.y;
+        let a = lb_data[base + i0.x + d.x * i0.y];
+        let b = lb_data[base + i0.x + 1u + d.x * i0.y];
+        let e = lb_data[base + i0.x + d.x * (i0.y + 1u)];
+        let h = lb_data[base + i0.x + 1u + d.x * (i0.y + 1u)];
+        rgb[c] = mix(mix(a, b, f.x), mix(e, h, f.x), f.y);
+    }
+    return rgb * 0.5 / 3.14159265;
 }
 
 // Trilinear sample of plane `plane` of a cloud's data at grid coordinates g.
@@ -304,30 +412,22 @@ fn surface_radiance(ray: Ray) -> Surface {
                 direct = frame.sun_radiance * frame.sun_towards.y;
             }
         }
-        // The ground sees half the sky.
-        return Surface(vec4<f32>(frame.ground_color * (direct + 0.5 * (frame.sky_zenith + frame.sky_horizon) * 0.5), 0.0), s.t);
+        return Surface(vec4<f32>(frame.ground_color * (direct + ground_indirect(s.p)), 0.0), s.t);
     }
     let inst = instances[s.instance];
     let n = select(s.n, -s.n, dot(s.n, ray.dir) > 0.0);
     let p_model = to_model_point(inst, s.p);
     if frame.lighting == LIGHTING_LB_VISUALIZE {
-        return Surface(vec4<f32>(lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance, 1.0), s.t);
+        return Surface(vec4<f32>(lb_indirect(inst, p_model), 1.0), s.t);
     }
     if LIGHTING_FAMILY == 2u && s.kind == KIND_LEAF && models[inst.model].has_envelope == 1u {
         return Surface(vec4<f32>(boulanger_leaf(s, ray.dir), 1.0), s.t);
     }
-    var color = vec3<f32>(0.0);
-    let n_dot_l = dot(n, frame.sun_towards);
-    if n_dot_l > 0.0 {
-        atomicAdd(&counters.shadow, 1u);
-        if !in_shadow(s.p + n * frame.epsilon) {
-            color += frame.sun_radiance * (s.albedo * n_dot_l + vec3<f32>(sun_highlight(n, ray.dir, s.kind)));
-        }
-    }
+    var color = direct_sun(s, n, ray.dir);
     if frame.lighting == LIGHTING_LB {
-        color += s.albedo * lb_light(inst, p_model) * frame.lb_strength * frame.sun_radiance;
+        color += diffuse_albedo(s, n) * lb_indirect(inst, p_model);
     } else if frame.lighting == LIGHTING_AMBIENT {
-        color += s.albedo * frame.ambient;
+        color += diffuse_albedo(s, n) * frame.ambient;
     }
     return Surface(vec4<f32>(color, 1.0), s.t);
 }

@@ -55,10 +55,13 @@ struct Instance {
 struct Model {
     root: u32,
     lb_offset: u32,
-    lb_n: u32,
     has_lb: u32,
+    pad0: u32,
     lb_origin: vec3<f32>,
     lb_cell: f32,
+    // LB nodes per axis, fitted to the model's bounds.
+    lb_dims: vec3<u32>,
+    pad1: u32,
     // Boulanger et al.: optical thickness, leaf density and area of the foliage.
     tau: f32,
     leaf_density: f32,
@@ -81,7 +84,8 @@ struct Model {
 @group(0) @binding(7) var<storage, read> texels: array<u32>;
 @group(0) @binding(8) var<storage, read> instances: array<Instance>;
 @group(0) @binding(9) var<storage, read> models: array<Model>;
-// LB total densities, per model: three channel planes of N³ values, x fastest.
+// LB light per model (three channel planes of nx·ny·nz values, x fastest),
+// then the ground's light under the stand (three planes of nx·nz).
 @group(0) @binding(10) var<storage, read> lb_data: array<f32>;
 
 struct Cloud {

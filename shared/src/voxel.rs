@@ -4,9 +4,9 @@
 //! fraction. Cells whose marks come mostly from wood are brown, others green.
 
 use crate::color::srgb8_to_linear;
-use crate::leaf::LeafOptics;
 use crate::lb::radiometry::LeafScattering;
 use crate::lb::{GridDims, MediumGrid, NodeClass};
+use crate::leaf::LeafOptics;
 use crate::model::{Model, Surface};
 use glam::Vec3;
 use rayon::prelude::*;

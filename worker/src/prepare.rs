@@ -4,97 +4,143 @@
 
 use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
-use crate::trace::{CloudGrid, GpuScene, LbGrid, SceneLight, StripRenderer};
+use crate::trace::{CloudGrid, GpuScene, GroundLight, LbGrid, SceneLight, StripRenderer};
 use serde::Serialize;
 use sylva_shared::accel::Aabb;
 use sylva_shared::accel::{AccelKind, SceneAccel};
 use sylva_shared::lb::coarse::{Occupant, WorldGrid, forest_medium};
 use sylva_shared::lb::solver::PhaseTimer;
-use sylva_shared::lb::{Preset, SolveOptions, Sun, solve};
-use sylva_shared::scene::{ForestGridUse, LightingMode, Scene};
-use sylva_shared::voxel::voxelize;
+use sylva_shared::lb::{GridDims, LbParams, LeafScattering, MediumGrid, NodeClass, Preset, SolveOptions, Sun, solve, solve_indirect};
+use sylva_shared::model::Model;
+use sylva_shared::scene::{ForestGridUse, LbModel, LightingMode, Scene, SceneModel};
+use sylva_shared::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_leaf_area, voxelize_in};
 
 /// What the LB pre-process did for one model.
 #[derive(Clone, Debug, Serialize)]
 pub struct ModelLight {
     /// Model name.
     pub model: String,
-    /// Grid size N.
+    /// Grid size N asked for (about N³ nodes).
     pub grid: usize,
-    /// Preset.
+    /// The grid's nodes per axis, fitted to the model's bounds.
+    pub dims: GridDims,
+    /// Which LB model ("grounded" or "paper").
+    pub lb_model: &'static str,
+    /// Preset (the paper model) or "leaf optics" (the grounded one).
     pub preset: &'static str,
+    /// Single-scattering albedo σ_s/σ_t per channel.
+    pub albedo: [f32; 3],
+    /// Henyey–Greenstein g per channel.
+    pub g: [f32; 3],
+    /// Blocking area (one-sided leaf area plus half the wood's), model units² (grounded).
+    pub leaf_area: Option<f64>,
+    /// Fraction of leaf area the alpha masks cut away (grounded).
+    pub alpha_cut: Option<f64>,
     /// Fraction of nodes with matter.
     pub occupancy: f64,
     /// Steps per channel.
     pub steps: [usize; 3],
     /// Whether each channel converged.
     pub converged: [bool; 3],
+    /// Steps of the uncollided-sun pass (grounded).
+    pub uncollided_steps: Option<usize>,
     /// Where the LB model is not to be trusted for this medium, and why.
     pub warnings: Vec<String>,
 }
 
-/// Voxelizes one model at `grid`³ and solves its LB light.
-fn solve_model(solver: &mut GpuSolver, m: &sylva_shared::scene::SceneModel, grid: usize, sun: &Sun) -> anyhow::Result<(LbGrid, ModelLight)> {
-    solve_voxels(solver, m, &voxels_of(m, grid)?, grid, sun)
+/// A model's LB medium, ready to solve.
+struct ModelMedium {
+    frame: GridFrame,
+    medium: MediumGrid,
+    params: LbParams,
+    /// The grounded model's leaf area (none for the paper's).
+    area: Option<LeafArea>,
 }
 
-/// One model's LB medium: its voxels, filled inside when it is a solid;
-/// matter that is not a plant scatters without removing what it absorbs.
-fn voxels_of(m: &sylva_shared::scene::SceneModel, grid: usize) -> anyhow::Result<sylva_shared::voxel::Voxelization> {
-    use sylva_shared::lb::NodeClass;
-    let mut v = voxelize(&m.model, grid)?;
-    if !m.lb.preset.is_plant() {
-        v.medium.class.iter_mut().for_each(|c| *c = NodeClass::Medium);
-    }
-    if m.lb.solid {
-        let class = if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
-        sylva_shared::voxel::fill_interior(&mut v, class);
-    }
-    Ok(v)
+/// The model-space box an LB grid covers: the model's bounds widened to
+/// the cylinder about its vertical axis, since instances turned about the
+/// vertical read the grid at turned points (`GpuInstance::to_lb`).
+fn lb_bounds(model: &Model) -> Option<(glam::Vec3, glam::Vec3)> {
+    let (lo, hi) = model.bounds()?;
+    let r = model.triangles.iter().flatten().map(|&i| model.positions[i as usize]).map(|p| (p.x * p.x + p.z * p.z).sqrt()).fold(0.0f32, f32::max);
+    Some((glam::Vec3::new(-r, lo.y, -r).min(lo), glam::Vec3::new(r, hi.y, r).max(hi)))
 }
 
-/// Solves the LB light of one model's voxels.
-fn solve_voxels(
-    solver: &mut GpuSolver,
-    m: &sylva_shared::scene::SceneModel,
-    v: &sylva_shared::voxel::Voxelization,
-    grid: usize,
-    sun: &Sun,
-) -> anyhow::Result<(LbGrid, ModelLight)> {
-    let params = m.lb.preset.params();
-    let s = solve(solver, &v.medium, &params, sun, &SolveOptions::default(), &|_, _, _| {})?;
-    let warnings = sylva_shared::lb::lb_warnings(&params, &v.medium, sun).into_iter().map(|w| format!("{}: {}", w.kind, w.message)).collect();
+/// One model's LB medium on a grid of about `n³` nodes fitted to its bounds.
+fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMedium> {
+    let (lo, hi) = lb_bounds(&m.model).ok_or_else(|| anyhow::anyhow!("model {} has no triangles", m.name))?;
+    let (frame, dims) = GridFrame::fit(lo, hi, n);
+    match scene.file.lb_model {
+        LbModel::Grounded => {
+            let area = leaf_area_in(&m.model, &scene.file.leaf_optics, frame, dims);
+            let medium = medium_from_leaf_area(&area.area, dims, frame.cell);
+            Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area) })
+        }
+        LbModel::Paper => {
+            let mut v = voxelize_in(&m.model, frame, dims)?;
+            if !m.lb.preset.is_plant() {
+                v.medium.class.iter_mut().for_each(|c| *c = NodeClass::Medium);
+            }
+            if m.lb.solid {
+                let class = if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
+                sylva_shared::voxel::fill_interior(&mut v, class);
+            }
+            Ok(ModelMedium { frame, medium: v.medium, params: m.lb.preset.params(), area: None })
+        }
+    }
+}
+
+/// Solves one model's medium. The grounded model keeps the light the
+/// tracer does not add (scattered sun, sky) in physical units; the paper
+/// model keeps the total density of a unit sun.
+fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &ModelMedium, n: usize) -> anyhow::Result<(LbGrid, ModelLight)> {
+    let opts = SolveOptions::default();
+    let (rgb, steps, converged, uncollided_steps): (Vec<f32>, [usize; 3], [bool; 3], Option<usize>) = match scene.file.lb_model {
+        LbModel::Grounded => {
+            let s = solve_indirect(solver, &mm.medium, &mm.params, &scene.illumination(), &opts, &|_| {})?;
+            let r = &s.reports;
+            (s.indirect.concat(), std::array::from_fn(|c| r[c].steps), std::array::from_fn(|c| r[c].converged), Some(r[3].steps))
+        }
+        LbModel::Paper => {
+            let s = solve(solver, &mm.medium, &mm.params, &sun_of(scene)?, &opts, &|_, _, _| {})?;
+            let r = |c: usize| &s.channels[c].report;
+            let rgb = s.channels.iter().flat_map(|c| c.total.iter().copied()).collect();
+            (rgb, std::array::from_fn(|c| r(c).steps), std::array::from_fn(|c| r(c).converged), None)
+        }
+    };
+    let warnings =
+        sylva_shared::lb::lb_warnings(&mm.params, &mm.medium, &sun_of(scene)?).into_iter().map(|w| format!("{}: {}", w.kind, w.message)).collect();
+    let p = &mm.params.channels;
     let report = ModelLight {
         model: m.name.clone(),
-        grid,
-        preset: m.lb.preset.name(),
-        occupancy: v.medium.occupancy(),
-        steps: std::array::from_fn(|c| s.channels[c].report.steps),
-        converged: std::array::from_fn(|c| s.channels[c].report.converged),
+        grid: n,
+        dims: mm.medium.dims,
+        lb_model: scene.file.lb_model.name(),
+        preset: if mm.area.is_some() { "leaf optics" } else { m.lb.preset.name() },
+        albedo: std::array::from_fn(|c| p[c].sigma_s / p[c].sigma_t()),
+        g: std::array::from_fn(|c| p[c].g),
+        leaf_area: mm.area.as_ref().map(|a| a.total_area),
+        alpha_cut: mm.area.as_ref().map(|a| a.cut_fraction),
+        occupancy: mm.medium.occupancy(),
+        steps,
+        converged,
+        uncollided_steps,
         warnings,
     };
-    let rgb = s.channels.iter().flat_map(|c| c.total.iter().copied()).collect();
-    Ok((LbGrid { n: grid, frame: v.frame, rgb, occupancy: v.medium.occupancy() }, report))
+    Ok((LbGrid { dims: mm.medium.dims, frame: mm.frame, rgb, occupancy: mm.medium.occupancy() }, report))
 }
 
-/// The LB light of `g` at a model-space point: trilinear between node
-/// centres, as `render.wgsl`'s `lb_light` reads it.
+/// Builds and solves one model's grid of about `n³` nodes.
+fn solve_model(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<(LbGrid, ModelLight)> {
+    solve_medium(solver, scene, m, &medium_of(scene, m, n)?, n)
+}
+
+/// The LB light of `g` at a model-space point, summed over channels'
+/// planes `c`: trilinear between node centres, as `render.wgsl`'s `lb_light` reads it.
 pub fn sample_lb(g: &LbGrid, p: glam::Vec3) -> [f32; 3] {
-    let n = g.n;
-    let q = ((p - glam::Vec3::from(g.frame.origin)) / g.frame.cell - 0.5).clamp(glam::Vec3::ZERO, glam::Vec3::splat((n - 1) as f32));
-    let i0 = q.floor().min(glam::Vec3::splat((n - 2) as f32));
-    let f = q - i0;
-    let (x0, y0, z0) = (i0.x as usize, i0.y as usize, i0.z as usize);
-    std::array::from_fn(|c| {
-        let base = c * n * n * n;
-        let mut acc = 0.0;
-        for k in 0..8 {
-            let (dx, dy, dz) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
-            let w = if dx == 1 { f.x } else { 1.0 - f.x } * if dy == 1 { f.y } else { 1.0 - f.y } * if dz == 1 { f.z } else { 1.0 - f.z };
-            acc += w * g.rgb[base + (x0 + dx) + n * ((y0 + dy) + n * (z0 + dz))];
-        }
-        acc
-    })
+    let q = ((p - glam::Vec3::from(g.frame.origin)) / g.frame.cell - 0.5).to_array();
+    let plane = g.dims.len();
+    std::array::from_fn(|c| g.dims.trilinear(&g.rgb[c * plane..(c + 1) * plane], q))
 }
 
 /// What `--lb-grid auto` chose for one model, and why.
@@ -124,7 +170,6 @@ pub fn choose_lb_grids(
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<Vec<GridChoice>> {
     anyhow::ensure!(candidates.len() >= 2 && candidates.windows(2).all(|w| w[0] < w[1]), "auto grid candidates must be at least two, ascending");
-    let sun = sun_of(scene)?;
     let mut solver = GpuSolver::new(ctx.clone());
     let mut out = Vec::new();
     for m in &scene.models {
@@ -133,12 +178,12 @@ pub fn choose_lb_grids(
             m.model.triangles.iter().map(|t| t.iter().map(|&i| m.model.positions[i as usize]).sum::<glam::Vec3>() / 3.0).collect();
         let light_at = |g: &LbGrid| -> Vec<f32> { pts.iter().map(|&p| sample_lb(g, p).iter().sum::<f32>()).collect() };
         progress(&format!("choosing the LB grid of {} ({}³)", m.name, candidates[0]));
-        let mut coarse = light_at(&solve_model(&mut solver, m, candidates[0], &sun)?.0);
+        let mut coarse = light_at(&solve_model(&mut solver, scene, m, candidates[0])?.0);
         let mut compared = Vec::new();
         let mut chosen = None;
         for w in candidates.windows(2) {
             progress(&format!("choosing the LB grid of {} ({}³)", m.name, w[1]));
-            let fine = light_at(&solve_model(&mut solver, m, w[1], &sun)?.0);
+            let fine = light_at(&solve_model(&mut solver, scene, m, w[1])?.0);
             let num: f64 = coarse.iter().zip(&fine).map(|(a, b)| ((a - b) as f64).powi(2)).sum();
             let den: f64 = fine.iter().map(|b| (*b as f64).powi(2)).sum();
             let diff = if den > 0.0 { (num / den).sqrt() } else { 0.0 };
@@ -218,15 +263,15 @@ pub fn prepare(ctx: &GpuContext, scene: &Scene, kind: AccelKind, lighting: Light
     let needs_lb = lighting.needs_lb();
     let mut grids: Vec<Option<LbGrid>> = vec![None; scene.models.len()];
     let mut light = Vec::new();
+    let mut areas = Vec::new();
     if needs_lb {
         progress("voxelizing models");
-        let voxels = phases.time("voxelize", || scene.models.iter().map(|m| voxels_of(m, m.lb.grid)).collect::<Result<Vec<_>, _>>())?;
-        let sun = sun_of(scene)?;
+        let media = phases.time("voxelize", || scene.models.iter().map(|m| medium_of(scene, m, m.lb.grid)).collect::<anyhow::Result<Vec<_>>>())?;
         let mut solver = GpuSolver::new(ctx.clone());
         phases.time("lb", || -> anyhow::Result<()> {
-            for (i, (m, v)) in scene.models.iter().zip(&voxels).enumerate() {
-                progress(&format!("LB light of {} ({}³)", m.name, m.lb.grid));
-                let (grid, report) = solve_voxels(&mut solver, m, v, m.lb.grid, &sun)?;
+            for (i, (m, mm)) in scene.models.iter().zip(&media).enumerate() {
+                progress(&format!("LB light of {} ({})", m.name, mm.medium.dims));
+                let (grid, report) = solve_medium(&mut solver, scene, m, mm, m.lb.grid)?;
                 for w in &report.warnings {
                     tracing::warn!(model = %m.name, "LB: {w}");
                 }
@@ -235,13 +280,26 @@ pub fn prepare(ctx: &GpuContext, scene: &Scene, kind: AccelKind, lighting: Light
             }
             Ok(())
         })?;
+        areas = media.into_iter().map(|mm| mm.area).collect();
     }
     let mut forest = None;
+    let mut ground = None;
     let mut scales = vec![1.0f32; scene.instances.len()];
     if needs_lb {
         progress("LB light of the whole forest");
-        let fills: Vec<f32> = grids.iter().zip(&scene.models).map(|(g, m)| crown_fill(g.as_ref(), &m.model)).collect();
-        let f = phases.time("forest lb", || forest_light(ctx, scene, &fills, &sun_of(scene)?, &mut scales))?;
+        let f = phases.time("forest lb", || -> anyhow::Result<ForestLight> {
+            match scene.file.lb_model {
+                LbModel::Paper => {
+                    let fills: Vec<f32> = grids.iter().zip(&scene.models).map(|(g, m)| crown_fill(g.as_ref(), &m.model)).collect();
+                    forest_light(ctx, scene, &fills, &sun_of(scene)?, &mut scales)
+                }
+                LbModel::Grounded => {
+                    let (f, g) = forest_light_grounded(ctx, scene, &areas, &mut scales)?;
+                    ground = g;
+                    Ok(f)
+                }
+            }
+        })?;
         forest = Some(f);
     }
     let mut envelopes = Vec::new();
@@ -272,7 +330,7 @@ pub fn prepare(ctx: &GpuContext, scene: &Scene, kind: AccelKind, lighting: Light
     };
     progress("uploading the scene");
     let renderer = phases.time("upload", || -> anyhow::Result<StripRenderer> {
-        let light = SceneLight { models: grids, instance_scales: scales, clouds, envelopes };
+        let light = SceneLight { models: grids, instance_scales: scales, clouds, envelopes, ground };
         let gpu_scene = GpuScene::upload(ctx, scene, &accel, &light)?;
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
         ctx.wait()?;
@@ -290,7 +348,7 @@ fn sun_of(scene: &Scene) -> anyhow::Result<Sun> {
 fn crown_fill(grid: Option<&LbGrid>, model: &sylva_shared::model::Model) -> f32 {
     let (Some(g), Some((lo, hi))) = (grid, model.bounds()) else { return 0.0 };
     let e = (hi - lo).max(glam::Vec3::splat(g.frame.cell));
-    let occupied = g.occupancy as f32 * (g.n * g.n * g.n) as f32 * g.frame.cell.powi(3);
+    let occupied = g.occupancy as f32 * g.dims.len() as f32 * g.frame.cell.powi(3);
     (occupied / (e.x * e.y * e.z)).clamp(0.0, 1.0)
 }
 
@@ -350,6 +408,159 @@ fn forest_light(ctx: &GpuContext, scene: &Scene, fills: &[f32], sun: &Sun, scale
         scale_mean: scales.iter().sum::<f32>() / n,
         scale_max: scales.iter().copied().fold(0.0, f32::max),
     })
+}
+
+/// The grounded forest grid: each instance's blocking area (its model's,
+/// × its scale²) spread over its world box sets the coarse medium; the
+/// leaves' mean optics set σ_a, σ_s, g; sun and sky light it. An
+/// instance's species grid, solved in the open, is scaled by the fraction
+/// of the open field's fluence that reaches its crown from outside (the
+/// mean over points one cell outside its box, on its top and its sun-facing
+/// sides, where its own crown casts no shadow). The ground under the stand
+/// reads the grid's indirect light (returned as a [`GroundLight`]).
+fn forest_light_grounded(
+    ctx: &GpuContext,
+    scene: &Scene,
+    areas: &[Option<LeafArea>],
+    scales: &mut [f32],
+) -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
+    let spec = scene.file.forest_grid;
+    let unused = |reason: String, grid: Option<WorldGrid>| ForestLight {
+        used: false,
+        reason,
+        grid,
+        spread: 0.0,
+        scale_min: 1.0,
+        scale_mean: 1.0,
+        scale_max: 1.0,
+    };
+    if scene.instances.is_empty() || (spec.use_grid == ForestGridUse::Never && scene.ground.is_none()) {
+        return Ok((unused("forest_grid.use is \"never\" and there is no ground".into(), None), None));
+    }
+    let boxes: Vec<Aabb> = scene
+        .instances
+        .iter()
+        .map(|i| sylva_shared::accel::scene::model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world))
+        .collect();
+    let all = boxes.iter().fold(Aabb::EMPTY, |b, o| b.union(*o));
+    let grid = WorldGrid::around(all, spec.grid);
+    let d = grid.dims;
+    let mut area = vec![0.0f32; d.len()];
+    let (mut reflect, mut transmit, mut weight) = ([0.0f64; 3], [0.0f64; 3], 0.0f64);
+    for (inst, b) in scene.instances.iter().zip(&boxes) {
+        let Some(a) = areas.get(inst.model as usize).and_then(|a| a.as_ref()) else { continue };
+        let scale2 = inst.to_world.matrix3.determinant().abs().powf(2.0 / 3.0) as f64;
+        let world_area = a.total_area * scale2;
+        for c in 0..3 {
+            reflect[c] += world_area * a.scattering.reflect[c];
+            transmit[c] += world_area * a.scattering.transmit[c];
+        }
+        weight += world_area;
+        let e = b.max - b.min;
+        let volume = (e.x * e.y * e.z).max(f32::MIN_POSITIVE) as f64;
+        let lo = ((b.min - glam::Vec3::from(grid.origin)) / grid.cell).floor().max(glam::Vec3::ONE);
+        let hi = ((b.max - glam::Vec3::from(grid.origin)) / grid.cell).floor().min(glam::Vec3::new(
+            (d.nx - 2) as f32,
+            (d.ny - 2) as f32,
+            (d.nz - 2) as f32,
+        ));
+        for z in lo.z as usize..=hi.z as usize {
+            for y in lo.y as usize..=hi.y as usize {
+                for x in lo.x as usize..=hi.x as usize {
+                    let o = grid.cell_box(x, y, z).intersection(*b);
+                    if !o.is_empty() {
+                        let v = o.max - o.min;
+                        area[d.index(x, y, z)] += (world_area * (v.x * v.y * v.z) as f64 / volume) as f32;
+                    }
+                }
+            }
+        }
+    }
+    let w = weight.max(f64::MIN_POSITIVE);
+    let leaves = LeafScattering { reflect: reflect.map(|r| r / w), transmit: transmit.map(|t| t / w) };
+    let medium = medium_from_leaf_area(&area, d, grid.cell);
+    let light = scene.illumination();
+    let mut solver = GpuSolver::new(ctx.clone());
+    let sol = solve_indirect(&mut solver, &medium, &leaves.params(), &light, &SolveOptions::default(), &|_| {})?;
+    let ground = scene.ground.as_ref().map(|_| GroundLight {
+        origin: [grid.origin[0], grid.origin[2]],
+        cell: grid.cell,
+        nx: d.nx,
+        nz: d.nz,
+        // The first layer above the boundary shell: the light that reaches the ground.
+        rgb: (0..3)
+            .flat_map(|c| (0..d.nz).flat_map(move |z| (0..d.nx).map(move |x| (c, x, z))))
+            .map(|(c, x, z)| sol.indirect[c][d.index(x, 1, z)])
+            .collect(),
+    });
+    if scene.instances.len() < 2 && spec.use_grid != ForestGridUse::Always {
+        return Ok((unused("a single instance has nothing to shade it; the grid lights the ground".into(), Some(grid)), ground));
+    }
+    if spec.use_grid == ForestGridUse::Never {
+        return Ok((unused("forest_grid.use is \"never\"; the grid lights the ground".into(), Some(grid)), ground));
+    }
+    let free: f64 = light.free_fluence().iter().sum();
+    let towards = scene.sun.towards;
+    let reach: Vec<f32> = boxes
+        .iter()
+        .map(|b| {
+            let (lo, hi) = (b.min - glam::Vec3::splat(grid.cell), b.max + glam::Vec3::splat(grid.cell));
+            let mut sum = 0.0f64;
+            let mut count = 0usize;
+            let mut add = |p: glam::Vec3| {
+                sum += (0..3).map(|c| grid.sample(&sol.total[c], p) as f64).sum::<f64>();
+                count += 1;
+            };
+            // The top face, and each side face that looks towards the sun.
+            let faces = [(1usize, 1.0f32), (0, 1.0), (0, -1.0), (2, 1.0), (2, -1.0)];
+            for (axis, sign) in faces {
+                if axis != 1 && towards[axis] * sign <= 0.0 {
+                    continue;
+                }
+                for i in 0..3 {
+                    for j in 0..3 {
+                        let (u, v) = ((i as f32 + 0.5) / 3.0, (j as f32 + 0.5) / 3.0);
+                        let mut p = lo + (hi - lo) * glam::Vec3::new(u, u, v);
+                        let (a1, a2) = ((axis + 1) % 3, (axis + 2) % 3);
+                        p[a1] = lo[a1] + (hi[a1] - lo[a1]) * u;
+                        p[a2] = lo[a2] + (hi[a2] - lo[a2]) * v;
+                        p[axis] = if sign > 0.0 { hi[axis] } else { lo[axis] };
+                        add(p);
+                    }
+                }
+            }
+            (sum / count.max(1) as f64 / free) as f32
+        })
+        .collect();
+    let max = reach.iter().copied().fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
+    let min = reach.iter().copied().fold(f32::INFINITY, f32::min);
+    let spread = (max - min) / max;
+    let used = spec.use_grid == ForestGridUse::Always || spread > spec.threshold;
+    let reason = match spec.use_grid {
+        ForestGridUse::Always => "forest_grid.use is \"always\"".to_string(),
+        _ if used => format!("the light reaching the crowns differs by {:.0} % (threshold {:.0} %)", 100.0 * spread, 100.0 * spec.threshold),
+        _ => format!(
+            "the light reaching the crowns differs by only {:.0} % (threshold {:.0} %): all get the open field's",
+            100.0 * spread,
+            100.0 * spec.threshold
+        ),
+    };
+    if used {
+        for (s, r) in scales.iter_mut().zip(&reach) {
+            *s = r.min(1.0);
+        }
+    }
+    let n = scales.len() as f32;
+    let f = ForestLight {
+        used,
+        reason,
+        grid: Some(grid),
+        spread,
+        scale_min: scales.iter().copied().fold(f32::INFINITY, f32::min),
+        scale_mean: scales.iter().sum::<f32>() / n,
+        scale_max: scales.iter().copied().fold(0.0, f32::max),
+    };
+    Ok((f, ground))
 }
 
 /// Generates each cloud's density and solves its light with the chapter's

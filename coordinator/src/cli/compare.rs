@@ -17,7 +17,7 @@ use sylva_coordinator::executor::{InProcess, StripExecutor};
 use sylva_shared::accel::AccelKind;
 use sylva_shared::color::luminance;
 use sylva_shared::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
-use sylva_shared::scene::{ForestGridUse, LightingMode, Scene};
+use sylva_shared::scene::{ForestGridUse, LbModel, LightingMode, Scene};
 use sylva_worker::GpuContext;
 use sylva_worker::prepare::{choose_lb_grids, prepare};
 use sylva_worker::trace::{ReferenceOptions, RenderSettings, render_reference};
@@ -138,6 +138,10 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     }
     let forest_grid = scene.models.first().map_or(32, |m| m.lb.grid);
     methods.push((format!("lb {forest_grid}³ + forest grid"), LightingMode::Lb, with_lb(&scene, None, Some(ForestGridUse::Always))));
+    // The papers' model as written, beside the grounded one.
+    let mut paper = with_lb(&scene, None, Some(ForestGridUse::Always));
+    paper.file.lb_model = LbModel::Paper;
+    methods.push((format!("lb paper {forest_grid}³ + forest grid"), LightingMode::Lb, paper));
     methods.push(("boulanger".into(), LightingMode::Boulanger, scene.clone()));
 
     let mut rendered: Vec<Rendered> = Vec::new();
@@ -290,7 +294,11 @@ fn render_method(
     let frame_ms = ms(t);
     let file = out.join(format!("{}.png", name.replace(['³', ' ', '+'], "").replace("lb", "lb-")));
     write_png(&file, f.width, f.height, &reinhard_like(&image, exposure))?;
+    let paper = scene.file.lb_model == LbModel::Paper && lighting.needs_lb();
     let notes = json!({
+        "lb_model": scene.file.lb_model.name(),
+        // The paper model's strength is a knob, not physics: say so where it is used.
+        "non_physical": if paper { json!({ "lb_strength": f.lb_strength }) } else { serde_json::Value::Null },
         "lb": prepared.light,
         "forest_grid": prepared.forest,
         "boulanger": prepared.boulanger,

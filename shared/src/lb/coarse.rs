@@ -50,20 +50,8 @@ impl WorldGrid {
     /// Trilinear sample of per-node `values` at world point `p` (node
     /// centres at cell centres, clamped at the edges).
     pub fn sample(&self, values: &[f32], p: Vec3) -> f32 {
-        let d = self.dims;
         let g = (p - Vec3::from(self.origin)) / self.cell - 0.5;
-        let max = Vec3::new((d.nx - 1) as f32, (d.ny - 1) as f32, (d.nz - 1) as f32);
-        let g = g.clamp(Vec3::ZERO, max);
-        let i0 = g.floor().min(max - 1.0).max(Vec3::ZERO);
-        let f = g - i0;
-        let mut acc = 0.0;
-        for k in 0..8 {
-            let o = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
-            let w = (0..3).map(|a| if o[a] == 1 { f[a] } else { 1.0 - f[a] }).product::<f32>();
-            let idx = d.index(i0.x as usize + o[0], i0.y as usize + o[1], i0.z as usize + o[2]);
-            acc += w * values[idx];
-        }
-        acc
+        self.dims.trilinear(values, g.to_array())
     }
 }
 

@@ -49,6 +49,31 @@ impl GridDims {
         self.nx.max(self.ny).max(self.nz)
     }
 
+    /// Trilinear interpolation of per-node `values` at node coordinates
+    /// `q` (node `(i, j, k)` at `q = (i, j, k)`), clamped to the grid. The
+    /// one CPU sampler of LB grids; `render.wgsl`'s `lb_light` mirrors it.
+    pub fn trilinear(&self, values: &[f32], q: [f32; 3]) -> f32 {
+        let size = [self.nx, self.ny, self.nz];
+        let mut i0 = [0usize; 3];
+        let mut f = [0.0f32; 3];
+        for a in 0..3 {
+            let top = (size[a] - 1) as f32;
+            let v = if q[a].is_nan() { 0.0 } else { q[a].clamp(0.0, top) };
+            let lo = v.floor().min((size[a].max(2) - 2) as f32);
+            i0[a] = lo as usize;
+            f[a] = v - lo;
+        }
+        let mut acc = 0.0;
+        for k in 0..8 {
+            let o = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
+            let w: f32 = (0..3).map(|a| if o[a] == 1 { f[a] } else { 1.0 - f[a] }).product();
+            if w != 0.0 {
+                acc += w * values[self.index(i0[0] + o[0], i0[1] + o[1], i0[2] + o[2])];
+            }
+        }
+        acc
+    }
+
     /// Linear offset of the lattice vector `c`.
     pub fn offset(&self, c: [i32; 3]) -> isize {
         c[0] as isize + self.nx as isize * (c[1] as isize + self.ny as isize * c[2] as isize)

@@ -30,6 +30,10 @@ pub struct SceneFile {
     /// LB settings for models that give none.
     #[serde(default)]
     pub lb: LbSpec,
+    /// Which LB model lights the scene: the grounded one (default) or the
+    /// papers' as written.
+    #[serde(default)]
+    pub lb_model: LbModel,
     /// The coarse LB grid over the whole forest.
     #[serde(default)]
     pub forest_grid: ForestGridSpec,
@@ -218,6 +222,31 @@ impl LightingMode {
     /// Parses a name.
     pub fn from_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|m| m.name() == name)
+    }
+}
+
+/// Which LB model the `lb`, `ambient` and `lb-visualize` methods use.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LbModel {
+    /// Derived from the scene (docs/lighting.md): density from leaf area,
+    /// σ_a, σ_s, g from the leaf optics, sun and sky on the boundary in
+    /// physical units, the uncollided sun left to the tracer, no free constant.
+    #[default]
+    Grounded,
+    /// The papers as written: density from voxel occupancy, the preset's
+    /// σ_a, σ_s, g, the sun alone on the boundary, and the LB term
+    /// `albedo × LB / LB_free × lb_strength × sun` (a non-physical strength).
+    Paper,
+}
+
+impl LbModel {
+    /// The name scene files use.
+    pub fn name(self) -> &'static str {
+        match self {
+            LbModel::Grounded => "grounded",
+            LbModel::Paper => "paper",
+        }
     }
 }
 

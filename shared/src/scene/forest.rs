@@ -79,6 +79,7 @@ pub fn forest(o: &ForestOptions) -> Result<SceneFile, String> {
         ground: Some(GroundSpec { color: [0.1, 0.08, 0.05] }),
         lighting: LightingMode::Lb,
         lb: LbSpec::default(),
+        lb_model: Default::default(),
         forest_grid: ForestGridSpec::default(),
         clouds: Vec::new(),
         leaf_optics: Default::default(),

@@ -8,7 +8,8 @@ pub mod forest;
 pub mod limits;
 
 pub use file::{
-    CameraSpec, CloudSpec, ForestGridSpec, ForestGridUse, GroundSpec, InstanceSpec, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec, SunSpec,
+    CameraSpec, CloudSpec, ForestGridSpec, ForestGridUse, GroundSpec, InstanceSpec, LbModel, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec,
+    SunSpec,
 };
 
 use crate::camera::Camera;
@@ -87,6 +88,21 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// The light the scene sends into an LB lattice: the sun's irradiance
+    /// E⊥ = π × its radiance scale (a surface facing it shows ρ × radiance,
+    /// docs/lighting.md), and the sky, per colour.
+    pub fn illumination(&self) -> crate::lb::Illumination {
+        let sun = crate::lb::Sun::towards(self.sun.towards.as_dvec3().to_array(), 1.0).expect("the scene's sun was checked");
+        let f = |v: [f32; 3]| v.map(|x| x as f64);
+        crate::lb::Illumination {
+            sun,
+            sun_irradiance: f(self.sun.radiance).map(|x| std::f64::consts::PI * x),
+            sky_zenith: f(self.sky.zenith),
+            sky_horizon: f(self.sky.horizon),
+            ground: self.ground.is_some(),
+        }
+    }
+
     /// Reads, parses and checks a scene file; glTF paths are relative to it
     /// and must lie inside its folder; default limits.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {

@@ -66,11 +66,12 @@ pub struct GpuInstance {
 /// A model's solved LB light, as the tracer samples it.
 #[derive(Clone, Debug)]
 pub struct LbGrid {
-    /// Grid size N.
-    pub n: usize,
+    /// Nodes per axis.
+    pub dims: sylva_shared::lb::GridDims,
     /// Where the grid sits in model space.
     pub frame: sylva_shared::voxel::GridFrame,
-    /// Total density per node: three channel planes of N³ values, x fastest.
+    /// Light per node: three channel planes of `dims.len()` values, x
+    /// fastest (grounded: indirect fluence; paper: total density of a unit sun).
     pub rgb: Vec<f32>,
     /// Fraction of the grid's nodes with matter.
     pub occupancy: f64,
@@ -84,14 +85,18 @@ pub struct GpuModel {
     pub root: u32,
     /// First value of its LB grid in the LB buffer.
     pub lb_offset: u32,
-    /// LB grid size N (N³ nodes).
-    pub lb_n: u32,
     /// 1 when the model has an LB grid.
     pub has_lb: u32,
+    /// Padding.
+    pub pad0: u32,
     /// Corner of LB node (0, 0, 0), model space.
     pub lb_origin: [f32; 3],
     /// LB cell size.
     pub lb_cell: f32,
+    /// LB nodes per axis.
+    pub lb_dims: [u32; 3],
+    /// Padding.
+    pub pad1: u32,
     /// Boulanger optical thickness τ = ρA/2 of its foliage.
     pub tau: f32,
     /// Leaves per unit volume of its envelope.
@@ -100,6 +105,22 @@ pub struct GpuModel {
     pub leaf_area: f32,
     /// 1 when its leaves have envelope distances.
     pub has_envelope: u32,
+}
+
+/// The indirect light that reaches the ground under a stand: the forest
+/// grid's first layer above its shell, per channel.
+#[derive(Clone, Debug)]
+pub struct GroundLight {
+    /// World x and z of the corner of node (0, ·, 0).
+    pub origin: [f32; 2],
+    /// Cell edge.
+    pub cell: f32,
+    /// Nodes along x.
+    pub nx: usize,
+    /// Nodes along z.
+    pub nz: usize,
+    /// Fluence per node: three channel planes of `nx × nz`, x fastest.
+    pub rgb: Vec<f32>,
 }
 
 /// A cloud as `scene.wgsl` reads it.
@@ -155,6 +176,8 @@ pub struct SceneLight {
     pub clouds: Vec<CloudGrid>,
     /// Per model, its Boulanger leaf envelope if precomputed.
     pub envelopes: Vec<Option<std::sync::Arc<sylva_shared::boulanger::LeafEnvelope>>>,
+    /// The indirect light under the stand, read by the ground (grounded LB).
+    pub ground: Option<GroundLight>,
 }
 
 /// The scene's buffers and the bind group (group 0) every tracer kernel uses.
@@ -169,6 +192,9 @@ pub struct GpuScene {
     pub bytes: u64,
     /// `ACCEL_KIND` for pipelines over this scene.
     pub accel_kind: u32,
+    /// Where the ground's light lies in the LB buffer: `(origin x, origin z,
+    /// cell, 0)` and `(nx, nz, offset, 1)`; all zero when there is none.
+    pub ground: ([f32; 4], [u32; 4]),
 }
 
 /// The flat arrays before upload.
@@ -256,14 +282,15 @@ impl GpuScene {
             }
             let mut gm = GpuModel { root, ..GpuModel::zeroed() };
             if let Some(Some(g)) = lb.get(m) {
-                anyhow::ensure!(g.n >= 2 && g.rgb.len() == 3 * g.n * g.n * g.n, "LB grid of model {} has the wrong size", sm.name);
+                let d = g.dims;
+                anyhow::ensure!(d.nx >= 2 && d.ny >= 2 && d.nz >= 2 && g.rgb.len() == 3 * d.len(), "LB grid of model {} has the wrong size", sm.name);
                 gm = GpuModel {
                     root,
                     lb_offset: f.lb.len() as u32,
-                    lb_n: g.n as u32,
                     has_lb: 1,
                     lb_origin: g.frame.origin,
                     lb_cell: g.frame.cell,
+                    lb_dims: [d.nx as u32, d.ny as u32, d.nz as u32],
                     ..GpuModel::zeroed()
                 };
                 f.lb.extend_from_slice(&g.rgb);
@@ -308,7 +335,15 @@ impl GpuScene {
             f.cloud_data.extend_from_slice(&c.density);
             f.cloud_data.extend_from_slice(&c.light);
         }
-        Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)
+        let mut ground = ([0.0; 4], [0; 4]);
+        if let Some(g) = &light.ground {
+            anyhow::ensure!(g.nx >= 2 && g.nz >= 2 && g.rgb.len() == 3 * g.nx * g.nz, "the ground's light has the wrong size");
+            ground = ([g.origin[0], g.origin[1], g.cell, 0.0], [g.nx as u32, g.nz as u32, f.lb.len() as u32, 1]);
+            f.lb.extend_from_slice(&g.rgb);
+        }
+        let mut scene = Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)?;
+        scene.ground = ground;
+        Ok(scene)
     }
 
     fn create(ctx: &GpuContext, mut f: Flat, triangle_offsets: Vec<u32>, accel_kind: u32) -> anyhow::Result<Self> {
@@ -378,6 +413,6 @@ impl GpuScene {
         let bg_entries: Vec<wgpu::BindGroupEntry> =
             buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("scene"), layout: &layout, entries: &bg_entries });
-        Ok(Self { layout, bind_group, triangle_offsets, bytes, accel_kind })
+        Ok(Self { layout, bind_group, triangle_offsets, bytes, accel_kind, ground: ([0.0; 4], [0; 4]) })
     }
 }

@@ -8,7 +8,7 @@ mod reference;
 pub(crate) mod render;
 mod shaders;
 
-pub use gpu_scene::{CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, LbGrid, SceneLight};
+pub use gpu_scene::{CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, GroundLight, LbGrid, SceneLight};
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use reference::{ReferenceImage, ReferenceOptions, ReferenceStats, render_reference};
 pub use render::MAX_BOUNCES;

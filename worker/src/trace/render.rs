@@ -55,6 +55,10 @@ pub struct FrameUniform {
     pub leaf_transmit_back: [f32; 3],
     pub pad3: u32,
     pub bl_sky: [[f32; 4]; 8],
+    pub ground_grid: [f32; 4],
+    pub ground_dims: [u32; 4],
+    pub lb_model: u32,
+    pub pad4: [u32; 3],
 }
 
 /// What a frame is rendered with.
@@ -72,7 +76,8 @@ pub struct RenderSettings {
     pub lighting: LightingMode,
     /// Constant indirect light of the `ambient` method, linear RGB.
     pub ambient: [f32; 3],
-    /// Weight of LB light relative to the sun's.
+    /// The paper LB model's weight of LB light relative to the sun's: a
+    /// non-physical override the grounded model does not read.
     pub lb_strength: f32,
 }
 
@@ -192,6 +197,12 @@ impl StripRenderer {
             leaf_transmit_front: scene.file.leaf_optics.transmit_front,
             leaf_transmit_back: scene.file.leaf_optics.transmit_back,
             bl_sky: sky_per_direction(scene),
+            ground_grid: gpu_scene.ground.0,
+            ground_dims: gpu_scene.ground.1,
+            lb_model: match scene.file.lb_model {
+                sylva_shared::scene::LbModel::Grounded => 0,
+                sylva_shared::scene::LbModel::Paper => 1,
+            },
             ..FrameUniform::zeroed()
         };
         Self { scene: gpu_scene, pipelines, layout, base }
