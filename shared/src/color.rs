@@ -46,6 +46,12 @@ pub fn luminance(c: [f32; 3]) -> f32 {
     0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
 
+/// An 8-bit sRGB-encoded value as linear light in [0, 1].
+pub fn srgb8_to_linear(v: u8) -> f32 {
+    let c = v as f32 / 255.0;
+    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -63,10 +69,4 @@ mod tests {
         assert!(cool[2] > cool[0]);
         assert!((luminance(day) - 1.0).abs() < 0.01);
     }
-}
-
-/// An 8-bit sRGB-encoded value as linear light in [0, 1].
-pub fn srgb8_to_linear(v: u8) -> f32 {
-    let c = v as f32 / 255.0;
-    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
 }
