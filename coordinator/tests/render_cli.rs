@@ -215,7 +215,10 @@ fn compare_lists_every_method_with_its_time_and_error() {
     let v: Value = serde_json::from_str(&text).unwrap();
     let methods = v["methods"].as_array().unwrap();
     let names: Vec<&str> = methods.iter().map(|m| m["name"].as_str().unwrap()).collect();
-    assert_eq!(names, ["local", "ambient", "lb 8³", "lb 12³", "lb 12³ + forest grid", "boulanger", "lb auto", "reference"]);
+    assert_eq!(
+        names,
+        ["local", "ambient", "lb 8³", "lb 12³", "lb 12³ + forest grid", "lb paper 12³ + forest grid", "boulanger", "lb auto", "reference"]
+    );
     for m in methods {
         let f = |k: &str| m[k].as_f64().unwrap_or_else(|| panic!("{k} of {m}"));
         assert!(f("frame_ms") > 0.0 && f("preprocess_ms") >= 0.0, "{m}");
@@ -229,13 +232,18 @@ fn compare_lists_every_method_with_its_time_and_error() {
     }
     assert!(v["reference"]["converged"].as_bool().unwrap(), "{}", v["reference"]);
     // The grid choice says what it chose and why.
-    let choice = &methods[6]["notes"]["grid_choice"][0];
+    let choice = &methods[7]["notes"]["grid_choice"][0];
     assert!([8, 12].contains(&choice["grid"].as_u64().unwrap()) && !choice["reason"].as_str().unwrap().is_empty(), "{choice}");
-    assert!(methods[5]["notes"]["boulanger"][0]["tau"].as_f64().unwrap() > 0.0);
+    assert!(methods[6]["notes"]["boulanger"][0]["tau"].as_f64().unwrap() > 0.0);
+    // The paper model is there, and its non-physical strength is named.
+    assert_eq!(methods[5]["notes"]["lb_model"], "paper");
+    assert!(methods[5]["notes"]["non_physical"]["lb_strength"].as_f64().is_some(), "{}", methods[5]["notes"]);
+    assert_eq!(methods[3]["notes"]["lb_model"], "grounded");
+    assert!(methods[3]["notes"]["non_physical"].is_null());
     assert!(v["summary"].as_str().unwrap().starts_with("most accurate: "));
     for f in ["figure2.svg", "compare.svg", "compare.json", "reference.png"] {
         assert!(out.join(f).exists(), "{f}");
     }
     let chart = std::fs::read_to_string(out.join("compare.svg")).unwrap();
-    assert_eq!(chart.matches("<circle").count(), 7, "one point per method but the reference");
+    assert_eq!(chart.matches("<circle").count(), 8, "one point per method but the reference");
 }
