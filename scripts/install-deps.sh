@@ -24,7 +24,14 @@ if ! command -v cargo >/dev/null 2>&1; then
     :
   else
     echo "installing Rust through rustup" >&2
-    curl --proto '=https' --tlsv1.2 -sSf https://sh.rustup.rs | sh -s -- -y --profile minimal --component rustfmt,clippy
+    # rustup-init straight from the Rust project's distribution server
+    # (what https://sh.rustup.rs fetches too), so a network that reaches
+    # only static.rust-lang.org still works.
+    init="$(mktemp)"
+    curl --proto '=https' --tlsv1.2 -sSf -o "$init" "https://static.rust-lang.org/rustup/dist/$(uname -m)-unknown-linux-gnu/rustup-init"
+    chmod +x "$init"
+    "$init" -y --no-modify-path --profile minimal --component rustfmt,clippy
+    rm -f "$init"
   fi
 fi
 
