@@ -105,14 +105,7 @@ where
 // ---------------------------------------------------------------------------
 
 /// The small scene of `shared/src/scene/mod.rs`'s tests.
-const SMALL: &str = r#"{
-    "models": { "maple": { "tree": { "species": "red_maple", "triangles": 2000, "seed": 1 } } },
-    "instances": [ { "model": "maple", "position": [0, 0, 0] },
-                   { "model": "maple", "position": [10, 0, 0], "rotate_y_deg": 90, "scale": 1.2 } ],
-    "camera": { "position": [0, 5, -30], "look_at": [0, 5, 0] },
-    "sun": { "elevation_deg": 40, "azimuth_deg": 30 },
-    "ground": { "color": [0.1, 0.08, 0.05] }
-}"#;
+const SMALL: &str = include_str!("data/small_scene.json");
 
 /// Every section of a scene file, with two glTF models (`tri.gltf` with
 /// `tri.bin`, and `quad.glb`, see [`write_models`]) and a small tree.

@@ -12,7 +12,7 @@ use sylva_shared::lb::coarse::{Occupant, WorldGrid, forest_medium};
 use sylva_shared::lb::solver::PhaseTimer;
 use sylva_shared::lb::{GridDims, LbParams, LeafScattering, MediumGrid, NodeClass, Preset, SolveOptions, Sun, solve, solve_indirect};
 use sylva_shared::model::Model;
-use sylva_shared::scene::{ForestGridUse, LbModel, LightingMode, Scene, SceneModel};
+use sylva_shared::scene::{ForestGridSpec, ForestGridUse, LbModel, LightingMode, Scene, SceneModel};
 use sylva_shared::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_leaf_area, voxelize_in};
 
 /// What the LB pre-process did for one model.
@@ -67,16 +67,20 @@ fn lb_bounds(model: &Model) -> Option<(glam::Vec3, glam::Vec3)> {
 }
 
 /// One model's LB medium on a grid of about `n³` nodes fitted to its bounds.
+/// The grounded model derives a plant's medium from its leaf area and
+/// optics; a solid or a non-plant medium (the PMMA teapot) keeps its
+/// voxels and its preset in both models, only lit differently.
 fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMedium> {
     let (lo, hi) = lb_bounds(&m.model).ok_or_else(|| anyhow::anyhow!("model {} has no triangles", m.name))?;
     let (frame, dims) = GridFrame::fit(lo, hi, n);
-    match scene.file.lb_model {
-        LbModel::Grounded => {
+    let leaves = scene.file.lb_model == LbModel::Grounded && m.lb.preset.is_plant() && !m.lb.solid;
+    match leaves {
+        true => {
             let area = leaf_area_in(&m.model, &scene.file.leaf_optics, frame, dims);
             let medium = medium_from_leaf_area(&area.area, dims, frame.cell);
             Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area) })
         }
-        LbModel::Paper => {
+        false => {
             let mut v = voxelize_in(&m.model, frame, dims)?;
             if !m.lb.preset.is_plant() {
                 v.medium.class.iter_mut().for_each(|c| *c = NodeClass::Medium);
@@ -385,21 +389,31 @@ fn forest_light(ctx: &GpuContext, scene: &Scene, fills: &[f32], sun: &Sun, scale
         })
         .collect();
     let max = light.iter().copied().fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
+    let what = ("the instances' light", "all get full light");
+    Ok(decide(spec, grid, &light, what, |l| l / max, scales))
+}
+
+/// Whether the forest grid's per-instance `light` differs enough (by the
+/// scene's rule) to scale each instance by `scale(light)`; fills `scales`
+/// and says why. `what` names the light and what happens without the grid.
+fn decide(spec: ForestGridSpec, grid: WorldGrid, light: &[f32], what: (&str, &str), scale: impl Fn(f32) -> f32, scales: &mut [f32]) -> ForestLight {
+    let max = light.iter().copied().fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
     let min = light.iter().copied().fold(f32::INFINITY, f32::min);
     let spread = (max - min) / max;
     let used = spec.use_grid == ForestGridUse::Always || spread > spec.threshold;
+    let (t, s) = (100.0 * spec.threshold, 100.0 * spread);
     let reason = match spec.use_grid {
         ForestGridUse::Always => "forest_grid.use is \"always\"".to_string(),
-        _ if used => format!("the instances' light differs by {:.0} % (threshold {:.0} %)", 100.0 * spread, 100.0 * spec.threshold),
-        _ => format!("the instances' light differs by only {:.0} % (threshold {:.0} %): all get full light", 100.0 * spread, 100.0 * spec.threshold),
+        _ if used => format!("{} differs by {s:.0} % (threshold {t:.0} %)", what.0),
+        _ => format!("{} differs by only {s:.0} % (threshold {t:.0} %): {}", what.0, what.1),
     };
     if used {
-        for (s, l) in scales.iter_mut().zip(&light) {
-            *s = l / max;
+        for (s, &l) in scales.iter_mut().zip(light) {
+            *s = scale(l);
         }
     }
     let n = scales.len() as f32;
-    Ok(ForestLight {
+    ForestLight {
         used,
         reason,
         grid: Some(grid),
@@ -407,7 +421,7 @@ fn forest_light(ctx: &GpuContext, scene: &Scene, fills: &[f32], sun: &Sun, scale
         scale_min: scales.iter().copied().fold(f32::INFINITY, f32::min),
         scale_mean: scales.iter().sum::<f32>() / n,
         scale_max: scales.iter().copied().fold(0.0, f32::max),
-    })
+    }
 }
 
 /// The grounded forest grid: each instance's blocking area (its model's,
@@ -532,34 +546,10 @@ fn forest_light_grounded(
             (sum / count.max(1) as f64 / free) as f32
         })
         .collect();
-    let max = reach.iter().copied().fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
-    let min = reach.iter().copied().fold(f32::INFINITY, f32::min);
-    let spread = (max - min) / max;
-    let used = spec.use_grid == ForestGridUse::Always || spread > spec.threshold;
-    let reason = match spec.use_grid {
-        ForestGridUse::Always => "forest_grid.use is \"always\"".to_string(),
-        _ if used => format!("the light reaching the crowns differs by {:.0} % (threshold {:.0} %)", 100.0 * spread, 100.0 * spec.threshold),
-        _ => format!(
-            "the light reaching the crowns differs by only {:.0} % (threshold {:.0} %): all get the open field's",
-            100.0 * spread,
-            100.0 * spec.threshold
-        ),
-    };
-    if used {
-        for (s, r) in scales.iter_mut().zip(&reach) {
-            *s = r.min(1.0);
-        }
-    }
-    let n = scales.len() as f32;
-    let f = ForestLight {
-        used,
-        reason,
-        grid: Some(grid),
-        spread,
-        scale_min: scales.iter().copied().fold(f32::INFINITY, f32::min),
-        scale_mean: scales.iter().sum::<f32>() / n,
-        scale_max: scales.iter().copied().fold(0.0, f32::max),
-    };
+    // Scattering from neighbours can lift a crown's surroundings a hair
+    // above the open field's; the species grid is already lit by that field.
+    let what = ("the light reaching the crowns", "all get the open field's");
+    let f = decide(spec, grid, &reach, what, |r| r.min(1.0), scales);
     Ok((f, ground))
 }
 

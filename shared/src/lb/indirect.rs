@@ -9,7 +9,7 @@
 //! the same), and subtract. The second solve has one grey channel, scaled
 //! per colour, because the leaves' σ_t does not depend on colour.
 
-use super::medium::MediumGrid;
+use super::medium::{MediumGrid, NodeClass};
 use super::params::{ChannelParams, LbParams};
 use super::radiometry::Illumination;
 use super::solver::{ChannelReport, LightingSolver, SolveOptions};
@@ -47,17 +47,26 @@ pub fn solve_indirect(
     );
     let mut reports = Vec::with_capacity(4);
     let mut total: [Vec<f32>; 3] = Default::default();
-    for (c, p) in params.channels.iter().enumerate() {
+    for (c, (p, boundary)) in params.channels.iter().zip(light.boundaries()).enumerate() {
         progress(["red", "green", "blue"][c]);
-        let s = solver.solve_channel(medium, p, &light.boundary(c), opts, &|_, _| {})?;
+        let s = solver.solve_channel(medium, p, &boundary, opts, &|_, _| {})?;
         reports.push(s.report);
         total[c] = s.total;
     }
-    // The uncollided beam of a unit sun; scaled per channel below.
+    // The uncollided beam of a unit sun; scaled per channel below. Every
+    // node absorbs for real here: a medium or brown node would re-emit what
+    // it absorbs (its f_0), which is scattered light, not the beam.
     progress("uncollided sun");
     let unit = Illumination { sun_irradiance: [1.0; 3], ..*light };
     let absorb = ChannelParams { sigma_a: sigma_t, sigma_s: 0.0, g: 0.0 };
-    let beam = solver.solve_channel(medium, &absorb, &unit.sun_boundary(0), opts, &|_, _| {})?;
+    let absorbing;
+    let beam_medium = if medium.class.iter().all(|&c| c == NodeClass::Green) {
+        medium
+    } else {
+        absorbing = medium.clone().with_class(NodeClass::Green);
+        &absorbing
+    };
+    let beam = solver.solve_channel(beam_medium, &absorb, &unit.sun_boundary(0), opts, &|_, _| {})?;
     reports.push(beam.report);
     let indirect = std::array::from_fn(|c| {
         let e = light.sun_irradiance[c] as f32;

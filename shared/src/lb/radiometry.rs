@@ -119,14 +119,15 @@ impl Illumination {
         std::array::from_fn(|m| std::array::from_fn(|c| if s0 > 0.0 { self.sun_irradiance[c] * b.values[m] as f64 / s0 } else { 0.0 }))
     }
 
-    /// Boundary densities of channel `c`: sun and sky.
-    pub fn boundary(&self, c: usize) -> Boundary {
+    /// Boundary densities of the three channels: sun and sky (the sky's
+    /// quadrature done once for all three).
+    pub fn boundaries(&self) -> [Boundary; 3] {
         let (sun, sky) = (self.sun_bins(), self.sky_bins());
-        Boundary { values: std::array::from_fn(|m| (sun[m][c] + sky[m][c]) as f32) }
+        std::array::from_fn(|c| Boundary { values: std::array::from_fn(|m| (sun[m][c] + sky[m][c]) as f32) })
     }
 
     /// Boundary densities of channel `c` with the sun alone (the
-    /// uncollided pass that [`scattered_light`](super::solver) subtracts).
+    /// uncollided pass that [`solve_indirect`](super::indirect::solve_indirect) subtracts).
     pub fn sun_boundary(&self, c: usize) -> Boundary {
         let sun = self.sun_bins();
         Boundary { values: std::array::from_fn(|m| sun[m][c] as f32) }
@@ -181,14 +182,6 @@ pub fn density_from_leaf_area(area: f64, cell: f64) -> f32 {
         return 0.0;
     }
     (1.0 - (-LEAF_PROJECTION * area / (cell * cell)).exp()) as f32
-}
-
-/// Radiance a surface sends out under a diffuse field of fluence `phi`,
-/// per unit of its summed reflectance and transmittance: each side of a
-/// surface in an isotropic field of fluence φ receives E = φ/4, and a
-/// Lambertian surface turns E into radiance ρE/π, so ρ φ / (4π).
-pub fn radiance_per_albedo(phi: f64) -> f64 {
-    phi / (4.0 * PI)
 }
 
 #[cfg(test)]

@@ -381,14 +381,8 @@ fn sun_light(s: &SunSpec) -> Result<SunLight, (&'static str, String)> {
 mod tests {
     use super::*;
 
-    const SMALL: &str = r#"{
-        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 2000, "seed": 1 } } },
-        "instances": [ { "model": "maple", "position": [0, 0, 0] },
-                       { "model": "maple", "position": [10, 0, 0], "rotate_y_deg": 90, "scale": 1.2 } ],
-        "camera": { "position": [0, 5, -30], "look_at": [0, 5, 0] },
-        "sun": { "elevation_deg": 40, "azimuth_deg": 30 },
-        "ground": { "color": [0.1, 0.08, 0.05] }
-    }"#;
+    /// Shared with `tests/fuzz_inputs.rs`.
+    const SMALL: &str = include_str!("../../tests/data/small_scene.json");
 
     fn build(text: &str) -> Result<Scene, SceneError> {
         Scene::build(parse(text, "test.json")?, Path::new("."), "test.json")
