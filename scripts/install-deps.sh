@@ -27,11 +27,12 @@ if ! command -v cargo >/dev/null 2>&1; then
     # rustup-init straight from the Rust project's distribution server
     # (what https://sh.rustup.rs fetches too), so a network that reaches
     # only static.rust-lang.org still works.
-    init="$(mktemp)"
-    curl --proto '=https' --tlsv1.2 -sSf -o "$init" "https://static.rust-lang.org/rustup/dist/$(uname -m)-unknown-linux-gnu/rustup-init"
-    chmod +x "$init"
-    "$init" -y --no-modify-path --profile minimal --component rustfmt,clippy
-    rm -f "$init"
+    # It must be called rustup-init: rustup picks its role by its own name.
+    dir="$(mktemp -d)"
+    curl --proto '=https' --tlsv1.2 -sSf -o "$dir/rustup-init" "https://static.rust-lang.org/rustup/dist/$(uname -m)-unknown-linux-gnu/rustup-init"
+    chmod +x "$dir/rustup-init"
+    "$dir/rustup-init" -y --no-modify-path --profile minimal --component rustfmt,clippy
+    rm -rf "$dir"
   fi
 fi
 
