@@ -420,6 +420,51 @@ mod tests {
     }
 
     #[test]
+    fn a_fitted_grid_follows_the_shape_of_a_tall_narrow_box() {
+        // 2 × 13 × 2: a cube of 32³ would give it 32 · 2/13 ≈ 5 cells across.
+        let (lo, hi) = (Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 13.0, 1.0));
+        let (frame, dims) = GridFrame::fit(lo, hi, 32);
+        assert!(dims.nx >= 15 && dims.nz >= 15 && dims.ny > 5 * dims.nx, "{dims}");
+        let nodes = dims.len() as f64;
+        assert!(nodes > 0.8 * 32f64.powi(3) && nodes < 1.6 * 32f64.powi(3), "{dims}");
+        // The box lies in the interior nodes, off the shell.
+        let o = Vec3::from(frame.origin);
+        let far = o + Vec3::new(dims.nx as f32, dims.ny as f32, dims.nz as f32) * frame.cell;
+        assert!((lo - o).min_element() >= frame.cell && (far - hi).min_element() >= frame.cell, "{frame:?} {dims}");
+    }
+
+    #[test]
+    fn leaf_area_counts_only_what_the_alpha_mask_keeps() {
+        // A 1 m² card whose texture is opaque on its left half only.
+        let mut mesh = Model::default();
+        let (w, h) = (8u32, 8u32);
+        let rgba = (0..w * h).flat_map(|i| [60, 120, 30, if i % w < w / 2 { 255 } else { 0 }]).collect();
+        mesh.textures.push(crate::model::Texture { width: w, height: h, rgba });
+        let mut mat = crate::model::Material::plain("leaf", Surface::Leaf, [1.0; 3]);
+        (mat.texture, mat.alpha_cutoff) = (Some(0), Some(0.5));
+        let leaf = mesh.add_material(mat);
+        mesh.push_quad([Vec3::new(0.0, 0.5, 0.0), Vec3::new(1.0, 0.5, 0.0), Vec3::new(1.0, 0.5, 1.0), Vec3::new(0.0, 0.5, 1.0)], leaf);
+        let (lo, hi) = mesh.bounds().unwrap();
+        let (frame, dims) = GridFrame::fit(lo, hi, 12);
+        let a = leaf_area_in(&mesh, &LeafOptics::default(), frame, dims);
+        assert!((a.total_area - 0.5).abs() < 0.05, "{}", a.total_area);
+        assert!((a.cut_fraction - 0.5).abs() < 0.05, "{}", a.cut_fraction);
+        let sum: f64 = a.area.iter().map(|&x| x as f64).sum();
+        assert!((sum - a.total_area).abs() < 1e-4);
+        // Only the opaque half's cells hold area: x < 0.5.
+        for z in 0..dims.nz {
+            for y in 0..dims.ny {
+                for x in 0..dims.nx {
+                    let centre = frame.origin[0] + (x as f32 + 0.5) * frame.cell;
+                    if a.area[dims.index(x, y, z)] > 0.0 {
+                        assert!(centre < 0.5 + frame.cell, "cell at x = {centre}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     fn a_flat_square_fills_one_layer_of_cells() {
         let mut mesh = Model::default();
         let leaf = mesh.add_material(crate::model::Material::plain("leaf", Surface::Leaf, [0.2, 0.5, 0.1]));
