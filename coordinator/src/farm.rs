@@ -138,8 +138,8 @@ pub fn decode_reply(r: &pb::RenderStripReply, strip: Strip, height: u32) -> Resu
         ));
     }
     let f = |c: &[u8]| f32::from_le_bytes(c.try_into().expect("4 bytes"));
-    let rgb = r.rgb_f32.chunks_exact(12).map(|c| [f(&c[0..4]), f(&c[4..8]), f(&c[8..12])]).collect();
-    let coverage = r.coverage_f32.chunks_exact(4).map(f).collect();
+    let rgb = r.rgb_f32.as_chunks::<12>().0.iter().map(|c| [f(&c[0..4]), f(&c[4..8]), f(&c[8..12])]).collect();
+    let coverage = r.coverage_f32.as_chunks::<4>().0.iter().map(|c| f(c)).collect();
     let rays = r.rays.as_ref().map_or([0; 3], |c| [c.primary, c.shadow, c.transparent]);
     let px = StripPixels { strip, rgb, coverage, rays };
     px.check(height)?;

@@ -82,7 +82,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
     for (x0, x1) in [(0, 20), (20, 48)] {
         let s = c.render_strip(pb::RenderStripRequest { scene_hash: b.hash.clone(), frame: Some(frame()), x0, x1 }).await.unwrap().into_inner();
         assert_eq!((s.x0, s.width, s.height), (x0, x1 - x0, 24));
-        let px: Vec<f32> = s.rgb_f32.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+        let px: Vec<f32> = s.rgb_f32.as_chunks::<4>().0.iter().map(|&c| f32::from_le_bytes(c)).collect();
         for y in 0..24usize {
             for x in 0..(x1 - x0) as usize {
                 for k in 0..3 {

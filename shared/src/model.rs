@@ -433,8 +433,8 @@ fn to_rgba8(img: &gltf::image::Data) -> Option<Texture> {
     let px = (img.width * img.height) as usize;
     let rgba = match img.format {
         Format::R8G8B8A8 => img.pixels.clone(),
-        Format::R8G8B8 => img.pixels.chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect(),
-        Format::R8G8 => img.pixels.chunks_exact(2).flat_map(|c| [c[0], c[0], c[0], c[1]]).collect(),
+        Format::R8G8B8 => img.pixels.as_chunks::<3>().0.iter().flat_map(|c| [c[0], c[1], c[2], 255]).collect(),
+        Format::R8G8 => img.pixels.as_chunks::<2>().0.iter().flat_map(|c| [c[0], c[0], c[0], c[1]]).collect(),
         Format::R8 => img.pixels.iter().flat_map(|&c| [c, c, c, 255]).collect(),
         _ => return None,
     };
@@ -487,7 +487,7 @@ fn add_node(
                 bail!("{}: mesh {:?} indexes vertex {bad} of {count}", path.display(), m.name().unwrap_or("?"));
             }
             let material = prim.material().index().map_or(default_material, |i| i as u32);
-            for t in indices.chunks_exact(3) {
+            for t in indices.as_chunks::<3>().0 {
                 model.triangles.push([base + t[0], base + t[1], base + t[2]]);
                 model.material.push(material);
             }
@@ -520,7 +520,7 @@ mod tests {
         assert!(tex.width >= 256 && tex.height >= 256);
         // This file's base-colour image is a three-channel JPEG, so by the
         // glTF rules its mask cuts nothing: alpha is 1 everywhere.
-        assert!(tex.rgba.chunks_exact(4).all(|p| p[3] == 255));
+        assert!(tex.rgba.as_chunks::<4>().0.iter().all(|p| p[3] == 255));
         assert!(!m.is_transparent(0, Vec2::new(0.01, 0.01)));
         assert!(m.material.iter().all(|&i| i == 0));
     }

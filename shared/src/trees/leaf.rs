@@ -91,7 +91,7 @@ mod tests {
     fn every_leaf_has_holes_and_blade() {
         for shape in [LeafShape::Lobed, LeafShape::Palmate, LeafShape::Ovate, LeafShape::Cordate, LeafShape::Elliptic] {
             let t = leaf_texture(shape, [80, 120, 40], 1);
-            let on = t.rgba.chunks_exact(4).filter(|p| p[3] == 255).count() as f32 / (t.width * t.height) as f32;
+            let on = t.rgba.as_chunks::<4>().0.iter().filter(|p| p[3] == 255).count() as f32 / (t.width * t.height) as f32;
             assert!(on > 0.15 && on < 0.8, "{shape:?} covers {on}");
         }
     }

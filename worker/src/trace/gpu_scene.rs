@@ -278,7 +278,7 @@ impl GpuScene {
             }));
             for t in &model.textures {
                 f.textures.push(GpuTexture { offset: f.texels.len() as u32, width: t.width, height: t.height, pad: 0 });
-                f.texels.extend(t.rgba.chunks_exact(4).map(|p| u32::from_le_bytes([p[0], p[1], p[2], p[3]])));
+                f.texels.extend(t.rgba.as_chunks::<4>().0.iter().map(|&p| u32::from_le_bytes(p)));
             }
             let mut gm = GpuModel { root, ..GpuModel::zeroed() };
             if let Some(Some(g)) = lb.get(m) {
