@@ -100,6 +100,16 @@ fn sample_2d(x: u32, y: u32, s: u32, seed: u32) -> vec2<f32> {
     return vec2<f32>(f32(h >> 8u), f32(h2 >> 8u)) / 16777216.0;
 }
 
+// Sample `s` of `n` in the pixel: the first m² samples (m = ⌊√n⌋) each
+// jitter `u` within their own cell of an m × m grid, the rest anywhere.
+fn stratified(u: vec2<f32>, s: u32, n: u32) -> vec2<f32> {
+    let m = u32(floor(sqrt(f32(n)) + 1e-3));
+    if s >= m * m {
+        return u;
+    }
+    return (vec2<f32>(f32(s % m), f32(s / m)) + u) / f32(m);
+}
+
 fn sky(dir: vec3<f32>) -> vec3<f32> {
     return mix(frame.sky_horizon, frame.sky_zenith, sqrt(max(dir.y, 0.0)));
 }
@@ -450,10 +460,12 @@ fn render_strip(@builtin(global_invocation_id) gid: vec3<u32>) {
     let y = gid.y;
     var sum = vec4<f32>(0.0);
     for (var s = 0u; s < frame.spp; s++) {
-        // One sample at the pixel centre, the rest jittered over the pixel.
+        // One sample at the pixel centre; more are stratified: jittered
+        // within the cells of the largest square grid that fits, so edges
+        // and sun flecks inside a pixel are sampled evenly.
         var j = vec2<f32>(0.5, 0.5);
         if frame.spp > 1u {
-            j = sample_2d(x, y, s, frame.seed);
+            j = stratified(sample_2d(x, y, s, frame.seed), s, frame.spp);
         }
         let px = f32(x) + j.x;
         let py = f32(y) + j.y;

@@ -22,6 +22,7 @@ use sylva_coordinator::schedule::ScheduleKind;
 use sylva_coordinator::service::MAX_NAME;
 use sylva_shared::frame::{FrameSettings, MAX_SPP};
 use sylva_shared::scene::{FileAccess, SceneLimits};
+use sylva_worker::trace::MIN_BATCH_SPP;
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
 
@@ -104,7 +105,7 @@ pub struct RenderArgs {
     #[command(flatten)]
     pub frame: FrameArgs,
     /// `--lighting reference` in this process: stop once the image's own
-    /// relative standard error is below this (each batch has --spp samples).
+    /// relative standard error is below this (each batch has --spp samples, at least 16).
     #[arg(long, default_value_t = 0.02)]
     pub target_error: f64,
     /// `--lighting reference` in this process: stop after this many seconds.
@@ -278,10 +279,10 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error {}: must be a finite number > 0", a.target_error);
         anyhow::ensure!(a.max_seconds.is_finite() && a.max_seconds > 0.0, "--max-seconds {}: must be a finite number > 0", a.max_seconds);
         let opts = sylva_worker::trace::ReferenceOptions {
-            batch_spp: a.frame.spp.max(4),
+            batch_spp: a.frame.spp.max(MIN_BATCH_SPP),
             target_error: a.target_error,
             max_seconds: a.max_seconds,
-            max_batches: (MAX_SPP / a.frame.spp.max(4)).max(4),
+            max_batches: (MAX_SPP / a.frame.spp.max(MIN_BATCH_SPP)).max(4),
             ..Default::default()
         };
         let bar = ProgressBar::new_spinner();

@@ -10,7 +10,7 @@ mod shaders;
 
 pub use gpu_scene::{CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, GroundLight, LbGrid, SceneLight};
 pub use raycast::{GpuHit, GpuRay, RayCaster};
-pub use reference::{ReferenceImage, ReferenceOptions, ReferenceStats, render_reference};
+pub use reference::{MIN_BATCH_SPP, ReferenceImage, ReferenceOptions, ReferenceStats, render_reference};
 pub use render::MAX_BOUNCES;
 pub use render::{FrameUniform, RayCounts, RenderSettings, Strip, StripRenderer};
 pub use shaders::tracer_source;

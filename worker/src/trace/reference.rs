@@ -12,10 +12,15 @@ use sylva_shared::color::luminance;
 use sylva_shared::film::HdrImage;
 use sylva_shared::scene::LightingMode;
 
+/// The smallest batch worth a dispatch (see `ReferenceOptions::batch_spp`).
+pub const MIN_BATCH_SPP: u32 = 16;
+
 /// When a progressive reference stops.
 #[derive(Clone, Copy, Debug)]
 pub struct ReferenceOptions {
-    /// Samples per pixel in one batch.
+    /// Samples per pixel in one batch. Larger batches stratify the pixel
+    /// more finely and keep lock-step lanes busy (paths end at different
+    /// depths); 16 took a third of the time per sample of 4 on lavapipe.
     pub batch_spp: u32,
     /// Batches always rendered (the error estimate needs a few).
     pub min_batches: u32,
@@ -29,7 +34,7 @@ pub struct ReferenceOptions {
 
 impl Default for ReferenceOptions {
     fn default() -> Self {
-        Self { batch_spp: 4, min_batches: 4, max_batches: 1024, target_error: 0.01, max_seconds: 600.0 }
+        Self { batch_spp: MIN_BATCH_SPP, min_batches: 4, max_batches: 1024, target_error: 0.01, max_seconds: 600.0 }
     }
 }
 
