@@ -32,13 +32,19 @@ fn is_boundary(idx: u32) -> bool {
     return x == 0u || y == 0u || z == 0u || x == NX - 1u || y == NY - 1u || z == NZ - 1u;
 }
 
-// Boundary nodes are never written: they hold the sun's densities, and
-// flow into them (or off the lattice) is dropped. Interior nodes pull
+// Boundary nodes hold the sun's and sky's densities, and flow into them
+// (or off the lattice) is dropped; over a reflecting ground the bottom
+// face's nodes off the other faces re-emit upward what arrives downward
+// (GroundReflection in shared/src/lb/boundary.rs). Interior nodes pull
 // f_m(r - c_m), which always lies on the lattice.
 @compute @workgroup_size(WORKGROUP)
 fn step(@builtin(global_invocation_id) gid: vec3<u32>) {
     let idx = gid.x + gid.y * ROW;
-    if idx >= NODES || is_boundary(idx) {
+    if idx >= NODES {
+        return;
+    }
+    if is_boundary(idx) {
+{{GROUND}}
         return;
     }
 {{GATHER}}

@@ -244,7 +244,7 @@ fn ground_indirect(p: vec3<f32>) -> vec3<f32> {
         let h = lb_data[base + i0.x + 1u + d.x * (i0.y + 1u)];
         rgb[c] = mix(mix(a, b, f.x), mix(e, h, f.x), f.y);
     }
-    return rgb * 0.5 / 3.14159265;
+    return rgb / 3.14159265;
 }
 
 // Trilinear sample of plane `plane` of a cloud's data at grid coordinates g.

@@ -24,7 +24,7 @@ fn sun() -> Sun {
 }
 
 fn sun_only(e: f64) -> Illumination {
-    Illumination { sun: sun(), sun_irradiance: [e; 3], sky_zenith: [0.0; 3], sky_horizon: [0.0; 3], ground: true }
+    Illumination { sun: sun(), sun_irradiance: [e; 3], sky_zenith: [0.0; 3], sky_horizon: [0.0; 3], ground: Some([0.0; 3]), floor_reflects: true }
 }
 
 /// Mean over the medium's nodes, weighted by density (where the leaves are).

@@ -10,7 +10,7 @@ use sylva_shared::accel::Aabb;
 use sylva_shared::accel::{AccelKind, SceneAccel};
 use sylva_shared::lb::coarse::{Occupant, WorldGrid, forest_medium};
 use sylva_shared::lb::solver::PhaseTimer;
-use sylva_shared::lb::{GridDims, LbParams, LeafScattering, MediumGrid, NodeClass, Preset, SolveOptions, Sun, solve, solve_indirect};
+use sylva_shared::lb::{GridDims, Illumination, LbParams, LeafScattering, MediumGrid, NodeClass, Preset, SolveOptions, Sun, solve, solve_indirect};
 use sylva_shared::model::Model;
 use sylva_shared::scene::{ForestGridSpec, ForestGridUse, LbModel, LightingMode, Scene, SceneModel};
 use sylva_shared::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_leaf_area, voxelize_in};
@@ -44,6 +44,9 @@ pub struct ModelLight {
     pub converged: [bool; 3],
     /// Steps of the uncollided-sun pass (grounded).
     pub uncollided_steps: Option<usize>,
+    /// Whether the grid's floor is the scene's ground, reflecting (grounded
+    /// model, every instance standing on it).
+    pub reflecting_floor: bool,
     /// Where the LB model is not to be trusted for this medium, and why.
     pub warnings: Vec<String>,
 }
@@ -55,6 +58,22 @@ struct ModelMedium {
     params: LbParams,
     /// The grounded model's leaf area (none for the paper's).
     area: Option<LeafArea>,
+    /// Whether every instance stands on the scene's ground (the grid's
+    /// lower face within a cell of it), so the lattice's floor reflects.
+    on_ground: bool,
+}
+
+/// Whether every instance of `m` has its grid's lower face within one
+/// cell of the ground plane y = 0.
+fn stands_on_ground(scene: &Scene, m: &SceneModel, frame: &GridFrame) -> bool {
+    let mut instances = scene.instances.iter().filter(|i| std::ptr::eq(&scene.models[i.model as usize], m)).peekable();
+    scene.ground.is_some()
+        && instances.peek().is_some()
+        && instances.all(|i| {
+            let floor = i.to_world.transform_point3(glam::Vec3::new(0.0, frame.origin[1], 0.0)).y;
+            let cell = frame.cell * i.to_world.matrix3.determinant().abs().cbrt();
+            floor.abs() <= 1.5 * cell
+        })
 }
 
 /// The model-space box an LB grid covers: the model's bounds widened to
@@ -78,7 +97,7 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
         true => {
             let area = leaf_area_in(&m.model, &scene.file.leaf_optics, frame, dims);
             let medium = medium_from_leaf_area(&area.area, dims, frame.cell);
-            Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area) })
+            Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area), on_ground: stands_on_ground(scene, m, &frame) })
         }
         false => {
             let mut v = voxelize_in(&m.model, frame, dims)?;
@@ -89,7 +108,7 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
                 let class = if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
                 sylva_shared::voxel::fill_interior(&mut v, class);
             }
-            Ok(ModelMedium { frame, medium: v.medium, params: m.lb.preset.params(), area: None })
+            Ok(ModelMedium { frame, medium: v.medium, params: m.lb.preset.params(), area: None, on_ground: stands_on_ground(scene, m, &frame) })
         }
     }
 }
@@ -101,7 +120,8 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
     let opts = SolveOptions::default();
     let (rgb, steps, converged, uncollided_steps): (Vec<f32>, [usize; 3], [bool; 3], Option<usize>) = match scene.file.lb_model {
         LbModel::Grounded => {
-            let s = solve_indirect(solver, &mm.medium, &mm.params, &scene.illumination(), &opts, &|_| {})?;
+            let light = Illumination { floor_reflects: mm.on_ground, ..scene.illumination() };
+            let s = solve_indirect(solver, &mm.medium, &mm.params, &light, &opts, &|_| {})?;
             let r = &s.reports;
             (s.indirect.concat(), std::array::from_fn(|c| r[c].steps), std::array::from_fn(|c| r[c].converged), Some(r[3].steps))
         }
@@ -129,6 +149,7 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
         steps,
         converged,
         uncollided_steps,
+        reflecting_floor: scene.file.lb_model == LbModel::Grounded && mm.on_ground,
         warnings,
     };
     Ok((LbGrid { dims: mm.medium.dims, frame: mm.frame, rgb, occupancy: mm.medium.occupancy() }, report))
@@ -496,15 +517,25 @@ fn forest_light_grounded(
     let light = scene.illumination();
     let mut solver = GpuSolver::new(ctx.clone());
     let sol = solve_indirect(&mut solver, &medium, &leaves.params(), &light, &SolveOptions::default(), &|_| {})?;
-    let ground = scene.ground.as_ref().map(|_| GroundLight {
+    let sun_y = scene.sun.towards.y.max(0.0);
+    let ground = scene.ground.as_ref().map(|g| g.color).map(|albedo| GroundLight {
         origin: [grid.origin[0], grid.origin[2]],
         cell: grid.cell,
         nx: d.nx,
         nz: d.nz,
-        // The first layer above the boundary shell: the light that reaches the ground.
+        // The first layer above the floor, read as isotropic halves: the
+        // downward half brings E = φ↓/2, the upward half is what the ground
+        // sends back of it and of the direct sun, φ↑ = 2a(E + E_sun). So
+        // E = (φ_indirect/2 − a E_sun) / (1 + a), with E_sun = sin(elevation) ×
+        // the uncollided beam's fluence (docs/lighting.md, "The ground").
         rgb: (0..3)
             .flat_map(|c| (0..d.nz).flat_map(move |z| (0..d.nx).map(move |x| (c, x, z))))
-            .map(|(c, x, z)| sol.indirect[c][d.index(x, 1, z)])
+            .map(|(c, x, z)| {
+                let i = d.index(x, 1, z);
+                let a = albedo[c];
+                let e_sun = sun_y * (sol.total[c][i] - sol.indirect[c][i]).max(0.0);
+                ((sol.indirect[c][i] / 2.0 - a * e_sun) / (1.0 + a)).max(0.0)
+            })
             .collect(),
     });
     if scene.instances.len() < 2 && spec.use_grid != ForestGridUse::Always {

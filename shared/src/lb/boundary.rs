@@ -65,7 +65,7 @@ impl Sun {
                 *v = (self.intensity * dot) as f32;
             }
         }
-        Boundary { values }
+        Boundary::fixed(values)
     }
 }
 
@@ -76,14 +76,89 @@ impl Default for Sun {
     }
 }
 
-/// The densities every boundary node holds, per direction, for the whole solve.
+/// The densities every boundary node holds, per direction, for the whole
+/// solve, and whether the bottom face is a reflecting ground.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Boundary {
-    /// `values[m]`: density in direction `m` at every boundary node.
+    /// `values[m]`: density in direction `m` at every boundary node (the
+    /// bottom face's upward directions start from these when it reflects).
     pub values: [f32; Q],
+    /// A Lambertian ground as the lattice's lower face, or none (black).
+    pub ground: Option<GroundReflection>,
 }
 
 impl Boundary {
     /// No light enters (for pulse experiments).
-    pub const DARK: Boundary = Boundary { values: [0.0; Q] };
+    pub const DARK: Boundary = Boundary { values: [0.0; Q], ground: None };
+
+    /// Fixed values, no reflecting ground.
+    pub fn fixed(values: [f32; Q]) -> Self {
+        Self { values, ground: None }
+    }
 }
+
+/// A Lambertian ground under the lattice. Each step, every node of the
+/// bottom face that is not on another face collects the irradiance its
+/// downward directions bring, `E = Σ_{c_m·y<0} |ĉ_m·y| f_m(r − c_m)`,
+/// and sends `f_m = k_m E` up, where `k_m = gain · albedo · Ω_m / Σ_{up} Ω_n ĉ_n·y`:
+/// a Lambertian lobe (radiance ∝ 1, so fluence ∝ the bin's solid angle Ω_m)
+/// whose discrete upward irradiance `Σ_{up} ĉ_m·y f_m` is exactly
+/// `gain × albedo × E`. The gain makes the open ground's reflection exact:
+/// D3Q19 carries part of the sun's and sky's light along its horizontal
+/// directions, which never reach a floor (docs/lighting.md, "The ground").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GroundReflection {
+    /// The ground's albedo in this channel, in [0, 1].
+    pub albedo: f32,
+    /// The open ground's true irradiance over the lattice's collected one
+    /// (see [`Illumination::boundaries`](super::radiometry::Illumination::boundaries)).
+    pub gain: f32,
+}
+
+impl GroundReflection {
+    /// Per direction, the weight of its density in the ground's
+    /// irradiance: `|ĉ_m·y|` for downward directions, else 0.
+    pub fn collect() -> [f32; Q] {
+        std::array::from_fn(|m| if DIRECTIONS_Y[m] < 0 { (-lattice::unit(m)[1]) as f32 } else { 0.0 })
+    }
+
+    /// Per direction, the density sent up per unit irradiance: `k_m` for
+    /// upward directions, else 0.
+    pub fn emit(&self) -> [f32; Q] {
+        let omega = super::radiometry::bin_solid_angles();
+        let up: f64 = (1..Q).filter(|&m| DIRECTIONS_Y[m] > 0).map(|m| omega[m] * lattice::unit(m)[1]).sum();
+        let k = self.gain as f64 * self.albedo as f64;
+        std::array::from_fn(|m| if DIRECTIONS_Y[m] > 0 { (k * omega[m] / up) as f32 } else { 0.0 })
+    }
+
+    /// The irradiance the lattice collects from densities `values`, in the
+    /// order and precision the solvers sum it.
+    pub fn collected(values: &[f32; Q]) -> f32 {
+        let collect = Self::collect();
+        let mut e = 0.0f32;
+        for m in 0..Q {
+            if collect[m] != 0.0 {
+                e += collect[m] * values[m];
+            }
+        }
+        e
+    }
+
+    /// `values` with the upward directions replaced by the ground's
+    /// reflection of `values`' downward ones (the open ground outside the lattice).
+    pub fn reflect(&self, values: &[f32; Q]) -> [f32; Q] {
+        let (e, emit) = (Self::collected(values), self.emit());
+        std::array::from_fn(|m| if emit[m] > 0.0 { emit[m] * e } else { values[m] })
+    }
+}
+
+/// The y component of each lattice direction.
+const DIRECTIONS_Y: [i32; Q] = {
+    let mut y = [0i32; Q];
+    let mut m = 0;
+    while m < Q {
+        y[m] = lattice::DIRECTIONS[m][1];
+        m += 1;
+    }
+    y
+};

@@ -7,7 +7,7 @@
 //! nodes are never written, so they hold the sun's densities for the whole
 //! solve, and flow into them or off the lattice is dropped.
 
-use super::boundary::Boundary;
+use super::boundary::{Boundary, GroundReflection};
 use super::collision::{Collision, Omega};
 use super::lattice::{DIRECTIONS, Q};
 use super::medium::{MediumGrid, NodeClass};
@@ -68,6 +68,8 @@ pub struct CpuLattice<'m> {
     /// Direction-major state: `state[m · n + node]`.
     state: Vec<f32>,
     next: Vec<f32>,
+    /// `(collect, emit)` weights of a reflecting lower face.
+    ground: Option<([f32; Q], [f32; Q])>,
 }
 
 /// A raw pointer the row workers write disjoint ranges through.
@@ -82,7 +84,8 @@ impl<'m> CpuLattice<'m> {
     pub fn new(medium: &'m MediumGrid, params: &ChannelParams, boundary: &Boundary) -> Self {
         let state = initial_state(medium.dims, boundary);
         let next = state.clone();
-        Self { medium, collision: Collision::new(params), state, next }
+        let ground = boundary.ground.map(|g| (GroundReflection::collect(), g.emit()));
+        Self { medium, collision: Collision::new(params), state, next, ground }
     }
 
     /// The direction-major state, `state[m · n + node]`.
@@ -141,15 +144,48 @@ impl<'m> CpuLattice<'m> {
                 sum
             })
             .sum();
+        self.reflect_ground();
         std::mem::swap(&mut self.state, &mut self.next);
         want_total.then(|| interior + self.boundary_total())
     }
 
+    /// The bottom face's nodes off the other faces (the ground under the
+    /// interior) send up what their downward directions bring.
+    fn reflect_ground(&mut self) {
+        let Some((collect, emit)) = self.ground else { return };
+        let dims = self.medium.dims;
+        let n = dims.len();
+        let offsets: [isize; Q] = std::array::from_fn(|m| dims.offset(DIRECTIONS[m]));
+        for z in 1..dims.nz - 1 {
+            for x in 1..dims.nx - 1 {
+                let node = dims.index(x, 0, z);
+                let mut e = 0.0f32;
+                for m in 0..Q {
+                    if collect[m] != 0.0 {
+                        e += collect[m] * self.state[((m * n + node) as isize - offsets[m]) as usize];
+                    }
+                }
+                for m in 0..Q {
+                    if emit[m] != 0.0 {
+                        self.next[m * n + node] = emit[m] * e;
+                    }
+                }
+            }
+        }
+    }
+
     fn boundary_total(&self) -> f64 {
         let d = self.medium.dims;
-        let shell = d.len() - (d.nx - 2) * (d.ny - 2) * (d.nz - 2);
-        let per_node: f64 = (0..Q).map(|m| self.state[m * d.len()] as f64).sum();
-        shell as f64 * per_node
+        let n = d.len();
+        let shell = n - (d.nx - 2) * (d.ny - 2) * (d.nz - 2);
+        let node_sum = |i: usize| (0..Q).map(|m| self.state[m * n + i] as f64).sum::<f64>();
+        // Node 0 is a corner: it always holds the fixed values.
+        let per_node = node_sum(0);
+        if self.ground.is_none() {
+            return shell as f64 * per_node;
+        }
+        let ground: f64 = (1..d.nz - 1).flat_map(|z| (1..d.nx - 1).map(move |x| d.index(x, 0, z))).map(node_sum).sum();
+        (shell - (d.nx - 2) * (d.nz - 2)) as f64 * per_node + ground
     }
 }
 

@@ -37,7 +37,7 @@ pub mod radiometry;
 pub mod solver;
 pub mod verify;
 
-pub use boundary::{Boundary, Sun};
+pub use boundary::{Boundary, GroundReflection, Sun};
 pub use collision::{Collision, Omega};
 pub use cpu::CpuSolver;
 pub use indirect::{IndirectSolution, solve_indirect};

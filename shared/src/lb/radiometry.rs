@@ -10,7 +10,7 @@
 //! then the scalar fluence φ = ∫ L dω, and a free field of radiance L in
 //! every direction has φ = 4πL.
 
-use super::boundary::{Boundary, Sun};
+use super::boundary::{Boundary, GroundReflection, Sun};
 use super::lattice::{Q, unit};
 use super::params::{ChannelParams, LbParams};
 use std::f64::consts::PI;
@@ -88,9 +88,15 @@ pub struct Illumination {
     pub sky_zenith: [f64; 3],
     /// Sky radiance at (and, with no ground, below) the horizon.
     pub sky_horizon: [f64; 3],
-    /// Whether a ground plane hides everything below the horizon. The
-    /// ground itself is black in the boundary (see `docs/lighting.md`).
-    pub ground: bool,
+    /// A ground plane's albedo per channel, if there is one: it hides the
+    /// sky below the horizon, reflects as the lattice's lower face and,
+    /// outside the lattice, sends the open ground's light up through the
+    /// side faces (see `docs/lighting.md`).
+    pub ground: Option<[f64; 3]>,
+    /// Whether the lattice's lower face is that ground (the model stands on
+    /// it) and reflects what reaches it; else the lower face holds the open
+    /// ground's light, fixed like the other faces.
+    pub floor_reflects: bool,
 }
 
 impl Illumination {
@@ -98,7 +104,7 @@ impl Illumination {
     /// pointing at the sky), as the renderer and the reference draw it:
     /// horizon to zenith by the square root of the elevation's sine.
     pub fn sky_radiance(&self, from: [f64; 3]) -> [f64; 3] {
-        if from[1] < 0.0 && self.ground {
+        if from[1] < 0.0 && self.ground.is_some() {
             return [0.0; 3];
         }
         let t = from[1].max(0.0).sqrt();
@@ -119,24 +125,41 @@ impl Illumination {
         std::array::from_fn(|m| std::array::from_fn(|c| if s0 > 0.0 { self.sun_irradiance[c] * b.values[m] as f64 / s0 } else { 0.0 }))
     }
 
-    /// Boundary densities of the three channels: sun and sky (the sky's
-    /// quadrature done once for all three).
+    /// Boundary densities of the three channels: sun, sky and, over a
+    /// ground, the open ground's reflection in the upward directions and a
+    /// reflecting lower face (the sky's quadrature done once for all three).
+    /// The ground's gain is the open ground's irradiance, E⊥ sin(elevation)
+    /// plus the sky's, over what the lattice's downward directions collect
+    /// of the same boundary.
     pub fn boundaries(&self) -> [Boundary; 3] {
         let (sun, sky) = (self.sun_bins(), self.sky_bins());
-        std::array::from_fn(|c| Boundary { values: std::array::from_fn(|m| (sun[m][c] + sky[m][c]) as f32) })
+        let sky_e = self.sky_irradiance_horizontal();
+        std::array::from_fn(|c| {
+            let values = std::array::from_fn(|m| (sun[m][c] + sky[m][c]) as f32);
+            match self.ground {
+                None => Boundary::fixed(values),
+                Some(albedo) => {
+                    let open = self.sun_irradiance[c] * (-self.sun.propagation[1]).max(0.0) + sky_e[c];
+                    let collected = GroundReflection::collected(&values) as f64;
+                    let gain = if collected > 0.0 { (open / collected) as f32 } else { 1.0 };
+                    let ground = GroundReflection { albedo: albedo[c] as f32, gain };
+                    Boundary { values: ground.reflect(&values), ground: self.floor_reflects.then_some(ground) }
+                }
+            }
+        })
     }
 
     /// Boundary densities of channel `c` with the sun alone (the
     /// uncollided pass that [`solve_indirect`](super::indirect::solve_indirect) subtracts).
     pub fn sun_boundary(&self, c: usize) -> Boundary {
         let sun = self.sun_bins();
-        Boundary { values: std::array::from_fn(|m| sun[m][c] as f32) }
+        Boundary::fixed(std::array::from_fn(|m| sun[m][c] as f32))
     }
 
-    /// φ of the free field (no medium): E⊥ plus the sky's fluence.
+    /// φ of the free field (no medium): what a boundary node holds, E⊥
+    /// plus the sky's fluence plus, over a ground, the open ground's.
     pub fn free_fluence(&self) -> [f64; 3] {
-        let sky = self.sky_bins();
-        std::array::from_fn(|c| self.sun_irradiance[c] + sky.iter().map(|v| v[c]).sum::<f64>())
+        self.boundaries().map(|b| b.values.iter().map(|&v| v as f64).sum())
     }
 
     /// Irradiance the open sky gives a horizontal surface, ∫ L cos θ dω
@@ -194,7 +217,8 @@ mod tests {
             sun_irradiance: [3.0, 2.0, 1.0],
             sky_zenith: [sky; 3],
             sky_horizon: [sky; 3],
-            ground,
+            ground: ground.then_some([0.0; 3]),
+            floor_reflects: true,
         }
     }
 
@@ -245,6 +269,31 @@ mod tests {
             let e: f64 = bins.iter().map(|v| v[c]).sum();
             assert!((e - il.sky_irradiance_horizontal()[c]).abs() < 1e-3 * e, "{c}: {e}");
         }
+    }
+
+    #[test]
+    fn the_open_ground_reflects_lambertianly_and_conserves_energy() {
+        let il = Illumination { ground: Some([1.0, 0.5, 0.0]), ..illumination(0.3, true) };
+        let omega = bin_solid_angles();
+        let collect = GroundReflection::collect();
+        for (c, b) in il.boundaries().iter().enumerate() {
+            let albedo = [1.0, 0.5, 0.0][c];
+            let g = b.ground.unwrap();
+            assert_eq!(g.albedo, albedo as f32);
+            let down: f64 = (1..Q).map(|m| collect[m] as f64 * b.values[m] as f64).sum();
+            let up: f64 = (1..Q).filter(|&m| unit(m)[1] > 0.0).map(|m| unit(m)[1] * b.values[m] as f64).sum();
+            // Sun at 50° plus a uniform sky: E = E⊥ sin 50° + π L. The
+            // downward directions collect 0.6–0.8 of it; the gain restores it.
+            let e = il.sun_irradiance[c] * 50f64.to_radians().sin() + PI * 0.3;
+            assert!(down < e && down > 0.6 * e, "channel {c}: {down} against {e}");
+            assert!((g.gain as f64 * down - e).abs() < 1e-5 * e, "channel {c}: gain {} × {down} against {e}", g.gain);
+            assert!((up - albedo * e).abs() < 1e-5 * e, "channel {c}: up {up}, E {e}");
+            // One radiance in every upward bin: fluence in proportion to solid angle.
+            let radiance: Vec<f64> = (1..Q).filter(|&m| unit(m)[1] > 0.0).map(|m| b.values[m] as f64 / omega[m]).collect();
+            assert!(radiance.iter().all(|r| (r - radiance[0]).abs() <= 1e-5 * radiance[0].max(1e-9)), "{radiance:?}");
+        }
+        // The sun-only boundary of the uncollided pass has no ground: its reflection is scattered light.
+        assert_eq!(il.sun_boundary(0).ground, None);
     }
 
     #[test]

@@ -99,7 +99,8 @@ impl Scene {
             sun_irradiance: f(self.sun.radiance).map(|x| std::f64::consts::PI * x),
             sky_zenith: f(self.sky.zenith),
             sky_horizon: f(self.sky.horizon),
-            ground: self.ground.is_some(),
+            ground: self.ground.as_ref().map(|g| g.color.map(|x| x as f64)),
+            floor_reflects: true,
         }
     }
 

@@ -3,7 +3,7 @@
 
 use std::fmt::Write;
 use sylva_shared::lb::lattice::{DIRECTIONS, Q};
-use sylva_shared::lb::{Collision, GridDims, Omega};
+use sylva_shared::lb::{Collision, GridDims, GroundReflection, Omega};
 
 /// The kernel template.
 const TEMPLATE: &str = include_str!("../../../shaders/lb/step.wgsl");
@@ -91,8 +91,9 @@ impl StateLayout {
     }
 }
 
-/// The WGSL for one channel's collision matrices on `layout`.
-pub fn step_shader(layout: &StateLayout, collision: &Collision) -> String {
+/// The WGSL for one channel's collision matrices on `layout`, with the
+/// bottom face reflecting as `ground` says.
+pub fn step_shader(layout: &StateLayout, collision: &Collision, ground: Option<&GroundReflection>) -> String {
     let d = layout.dims;
     let b = layout.buffers;
     let mut bindings = String::new();
@@ -116,17 +117,14 @@ pub fn step_shader(layout: &StateLayout, collision: &Collision) -> String {
     for (m, &c) in DIRECTIONS.iter().enumerate() {
         let (buf, at) = layout.location(m);
         let off = d.offset(c);
-        let shift = match off {
-            0 => String::new(),
-            o if o > 0 => format!(" - {o}u"),
-            o => format!(" + {}u", -o),
-        };
+        let shift = pull_shift(off);
         writeln!(gather, "    let f{m} = src{buf}[{at}u + idx{shift}];").unwrap();
         writeln!(store, "    dst{buf}[{at}u + idx] = o{m};").unwrap();
         writeln!(declare, "    var o{m}: f32;").unwrap();
         sum.push(format!("src{buf}[{at}u + idx]"));
         incoming.push(format!("src{buf}[{at}u + idx{shift}]"));
     }
+    let ground = ground.map_or(String::new(), |g| ground_code(layout, g));
     TEMPLATE
         .replace("{{NX}}", &d.nx.to_string())
         .replace("{{NY}}", &d.ny.to_string())
@@ -140,8 +138,42 @@ pub fn step_shader(layout: &StateLayout, collision: &Collision) -> String {
         .replace("{{COLLIDE_MEDIUM}}", &collide(&collision.medium))
         .replace("{{COLLIDE_BROWN}}", &collide(&collision.brown))
         .replace("{{STORE}}", store.trim_end())
+        .replace("{{GROUND}}", &ground)
         .replace("{{SUM}}", &sum.join(" + "))
         .replace("{{INCOMING}}", &incoming.join(" + "))
+}
+
+/// The index arithmetic that pulls from `r − c` for a direction of node offset `off`.
+fn pull_shift(off: isize) -> String {
+    match off {
+        0 => String::new(),
+        o if o > 0 => format!(" - {o}u"),
+        o => format!(" + {}u", -o),
+    }
+}
+
+/// The reflecting ground for nodes of the bottom face off the other faces:
+/// `e = Σ collect_m f_m(r − c_m)` over downward directions, in direction
+/// order as the CPU reference sums, then `emit_m × e` upward.
+fn ground_code(layout: &StateLayout, ground: &GroundReflection) -> String {
+    let d = layout.dims;
+    let (collect, emit) = (GroundReflection::collect(), ground.emit());
+    let mut terms = Vec::new();
+    let mut stores = String::new();
+    for (m, &c) in DIRECTIONS.iter().enumerate() {
+        let (buf, at) = layout.location(m);
+        if collect[m] != 0.0 {
+            terms.push(format!("{} * src{buf}[{at}u + idx{}]", literal(collect[m]), pull_shift(d.offset(c))));
+        }
+        if emit[m] != 0.0 {
+            writeln!(stores, "            dst{buf}[{at}u + idx] = {} * e;", literal(emit[m])).unwrap();
+        }
+    }
+    format!(
+        "        let gx = idx % NX;\n        let gz = idx / (NX * NY);\n        if (idx / NX) % NY == 0u && gx > 0u && gz > 0u && gx < NX - 1u && gz < NZ - 1u {{\n            let e = {};\n{}        }}",
+        terms.join(" + "),
+        stores
+    )
 }
 
 /// `o_m = f_m + rho * (Σ_n Ω[m][n] f_n)`, summed in `n` order as the CPU
@@ -192,7 +224,8 @@ mod tests {
         let coll = Collision::new(&ChannelParams { sigma_a: 0.109, sigma_s: 0.891, g: -0.12 });
         for (n, binding) in [(8usize, 128u64 << 20), (128, 128 << 20), (64, 2 << 20)] {
             let layout = StateLayout::new(GridDims::cube(n), &limits(binding)).unwrap();
-            validate(&step_shader(&layout, &coll));
+            validate(&step_shader(&layout, &coll, None));
+            validate(&step_shader(&layout, &coll, Some(&GroundReflection { albedo: 0.3, gain: 1.4 })));
         }
     }
 

@@ -61,7 +61,7 @@ impl LightingSolver for GpuSolver {
         let mut phases = PhaseTimer::default();
         let dims = medium.dims;
         let layout = StateLayout::new(dims, &self.ctx.limits)?;
-        let source = phases.time("codegen", || codegen::step_shader(&layout, &Collision::new(params)));
+        let source = phases.time("codegen", || codegen::step_shader(&layout, &Collision::new(params), boundary.ground.as_ref()));
         let k = phases.time("upload", || self.ctx.checked("building the LB kernels", || self.build(&layout, &source, medium, boundary)))?;
         let mut conv = Convergence::new(*opts, dims);
         let cap = conv.cap();

@@ -119,7 +119,8 @@ pub struct GroundLight {
     pub nx: usize,
     /// Nodes along z.
     pub nz: usize,
-    /// Fluence per node: three channel planes of `nx × nz`, x fastest.
+    /// Indirect irradiance on the ground (sky and scattered sun) per node:
+    /// three channel planes of `nx × nz`, x fastest.
     pub rgb: Vec<f32>,
 }
 
