@@ -16,5 +16,5 @@ fn every_example_scene_loads() {
         }
     }
     loaded.sort();
-    assert_eq!(loaded, ["cloud.json", "ferns.json", "grove.json", "teapot.json"]);
+    assert_eq!(loaded, ["cloud.json", "ferns.json", "grove.json", "teapot.json", "tree.json"]);
 }
