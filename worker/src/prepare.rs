@@ -93,11 +93,12 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
     let (lo, hi) = lb_bounds(&m.model).ok_or_else(|| anyhow::anyhow!("model {} has no triangles", m.name))?;
     let (frame, dims) = GridFrame::fit(lo, hi, n);
     let leaves = scene.file.lb_model == LbModel::Grounded && m.lb.preset.is_plant() && !m.lb.solid;
+    let on_ground = stands_on_ground(scene, m, &frame);
     match leaves {
         true => {
             let area = leaf_area_in(&m.model, &scene.file.leaf_optics, frame, dims);
             let medium = medium_from_leaf_area(&area.area, dims, frame.cell);
-            Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area), on_ground: stands_on_ground(scene, m, &frame) })
+            Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area), on_ground })
         }
         false => {
             let mut v = voxelize_in(&m.model, frame, dims)?;
@@ -108,7 +109,7 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
                 let class = if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
                 sylva_shared::voxel::fill_interior(&mut v, class);
             }
-            Ok(ModelMedium { frame, medium: v.medium, params: m.lb.preset.params(), area: None, on_ground: stands_on_ground(scene, m, &frame) })
+            Ok(ModelMedium { frame, medium: v.medium, params: m.lb.preset.params(), area: None, on_ground })
         }
     }
 }

@@ -119,16 +119,16 @@ impl GroundReflection {
     /// Per direction, the weight of its density in the ground's
     /// irradiance: `|ĉ_m·y|` for downward directions, else 0.
     pub fn collect() -> [f32; Q] {
-        std::array::from_fn(|m| if DIRECTIONS_Y[m] < 0 { (-lattice::unit(m)[1]) as f32 } else { 0.0 })
+        std::array::from_fn(|m| if lattice::DIRECTIONS[m][1] < 0 { (-lattice::unit(m)[1]) as f32 } else { 0.0 })
     }
 
     /// Per direction, the density sent up per unit irradiance: `k_m` for
     /// upward directions, else 0.
     pub fn emit(&self) -> [f32; Q] {
         let omega = super::radiometry::bin_solid_angles();
-        let up: f64 = (1..Q).filter(|&m| DIRECTIONS_Y[m] > 0).map(|m| omega[m] * lattice::unit(m)[1]).sum();
+        let up: f64 = (1..Q).filter(|&m| lattice::DIRECTIONS[m][1] > 0).map(|m| omega[m] * lattice::unit(m)[1]).sum();
         let k = self.gain as f64 * self.albedo as f64;
-        std::array::from_fn(|m| if DIRECTIONS_Y[m] > 0 { (k * omega[m] / up) as f32 } else { 0.0 })
+        std::array::from_fn(|m| if lattice::DIRECTIONS[m][1] > 0 { (k * omega[m] / up) as f32 } else { 0.0 })
     }
 
     /// The irradiance the lattice collects from densities `values`, in the
@@ -151,14 +151,3 @@ impl GroundReflection {
         std::array::from_fn(|m| if emit[m] > 0.0 { emit[m] * e } else { values[m] })
     }
 }
-
-/// The y component of each lattice direction.
-const DIRECTIONS_Y: [i32; Q] = {
-    let mut y = [0i32; Q];
-    let mut m = 0;
-    while m < Q {
-        y[m] = lattice::DIRECTIONS[m][1];
-        m += 1;
-    }
-    y
-};

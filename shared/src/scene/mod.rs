@@ -247,6 +247,11 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
     file.leaf_optics.validate().map_err(|m| err("leaf_optics".into(), m))?;
     if let Some(g) = &file.ground {
         colour(&g.color).map_err(|m| err("ground.color".into(), m))?;
+        // An albedo: a ground that sent back more than it receives would
+        // make the LB's reflecting floor a source that grows every step.
+        if g.color.iter().any(|&x| x > 1.0) {
+            return Err(err("ground.color".into(), format!("{:?}: an albedo, each component at most 1", g.color)));
+        }
     }
     for (i, c) in file.clouds.iter().enumerate() {
         finite3(&c.center).map_err(|m| err(format!("clouds[{i}].center"), m))?;
@@ -432,6 +437,7 @@ mod tests {
             (SMALL.replace("\"elevation_deg\": 40", "\"elevation_deg\": 140"), "sun.elevation_deg: 140: valid range [-90, 90]"),
             (SMALL.replace("\"elevation_deg\": 40, ", ""), "sun.direction: give either direction or both"),
             (SMALL.replace("[0.1, 0.08, 0.05]", "[0.1, -0.08, 0.05]"), "ground.color"),
+            (SMALL.replace("[0.1, 0.08, 0.05]", "[0.1, 1.5, 0.05]"), "ground.color: [0.1, 1.5, 0.05]: an albedo, each component at most 1"),
         ];
         for (text, want) in cases {
             let e = error_of(&text);

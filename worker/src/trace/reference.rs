@@ -20,7 +20,7 @@ pub const MIN_BATCH_SPP: u32 = 16;
 pub struct ReferenceOptions {
     /// Samples per pixel in one batch. Larger batches stratify the pixel
     /// more finely and keep lock-step lanes busy (paths end at different
-    /// depths); 16 took a third of the time per sample of 4 on lavapipe.
+    /// depths); 16 took 0.39× the time per sample of 4 on lavapipe.
     pub batch_spp: u32,
     /// Batches always rendered (the error estimate needs a few).
     pub min_batches: u32,
