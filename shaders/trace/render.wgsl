@@ -82,6 +82,10 @@ const LIGHTING_BOULANGER: u32 = 5u;
 // 1 the reference, 2 Boulanger. One source, specialized per pipeline, so a
 // pipeline compiles only the code it runs.
 override LIGHTING_FAMILY: u32 = 0u;
+// Whether the scene has clouds: without, the pipelines compile no cloud
+// code at all (on lavapipe the reference's unused cloud loops, merely
+// present, made some primary rays miss geometry; see docs/lighting.md).
+override HAS_CLOUDS: bool = false;
 const SPECULAR_EXPONENT: f32 = 24.0;
 
 // PCG hash (Jarzynski & Olano 2020); shared/src/sampler.rs mirrors it.
@@ -295,6 +299,9 @@ fn march_cloud(c: Cloud, ray: Ray, t0: f32, t1: f32) -> vec4<f32> {
 // Composites the clouds a ray crosses before distance `t_max` over the
 // radiance behind them, nearest cloud in front.
 fn through_clouds(ray: Ray, t_max: f32, behind: vec3<f32>) -> vec3<f32> {
+    if !HAS_CLOUDS {
+        return behind;
+    }
     var color = behind;
     var done = 0u;
     let count = arrayLength(&clouds);
@@ -402,6 +409,10 @@ fn leaf_coefficients(albedo: vec3<f32>) -> array<vec3<f32>, 4> {
 // The sun's specular highlight (the paper's ks (V·R)^24) seen along
 // `view` from a surface of normal `n` (facing the viewer) and `kind`.
 fn sun_highlight(n: vec3<f32>, view: vec3<f32>, kind: u32) -> f32 {
+    // The ground is Lambertian (as `local` shades it).
+    if kind == KIND_GROUND {
+        return 0.0;
+    }
     let r = reflect(-frame.sun_towards, n);
     let ks = select(0.12, 0.04, kind == KIND_WOOD);
     return ks * pow(max(dot(-view, r), 0.0), SPECULAR_EXPONENT);
@@ -442,41 +453,51 @@ fn surface_radiance(ray: Ray) -> Surface {
     return Surface(vec4<f32>(color, 1.0), s.t);
 }
 
-// One sample of pixel (x, y): the reference integrator's path, or the
-// direct methods' radiance.
-fn sample_radiance(ray: Ray, x: u32, y: u32, s: u32) -> vec4<f32> {
-    if LIGHTING_FAMILY == 1u {
-        return path_radiance(ray, x, y, s);
+// Camera ray of sample `s` of pixel (x, y). One sample sits at the pixel
+// centre; more are stratified: jittered within the cells of the largest
+// square grid that fits, so edges and sun flecks inside a pixel are
+// sampled evenly.
+fn camera_ray(x: u32, y: u32, s: u32) -> Ray {
+    var j = vec2<f32>(0.5, 0.5);
+    if frame.spp > 1u {
+        j = stratified(sample_2d(x, y, s, frame.seed), s, frame.spp);
     }
-    return radiance(ray);
+    let px = f32(x) + j.x;
+    let py = f32(y) + j.y;
+    let sx = (2.0 * px / f32(frame.width) - 1.0) * frame.tan_half_fov_y * frame.aspect;
+    let sy = (1.0 - 2.0 * py / f32(frame.height)) * frame.tan_half_fov_y;
+    return make_ray(frame.cam_position, normalize(frame.cam_forward + frame.cam_right * sx + frame.cam_up * sy));
 }
 
 @compute @workgroup_size(8, 8)
 fn render_strip(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= frame.strip_width || gid.y >= frame.height {
+    if gid.x >= frame.strip_width || gid.y >= frame.height || gid.z >= select(1u, frame.spp, LIGHTING_FAMILY == 1u) {
         return;
     }
     let x = frame.x0 + gid.x;
     let y = gid.y;
-    var sum = vec4<f32>(0.0);
-    for (var s = 0u; s < frame.spp; s++) {
-        // One sample at the pixel centre; more are stratified: jittered
-        // within the cells of the largest square grid that fits, so edges
-        // and sun flecks inside a pixel are sampled evenly.
-        var j = vec2<f32>(0.5, 0.5);
-        if frame.spp > 1u {
-            j = stratified(sample_2d(x, y, s, frame.seed), s, frame.spp);
-        }
-        let px = f32(x) + j.x;
-        let py = f32(y) + j.y;
-        let sx = (2.0 * px / f32(frame.width) - 1.0) * frame.tan_half_fov_y * frame.aspect;
-        let sy = (1.0 - 2.0 * py / f32(frame.height)) * frame.tan_half_fov_y;
-        let dir = normalize(frame.cam_forward + frame.cam_right * sx + frame.cam_up * sy);
-        transparent_passed = 0u;
-        sum += sample_radiance(make_ray(frame.cam_position, dir), x, y, s);
+    transparent_passed = 0u;
+    let pixel = gid.x + gid.y * frame.strip_width;
+    if LIGHTING_FAMILY == 1u {
+        // The reference: one path per invocation, sample gid.z, in its own
+        // slot (the worker sums them); after all samples, what `local`
+        // shows along the same camera rays (reference.wgsl).
+        let r = reference_sample(x, y, gid.z);
+        let slots = frame.strip_width * frame.height;
+        out_pixels[pixel + gid.z * slots] = r[0];
+        out_pixels[pixel + (frame.spp + gid.z) * slots] = r[1];
         atomicAdd(&counters.transparent, transparent_passed);
+        atomicAdd(&counters.primary, 1u);
+        return;
+    } else {
+        var sum = vec4<f32>(0.0);
+        for (var s = 0u; s < frame.spp; s++) {
+            sum += radiance(camera_ray(x, y, s));
+        }
+        // Box filter: the mean of the samples; alpha is the fraction that hit a model.
+        out_pixels[pixel] = sum / f32(frame.spp);
     }
+    // One atomic per invocation, outside the loops.
+    atomicAdd(&counters.transparent, transparent_passed);
     atomicAdd(&counters.primary, frame.spp);
-    // Box filter: the mean of the samples; alpha is the fraction that hit a model.
-    out_pixels[gid.x + gid.y * frame.strip_width] = sum / f32(frame.spp);
 }

@@ -170,10 +170,11 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     rendered.push(auto);
     bar.finish_and_clear();
 
-    // Errors against the reference; the indirect part against reference − local.
+    // Errors against the reference; the indirect part (method − local)
+    // against the reference's own (its estimate minus local along its samples).
     let local = rendered[0].image.clone();
     for m in &mut rendered {
-        let e = errors(&m.image, &reference, &local, &lit);
+        let e = errors(&m.image, &local, &reference, &r.local, &lit);
         (m.report.rmse, m.report.mean_relative_error, m.report.indirect_relative_error) = e;
     }
     let ref_png = a.out.join("reference.png");
@@ -324,15 +325,20 @@ fn render_method(
     })
 }
 
-/// (RMSE, mean relative error, indirect relative error) over lit pixels.
-fn errors(m: &HdrImage, r: &HdrImage, local: &HdrImage, lit: &[bool]) -> (f64, f64, f64) {
+/// (RMSE, mean relative error, indirect relative error) over lit pixels of
+/// method image `m` (with `local` rendered on the same samples) against the
+/// reference `r` (with `r_local`, its own samples' local light). Each
+/// indirect part is taken against its own sampling's local image, so the
+/// edges of leaves against the sky, sampled differently by the method and
+/// the reference, do not count as indirect light.
+fn errors(m: &HdrImage, local: &HdrImage, r: &HdrImage, r_local: &HdrImage, lit: &[bool]) -> (f64, f64, f64) {
     let (mut se, mut rel, mut n) = (0.0f64, 0.0f64, 0usize);
     let (mut ind_se, mut ind_ref) = (0.0f64, 0.0f64);
     for (i, _) in lit.iter().enumerate().filter(|(_, lit)| **lit) {
-        let (p, q, l) = (m.pixels[i], r.pixels[i], local.pixels[i]);
+        let (p, q, l, rl) = (m.pixels[i], r.pixels[i], local.pixels[i], r_local.pixels[i]);
         for c in 0..3 {
             se += ((p[c] - q[c]) as f64).powi(2);
-            let (ind_m, ind_r) = ((p[c] - l[c]) as f64, (q[c] - l[c]) as f64);
+            let (ind_m, ind_r) = ((p[c] - l[c]) as f64, (q[c] - rl[c]) as f64);
             ind_se += (ind_m - ind_r).powi(2);
             ind_ref += ind_r.powi(2);
         }

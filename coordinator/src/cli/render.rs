@@ -295,6 +295,16 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         phases.push(("trace", ms(t)));
         bar.finish_and_clear();
         let (tone, exr) = write_image(&a, &r.image, &mut phases)?;
+        // Beside the reference, what `local` shows along its own samples:
+        // the difference is its indirect light, without edge aliasing.
+        let local_exr = match &exr {
+            Some(p) => {
+                let l = p.with_extension("local.exr");
+                r.local.write_exr(&l)?;
+                Some(l.display().to_string())
+            }
+            None => None,
+        };
         let stats = with_head(
             &a,
             exr,
@@ -304,6 +314,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             json!({
                 "adapter": ctx.summary(),
                 "reference": r.stats,
+                "local_exr": local_exr,
                 "leaf_optics": scene.file.leaf_optics,
                 "max_bounces": sylva_worker::trace::MAX_BOUNCES,
                 "tone_map": tone,

@@ -18,9 +18,9 @@ pub const MIN_BATCH_SPP: u32 = 16;
 /// When a progressive reference stops.
 #[derive(Clone, Copy, Debug)]
 pub struct ReferenceOptions {
-    /// Samples per pixel in one batch. Larger batches stratify the pixel
-    /// more finely and keep lock-step lanes busy (paths end at different
-    /// depths); 16 took 0.39× the time per sample of 4 on lavapipe.
+    /// Samples per pixel in one batch (one dispatch, one path per
+    /// invocation, at most what the adapter can bind for the frame).
+    /// Larger batches stratify the pixel more finely (4 × 4 cells at 16).
     pub batch_spp: u32,
     /// Batches always rendered (the error estimate needs a few).
     pub min_batches: u32,
@@ -45,6 +45,10 @@ pub struct ReferenceImage {
     pub image: HdrImage,
     /// Per pixel, the fraction of camera rays whose first hit is a model.
     pub coverage: Vec<f32>,
+    /// What `local` shows along the same camera samples: `image − local`
+    /// is the reference's indirect light, free of the edge aliasing a
+    /// differently sampled `local` image would add.
+    pub local: HdrImage,
     /// Per pixel, the standard error of the mean's luminance.
     pub std_error: Vec<f32>,
     /// What was rendered and how close it is.
@@ -81,25 +85,33 @@ pub fn render_reference(
     let mut sum = vec![[0.0f64; 3]; n];
     let mut lum_sq = vec![0.0f64; n];
     let mut coverage = vec![0.0f64; n];
+    let mut local = vec![[0.0f64; 3]; n];
     let mut stats = ReferenceStats { spp: 0, batches: 0, relative_error: f64::INFINITY, converged: false, ms: 0.0 };
+    // Each sample of a batch has its own output slot (two images of 16
+    // bytes per pixel): as many samples and columns per dispatch as the
+    // adapter binds, with a margin.
+    let budget = (ctx.limits.max_storage_buffer_binding_size / 2).max(1 << 20);
+    let per_sample_column = 32 * f.height as u64;
+    let batch_spp = (opts.batch_spp as u64).min((budget / (per_sample_column * f.width as u64)).max(1)) as u32;
+    let columns = ((budget / (per_sample_column * batch_spp as u64)).max(1) as u32).min(f.width);
     let mut batch = 0u32;
     loop {
         // Seeds far apart, so no batch repeats another's samples.
-        let settings = RenderSettings {
-            spp: opts.batch_spp,
-            seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)),
-            lighting: LightingMode::Reference,
-            ..*f
-        };
-        let s = renderer.render_strip(ctx, &settings, 0, f.width)?;
-        for i in 0..n {
-            let p = s.pixels[i];
-            for c in 0..3 {
-                sum[i][c] += p[c] as f64;
+        let settings =
+            RenderSettings { spp: batch_spp, seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)), lighting: LightingMode::Reference, ..*f };
+        for x0 in (0..f.width).step_by(columns as usize) {
+            let x1 = (x0 + columns).min(f.width);
+            let s = renderer.render_strip(ctx, &settings, x0, x1)?;
+            for (k, p) in s.pixels.iter().enumerate() {
+                let i = (k as u32 / s.width * f.width + x0 + k as u32 % s.width) as usize;
+                for c in 0..3 {
+                    sum[i][c] += p[c] as f64;
+                    local[i][c] += s.first_light[k][c] as f64;
+                }
+                let l = luminance(*p) as f64;
+                lum_sq[i] += l * l;
+                coverage[i] += s.coverage[k] as f64;
             }
-            let l = luminance(p) as f64;
-            lum_sq[i] += l * l;
-            coverage[i] += s.coverage[i] as f64;
         }
         batch += 1;
         let b = batch as f64;
@@ -111,7 +123,7 @@ pub fn render_reference(
             mean_sq_sum += mean_l * mean_l;
         }
         stats.batches = batch;
-        stats.spp = batch * opts.batch_spp;
+        stats.spp = batch * batch_spp;
         stats.relative_error = if mean_sq_sum > 0.0 { (var_sum / mean_sq_sum).sqrt() } else { 0.0 };
         stats.ms = t.elapsed().as_secs_f64() * 1e3;
         stats.converged = batch >= 2 && stats.relative_error <= opts.target_error;
@@ -128,5 +140,6 @@ pub fn render_reference(
             ((((lum_sq[i] / b) - mean_l * mean_l).max(0.0) / (b - 1.0).max(1.0)).sqrt()) as f32
         })
         .collect();
-    Ok(ReferenceImage { image, coverage: coverage.iter().map(|c| (c / b) as f32).collect(), std_error, stats })
+    let local = HdrImage { width: f.width, height: f.height, pixels: local.iter().map(|s| s.map(|v| (v / b) as f32)).collect() };
+    Ok(ReferenceImage { image, coverage: coverage.iter().map(|c| (c / b) as f32).collect(), local, std_error, stats })
 }

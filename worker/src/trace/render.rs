@@ -120,6 +120,10 @@ pub struct Strip {
     pub pixels: Vec<[f32; 3]>,
     /// Per pixel, the fraction of its samples that hit a model (not sky or ground).
     pub coverage: Vec<f32>,
+    /// The reference only (empty otherwise): per pixel, what `local` shows
+    /// along the same camera samples, so the reference's indirect light is
+    /// `pixels − first_light` without another sampling's edge aliasing.
+    pub first_light: Vec<[f32; 3]>,
     /// Rays traced.
     pub rays: RayCounts,
 }
@@ -169,7 +173,11 @@ impl StripRenderer {
                 module: &module,
                 entry_point: Some("render_strip"),
                 compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &[("ACCEL_KIND", gpu_scene.accel_kind as f64), ("LIGHTING_FAMILY", family as f64)],
+                    constants: &[
+                        ("ACCEL_KIND", gpu_scene.accel_kind as f64),
+                        ("LIGHTING_FAMILY", family as f64),
+                        ("HAS_CLOUDS", if scene.clouds.is_empty() { 0.0 } else { 1.0 }),
+                    ],
                     ..Default::default()
                 },
                 cache: None,
@@ -244,7 +252,21 @@ impl StripRenderer {
                 contents: bytemuck::bytes_of(&uniform),
                 usage: wgpu::BufferUsages::UNIFORM,
             });
-            let bytes = strip_width as u64 * f.height as u64 * 16;
+            let family = match f.lighting {
+                LightingMode::Reference => 1,
+                LightingMode::Boulanger => 2,
+                _ => 0,
+            };
+            // The reference writes each sample to its own slot, then each
+            // sample's `local` light (`first_light`); the others one mean.
+            let images = if family == 1 { 2 * f.spp as u64 } else { 1 };
+            let bytes = images * strip_width as u64 * f.height as u64 * 16;
+            anyhow::ensure!(
+                bytes <= ctx.limits.max_storage_buffer_binding_size,
+                "a strip of {strip_width}×{} at {} samples needs {bytes} bytes of output, more than the adapter binds",
+                f.height,
+                f.spp
+            );
             let out = device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("strip"),
                 size: bytes,
@@ -268,25 +290,40 @@ impl StripRenderer {
             let mut enc = device.create_command_encoder(&Default::default());
             {
                 let mut pass = enc.begin_compute_pass(&Default::default());
-                let family = match f.lighting {
-                    LightingMode::Reference => 1,
-                    LightingMode::Boulanger => 2,
-                    _ => 0,
-                };
                 pass.set_pipeline(&self.pipelines[family]);
                 pass.set_bind_group(0, &self.scene.bind_group, &[]);
                 pass.set_bind_group(1, &bg, &[]);
-                pass.dispatch_workgroups(strip_width.div_ceil(8), f.height.div_ceil(8), 1);
+                pass.dispatch_workgroups(strip_width.div_ceil(8), f.height.div_ceil(8), if family == 1 { f.spp } else { 1 });
             }
             ctx.queue.submit([enc.finish()]);
             let raw = ctx.read_back(&out, bytes)?;
-            let px: &[[f32; 4]] = bytemuck::cast_slice(&raw);
+            let all: &[[f32; 4]] = bytemuck::cast_slice(&raw);
+            let n = (strip_width * f.height) as usize;
+            let (px, first) = if family == 1 {
+                // The mean of each pixel's sample slots, of both images.
+                let mean = |image: &[[f32; 4]]| -> Vec<[f32; 4]> {
+                    let mut m = vec![[0.0f32; 4]; n];
+                    for slot in image.chunks_exact(n) {
+                        for (a, v) in m.iter_mut().zip(slot) {
+                            for c in 0..4 {
+                                a[c] += v[c];
+                            }
+                        }
+                    }
+                    m.iter().map(|a| a.map(|v| v / f.spp as f32)).collect()
+                };
+                let (paths, locals) = all.split_at(n * f.spp as usize);
+                (mean(paths), mean(locals))
+            } else {
+                (all.to_vec(), Vec::new())
+            };
             let rays: RayCounts = *bytemuck::from_bytes(&ctx.read_back(&counters, size_of::<RayCounts>() as u64)?);
             Ok(Strip {
                 x0,
                 width: strip_width,
                 pixels: px.iter().map(|p| [p[0], p[1], p[2]]).collect(),
                 coverage: px.iter().map(|p| p[3]).collect(),
+                first_light: first.iter().map(|p| [p[0], p[1], p[2]]).collect(),
                 rays,
             })
         })
