@@ -276,3 +276,42 @@ fn the_lb_leaf_radiance_agrees_with_the_reference_on_a_ball_and_a_slab_of_leaves
         }
     }
 }
+
+#[test]
+fn every_reference_sample_counts_and_its_local_light_is_the_local_image() {
+    // Three generated trees over a ground, sky above: side by side in a
+    // workgroup, paths end at the sky, after one bounce or after many. (On
+    // lavapipe a sample loop around the bounce loop once dropped the
+    // samples of lanes whose paths ended early, in forests but not on a
+    // single square.)
+    let dir = std::env::temp_dir().join(format!("sylva-reference-samples-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = r#"{
+        "models": { "buckeye": { "tree": { "species": "ohio_buckeye", "triangles": 60000, "seed": 2 } } },
+        "instances": [
+            { "model": "buckeye", "position": [-4, 0, 0] },
+            { "model": "buckeye", "position": [3, 0, 2], "rotate_y_deg": 40 },
+            { "model": "buckeye", "position": [0, 0, 6], "rotate_y_deg": 200, "scale": 1.1 }
+        ],
+        "camera": { "position": [0, 8, -22], "look_at": [0, 6, 0], "fov_y_deg": 40 },
+        "sun": { "elevation_deg": 50, "azimuth_deg": 30 },
+        "sky": { "zenith": [0.25, 0.45, 0.85], "horizon": [0.75, 0.82, 0.9] },
+        "ground": { "color": [0.3, 0.25, 0.2] }
+    }"#;
+    let scene = Scene::build(parse(text, "samples.json").unwrap(), &dir, "samples.json").unwrap();
+    let ctx = ctx();
+    let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|_| {}).unwrap();
+    // The same camera rays: the reference's batch and `local` at its spp and seed.
+    let f = RenderSettings { spp: 16, ..frame(40, 32) };
+    let reference = p.renderer.render_strip(&ctx, &RenderSettings { lighting: LightingMode::Reference, ..f }, 0, 40).unwrap();
+    let local = p.renderer.render_strip(&ctx, &f, 0, 40).unwrap();
+    assert!(local.coverage.iter().any(|&c| c == 1.0) && local.coverage.iter().any(|&c| c == 0.0), "the frame shows leaves and more");
+    for i in 0..local.pixels.len() {
+        assert_eq!(reference.coverage[i], local.coverage[i], "pixel {i}: the reference's samples hit models as often as local's");
+        for c in 0..3 {
+            let (r, l) = (reference.first_light[i][c], local.pixels[i][c]);
+            assert!((r - l).abs() <= 1e-4 * l.max(1e-2), "pixel {i} channel {c}: local light along the reference's samples {r} vs local {l}");
+        }
+    }
+    assert_eq!(reference.rays.primary, 40 * 32 * 16, "one camera ray per sample");
+}
