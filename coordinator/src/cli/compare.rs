@@ -464,15 +464,16 @@ fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: 
     );
     for (i, (label, file)) in tiles.iter().enumerate() {
         let (x, y) = ((i % cols) as f64 * tw, (i / cols) as f64 * th);
+        // `href` for SVG 2 readers, `xlink:href` for older ones: both the file.
         s += &format!(
-            r#"<text x="{}" y="{}">{}</text><image x="{x}" y="{}" width="{}" height="{}" href="{}" xlink:href="{1}"/>"#,
+            r#"<text x="{}" y="{}">{}</text><image x="{x}" y="{}" width="{}" height="{}" href="{file}" xlink:href="{file}"/>"#,
             x + 4.0,
             y + 15.0,
             label,
             y + 20.0,
             a.width,
             a.height,
-            file.display()
+            file = file.display()
         );
     }
     s += "</svg>\n";
