@@ -52,6 +52,14 @@ pub struct ModelLight {
 }
 
 /// A model's LB medium, ready to solve.
+/// A model's leaf area on its own grid (the grounded model's), which the
+/// forest grid gathers per instance.
+struct ModelArea {
+    frame: GridFrame,
+    dims: GridDims,
+    area: LeafArea,
+}
+
 struct ModelMedium {
     frame: GridFrame,
     medium: MediumGrid,
@@ -306,7 +314,7 @@ pub fn prepare(ctx: &GpuContext, scene: &Scene, kind: AccelKind, lighting: Light
             }
             Ok(())
         })?;
-        areas = media.into_iter().map(|mm| mm.area).collect();
+        areas = media.into_iter().map(|mm| mm.area.map(|area| ModelArea { frame: mm.frame, dims: mm.medium.dims, area })).collect();
     }
     let mut forest = None;
     let mut ground = None;
@@ -446,8 +454,50 @@ fn decide(spec: ForestGridSpec, grid: WorldGrid, light: &[f32], what: (&str, &st
     }
 }
 
+/// The forest grid's blocking leaf area per cell (world units²) and the
+/// area-weighted optics of what blocks light. Each of a model's cells
+/// carries its leaf area to the forest cell its centre falls in, turned
+/// and scaled with the instance, so the crown's area stays up in the
+/// crown. (Spread evenly over the instance's box, 40 % of a tall tree's
+/// leaves sat in its trunk zone and shaded the ground from the low sky
+/// under the stand.)
+fn forest_leaf_area(scene: &Scene, areas: &[Option<ModelArea>], grid: &WorldGrid) -> (Vec<f32>, LeafScattering) {
+    let d = grid.dims;
+    let mut area = vec![0.0f32; d.len()];
+    let (mut reflect, mut transmit, mut weight) = ([0.0f64; 3], [0.0f64; 3], 0.0f64);
+    for inst in &scene.instances {
+        let Some(m) = areas.get(inst.model as usize).and_then(|a| a.as_ref()) else { continue };
+        let a = &m.area;
+        let scale2 = inst.to_world.matrix3.determinant().abs().powf(2.0 / 3.0) as f64;
+        let world_area = a.total_area * scale2;
+        for c in 0..3 {
+            reflect[c] += world_area * a.scattering.reflect[c];
+            transmit[c] += world_area * a.scattering.transmit[c];
+        }
+        weight += world_area;
+        let md = m.dims;
+        let last = glam::Vec3::new((d.nx - 2) as f32, (d.ny - 2) as f32, (d.nz - 2) as f32);
+        for z in 0..md.nz {
+            for y in 0..md.ny {
+                for x in 0..md.nx {
+                    let cell_area = a.area[md.index(x, y, z)];
+                    if cell_area <= 0.0 {
+                        continue;
+                    }
+                    let centre = glam::Vec3::from(m.frame.origin) + (glam::Vec3::new(x as f32, y as f32, z as f32) + 0.5) * m.frame.cell;
+                    let q =
+                        ((inst.to_world.transform_point3(centre) - glam::Vec3::from(grid.origin)) / grid.cell).floor().clamp(glam::Vec3::ONE, last);
+                    area[d.index(q.x as usize, q.y as usize, q.z as usize)] += (cell_area as f64 * scale2) as f32;
+                }
+            }
+        }
+    }
+    let w = weight.max(f64::MIN_POSITIVE);
+    (area, LeafScattering { reflect: reflect.map(|r| r / w), transmit: transmit.map(|t| t / w) })
+}
+
 /// The grounded forest grid: each instance's blocking area (its model's,
-/// × its scale²) spread over its world box sets the coarse medium; the
+/// × its scale², where its model has it: [`forest_leaf_area`]) sets the coarse medium; the
 /// leaves' mean optics set σ_a, σ_s, g; sun and sky light it. An
 /// instance's species grid, solved in the open, is scaled by the fraction
 /// of the open field's fluence that reaches its crown from outside (the
@@ -457,7 +507,7 @@ fn decide(spec: ForestGridSpec, grid: WorldGrid, light: &[f32], what: (&str, &st
 fn forest_light_grounded(
     ctx: &GpuContext,
     scene: &Scene,
-    areas: &[Option<LeafArea>],
+    areas: &[Option<ModelArea>],
     scales: &mut [f32],
 ) -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
     let spec = scene.file.forest_grid;
@@ -481,39 +531,7 @@ fn forest_light_grounded(
     let all = boxes.iter().fold(Aabb::EMPTY, |b, o| b.union(*o));
     let grid = WorldGrid::around(all, spec.grid);
     let d = grid.dims;
-    let mut area = vec![0.0f32; d.len()];
-    let (mut reflect, mut transmit, mut weight) = ([0.0f64; 3], [0.0f64; 3], 0.0f64);
-    for (inst, b) in scene.instances.iter().zip(&boxes) {
-        let Some(a) = areas.get(inst.model as usize).and_then(|a| a.as_ref()) else { continue };
-        let scale2 = inst.to_world.matrix3.determinant().abs().powf(2.0 / 3.0) as f64;
-        let world_area = a.total_area * scale2;
-        for c in 0..3 {
-            reflect[c] += world_area * a.scattering.reflect[c];
-            transmit[c] += world_area * a.scattering.transmit[c];
-        }
-        weight += world_area;
-        let e = b.max - b.min;
-        let volume = (e.x * e.y * e.z).max(f32::MIN_POSITIVE) as f64;
-        let lo = ((b.min - glam::Vec3::from(grid.origin)) / grid.cell).floor().max(glam::Vec3::ONE);
-        let hi = ((b.max - glam::Vec3::from(grid.origin)) / grid.cell).floor().min(glam::Vec3::new(
-            (d.nx - 2) as f32,
-            (d.ny - 2) as f32,
-            (d.nz - 2) as f32,
-        ));
-        for z in lo.z as usize..=hi.z as usize {
-            for y in lo.y as usize..=hi.y as usize {
-                for x in lo.x as usize..=hi.x as usize {
-                    let o = grid.cell_box(x, y, z).intersection(*b);
-                    if !o.is_empty() {
-                        let v = o.max - o.min;
-                        area[d.index(x, y, z)] += (world_area * (v.x * v.y * v.z) as f64 / volume) as f32;
-                    }
-                }
-            }
-        }
-    }
-    let w = weight.max(f64::MIN_POSITIVE);
-    let leaves = LeafScattering { reflect: reflect.map(|r| r / w), transmit: transmit.map(|t| t / w) };
+    let (area, leaves) = forest_leaf_area(scene, areas, &grid);
     let medium = medium_from_leaf_area(&area, d, grid.cell);
     let light = scene.illumination();
     let mut solver = GpuSolver::new(ctx.clone());
@@ -610,4 +628,83 @@ fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<CloudGrid
             })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sylva_shared::scene::parse;
+
+    #[test]
+    fn the_forest_grid_keeps_each_crowns_leaf_area_where_the_crown_is() {
+        let text = r#"{
+            "models": { "maple": { "tree": { "species": "red_maple", "triangles": 20000, "seed": 1 } } },
+            "instances": [
+                { "model": "maple", "position": [0, 0, 0] },
+                { "model": "maple", "position": [9, 0, 3], "rotate_y_deg": 70, "scale": 1.5 }
+            ],
+            "camera": { "position": [0, 6, -30], "look_at": [0, 6, 0] },
+            "sun": { "elevation_deg": 50, "azimuth_deg": 30 },
+            "ground": { "color": [0.2, 0.2, 0.2] }
+        }"#;
+        let scene = Scene::build(parse(text, "forest.json").unwrap(), &std::env::temp_dir(), "forest.json").unwrap();
+        let m = &scene.models[0];
+        let mm = medium_of(&scene, m, 32).unwrap();
+        let area = ModelArea { frame: mm.frame, dims: mm.medium.dims, area: mm.area.unwrap() };
+        // The model's own area-weighted mean height, in model space.
+        let md = area.dims;
+        let mut model_height = 0.0f64;
+        for z in 0..md.nz {
+            for y in 0..md.ny {
+                for x in 0..md.nx {
+                    let y_centre = area.frame.origin[1] + (y as f32 + 0.5) * area.frame.cell;
+                    model_height += area.area.area[md.index(x, y, z)] as f64 * y_centre as f64;
+                }
+            }
+        }
+        model_height /= area.area.total_area;
+        let boxes = scene.instances.iter().map(|i| sylva_shared::accel::scene::model_bounds(&m.model).transformed(&i.to_world));
+        let grid = WorldGrid::around(boxes.fold(Aabb::EMPTY, |b, o| b.union(o)), 16);
+        let (cells, _) = forest_leaf_area(&scene, &[Some(area)], &grid);
+        // All of it arrives: the first instance's area plus 1.5² the second's.
+        let total: f64 = cells.iter().map(|&a| a as f64).sum();
+        let want = 1.0 + 1.5 * 1.5;
+        let got = total / mm_total(&scene);
+        assert!((got - want).abs() < 1e-3 * want, "area {got:.4}× the model's, want {want}");
+        // At the crowns' height: the area-weighted mean height is the
+        // instances' (1 and 1.5 × the model's), within a forest cell.
+        let d = grid.dims;
+        let mut height = 0.0f64;
+        for z in 0..d.nz {
+            for y in 0..d.ny {
+                for x in 0..d.nx {
+                    height += cells[d.index(x, y, z)] as f64 * (grid.origin[1] + (y as f32 + 0.5) * grid.cell) as f64;
+                }
+            }
+        }
+        height /= total;
+        let want_height = (model_height + 1.5 * 1.5 * 1.5 * model_height) / want;
+        assert!(
+            (height - want_height).abs() <= grid.cell as f64,
+            "mean height {height:.2} m, the crowns' {want_height:.2} m (cell {:.2} m)",
+            grid.cell
+        );
+        // Above the middle of the trees' boxes, where an even spread put it.
+        let even: f64 = scene
+            .instances
+            .iter()
+            .zip([1.0, 1.5 * 1.5])
+            .map(|(i, w)| {
+                let b = sylva_shared::accel::scene::model_bounds(&m.model).transformed(&i.to_world);
+                w * 0.5 * (b.min.y + b.max.y) as f64
+            })
+            .sum::<f64>()
+            / want;
+        assert!(height > even + 0.5 * grid.cell as f64, "mean height {height:.2} m, an even spread's {even:.2} m");
+    }
+
+    /// The model's total blocking area, solved again for the check.
+    fn mm_total(scene: &Scene) -> f64 {
+        medium_of(scene, &scene.models[0], 32).unwrap().area.unwrap().total_area
+    }
 }
