@@ -28,9 +28,19 @@ fn scene(dir: &Path) -> PathBuf {
 }
 
 async fn wait_for_workers(addr: &str, n: usize) -> CoordinatorClient<tonic::transport::Channel> {
+    wait_for_workers_with(addr, n, None).await
+}
+
+/// Waits (up to a minute: workers start their GPU first) until `n` workers
+/// are registered and alive, asking with `token` where the coordinator needs one.
+async fn wait_for_workers_with(addr: &str, n: usize, token: Option<&str>) -> CoordinatorClient<tonic::transport::Channel> {
     let mut c = CoordinatorClient::connect(format!("http://{addr}")).await.unwrap();
-    for _ in 0..200 {
-        let w = c.list_workers(pb::ListWorkersRequest {}).await.unwrap().into_inner().workers;
+    for _ in 0..1200 {
+        let mut req = tonic::Request::new(pb::ListWorkersRequest {});
+        if let Some(t) = token {
+            req.metadata_mut().insert("authorization", format!("Bearer {t}").parse().unwrap());
+        }
+        let w = c.list_workers(req).await.unwrap().into_inner().workers;
         if w.iter().filter(|w| w.alive).count() >= n {
             return c;
         }
@@ -117,7 +127,9 @@ async fn bad_jobs_are_refused_and_tokens_are_required() {
     assert!(String::from_utf8_lossy(&absurd.stderr).contains("spp 5000: valid range [1, 4096]"), "{}", String::from_utf8_lossy(&absurd.stderr));
     let wide = submit(&["--height", "20000"], Some("s3cret"));
     assert!(String::from_utf8_lossy(&wide.stderr).contains("each side must be in [1, 16384]"), "{}", String::from_utf8_lossy(&wide.stderr));
-    // The service is still up and renders a good job.
+    // The service is still up and renders a good job (once its worker has
+    // registered: under load that can take longer than the refusals above).
+    wait_for_workers_with(&coord.addr, 1, Some("s3cret")).await;
     let ok = submit(&["--height", "16"], Some("s3cret"));
     assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
 }
