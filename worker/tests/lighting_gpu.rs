@@ -206,8 +206,8 @@ fn mean_indirect_against_the_reference(scene: &Scene, f: RenderSettings) -> ([f6
     let local = p.renderer.render_strip(&ctx, &RenderSettings { lighting: LightingMode::Local, ..f }, 0, f.width).unwrap();
     drop(p);
     let p = prepare(&ctx, scene, AccelKind::Bvh, LightingMode::Reference, &|_| {}).unwrap();
-    // 2 % per pixel: the mean over ~1000 pixels is then good to well under 1 %.
-    let opts = ReferenceOptions { batch_spp: 16, min_batches: 4, max_batches: 24, target_error: 0.02, max_seconds: 120.0 };
+    // 3 % per pixel: the mean over ~700 pixels is then good to about 0.1 %.
+    let opts = ReferenceOptions { batch_spp: 16, min_batches: 2, max_batches: 24, target_error: 0.03, max_seconds: 120.0 };
     let r = render_reference(&ctx, &p.renderer, &f, &opts, &|_| {}).unwrap();
     let (mut m, mut rf, mut n) = ([0.0f64; 3], [0.0f64; 3], 0usize);
     for i in 0..lb.pixels.len() {
@@ -244,13 +244,13 @@ fn the_lb_leaf_radiance_agrees_with_the_reference_on_a_ball_and_a_slab_of_leaves
     use glam::Vec3;
     // The leaf colour of the Monte Carlo comparison (shared/tests/lb_grounded.rs).
     let green = [0.15, 0.35, 0.08];
-    let frame = RenderSettings { spp: 16, ..frame(48, 48) };
+    let frame = RenderSettings { spp: 16, ..frame(40, 40) };
     let run = |name: &str, leaves: &[[Vec3; 4]], camera: &str| {
         let dir = std::env::temp_dir().join(format!("sylva-lb-vs-reference-{name}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         write_squares_gltf(&dir, "leaves", "leaf", green, leaves);
         let (lb, reference, pixels) = mean_indirect_against_the_reference(&leaves_scene(&dir, camera), frame);
-        assert!(pixels > 500, "{name}: {pixels} fully covered pixels");
+        assert!(pixels > 400, "{name}: {pixels} fully covered pixels");
         let ratio: [f64; 3] = std::array::from_fn(|c| lb[c] / reference[c]);
         eprintln!("{name}: LB indirect {lb:?}, reference {reference:?}, ratio {ratio:?} over {pixels} pixels");
         ratio
