@@ -70,17 +70,14 @@ struct Counters {
 @group(1) @binding(1) var<storage, read_write> out_pixels: array<vec4<f32>>;
 @group(1) @binding(2) var<storage, read_write> counters: Counters;
 
-const LIGHTING_LOCAL: u32 = 0u;
-const LIGHTING_AMBIENT: u32 = 1u;
-const LIGHTING_LB: u32 = 2u;
-const LIGHTING_LB_VISUALIZE: u32 = 3u;
-const LIGHTING_REFERENCE: u32 = 4u;
-const LIGHTING_BOULANGER: u32 = 5u;
+// The LIGHTING_* codes of frame.lighting and the KERNEL_* values of
+// LIGHTING_FAMILY are generated from worker/src/lighting/ (one module per
+// method) and prepended to this source.
 
-// Which family of methods this pipeline renders: 0 the direct methods
-// (local, ambient, lb, lb-visualize, chosen per frame by frame.lighting),
-// 1 the reference, 2 Boulanger. One source, specialized per pipeline, so a
-// pipeline compiles only the code it runs.
+// Which kernel this pipeline is: KERNEL_DIRECT (local, ambient, lb,
+// lb-visualize, chosen per frame by frame.lighting), KERNEL_REFERENCE or
+// KERNEL_BOULANGER. One source, specialized per pipeline, so a pipeline
+// compiles only the code it runs.
 override LIGHTING_FAMILY: u32 = 0u;
 // Whether the scene has clouds: without, the pipelines compile no cloud
 // code at all (on lavapipe the reference's unused cloud loops, merely
@@ -441,7 +438,7 @@ fn surface_radiance(ray: Ray) -> Surface {
     if frame.lighting == LIGHTING_LB_VISUALIZE {
         return Surface(vec4<f32>(lb_indirect(inst, p_model), 1.0), s.t);
     }
-    if LIGHTING_FAMILY == 2u && s.kind == KIND_LEAF && models[inst.model].has_envelope == 1u {
+    if LIGHTING_FAMILY == KERNEL_BOULANGER && s.kind == KIND_LEAF && models[inst.model].has_envelope == 1u {
         return Surface(vec4<f32>(boulanger_leaf(s, ray.dir), 1.0), s.t);
     }
     var color = direct_sun(s, n, ray.dir);
@@ -471,14 +468,14 @@ fn camera_ray(x: u32, y: u32, s: u32) -> Ray {
 
 @compute @workgroup_size(8, 8)
 fn render_strip(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= frame.strip_width || gid.y >= frame.height || gid.z >= select(1u, frame.spp, LIGHTING_FAMILY == 1u) {
+    if gid.x >= frame.strip_width || gid.y >= frame.height || gid.z >= select(1u, frame.spp, LIGHTING_FAMILY == KERNEL_REFERENCE) {
         return;
     }
     let x = frame.x0 + gid.x;
     let y = gid.y;
     transparent_passed = 0u;
     let pixel = gid.x + gid.y * frame.strip_width;
-    if LIGHTING_FAMILY == 1u {
+    if LIGHTING_FAMILY == KERNEL_REFERENCE {
         // The reference: one path per invocation, sample gid.z, in its own
         // slot (the worker sums them); after all samples, what `local`
         // shows along the same camera rays (reference.wgsl).

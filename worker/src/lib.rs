@@ -5,6 +5,7 @@
 
 pub mod gpu;
 pub mod lb;
+pub mod lighting;
 pub mod prepare;
 pub mod service;
 pub mod trace;

@@ -295,7 +295,7 @@ impl Worker for WorkerService {
                 settings.ambient = match known {
                     Some(a) => a,
                     None => {
-                        let a = prepared.renderer.matched_ambient(&state.ctx, &settings)?;
+                        let a = crate::lighting::ambient::matched(&prepared.renderer, &state.ctx, &settings)?;
                         lock(&state.ambient).insert(key, a);
                         a
                     }

@@ -8,8 +8,9 @@ use sylva_shared::accel::AccelKind;
 use sylva_shared::color::luminance;
 use sylva_shared::scene::{LightingMode, Scene, parse};
 use sylva_worker::GpuContext;
+use sylva_worker::lighting::reference::{ReferenceOptions, render_reference};
 use sylva_worker::prepare::prepare;
-use sylva_worker::trace::{ReferenceOptions, RenderSettings, render_reference};
+use sylva_worker::trace::RenderSettings;
 
 fn ctx() -> GpuContext {
     GpuContext::new().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
@@ -119,7 +120,7 @@ fn the_reference_error_falls_as_one_over_root_spp_and_it_says_so() {
         render_reference(&ctx, &p.renderer, &RenderSettings { seed, ..f }, &opts, &|_| {}).unwrap()
     };
     let truth = run(1_000_000, 256);
-    let rmse = |img: &sylva_worker::trace::ReferenceImage| -> f64 {
+    let rmse = |img: &sylva_worker::lighting::reference::ReferenceImage| -> f64 {
         let se: f64 = img.image.pixels.iter().zip(&truth.image.pixels).map(|(a, b)| ((luminance(*a) - luminance(*b)) as f64).powi(2)).sum();
         (se / img.image.pixels.len() as f64).sqrt()
     };

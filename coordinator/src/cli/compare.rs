@@ -19,8 +19,10 @@ use sylva_shared::color::luminance;
 use sylva_shared::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
 use sylva_shared::scene::{ForestGridUse, LbModel, LightingMode, Scene};
 use sylva_worker::GpuContext;
-use sylva_worker::prepare::{choose_lb_grids, prepare};
-use sylva_worker::trace::{ReferenceOptions, RenderSettings, render_reference};
+use sylva_worker::lighting::lb::auto::choose_lb_grids;
+use sylva_worker::lighting::reference::{ReferenceOptions, render_reference};
+use sylva_worker::prepare::prepare;
+use sylva_worker::trace::RenderSettings;
 
 #[derive(Debug, Args)]
 pub struct CompareArgs {
@@ -284,7 +286,7 @@ fn render_method(
     let mut settings = RenderSettings { lighting, ..*f };
     if lighting == LightingMode::Ambient {
         let t = Instant::now();
-        settings.ambient = prepared.renderer.matched_ambient(ctx, &settings)?;
+        settings.ambient = sylva_worker::lighting::ambient::matched(&prepared.renderer, ctx, &settings)?;
         pre += ms(t);
     }
     say(&format!("{name}: rendering"));

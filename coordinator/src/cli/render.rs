@@ -22,7 +22,7 @@ use sylva_coordinator::schedule::ScheduleKind;
 use sylva_coordinator::service::MAX_NAME;
 use sylva_shared::frame::{FrameSettings, MAX_SPP};
 use sylva_shared::scene::{FileAccess, SceneLimits};
-use sylva_worker::trace::MIN_BATCH_SPP;
+use sylva_worker::lighting::reference::MIN_BATCH_SPP;
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
 
@@ -247,7 +247,9 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let mut choices = None;
     if grid_choice.is_some() && lighting.needs_lb() {
         let t = Instant::now();
-        let c = sylva_worker::prepare::choose_lb_grids(&ctx, &scene, &[16, 32, 64, 128], a.lb_auto_tolerance, &|m| bar.set_message(m.to_string()))?;
+        let c = sylva_worker::lighting::lb::auto::choose_lb_grids(&ctx, &scene, &[16, 32, 64, 128], a.lb_auto_tolerance, &|m| {
+            bar.set_message(m.to_string())
+        })?;
         for (m, c) in scene.models.iter_mut().zip(&c) {
             m.lb.grid = c.grid;
         }
@@ -270,7 +272,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     if lighting == LightingMode::Ambient {
         bar.set_message("matching the ambient constant to the LB image");
         let t = Instant::now();
-        settings.ambient = prepared.renderer.matched_ambient(&ctx, &settings)?;
+        settings.ambient = sylva_worker::lighting::ambient::matched(&prepared.renderer, &ctx, &settings)?;
         phases.push(("ambient match", ms(t)));
     }
     bar.finish_and_clear();
@@ -278,7 +280,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     if lighting == LightingMode::Reference {
         anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error {}: must be a finite number > 0", a.target_error);
         anyhow::ensure!(a.max_seconds.is_finite() && a.max_seconds > 0.0, "--max-seconds {}: must be a finite number > 0", a.max_seconds);
-        let opts = sylva_worker::trace::ReferenceOptions {
+        let opts = sylva_worker::lighting::reference::ReferenceOptions {
             batch_spp: a.frame.spp.max(MIN_BATCH_SPP),
             target_error: a.target_error,
             max_seconds: a.max_seconds,
@@ -289,7 +291,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         bar.set_style(ProgressStyle::with_template("{spinner} reference: {msg} {elapsed}").expect("valid template"));
         bar.enable_steady_tick(std::time::Duration::from_millis(200));
         let t = Instant::now();
-        let r = sylva_worker::trace::render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
+        let r = sylva_worker::lighting::reference::render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
             bar.set_message(format!("{} spp, relative error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
         })?;
         phases.push(("trace", ms(t)));

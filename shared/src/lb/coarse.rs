@@ -3,8 +3,13 @@
 //! instance scales that instance's species grid, so a tree deep in the
 //! stand receives less light than one at its edge.
 
+use super::light::LbGrid;
 use super::medium::{GridDims, MediumGrid, NodeClass};
+use super::radiometry::LeafScattering;
 use crate::accel::Aabb;
+use crate::model::Model;
+use crate::scene::{ForestGridSpec, ForestGridUse, Scene};
+use crate::voxel::{GridFrame, LeafArea};
 use glam::Vec3;
 use serde::Serialize;
 
@@ -80,6 +85,159 @@ pub fn forest_medium(grid: &WorldGrid, occupants: &[Occupant]) -> MediumGrid {
         }
     }
     m.with_class(NodeClass::Green)
+}
+
+/// What the forest grid decided for the instances.
+#[derive(Clone, Debug, Serialize)]
+pub struct ForestLight {
+    /// Whether instances' LB light is scaled by it.
+    pub used: bool,
+    /// Why.
+    pub reason: String,
+    /// The grid, when solved.
+    pub grid: Option<WorldGrid>,
+    /// (max − min) / max of the instances' light.
+    pub spread: f32,
+    /// Smallest scale applied (all 1 when unused).
+    pub scale_min: f32,
+    /// Mean scale.
+    pub scale_mean: f32,
+    /// Largest scale.
+    pub scale_max: f32,
+}
+
+impl ForestLight {
+    /// The grid was not used, for `reason`; every instance keeps scale 1.
+    pub fn unused(reason: String, grid: Option<WorldGrid>) -> Self {
+        Self { used: false, reason, grid, spread: 0.0, scale_min: 1.0, scale_mean: 1.0, scale_max: 1.0 }
+    }
+
+    /// Whether the per-instance `light` differs enough (by the scene's
+    /// rule) to scale each instance by `scale(light)`; fills `scales` and
+    /// says why. `what` names the light and what happens without the grid.
+    pub fn decide(spec: ForestGridSpec, grid: WorldGrid, light: &[f32], what: (&str, &str), scale: impl Fn(f32) -> f32, scales: &mut [f32]) -> Self {
+        let max = light.iter().copied().fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
+        let min = light.iter().copied().fold(f32::INFINITY, f32::min);
+        let spread = (max - min) / max;
+        let used = spec.use_grid == ForestGridUse::Always || spread > spec.threshold;
+        let (t, s) = (100.0 * spec.threshold, 100.0 * spread);
+        let reason = match spec.use_grid {
+            ForestGridUse::Always => "forest_grid.use is \"always\"".to_string(),
+            _ if used => format!("{} differs by {s:.0} % (threshold {t:.0} %)", what.0),
+            _ => format!("{} differs by only {s:.0} % (threshold {t:.0} %): {}", what.0, what.1),
+        };
+        if used {
+            for (s, &l) in scales.iter_mut().zip(light) {
+                *s = scale(l);
+            }
+        }
+        let n = scales.len() as f32;
+        Self {
+            used,
+            reason,
+            grid: Some(grid),
+            spread,
+            scale_min: scales.iter().copied().fold(f32::INFINITY, f32::min),
+            scale_mean: scales.iter().sum::<f32>() / n,
+            scale_max: scales.iter().copied().fold(0.0, f32::max),
+        }
+    }
+}
+
+/// How much of its bounding box a model's crown fills (the paper model's
+/// occupant fill): its grid's occupied volume over the box's volume.
+pub fn crown_fill(grid: &LbGrid, model: &Model) -> f32 {
+    let Some((lo, hi)) = model.bounds() else { return 0.0 };
+    let e = (hi - lo).max(Vec3::splat(grid.frame.cell));
+    let occupied = grid.occupancy as f32 * grid.dims.len() as f32 * grid.frame.cell.powi(3);
+    (occupied / (e.x * e.y * e.z)).clamp(0.0, 1.0)
+}
+
+/// A model's leaf area on its own grid (the grounded model's), which the
+/// forest grid gathers per instance.
+pub struct ModelArea {
+    /// The model's grid in model space.
+    pub frame: GridFrame,
+    /// Its nodes per axis.
+    pub dims: GridDims,
+    /// Its blocking area and optics.
+    pub area: LeafArea,
+}
+
+/// The forest grid's blocking leaf area per cell (world units²) and the
+/// area-weighted optics of what blocks light. Each of a model's cells
+/// carries its leaf area to the forest cell its centre falls in, turned
+/// and scaled with the instance, so the crown's area stays up in the
+/// crown. (Spread evenly over the instance's box, 40 % of a tall tree's
+/// leaves sat in its trunk zone and shaded the ground from the low sky
+/// under the stand.) `areas` is indexed by model.
+pub fn forest_leaf_area(scene: &Scene, areas: &[Option<ModelArea>], grid: &WorldGrid) -> (Vec<f32>, LeafScattering) {
+    let d = grid.dims;
+    let mut area = vec![0.0f32; d.len()];
+    let (mut reflect, mut transmit, mut weight) = ([0.0f64; 3], [0.0f64; 3], 0.0f64);
+    let last = Vec3::new((d.nx - 2) as f32, (d.ny - 2) as f32, (d.nz - 2) as f32);
+    for inst in &scene.instances {
+        let Some(m) = areas.get(inst.model as usize).and_then(|a| a.as_ref()) else { continue };
+        let a = &m.area;
+        let scale2 = inst.to_world.matrix3.determinant().abs().powf(2.0 / 3.0) as f64;
+        let world_area = a.total_area * scale2;
+        for c in 0..3 {
+            reflect[c] += world_area * a.scattering.reflect[c];
+            transmit[c] += world_area * a.scattering.transmit[c];
+        }
+        weight += world_area;
+        let md = m.dims;
+        for z in 0..md.nz {
+            for y in 0..md.ny {
+                for x in 0..md.nx {
+                    let cell_area = a.area[md.index(x, y, z)];
+                    if cell_area <= 0.0 {
+                        continue;
+                    }
+                    let centre = Vec3::from(m.frame.origin) + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) * m.frame.cell;
+                    let q = ((inst.to_world.transform_point3(centre) - Vec3::from(grid.origin)) / grid.cell).floor().clamp(Vec3::ONE, last);
+                    area[d.index(q.x as usize, q.y as usize, q.z as usize)] += (cell_area as f64 * scale2) as f32;
+                }
+            }
+        }
+    }
+    let w = weight.max(f64::MIN_POSITIVE);
+    (area, LeafScattering { reflect: reflect.map(|r| r / w), transmit: transmit.map(|t| t / w) })
+}
+
+/// The fraction of the open field's fluence `free` (summed over channels)
+/// that reaches each crown in `boxes` from outside: the mean of the grid's
+/// `total` fluence (three channel planes) over points one cell outside the
+/// box, on its top and on its sides that face the sun (`towards`), where
+/// its own crown casts no shadow.
+pub fn crown_reach(grid: &WorldGrid, total: &[Vec<f32>], free: f64, towards: Vec3, boxes: &[Aabb]) -> Vec<f32> {
+    boxes
+        .iter()
+        .map(|b| {
+            let (lo, hi) = (b.min - Vec3::splat(grid.cell), b.max + Vec3::splat(grid.cell));
+            let mut sum = 0.0f64;
+            let mut count = 0usize;
+            let faces = [(1usize, 1.0f32), (0, 1.0), (0, -1.0), (2, 1.0), (2, -1.0)];
+            for (axis, sign) in faces {
+                if axis != 1 && towards[axis] * sign <= 0.0 {
+                    continue;
+                }
+                let (a1, a2) = ((axis + 1) % 3, (axis + 2) % 3);
+                for i in 0..3 {
+                    for j in 0..3 {
+                        let (u, v) = ((i as f32 + 0.5) / 3.0, (j as f32 + 0.5) / 3.0);
+                        let mut p = lo;
+                        p[a1] = lo[a1] + (hi[a1] - lo[a1]) * u;
+                        p[a2] = lo[a2] + (hi[a2] - lo[a2]) * v;
+                        p[axis] = if sign > 0.0 { hi[axis] } else { lo[axis] };
+                        sum += total.iter().map(|plane| grid.sample(plane, p) as f64).sum::<f64>();
+                        count += 1;
+                    }
+                }
+            }
+            (sum / count.max(1) as f64 / free) as f32
+        })
+        .collect()
 }
 
 #[cfg(test)]

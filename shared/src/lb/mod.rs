@@ -12,6 +12,8 @@
 //! - [`collision`]: the collision matrix Ω, isotropic and Henyey–Greenstein.
 //! - [`medium`]: the density grid and the class (medium, green, brown) of each node.
 //! - [`boundary`]: the sun's boundary condition.
+//! - [`coarse`]: the forest grid over all instances: its medium, the light reaching each crown, and whether it is used.
+//! - [`light`]: a model's solved light ([`LbGrid`]) and the CPU reading of it.
 //! - [`radiometry`]: units, sun and sky on the boundary, leaf area to density, leaf optics to σ_a, σ_s, g.
 //! - [`indirect`]: the field split into the uncollided sun (the tracer's) and the rest (the LB's).
 //! - [`solver`]: the [`LightingSolver`] seam, its options and its report.
@@ -29,6 +31,7 @@ pub mod collision;
 pub mod cpu;
 pub mod indirect;
 pub mod lattice;
+pub mod light;
 pub mod limits;
 pub mod medium;
 pub mod montecarlo;
@@ -42,6 +45,7 @@ pub use collision::{Collision, Omega};
 pub use cpu::CpuSolver;
 pub use indirect::{IndirectSolution, solve_indirect};
 pub use lattice::{DIRECTIONS, Q};
+pub use light::LbGrid;
 pub use limits::{LbWarning, Sweep, SweepKind, SweepPoint, failure_sweep, failure_sweeps, lb_warnings};
 pub use medium::{GridDims, MediumGrid, NodeClass};
 pub use montecarlo::McFluence;

@@ -4,6 +4,7 @@
 use crate::gpu::GpuContext;
 use bytemuck::{Pod, Zeroable};
 use sylva_shared::accel::{Accel, KdNode, SceneAccel};
+use sylva_shared::lb::LbGrid;
 use sylva_shared::scene::Scene;
 use wgpu::util::DeviceExt;
 
@@ -61,20 +62,6 @@ pub struct GpuInstance {
     pub lb_scale: f32,
     /// Padding.
     pub pad: [u32; 2],
-}
-
-/// A model's solved LB light, as the tracer samples it.
-#[derive(Clone, Debug)]
-pub struct LbGrid {
-    /// Nodes per axis.
-    pub dims: sylva_shared::lb::GridDims,
-    /// Where the grid sits in model space.
-    pub frame: sylva_shared::voxel::GridFrame,
-    /// Light per node: three channel planes of `dims.len()` values, x
-    /// fastest (grounded: indirect fluence; paper: total density of a unit sun).
-    pub rgb: Vec<f32>,
-    /// Fraction of the grid's nodes with matter.
-    pub occupancy: f64,
 }
 
 /// A model: its root node and LB grid.

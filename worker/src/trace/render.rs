@@ -4,6 +4,7 @@
 use super::gpu_scene::GpuScene;
 use super::shaders::tracer_source;
 use crate::gpu::GpuContext;
+use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 use sylva_shared::scene::{LightingMode, Scene};
@@ -166,7 +167,7 @@ impl StripRenderer {
             bind_group_layouts: &[Some(&gpu_scene.layout), Some(&layout)],
             immediate_size: 0,
         });
-        let pipelines = [0u32, 1, 2].map(|family| {
+        let pipelines = Kernel::ALL.map(|kernel| {
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("render"),
                 layout: Some(&pl),
@@ -175,7 +176,7 @@ impl StripRenderer {
                 compilation_options: wgpu::PipelineCompilationOptions {
                     constants: &[
                         ("ACCEL_KIND", gpu_scene.accel_kind as f64),
-                        ("LIGHTING_FAMILY", family as f64),
+                        ("LIGHTING_FAMILY", kernel as u32 as f64),
                         ("HAS_CLOUDS", if scene.clouds.is_empty() { 0.0 } else { 1.0 }),
                     ],
                     ..Default::default()
@@ -204,7 +205,7 @@ impl StripRenderer {
             leaf_reflect_back: scene.file.leaf_optics.reflect_back,
             leaf_transmit_front: scene.file.leaf_optics.transmit_front,
             leaf_transmit_back: scene.file.leaf_optics.transmit_back,
-            bl_sky: sky_per_direction(scene),
+            bl_sky: lighting::boulanger::sky_per_direction(scene),
             ground_grid: gpu_scene.ground.0,
             ground_dims: gpu_scene.ground.1,
             lb_model: match scene.file.lb_model {
@@ -225,6 +226,7 @@ impl StripRenderer {
     pub fn render_strip(&self, ctx: &GpuContext, f: &RenderSettings, x0: u32, x1: u32) -> anyhow::Result<Strip> {
         anyhow::ensure!(x0 < x1 && x1 <= f.width, "strip [{x0}, {x1}) is not inside a frame {} wide", f.width);
         let strip_width = x1 - x0;
+        let method = lighting::method(f.lighting);
         ctx.checked("rendering a strip", || {
             let device = &ctx.device;
             let uniform = FrameUniform {
@@ -236,14 +238,7 @@ impl StripRenderer {
                 spp: f.spp,
                 seed: f.seed,
                 ambient: f.ambient,
-                lighting: match f.lighting {
-                    LightingMode::Local => 0,
-                    LightingMode::Ambient => 1,
-                    LightingMode::Lb => 2,
-                    LightingMode::LbVisualize => 3,
-                    LightingMode::Reference => 4,
-                    LightingMode::Boulanger => 5,
-                },
+                lighting: method.code,
                 lb_strength: f.lb_strength,
                 ..self.base
             };
@@ -252,14 +247,11 @@ impl StripRenderer {
                 contents: bytemuck::bytes_of(&uniform),
                 usage: wgpu::BufferUsages::UNIFORM,
             });
-            let family = match f.lighting {
-                LightingMode::Reference => 1,
-                LightingMode::Boulanger => 2,
-                _ => 0,
-            };
+            let family = method.kernel as usize;
+            let reference = method.kernel == Kernel::Reference;
             // The reference writes each sample to its own slot, then each
             // sample's `local` light (`first_light`); the others one mean.
-            let images = if family == 1 { 2 * f.spp as u64 } else { 1 };
+            let images = if reference { 2 * f.spp as u64 } else { 1 };
             let bytes = images * strip_width as u64 * f.height as u64 * 16;
             anyhow::ensure!(
                 bytes <= ctx.limits.max_storage_buffer_binding_size,
@@ -293,13 +285,13 @@ impl StripRenderer {
                 pass.set_pipeline(&self.pipelines[family]);
                 pass.set_bind_group(0, &self.scene.bind_group, &[]);
                 pass.set_bind_group(1, &bg, &[]);
-                pass.dispatch_workgroups(strip_width.div_ceil(8), f.height.div_ceil(8), if family == 1 { f.spp } else { 1 });
+                pass.dispatch_workgroups(strip_width.div_ceil(8), f.height.div_ceil(8), if reference { f.spp } else { 1 });
             }
             ctx.queue.submit([enc.finish()]);
             let raw = ctx.read_back(&out, bytes)?;
             let all: &[[f32; 4]] = bytemuck::cast_slice(&raw);
             let n = (strip_width * f.height) as usize;
-            let (px, first) = if family == 1 {
+            let (px, first) = if reference {
                 // The mean of each pixel's sample slots, of both images.
                 let mean = |image: &[[f32; 4]]| -> Vec<[f32; 4]> {
                     let mut m = vec![[0.0f32; 4]; n];
@@ -330,48 +322,10 @@ impl StripRenderer {
     }
 }
 
-impl StripRenderer {
-    /// The constant ambient light whose mean over the models' pixels equals
-    /// the LB light's (the paper's Figure 2c): the LB light alone, rendered
-    /// at a quarter of `f`'s resolution, averaged over the pixels that see
-    /// a model. Deterministic, so every worker of a frame finds the same.
-    pub fn matched_ambient(&self, ctx: &GpuContext, f: &RenderSettings) -> anyhow::Result<[f32; 3]> {
-        let small = RenderSettings { width: (f.width / 4).max(16), height: (f.height / 4).max(8), spp: 1, lighting: LightingMode::LbVisualize, ..*f };
-        let s = self.render_strip(ctx, &small, 0, small.width)?;
-        Ok(coverage_weighted_mean(&s.pixels, &s.coverage))
-    }
-}
-
-/// The mean of `pixels` weighted by how much of each shows a model.
-pub fn coverage_weighted_mean(pixels: &[[f32; 3]], coverage: &[f32]) -> [f32; 3] {
-    let mut sum = [0.0f64; 3];
-    let mut weight = 0.0f64;
-    for (p, &c) in pixels.iter().zip(coverage) {
-        for k in 0..3 {
-            sum[k] += p[k] as f64 * c as f64;
-        }
-        weight += c as f64;
-    }
-    if weight == 0.0 {
-        return [0.0; 3];
-    }
-    sum.map(|v| (v / weight) as f32)
-}
-
-/// The sky's (and the ground's) mean radiance over each Boulanger
-/// direction's octant. The sky depends only on height, so this holds for
-/// instances turned about the vertical too.
-fn sky_per_direction(scene: &Scene) -> [[f32; 4]; 8] {
-    let (z, h) = (glam::Vec3::from(scene.sky.zenith), glam::Vec3::from(scene.sky.horizon));
-    let sky = |d: glam::Vec3| h.lerp(z, d.y.max(0.0).sqrt()).to_array();
-    let ground = scene.ground.as_ref().map_or([0.0; 3], |g| g.color);
-    sylva_shared::boulanger::sky_radiance_per_direction(sky, ground).map(|c| [c[0], c[1], c[2], 0.0])
-}
-
 /// The whole render module: scene, traversal, the direct methods and the
 /// reference integrator.
 pub fn render_source() -> String {
-    tracer_source(&format!("{SOURCE}\n{REFERENCE}\n{BOULANGER}"))
+    tracer_source(&format!("{}\n{SOURCE}\n{REFERENCE}\n{BOULANGER}", lighting::wgsl_constants()))
 }
 
 /// How far secondary rays start off the surface they leave: a millimetre,

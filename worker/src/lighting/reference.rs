@@ -1,16 +1,27 @@
-//! The progressive reference: the path tracer of `reference.wgsl` run in
+//! `reference`: the path tracer of `shaders/trace/reference.wgsl`, one
+//! path per invocation, run progressively: in
 //! batches with different seeds until the image's own error estimate is
 //! small enough. Each batch's mean is one independent sample of every
 //! pixel, so the spread of the batch means gives a per-pixel standard
 //! error: a reference states how far it may still be from the truth.
 
-use super::render::{RenderSettings, StripRenderer};
+use super::{Kernel, Method, Needs};
 use crate::gpu::GpuContext;
+use crate::trace::{RenderSettings, StripRenderer};
 use serde::Serialize;
 use std::time::Instant;
 use sylva_shared::color::luminance;
 use sylva_shared::film::HdrImage;
 use sylva_shared::scene::LightingMode;
+
+/// The method: it path-traces the clouds' density, so it prepares them.
+pub const METHOD: Method = Method {
+    mode: LightingMode::Reference,
+    code: 4,
+    wgsl: "LIGHTING_REFERENCE",
+    kernel: Kernel::Reference,
+    needs: Needs { lb: false, envelopes: false, clouds: true },
+};
 
 /// The smallest batch worth a dispatch (see `ReferenceOptions::batch_spp`).
 pub const MIN_BATCH_SPP: u32 = 16;

@@ -1,0 +1,66 @@
+//! `boulanger`: Boulanger et al. 2008, per-leaf envelope distances and
+//! closed forms for the sky, the sun and one bounce of indirect light.
+//! Prepares each model's envelope (`sylva_shared::boulanger`); its render
+//! kernel is the direct one with the envelope terms compiled in.
+
+use super::{Kernel, Method, Needs};
+use serde::Serialize;
+use std::sync::Arc;
+use sylva_shared::boulanger::LeafEnvelope;
+use sylva_shared::scene::{LightingMode, Scene};
+
+/// The method.
+pub const METHOD: Method = Method {
+    mode: LightingMode::Boulanger,
+    code: 5,
+    wgsl: "LIGHTING_BOULANGER",
+    kernel: Kernel::Boulanger,
+    needs: Needs { lb: false, envelopes: true, clouds: false },
+};
+
+/// One model's Boulanger envelope, as reported.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelEnvelope {
+    /// Model name.
+    pub model: String,
+    /// Leaves (leaf cards) found.
+    pub leaves: usize,
+    /// Optical thickness per unit length τ = ρA/2.
+    pub tau: f32,
+    /// Leaves per unit volume of the envelope.
+    pub leaf_density: f32,
+    /// Mean leaf area.
+    pub leaf_area: f32,
+    /// Precompute time, ms.
+    pub ms: f64,
+}
+
+/// Each model's envelope (for upload) and its report.
+pub fn prepare(scene: &Scene) -> (Vec<Option<Arc<LeafEnvelope>>>, Vec<ModelEnvelope>) {
+    scene
+        .models
+        .iter()
+        .map(|m| {
+            let e = sylva_shared::boulanger::precompute(&m.model);
+            let report = ModelEnvelope {
+                model: m.name.clone(),
+                leaves: e.leaves,
+                tau: e.tau,
+                leaf_density: e.leaf_density,
+                leaf_area: e.leaf_area,
+                ms: e.precompute_ms,
+            };
+            (Some(Arc::new(e)), report)
+        })
+        .unzip()
+}
+
+/// The sky's (and the ground's) mean radiance over each Boulanger
+/// direction's octant, as the kernel's `bl_sky` reads it. The sky depends
+/// only on height, so this holds for instances turned about the vertical too.
+pub fn sky_per_direction(scene: &Scene) -> [[f32; 4]; 8] {
+    let (z, h) = (glam::Vec3::from(scene.sky.zenith), glam::Vec3::from(scene.sky.horizon));
+    let sky = |d: glam::Vec3| h.lerp(z, d.y.max(0.0).sqrt()).to_array();
+    let ground = scene.ground.as_ref().map_or([0.0; 3], |g| g.color);
+    sylva_shared::boulanger::sky_radiance_per_direction(sky, ground).map(|c| [c[0], c[1], c[2], 0.0])
+}

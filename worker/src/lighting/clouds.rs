@@ -1,0 +1,36 @@
+//! The clouds' LB light: each cloud's density generated from its seed and
+//! lit with the chapter's cloud parameters (strongly forward scattering,
+//! almost no absorption). The LB methods read the light; the reference
+//! path-traces the same density.
+
+use crate::gpu::GpuContext;
+use crate::lb::GpuSolver;
+use crate::trace::CloudGrid;
+use sylva_shared::lb::{Preset, SolveOptions, Sun, solve};
+use sylva_shared::scene::Scene;
+
+/// Every cloud of `scene`, solved.
+pub fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<CloudGrid>> {
+    let sun = Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)?;
+    let params = Preset::Cloud.params();
+    let mut solver = GpuSolver::new(ctx.clone());
+    scene
+        .clouds
+        .iter()
+        .map(|c| {
+            let medium = sylva_shared::shapes::cloud(c.grid, c.seed);
+            let s = solve(&mut solver, &medium, &params, &sun, &SolveOptions::default(), &|_, _, _| {})?;
+            let p = params.channels[0];
+            Ok(CloudGrid {
+                min: (glam::Vec3::from(c.center) - glam::Vec3::splat(c.size / 2.0)).to_array(),
+                size: c.size,
+                n: c.grid,
+                light: s.channels.iter().flat_map(|ch| ch.total.iter().copied()).collect(),
+                density: medium.density,
+                sigma_t: p.sigma_t(),
+                albedo: p.sigma_s / p.sigma_t(),
+                g: p.g,
+            })
+        })
+        .collect()
+}

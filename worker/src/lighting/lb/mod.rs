@@ -1,0 +1,239 @@
+//! `lb` and `lb-visualize`: the lattice-Boltzmann light of each model,
+//! solved on its own grid in the open, scaled per instance by the coarse
+//! grid over the whole forest, which also lights the ground under the
+//! stand. The model itself (lattice, collision, boundaries, radiometry)
+//! lives in `sylva_shared::lb`; this module runs it on the GPU for a scene.
+//!
+//! - [`forest`]: the forest grid.
+//! - [`auto`]: `--lb-grid auto`, the smallest grid the image cannot tell from the next.
+
+pub mod auto;
+pub mod forest;
+
+use super::{Kernel, Method, Needs};
+use crate::gpu::GpuContext;
+use crate::lb::GpuSolver;
+use crate::trace::GroundLight;
+use serde::Serialize;
+use sylva_shared::lb::coarse::{ForestLight, ModelArea};
+use sylva_shared::lb::solver::PhaseTimer;
+use sylva_shared::lb::{GridDims, Illumination, LbGrid, LbParams, MediumGrid, NodeClass, SolveOptions, Sun, solve, solve_indirect};
+use sylva_shared::model::Model;
+use sylva_shared::scene::{LbModel, LightingMode, Scene, SceneModel};
+use sylva_shared::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_leaf_area, voxelize_in};
+
+/// `lb`: the direct sun plus the LB light.
+pub const METHOD: Method = Method {
+    mode: LightingMode::Lb,
+    code: 2,
+    wgsl: "LIGHTING_LB",
+    kernel: Kernel::Direct,
+    needs: Needs { lb: true, envelopes: false, clouds: true },
+};
+
+/// `lb-visualize`: the LB light alone, as the paper's figures show it.
+pub const VISUALIZE: Method = Method {
+    mode: LightingMode::LbVisualize,
+    code: 3,
+    wgsl: "LIGHTING_LB_VISUALIZE",
+    kernel: Kernel::Direct,
+    needs: Needs { lb: true, envelopes: false, clouds: true },
+};
+
+/// What the LB pre-process did for one model.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelLight {
+    /// Model name.
+    pub model: String,
+    /// Grid size N asked for (about N³ nodes).
+    pub grid: usize,
+    /// The grid's nodes per axis, fitted to the model's bounds.
+    pub dims: GridDims,
+    /// Which LB model ("grounded" or "paper").
+    pub lb_model: &'static str,
+    /// Preset (the paper model) or "leaf optics" (the grounded one).
+    pub preset: &'static str,
+    /// Single-scattering albedo σ_s/σ_t per channel.
+    pub albedo: [f32; 3],
+    /// Henyey–Greenstein g per channel.
+    pub g: [f32; 3],
+    /// Blocking area (one-sided leaf area plus half the wood's), model units² (grounded).
+    pub leaf_area: Option<f64>,
+    /// Fraction of leaf area the alpha masks cut away (grounded).
+    pub alpha_cut: Option<f64>,
+    /// Fraction of nodes with matter.
+    pub occupancy: f64,
+    /// Steps per channel.
+    pub steps: [usize; 3],
+    /// Whether each channel converged.
+    pub converged: [bool; 3],
+    /// Steps of the uncollided-sun pass (grounded).
+    pub uncollided_steps: Option<usize>,
+    /// Whether the grid's floor is the scene's ground, reflecting (grounded
+    /// model, every instance standing on it).
+    pub reflecting_floor: bool,
+    /// Where the LB model is not to be trusted for this medium, and why.
+    pub warnings: Vec<String>,
+}
+
+/// A model's LB medium, ready to solve.
+struct ModelMedium {
+    frame: GridFrame,
+    medium: MediumGrid,
+    params: LbParams,
+    /// The grounded model's leaf area (none for the paper's).
+    area: Option<LeafArea>,
+    /// Whether every instance stands on the scene's ground (the grid's
+    /// lower face within a cell of it), so the lattice's floor reflects.
+    on_ground: bool,
+}
+
+/// Whether every instance of `m` has its grid's lower face within one
+/// cell of the ground plane y = 0.
+fn stands_on_ground(scene: &Scene, m: &SceneModel, frame: &GridFrame) -> bool {
+    let mut instances = scene.instances.iter().filter(|i| std::ptr::eq(&scene.models[i.model as usize], m)).peekable();
+    scene.ground.is_some()
+        && instances.peek().is_some()
+        && instances.all(|i| {
+            let floor = i.to_world.transform_point3(glam::Vec3::new(0.0, frame.origin[1], 0.0)).y;
+            let cell = frame.cell * i.to_world.matrix3.determinant().abs().cbrt();
+            floor.abs() <= 1.5 * cell
+        })
+}
+
+/// The model-space box an LB grid covers: the model's bounds widened to
+/// the cylinder about its vertical axis, since instances turned about the
+/// vertical read the grid at turned points (`GpuInstance::to_lb`).
+fn lb_bounds(model: &Model) -> Option<(glam::Vec3, glam::Vec3)> {
+    let (lo, hi) = model.bounds()?;
+    let r = model.triangles.iter().flatten().map(|&i| model.positions[i as usize]).map(|p| (p.x * p.x + p.z * p.z).sqrt()).fold(0.0f32, f32::max);
+    Some((glam::Vec3::new(-r, lo.y, -r).min(lo), glam::Vec3::new(r, hi.y, r).max(hi)))
+}
+
+/// One model's LB medium on a grid of about `n³` nodes fitted to its bounds.
+/// The grounded model derives a plant's medium from its leaf area and
+/// optics; a solid or a non-plant medium (the PMMA teapot) keeps its
+/// voxels and its preset in both models, only lit differently.
+fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMedium> {
+    let (lo, hi) = lb_bounds(&m.model).ok_or_else(|| anyhow::anyhow!("model {} has no triangles", m.name))?;
+    let (frame, dims) = GridFrame::fit(lo, hi, n);
+    let leaves = scene.file.lb_model == LbModel::Grounded && m.lb.preset.is_plant() && !m.lb.solid;
+    let on_ground = stands_on_ground(scene, m, &frame);
+    match leaves {
+        true => {
+            let area = leaf_area_in(&m.model, &scene.file.leaf_optics, frame, dims);
+            let medium = medium_from_leaf_area(&area.area, dims, frame.cell);
+            Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area), on_ground })
+        }
+        false => {
+            let mut v = voxelize_in(&m.model, frame, dims)?;
+            if !m.lb.preset.is_plant() {
+                v.medium.class.iter_mut().for_each(|c| *c = NodeClass::Medium);
+            }
+            if m.lb.solid {
+                let class = if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
+                sylva_shared::voxel::fill_interior(&mut v, class);
+            }
+            Ok(ModelMedium { frame, medium: v.medium, params: m.lb.preset.params(), area: None, on_ground })
+        }
+    }
+}
+
+/// Solves one model's medium. The grounded model keeps the light the
+/// tracer does not add (scattered sun, sky) in physical units; the paper
+/// model keeps the total density of a unit sun.
+fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &ModelMedium, n: usize) -> anyhow::Result<(LbGrid, ModelLight)> {
+    let opts = SolveOptions::default();
+    let (rgb, steps, converged, uncollided_steps): (Vec<f32>, [usize; 3], [bool; 3], Option<usize>) = match scene.file.lb_model {
+        LbModel::Grounded => {
+            let light = Illumination { floor_reflects: mm.on_ground, ..scene.illumination() };
+            let s = solve_indirect(solver, &mm.medium, &mm.params, &light, &opts, &|_| {})?;
+            let r = &s.reports;
+            (s.indirect.concat(), std::array::from_fn(|c| r[c].steps), std::array::from_fn(|c| r[c].converged), Some(r[3].steps))
+        }
+        LbModel::Paper => {
+            let s = solve(solver, &mm.medium, &mm.params, &sun_of(scene)?, &opts, &|_, _, _| {})?;
+            let r = |c: usize| &s.channels[c].report;
+            let rgb = s.channels.iter().flat_map(|c| c.total.iter().copied()).collect();
+            (rgb, std::array::from_fn(|c| r(c).steps), std::array::from_fn(|c| r(c).converged), None)
+        }
+    };
+    let warnings =
+        sylva_shared::lb::lb_warnings(&mm.params, &mm.medium, &sun_of(scene)?).into_iter().map(|w| format!("{}: {}", w.kind, w.message)).collect();
+    let p = &mm.params.channels;
+    let report = ModelLight {
+        model: m.name.clone(),
+        grid: n,
+        dims: mm.medium.dims,
+        lb_model: scene.file.lb_model.name(),
+        preset: if mm.area.is_some() { "leaf optics" } else { m.lb.preset.name() },
+        albedo: std::array::from_fn(|c| p[c].sigma_s / p[c].sigma_t()),
+        g: std::array::from_fn(|c| p[c].g),
+        leaf_area: mm.area.as_ref().map(|a| a.total_area),
+        alpha_cut: mm.area.as_ref().map(|a| a.cut_fraction),
+        occupancy: mm.medium.occupancy(),
+        steps,
+        converged,
+        uncollided_steps,
+        reflecting_floor: scene.file.lb_model == LbModel::Grounded && mm.on_ground,
+        warnings,
+    };
+    Ok((LbGrid { dims: mm.medium.dims, frame: mm.frame, rgb, occupancy: mm.medium.occupancy() }, report))
+}
+
+/// Builds and solves one model's grid of about `n³` nodes.
+pub(crate) fn solve_model(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<(LbGrid, ModelLight)> {
+    solve_medium(solver, scene, m, &medium_of(scene, m, n)?, n)
+}
+
+/// The LB light of a scene, ready to upload, and what it took.
+pub struct SceneLb {
+    /// Each model's light (indexed by model).
+    pub grids: Vec<Option<LbGrid>>,
+    /// Each instance's scale from the forest grid.
+    pub scales: Vec<f32>,
+    /// The ground under the stand, lit by the forest grid (grounded model).
+    pub ground: Option<GroundLight>,
+    /// What each model's solve did.
+    pub light: Vec<ModelLight>,
+    /// What the forest grid decided.
+    pub forest: ForestLight,
+}
+
+/// Voxelizes and solves every model, then the forest grid; times each
+/// phase ("voxelize", "lb", "forest lb") into `phases`.
+pub fn prepare(ctx: &GpuContext, scene: &Scene, phases: &mut PhaseTimer, progress: &dyn Fn(&str)) -> anyhow::Result<SceneLb> {
+    progress("voxelizing models");
+    let media = phases.time("voxelize", || scene.models.iter().map(|m| medium_of(scene, m, m.lb.grid)).collect::<anyhow::Result<Vec<_>>>())?;
+    let mut solver = GpuSolver::new(ctx.clone());
+    let mut grids = Vec::new();
+    let mut light = Vec::new();
+    phases.time("lb", || -> anyhow::Result<()> {
+        for (m, mm) in scene.models.iter().zip(&media) {
+            progress(&format!("LB light of {} ({})", m.name, mm.medium.dims));
+            let (grid, report) = solve_medium(&mut solver, scene, m, mm, m.lb.grid)?;
+            for w in &report.warnings {
+                tracing::warn!(model = %m.name, "LB: {w}");
+            }
+            light.push(report);
+            grids.push(Some(grid));
+        }
+        Ok(())
+    })?;
+    let areas: Vec<Option<ModelArea>> =
+        media.into_iter().map(|mm| mm.area.map(|area| ModelArea { frame: mm.frame, dims: mm.medium.dims, area })).collect();
+    let mut scales = vec![1.0f32; scene.instances.len()];
+    progress("LB light of the whole forest");
+    let (forest, ground) = phases.time("forest lb", || -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
+        match scene.file.lb_model {
+            LbModel::Paper => Ok((forest::paper(ctx, scene, &grids, &mut scales)?, None)),
+            LbModel::Grounded => forest::grounded(ctx, scene, &areas, &mut scales),
+        }
+    })?;
+    Ok(SceneLb { grids, scales, ground, light, forest })
+}
+
+/// The scene's sun as the paper model's boundary takes it (unit strength).
+pub(crate) fn sun_of(scene: &Scene) -> anyhow::Result<Sun> {
+    Ok(Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)?)
+}

@@ -1,0 +1,15 @@
+//! `local`: the sun through shadow rays, transmitted through back-lit
+//! leaves, and the open sky on the ground; no light scattered between
+//! leaves. Nothing to prepare beyond the geometry.
+
+use super::{Kernel, Method, Needs};
+use sylva_shared::scene::LightingMode;
+
+/// The method.
+pub const METHOD: Method = Method {
+    mode: LightingMode::Local,
+    code: 0,
+    wgsl: "LIGHTING_LOCAL",
+    kernel: Kernel::Direct,
+    needs: Needs { lb: false, envelopes: false, clouds: false },
+};
