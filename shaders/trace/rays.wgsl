@@ -20,6 +20,10 @@ struct HitOut {
     pad2: u32,
 }
 
+// Shadow rays: write whether anything is hit (triangle 0) or not (NO_HIT),
+// stopping at the first hit found.
+override ANY_HIT: bool = false;
+
 @group(1) @binding(0) var<storage, read> rays_in: array<RayIn>;
 @group(1) @binding(1) var<storage, read_write> hits_out: array<HitOut>;
 
@@ -30,6 +34,11 @@ fn cast_rays(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
         return;
     }
     let r = rays_in[i];
+    if ANY_HIT {
+        let blocked = occluded(make_ray(r.origin, r.dir), r.t_min, r.t_max);
+        hits_out[i] = HitOut(NO_HIT, select(NO_HIT, 0u, blocked), 0.0, 0.0, 0.0, 0u, 0u, 0u);
+        return;
+    }
     let h = closest_hit(make_ray(r.origin, r.dir), r.t_min, r.t_max);
     hits_out[i] = HitOut(h.instance, h.triangle, h.t, h.u, h.v, 0u, 0u, 0u);
 }

@@ -1,6 +1,6 @@
 // The scene as the tracer sees it, and ray casting through it: two levels
-// of acceleration (instances, then each model's triangles), either a BVH or
-// a kd-tree with the short-stack algorithm, Möller–Trumbore triangle tests
+// of acceleration (instances, then each model's triangles), either a
+// four-wide BVH or a kd-tree with the short-stack algorithm, Möller–Trumbore triangle tests
 // and alpha-masked texels passed through. Prepended to every tracer entry
 // point (rays.wgsl, render.wgsl); uploaded by worker/src/trace/gpu_scene.rs,
 // whose #[repr(C)] structs these mirror (a test checks the offsets).
@@ -12,7 +12,14 @@
 override ACCEL_KIND: u32 = 0u;
 
 const MIN_DIRECTION: f32 = 1e-20;
-const BVH_STACK: u32 = 48u;
+// Entries of the wide BVH's traversal stack; the upload refuses deeper trees.
+const BVH_STACK: u32 = 64u;
+// A wide BVH child reference: a leaf (its first record or prim slot), or empty.
+const BVH_LEAF: u32 = 0x80000000u;
+const BVH_EMPTY: u32 = 0xffffffffu;
+// A triangle record's coverage (shared/src/accel/coverage.rs): only mixed
+// triangles take the alpha test.
+const COVERAGE_MIXED: u32 = 1u;
 const SHORT_STACK: u32 = 5u;
 const KD_LEAF: u32 = 3u;
 const NO_TEXTURE: u32 = 0xffffffffu;
@@ -69,8 +76,11 @@ struct Model {
     has_envelope: u32,
 }
 
-// BVH nodes take two entries (min + first, max + count); kd nodes one
-// (split, axis, first, count). The top level's root is node 0.
+// Wide BVH nodes take eight entries (min x, y, z and max x, y, z of the four
+// children, their references, their leaf counts) and each model's triangle
+// records three (first vertex + triangle, edge 1 + coverage, edge 2 +
+// material), after its nodes; kd nodes take one (split, axis, first,
+// count). References are entry indices. The top level's root is entry 0.
 @group(0) @binding(0) var<storage, read> nodes: array<vec4<u32>>;
 // Leaf contents: instance indices (top level) and global triangle indices.
 @group(0) @binding(1) var<storage, read> prims: array<u32>;
@@ -179,7 +189,11 @@ fn triangle_uv(tri: u32, u: f32, v: f32) -> vec2<f32> {
 }
 
 fn is_transparent(tri: u32, uv: vec2<f32>) -> bool {
-    let m = materials[triangles[tri].material];
+    return is_transparent_material(triangles[tri].material, uv);
+}
+
+fn is_transparent_material(material: u32, uv: vec2<f32>) -> bool {
+    let m = materials[material];
     if m.alpha_cutoff < 0.0 {
         return false;
     }
@@ -194,8 +208,11 @@ fn is_transparent(tri: u32, uv: vec2<f32>) -> bool {
 fn intersect_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> vec3<f32> {
     let ix = triangles[tri].v;
     let a = position(ix.x);
-    let e1 = position(ix.y) - a;
-    let e2 = position(ix.z) - a;
+    return intersect_edges(ray, a, position(ix.y) - a, position(ix.z) - a, t_min, t_max);
+}
+
+// As intersect_triangle, from the first vertex and the edges to the others.
+fn intersect_edges(ray: Ray, a: vec3<f32>, e1: vec3<f32>, e2: vec3<f32>, t_min: f32, t_max: f32) -> vec3<f32> {
     let p = cross(ray.dir, e2);
     let det = dot(e1, p);
     let miss = vec3<f32>(-1.0, 0.0, 0.0);
@@ -220,8 +237,17 @@ fn intersect_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> vec3<f32> {
     return miss;
 }
 
-fn bvh_box(i: u32) -> array<vec4<u32>, 2> {
-    return array<vec4<u32>, 2>(nodes[2u * i], nodes[2u * i + 1u]);
+// Orders lanes a and b of the distances d (and their child slots i).
+fn sort_pair(d: ptr<function, vec4<f32>>, i: ptr<function, vec4<u32>>, a: u32, b: u32) {
+    let da = (*d)[a];
+    let db = (*d)[b];
+    if db < da {
+        (*d)[a] = db;
+        (*d)[b] = da;
+        let ia = (*i)[a];
+        (*i)[a] = (*i)[b];
+        (*i)[b] = ia;
+    }
 }
 
 struct KdEntry {
@@ -271,6 +297,28 @@ fn test_prim_top(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit 
 
 fn test_prim_model(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     return test_triangle(ray, prim, t_min, t_max);
+}
+
+// The k-th entry of a wide BVH leaf: an instance (top level).
+fn test_leaf_top(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
+    return test_instance(ray, prims[first + k], t_min, t_max, any);
+}
+
+// The k-th triangle record of a wide BVH leaf (model level): the alpha
+// test only where the triangle's texels are mixed.
+fn test_leaf_model(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
+    let r = first + 3u * k;
+    let a = nodes[r];
+    let b = nodes[r + 1u];
+    let c = nodes[r + 2u];
+    let h = intersect_edges(ray, bitcast<vec3<f32>>(a.xyz), bitcast<vec3<f32>>(b.xyz), bitcast<vec3<f32>>(c.xyz), t_min, t_max);
+    if h.x > t_min {
+        if b.w != COVERAGE_MIXED || !is_transparent_material(c.w, triangle_uv(a.w, h.y, h.z)) {
+            return Hit(NO_HIT, a.w, h.x, h.y, h.z);
+        }
+        transparent_passed += 1u;
+    }
+    return no_hit();
 }
 
 // The closest opaque hit in the scene in (t_min, t_max).

@@ -12,24 +12,25 @@ fn traverse_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) -> Hit
     return traverse_kd_LEVEL(ray, root, t_min, t_max, any);
 }
 
+// The wide BVH: the four children's boxes tested as one vec4 per bound,
+// hit children sorted nearest first by a five-comparison network, the
+// nearest visited next and the rest pushed with their entry distance.
 fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     var best = no_hit();
     var closest = t_max;
-    var stack: array<u32, BVH_STACK>;
+    var stack_ref: array<u32, BVH_STACK>;
+    var stack_count: array<u32, BVH_STACK>;
+    var stack_near: array<f32, BVH_STACK>;
     var sp = 0u;
-    var node = root;
-    let r = bvh_box(root);
-    let rc = clip_box(bitcast<vec3<f32>>(r[0].xyz), bitcast<vec3<f32>>(r[1].xyz), ray, t_min, closest);
-    if rc.x > rc.y {
-        return best;
-    }
+    var cur = root;
+    var count = 0u;
+    let inf = bitcast<f32>(0x7f800000u);
     loop {
-        let n = bvh_box(node);
-        let count = n[1].w;
-        var descended = false;
-        if count > 0u {
+        var pushed = false;
+        if (cur & BVH_LEAF) != 0u {
+            let first = cur & ~BVH_LEAF;
             for (var k = 0u; k < count; k++) {
-                let h = test_prim_LEVEL(ray, prims[n[0].w + k], t_min, closest, any);
+                let h = test_leaf_LEVEL(ray, first, k, t_min, closest, any);
                 if h.triangle != NO_HIT {
                     best = h;
                     closest = h.t;
@@ -39,47 +40,53 @@ fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) ->
                 }
             }
         } else {
-            let a = n[0].w;
-            let b = a + 1u;
-            let na = bvh_box(a);
-            let nb = bvh_box(b);
-            let ca = clip_box(bitcast<vec3<f32>>(na[0].xyz), bitcast<vec3<f32>>(na[1].xyz), ray, t_min, closest);
-            let cb = clip_box(bitcast<vec3<f32>>(nb[0].xyz), bitcast<vec3<f32>>(nb[1].xyz), ray, t_min, closest);
-            let hit_a = ca.x <= ca.y;
-            let hit_b = cb.x <= cb.y;
-            if hit_a && hit_b {
-                var near = a;
-                var far = b;
-                if ca.x > cb.x {
-                    near = b;
-                    far = a;
+            let o = ray.origin;
+            let inv = ray.inv_dir;
+            let x0 = (bitcast<vec4<f32>>(nodes[cur]) - o.x) * inv.x;
+            let y0 = (bitcast<vec4<f32>>(nodes[cur + 1u]) - o.y) * inv.y;
+            let z0 = (bitcast<vec4<f32>>(nodes[cur + 2u]) - o.z) * inv.z;
+            let x1 = (bitcast<vec4<f32>>(nodes[cur + 3u]) - o.x) * inv.x;
+            let y1 = (bitcast<vec4<f32>>(nodes[cur + 4u]) - o.y) * inv.y;
+            let z1 = (bitcast<vec4<f32>>(nodes[cur + 5u]) - o.z) * inv.z;
+            let child = nodes[cur + 6u];
+            let counts = nodes[cur + 7u];
+            let near = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), vec4<f32>(t_min)));
+            let far = min(min(max(x0, x1), max(y0, y1)), min(max(z0, z1), vec4<f32>(closest)));
+            let hit = (near <= far) & (child != vec4<u32>(BVH_EMPTY));
+            let n_hit = dot(select(vec4<u32>(0u), vec4<u32>(1u), hit), vec4<u32>(1u));
+            if n_hit > 0u {
+                // Misses sort last: their key is infinite, a hit's is finite.
+                var d = select(vec4<f32>(inf), min(near, vec4<f32>(3.0e38)), hit);
+                var i = vec4<u32>(0u, 1u, 2u, 3u);
+                sort_pair(&d, &i, 0u, 1u);
+                sort_pair(&d, &i, 2u, 3u);
+                sort_pair(&d, &i, 0u, 2u);
+                sort_pair(&d, &i, 1u, 3u);
+                sort_pair(&d, &i, 1u, 2u);
+                for (var k = n_hit - 1u; k > 0u; k--) {
+                    stack_ref[sp] = child[i[k]];
+                    stack_count[sp] = counts[i[k]];
+                    stack_near[sp] = d[k];
+                    sp += 1u;
                 }
-                stack[sp] = far;
-                sp += 1u;
-                node = near;
-                descended = true;
-            } else if hit_a {
-                node = a;
-                descended = true;
-            } else if hit_b {
-                node = b;
-                descended = true;
+                cur = child[i[0]];
+                count = counts[i[0]];
+                pushed = true;
             }
         }
-        if descended {
+        if pushed {
             continue;
         }
-        // Pop the next node still in reach.
+        // Pop the next entry still in reach.
         var found = false;
         loop {
             if sp == 0u {
                 break;
             }
             sp -= 1u;
-            node = stack[sp];
-            let p = bvh_box(node);
-            let c = clip_box(bitcast<vec3<f32>>(p[0].xyz), bitcast<vec3<f32>>(p[1].xyz), ray, t_min, closest);
-            if c.x <= c.y {
+            if stack_near[sp] <= closest {
+                cur = stack_ref[sp];
+                count = stack_count[sp];
                 found = true;
                 break;
             }

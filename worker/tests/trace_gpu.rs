@@ -95,6 +95,23 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
                 }
             }
         }
+        // Shadow rays from every hit toward a sun: blocked or not, the same.
+        let sun = Vec3::new(0.4, 0.8, 0.3);
+        let shadow: Vec<Ray> = rays.iter().zip(&hits).filter(|(_, g)| g.triangle != u32::MAX).map(|(r, g)| Ray::new(r.at(g.t), sun)).collect();
+        let shadow_gpu: Vec<GpuRay> =
+            shadow.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 1e-3, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
+        let blocked = RayCaster::shadow(&ctx, &gpu_scene).unwrap().cast(&ctx, &gpu_scene, &shadow_gpu).unwrap();
+        let mut shadow_mismatches = 0;
+        let mut blocked_count = 0;
+        for (r, b) in shadow.iter().zip(&blocked) {
+            let cpu = accel.occluded(&scene, r, 1e-3, f32::MAX);
+            blocked_count += cpu as usize;
+            shadow_mismatches += (cpu != (b.triangle != u32::MAX)) as usize;
+            // Occlusion is whether a closest hit exists.
+            assert_eq!(cpu, accel.closest(&scene, r, 1e-3, f32::MAX).is_some(), "{kind:?} {r:?}");
+        }
+        assert!(blocked_count > shadow.len() / 10 && blocked_count < shadow.len(), "{kind:?}: {blocked_count} of {} blocked", shadow.len());
+        assert_eq!(shadow_mismatches, 0, "{kind:?}: shadow rays differ");
         assert!(hit_count > 20_000, "{kind:?}: only {hit_count} hits");
         assert!(transparent_passed > 100, "{kind:?}: only {transparent_passed} rays crossed a transparent texel");
         assert!(

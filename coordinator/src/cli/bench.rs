@@ -202,18 +202,13 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         rays.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 0.0, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
     let ctx = GpuContext::new()?;
     let mut traversal = Vec::new();
+    // Shadow rays toward the sun from the first structure's primary hits:
+    // the same rays for every structure.
+    let mut shadow: Option<(Vec<Ray>, Vec<GpuRay>)> = None;
     for kind in [AccelKind::Kd, AccelKind::Bvh] {
         let t = Instant::now();
         let accel = SceneAccel::build(&scene, kind);
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
-        let cpu = if a.no_cpu {
-            serde_json::Value::Null
-        } else {
-            let t = Instant::now();
-            let hits = rays.par_iter().filter(|r| accel.closest(&scene, r, 0.0, f32::MAX).is_some()).count();
-            let s = t.elapsed().as_secs_f64();
-            json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": rayon::current_num_threads() })
-        };
         let gpu_scene = GpuScene::upload(&ctx, &scene, &accel, &Default::default())?;
         let caster = RayCaster::new(&ctx, &gpu_scene)?;
         caster.cast(&ctx, &gpu_scene, &gpu_rays[..gpu_rays.len().min(4096)])?; // warm-up: lavapipe compiles on first dispatch
@@ -221,12 +216,43 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         let hits = caster.cast(&ctx, &gpu_scene, &gpu_rays)?;
         let s = t.elapsed().as_secs_f64();
         let gpu_hits = hits.iter().filter(|h| h.triangle != u32::MAX).count();
+        let gpu = json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": gpu_hits });
+        let (shadow_cpu, shadow_gpu) = shadow.get_or_insert_with(|| {
+            let towards = scene.sun.towards;
+            let cpu: Vec<Ray> = rays.iter().zip(&hits).filter(|(_, h)| h.triangle != u32::MAX).map(|(r, h)| Ray::new(r.at(h.t), towards)).collect();
+            let gpu = cpu.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 1e-3, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
+            (cpu, gpu)
+        });
+        let shadow_caster = RayCaster::shadow(&ctx, &gpu_scene)?;
+        shadow_caster.cast(&ctx, &gpu_scene, &shadow_gpu[..shadow_gpu.len().min(4096)])?;
+        let t = Instant::now();
+        let blocked = shadow_caster.cast(&ctx, &gpu_scene, shadow_gpu)?;
+        let s = t.elapsed().as_secs_f64();
+        let gpu_shadow = json!({ "mrays_per_second": shadow_gpu.len() as f64 / s / 1e6, "ms": s * 1e3,
+                                 "blocked": blocked.iter().filter(|h| h.triangle != u32::MAX).count() });
+        let (cpu, cpu_shadow) = if a.no_cpu {
+            (serde_json::Value::Null, serde_json::Value::Null)
+        } else {
+            let t = Instant::now();
+            let hits = rays.par_iter().filter(|r| accel.closest(&scene, r, 0.0, f32::MAX).is_some()).count();
+            let s = t.elapsed().as_secs_f64();
+            let threads = rayon::current_num_threads();
+            let cpu = json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": threads });
+            let t = Instant::now();
+            let blocked = shadow_cpu.par_iter().filter(|r| accel.occluded(&scene, r, 1e-3, f32::MAX)).count();
+            let s = t.elapsed().as_secs_f64();
+            (cpu, json!({ "mrays_per_second": shadow_cpu.len() as f64 / s / 1e6, "ms": s * 1e3, "blocked": blocked, "threads": threads }))
+        };
         traversal.push(json!({
             "accel": kind,
             "build_ms": build_ms,
             "bytes": accel.bytes(),
+            "bytes_per_triangle": accel.bytes() as f64 / scene.unique_triangles().max(1) as f64,
             "cpu": cpu,
-            "gpu": { "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": gpu_hits },
+            "gpu": gpu,
+            "shadow_rays": shadow_cpu.len(),
+            "cpu_shadow": cpu_shadow,
+            "gpu_shadow": gpu_shadow,
         }));
     }
     let mut frames = Vec::new();
@@ -262,6 +288,8 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         "frames": frames,
         "figures": {
             "traversal": "closest hits of one primary ray per pixel, the same rays for every structure and machine; GPU time includes upload of the rays and read-back of the hits",
+            "shadow": "one shadow ray toward the sun from each primary hit, stopping at the first opaque hit; the same rays for every structure",
+            "bytes_per_triangle": "nodes, primitive lists and triangle records of both levels over the scene's unique triangles",
             "frames": "a whole frame rendered as one strip with LB lighting: primary and shadow rays, shading, read-back; after a warm-up dispatch",
         },
     });

@@ -48,12 +48,13 @@ const LEAF_PRIMS: usize = 4;
 const EMPTY_BONUS: f32 = 0.2;
 
 impl KdTree {
-    /// Builds a kd-tree over primitives with `bounds`.
+    /// Builds a kd-tree over primitives with `bounds`; those with empty
+    /// bounds can never be hit and are left out.
     pub fn build(bounds: &[Aabb]) -> Self {
         let root = bounds.iter().fold(Aabb::EMPTY, |b, p| b.union(*p));
         let max_depth = (8.0 + 1.3 * (bounds.len().max(1) as f32).log2()).round() as usize;
         let mut tree = KdTree { nodes: Vec::new(), prims: Vec::new(), bounds: root };
-        let all: Vec<u32> = (0..bounds.len() as u32).collect();
+        let all: Vec<u32> = (0..bounds.len() as u32).filter(|&p| !bounds[p as usize].is_empty()).collect();
         tree.build_node(bounds, all, root, max_depth, 0);
         tree
     }

@@ -2,11 +2,13 @@
 //! short-stack algorithm and a bounding-volume hierarchy, both built with
 //! the surface area heuristic, over any set of bounded primitives. Two levels
 //! use them: one over instances' world bounds, one per model over triangles
-//! ([`scene::SceneAccel`]). Node layouts are `#[repr(C)]` and uploaded to
+//! ([`scene::SceneAccel`]). Triangles whose texels are all opaque or all
+//! holes skip the alpha test ([`coverage`]). Node layouts are `#[repr(C)]` and uploaded to
 //! the GPU as they are; these CPU traversals are the reference the GPU
 //! tracer is tested against.
 
 mod aabb;
+pub mod coverage;
 pub mod bvh;
 pub mod kdtree;
 pub mod scene;
@@ -26,7 +28,7 @@ use serde::{Deserialize, Serialize};
 pub enum AccelKind {
     /// kd-tree with short-stack traversal (the paper's).
     Kd,
-    /// Bounding-volume hierarchy.
+    /// Four-wide bounding-volume hierarchy.
     #[default]
     Bvh,
 }

@@ -2,7 +2,8 @@
 //! over its triangles. A ray entering an instance is carried into model
 //! space unnormalized, so `t` means the same on both levels.
 
-use super::triangle::intersect;
+use super::coverage::{Coverage, triangle_coverage};
+use super::triangle::{TriangleRecord, intersect};
 use super::{Aabb, Accel, AccelKind, Ray};
 use crate::model::Model;
 use crate::scene::Scene;
@@ -35,21 +36,35 @@ pub struct SceneAccel {
     pub models: Vec<Accel>,
     /// World to model space, per instance.
     pub to_model: Vec<Affine3A>,
+    /// Per model, with a BVH: its triangles in the BVH's slot order.
+    pub records: Vec<Vec<TriangleRecord>>,
 }
 
 impl SceneAccel {
     /// Builds both levels (the models' in parallel).
     pub fn build(scene: &Scene, kind: AccelKind) -> Self {
-        let models: Vec<Accel> = scene.models.par_iter().map(|m| Accel::build(kind, &triangle_bounds(&m.model))).collect();
+        let (models, records): (Vec<Accel>, Vec<Vec<TriangleRecord>>) = scene
+            .models
+            .par_iter()
+            .map(|m| {
+                let coverage = triangle_coverage(&m.model);
+                let accel = Accel::build(kind, &triangle_bounds(&m.model, &coverage));
+                let records = match &accel {
+                    Accel::Bvh(b) => b.prims.iter().map(|&t| record(&m.model, t, coverage[t as usize])).collect(),
+                    Accel::Kd(_) => Vec::new(),
+                };
+                (accel, records)
+            })
+            .unzip();
         let world: Vec<Aabb> = scene.instances.iter().map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world)).collect();
         let top = Accel::build(kind, &world);
         let to_model = scene.instances.iter().map(|i| i.to_world.inverse()).collect();
-        Self { kind, top, models, to_model }
+        Self { kind, top, models, to_model, records }
     }
 
-    /// Bytes of all nodes and primitive lists.
+    /// Bytes of all nodes, primitive lists and triangle records.
     pub fn bytes(&self) -> usize {
-        self.top.bytes() + self.models.iter().map(Accel::bytes).sum::<usize>()
+        self.top.bytes() + self.models.iter().map(Accel::bytes).sum::<usize>() + self.records.iter().map(|r| size_of_val(r.as_slice())).sum::<usize>()
     }
 
     /// The closest opaque hit in `(t_min, t_max)`: hits on transparent
@@ -60,28 +75,87 @@ impl SceneAccel {
             let m = scene.instances[inst as usize].model as usize;
             let to_model = &self.to_model[inst as usize];
             let local = Ray::new(to_model.transform_point3(ray.origin), to_model.transform_vector3(ray.dir));
-            let (tri, t, u, v) = model_closest(&self.models[m], &scene.models[m].model, &local, t_min, limit)?;
+            let (tri, t, u, v) = self.model_closest(m, &scene.models[m].model, &local, t_min, limit, false)?;
             best = Some(SceneHit { instance: inst, triangle: tri, t, u, v });
             Some(t)
         });
         best
     }
+
+    /// Whether anything opaque lies along the ray in `(t_min, t_max)`:
+    /// the first hit found ends the search (shadow rays).
+    pub fn occluded(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        let mut found = false;
+        let test = |inst: u32, limit: f32| {
+            let m = scene.instances[inst as usize].model as usize;
+            let to_model = &self.to_model[inst as usize];
+            let local = Ray::new(to_model.transform_point3(ray.origin), to_model.transform_vector3(ray.dir));
+            self.model_closest(m, &scene.models[m].model, &local, t_min, limit, true).is_some()
+        };
+        match &self.top {
+            Accel::Bvh(b) => {
+                b.walk(ray, t_min, t_max, |first, count, limit| {
+                    found = b.prims[first as usize..(first + count) as usize].iter().any(|&p| test(p, limit));
+                    // An empty interval: nothing more is in reach.
+                    found.then_some(f32::NEG_INFINITY)
+                });
+            }
+            Accel::Kd(k) => {
+                k.closest(ray, t_min, t_max, &mut |p, limit| {
+                    if !found && test(p, limit) {
+                        found = true;
+                    }
+                    None
+                });
+            }
+        }
+        found
+    }
 }
 
-/// The closest opaque hit on one model in `(t_min, t_max)`:
-/// `(triangle, t, u, v)`.
-pub fn model_closest(accel: &Accel, model: &Model, ray: &Ray, t_min: f32, t_max: f32) -> Option<(u32, f32, f32, f32)> {
-    let mut found = None;
-    accel.closest(ray, t_min, t_max, &mut |tri, limit| {
-        let [a, b, c] = model.triangle(tri as usize);
-        let (t, u, v) = intersect(ray, a, b, c, t_min, limit)?;
-        if model.is_transparent(tri as usize, uv_at(model, tri, u, v)) {
-            return None;
+impl SceneAccel {
+    /// The closest opaque hit on model `m` in `(t_min, t_max)`:
+    /// `(triangle, t, u, v)`; with `any`, the first found.
+    pub fn model_closest(&self, m: usize, model: &Model, ray: &Ray, t_min: f32, t_max: f32, any: bool) -> Option<(u32, f32, f32, f32)> {
+        let mut found = None;
+        match &self.models[m] {
+            Accel::Bvh(bvh) => {
+                let records = &self.records[m];
+                bvh.walk(ray, t_min, t_max, |first, count, limit| {
+                    let mut closest = limit;
+                    for r in &records[first as usize..(first + count) as usize] {
+                        let Some((t, u, v)) = r.intersect(ray, t_min, closest) else { continue };
+                        if r.coverage == Coverage::Mixed as u32 && model.is_transparent(r.triangle as usize, uv_at(model, r.triangle, u, v)) {
+                            continue;
+                        }
+                        closest = t;
+                        found = Some((r.triangle, t, u, v));
+                        if any {
+                            return Some(f32::NEG_INFINITY);
+                        }
+                    }
+                    (closest < limit).then_some(closest)
+                });
+            }
+            Accel::Kd(kd) => {
+                kd.closest(ray, t_min, t_max, &mut |tri, limit| {
+                    let [a, b, c] = model.triangle(tri as usize);
+                    let (t, u, v) = intersect(ray, a, b, c, t_min, limit)?;
+                    if model.is_transparent(tri as usize, uv_at(model, tri, u, v)) {
+                        return None;
+                    }
+                    found = Some((tri, t, u, v));
+                    Some(t)
+                });
+            }
         }
-        found = Some((tri, t, u, v));
-        Some(t)
-    })?;
-    found
+        found
+    }
+}
+
+/// Triangle `t`'s record.
+fn record(model: &Model, t: u32, coverage: Coverage) -> TriangleRecord {
+    TriangleRecord::new(t, model.triangle(t as usize), coverage, model.material[t as usize])
 }
 
 /// Texture coordinates at barycentrics (u, v) of triangle `tri`.
@@ -90,9 +164,9 @@ pub fn uv_at(model: &Model, tri: u32, u: f32, v: f32) -> Vec2 {
     model.uvs[i as usize] * (1.0 - u - v) + model.uvs[j as usize] * u + model.uvs[k as usize] * v
 }
 
-/// Bounds of each triangle.
-pub fn triangle_bounds(model: &Model) -> Vec<Aabb> {
-    (0..model.triangle_count()).map(|t| Aabb::around(&model.triangle(t))).collect()
+/// Bounds of each triangle; empty for triangles no ray can hit.
+pub fn triangle_bounds(model: &Model, coverage: &[Coverage]) -> Vec<Aabb> {
+    (0..model.triangle_count()).map(|t| if coverage[t] == Coverage::Cut { Aabb::EMPTY } else { Aabb::around(&model.triangle(t)) }).collect()
 }
 
 /// Bounds of a whole model.

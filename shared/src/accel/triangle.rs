@@ -1,15 +1,54 @@
-//! The Möller–Trumbore ray–triangle test.
+//! The Möller–Trumbore ray–triangle test, and the triangle record the
+//! BVH's leaves hold so the test reads one contiguous 48-byte block.
 
 use super::Ray;
+use super::coverage::Coverage;
+use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
+
+/// A triangle as the inner loop reads it, in a BVH's leaf order: its first
+/// vertex and two edges, so no index chase precedes the test.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct TriangleRecord {
+    /// First vertex.
+    pub a: [f32; 3],
+    /// Triangle index (in its model; the GPU's upload makes it global).
+    pub triangle: u32,
+    /// Second vertex minus the first.
+    pub e1: [f32; 3],
+    /// [`Coverage`] as a number.
+    pub coverage: u32,
+    /// Third vertex minus the first.
+    pub e2: [f32; 3],
+    /// Material index (in its model; global on the GPU).
+    pub material: u32,
+}
+
+impl TriangleRecord {
+    /// The record of triangle `(a, b, c)`.
+    pub fn new(triangle: u32, [a, b, c]: [Vec3; 3], coverage: Coverage, material: u32) -> Self {
+        Self { a: a.to_array(), triangle, e1: (b - a).to_array(), coverage: coverage as u32, e2: (c - a).to_array(), material }
+    }
+
+    /// As [`intersect`].
+    #[inline]
+    pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
+        intersect_edges(ray, self.a.into(), self.e1.into(), self.e2.into(), t_min, t_max)
+    }
+}
 
 /// Distance and barycentrics `(t, u, v)` of the hit of `ray` on triangle
 /// `(a, b, c)`, the hit point being `(1 − u − v) a + u b + v c`, when
 /// `t_min < t < t_max`. Both faces are hit.
 #[inline]
 pub fn intersect(ray: &Ray, a: Vec3, b: Vec3, c: Vec3, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
-    let e1 = b - a;
-    let e2 = c - a;
+    intersect_edges(ray, a, b - a, c - a, t_min, t_max)
+}
+
+/// As [`intersect`], from the first vertex and the edges to the others.
+#[inline]
+pub fn intersect_edges(ray: &Ray, a: Vec3, e1: Vec3, e2: Vec3, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
     let p = ray.dir.cross(e2);
     let det = e1.dot(p);
     if det == 0.0 || !det.is_finite() {

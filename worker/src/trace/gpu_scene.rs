@@ -3,7 +3,21 @@
 
 use crate::gpu::GpuContext;
 use bytemuck::{Pod, Zeroable};
+use sylva_shared::accel::bvh::{self, BvhNode};
+use sylva_shared::accel::triangle::TriangleRecord;
 use sylva_shared::accel::{Accel, KdNode, SceneAccel};
+
+/// Stack entries of the GPU's BVH traversal (`BVH_STACK` in scene.wgsl).
+const GPU_BVH_STACK: usize = 64;
+/// Entries (16 bytes) of one wide BVH node.
+const NODE_ENTRIES: usize = size_of::<BvhNode>() / 16;
+/// The node of a BVH over nothing: every child empty.
+const EMPTY_NODE: BvhNode = BvhNode {
+    min: [[f32::INFINITY; bvh::WIDTH]; 3],
+    max: [[f32::NEG_INFINITY; bvh::WIDTH]; 3],
+    child: [bvh::EMPTY; bvh::WIDTH],
+    count: [0; bvh::WIDTH],
+};
 use sylva_shared::lb::LbGrid;
 use sylva_shared::scene::Scene;
 use wgpu::util::DeviceExt;
@@ -207,19 +221,43 @@ struct Flat {
 impl Flat {
     /// Appends a structure; leaves' primitives get `prim_shift` added.
     /// Returns the root's node index.
-    fn push_accel(&mut self, accel: &Accel, prim_shift: u32) -> u32 {
+    /// Appends one level's structure; returns its root's entry. With a
+    /// BVH, a model's triangle records follow its nodes (their triangle and
+    /// material indices shifted by `tri0` and `mat0`).
+    fn push_accel(&mut self, accel: &Accel, prim_shift: u32, records: &[TriangleRecord], mat0: u32) -> anyhow::Result<u32> {
         let prim_base = self.prims.len() as u32;
-        match accel {
+        Ok(match accel {
             Accel::Bvh(b) => {
-                let base = (self.nodes.len() / 2) as u32;
-                for n in &b.nodes {
-                    let first = if n.count > 0 { n.first + prim_base } else { n.first + base };
-                    let [x0, y0, z0] = n.min.map(f32::to_bits);
-                    let [x1, y1, z1] = n.max.map(f32::to_bits);
-                    self.nodes.push([x0, y0, z0, first]);
-                    self.nodes.push([x1, y1, z1, n.count]);
+                anyhow::ensure!(
+                    b.stack_depth <= GPU_BVH_STACK,
+                    "a BVH needs {} stack entries, more than the GPU traversal's {GPU_BVH_STACK}",
+                    b.stack_depth
+                );
+                let base = self.nodes.len() as u32;
+                let nodes: &[BvhNode] = if b.nodes.is_empty() { std::slice::from_ref(&EMPTY_NODE) } else { &b.nodes };
+                let record_base = base + (nodes.len() * NODE_ENTRIES) as u32;
+                anyhow::ensure!(record_base as usize + 3 * records.len() < bvh::LEAF as usize, "the scene's BVH is too large to address");
+                for n in nodes {
+                    let mut n = *n;
+                    for (c, &k) in n.child.iter_mut().zip(&n.count) {
+                        *c = match *c {
+                            bvh::EMPTY => bvh::EMPTY,
+                            leaf if leaf & bvh::LEAF != 0 && k > 0 => {
+                                let first = leaf & !bvh::LEAF;
+                                bvh::LEAF | if records.is_empty() { prim_base + first } else { record_base + 3 * first }
+                            }
+                            inner => base + inner * NODE_ENTRIES as u32,
+                        };
+                    }
+                    self.nodes.extend_from_slice(bytemuck::cast_slice::<BvhNode, [u32; 4]>(std::slice::from_ref(&n)));
                 }
-                self.prims.extend(b.prims.iter().map(|p| p + prim_shift));
+                if records.is_empty() {
+                    self.prims.extend(b.prims.iter().map(|p| p + prim_shift));
+                }
+                for r in records {
+                    let r = TriangleRecord { triangle: r.triangle + prim_shift, material: r.material + mat0, ..*r };
+                    self.nodes.extend_from_slice(bytemuck::cast_slice::<TriangleRecord, [u32; 4]>(std::slice::from_ref(&r)));
+                }
                 base
             }
             Accel::Kd(k) => {
@@ -235,7 +273,7 @@ impl Flat {
                 self.prims.extend(k.prims.iter().map(|p| p + prim_shift));
                 base
             }
-        }
+        })
     }
 }
 
@@ -244,7 +282,7 @@ impl GpuScene {
     pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, light: &SceneLight) -> anyhow::Result<Self> {
         let (lb, lb_scales) = (&light.models, &light.instance_scales);
         let mut f = Flat::default();
-        let top_root = f.push_accel(&accel.top, 0);
+        let top_root = f.push_accel(&accel.top, 0, &[], 0)?;
         debug_assert_eq!(top_root, if matches!(accel.top, Accel::Kd(_)) { 2 } else { 0 });
         let mut triangle_offsets = Vec::with_capacity(scene.models.len());
         for (m, sm) in scene.models.iter().enumerate() {
@@ -252,7 +290,7 @@ impl GpuScene {
             let (tri0, vert0) = (f.triangles.len() as u32, (f.positions.len() / 3) as u32);
             let (mat0, tex0) = (f.materials.len() as u32, f.textures.len() as u32);
             triangle_offsets.push(tri0);
-            let root = f.push_accel(&accel.models[m], tri0);
+            let root = f.push_accel(&accel.models[m], tri0, accel.records.get(m).map_or(&[], |r| r.as_slice()), mat0)?;
             f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
             f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
             f.triangles

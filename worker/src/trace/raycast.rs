@@ -48,12 +48,19 @@ pub struct RayCaster {
 }
 
 impl RayCaster {
-    /// Builds the pipeline for `scene` (its accel kind picks the traversal).
+    /// Builds the closest-hit pipeline for `scene` (its accel kind picks
+    /// the traversal).
     pub fn new(ctx: &GpuContext, scene: &GpuScene) -> anyhow::Result<Self> {
-        ctx.checked("building the ray-casting pipeline", || Ok(Self::build(ctx, scene)))
+        ctx.checked("building the ray-casting pipeline", || Ok(Self::build(ctx, scene, false)))
     }
 
-    fn build(ctx: &GpuContext, scene: &GpuScene) -> Self {
+    /// Builds the shadow-ray pipeline: each hit says only whether the ray
+    /// is blocked (`triangle != u32::MAX`), found by the first hit.
+    pub fn shadow(ctx: &GpuContext, scene: &GpuScene) -> anyhow::Result<Self> {
+        ctx.checked("building the shadow-ray pipeline", || Ok(Self::build(ctx, scene, true)))
+    }
+
+    fn build(ctx: &GpuContext, scene: &GpuScene, any_hit: bool) -> Self {
         let device = &ctx.device;
         let module = ctx.trusted_module("rays", tracer_source(SOURCE));
         let entry = |binding, read_only| wgpu::BindGroupLayoutEntry {
@@ -74,7 +81,7 @@ impl RayCaster {
             layout: Some(&pl),
             module: &module,
             entry_point: Some("cast_rays"),
-            compilation_options: wgpu::PipelineCompilationOptions { constants: &[("ACCEL_KIND", scene.accel_kind as f64)], ..Default::default() },
+            compilation_options: wgpu::PipelineCompilationOptions { constants: &[("ACCEL_KIND", scene.accel_kind as f64), ("ANY_HIT", any_hit as u8 as f64)], ..Default::default() },
             cache: None,
         });
         Self { pipeline, layout }
