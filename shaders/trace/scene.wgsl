@@ -281,27 +281,31 @@ fn test_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> Hit {
     return no_hit();
 }
 
-// The closest hit inside an instance: the ray carried into model space
-// unnormalized, so t means the same in both spaces.
-fn test_instance(ray: Ray, index: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
+// The closest hit inside an instance, from one entry of its model's
+// structure (a BVH's top-level leaves hold instance parts, a kd-tree's
+// whole instances): the ray carried into model space unnormalized, so t
+// means the same in both spaces.
+fn test_instance(ray: Ray, index: u32, entry: u32, entry_count: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     let inst = instances[index];
     let local = make_ray(to_model_point(inst, ray.origin), to_model_vector(inst, ray.dir));
-    var h = traverse_model(local, models[inst.model].root, t_min, t_max, any);
+    var h = traverse_model(local, entry, entry_count, t_min, t_max, any);
     h.instance = index;
     return h;
 }
 
 fn test_prim_top(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
-    return test_instance(ray, prim, t_min, t_max, any);
+    return test_instance(ray, prim, models[instances[prim].model].root, 0u, t_min, t_max, any);
 }
 
 fn test_prim_model(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     return test_triangle(ray, prim, t_min, t_max);
 }
 
-// The k-th entry of a wide BVH leaf: an instance (top level).
+// The k-th entry of a wide BVH leaf at the top level: a part of an
+// instance (instance, entry of its subtree, leaf count).
 fn test_leaf_top(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
-    return test_instance(ray, prims[first + k], t_min, t_max, any);
+    let part = nodes[first + k];
+    return test_instance(ray, part.x, part.y, part.z, t_min, t_max, any);
 }
 
 // The k-th triangle record of a wide BVH leaf (model level): the alpha
@@ -324,10 +328,10 @@ fn test_leaf_model(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32, any: bo
 // The closest opaque hit in the scene in (t_min, t_max).
 fn closest_hit(ray: Ray, t_min: f32, t_max: f32) -> Hit {
     // A kd-tree's root follows its two bounds entries.
-    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), t_min, t_max, false);
+    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), 0u, t_min, t_max, false);
 }
 
 // Whether anything opaque lies along the ray in (t_min, t_max).
 fn occluded(ray: Ray, t_min: f32, t_max: f32) -> bool {
-    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), t_min, t_max, true).triangle != NO_HIT;
+    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), 0u, t_min, t_max, true).triangle != NO_HIT;
 }

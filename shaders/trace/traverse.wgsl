@@ -4,10 +4,11 @@
 // WGSL has no generics and forbids recursion. Mirrors shared/src/accel.
 
 // The closest hit of the tree rooted at `root` in (t_min, t_max); with
-// `any`, the first hit found (shadow rays need no more).
-fn traverse_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
+// `any`, the first hit found (shadow rays need no more). A BVH may start at
+// any entry: `root_count` is its leaf count when it is a leaf.
+fn traverse_LEVEL(ray: Ray, root: u32, root_count: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     if ACCEL_KIND == 0u {
-        return traverse_bvh_LEVEL(ray, root, t_min, t_max, any);
+        return traverse_bvh_LEVEL(ray, root, root_count, t_min, t_max, any);
     }
     return traverse_kd_LEVEL(ray, root, t_min, t_max, any);
 }
@@ -15,15 +16,18 @@ fn traverse_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) -> Hit
 // The wide BVH: the four children's boxes tested as one vec4 per bound,
 // hit children sorted nearest first by a five-comparison network, the
 // nearest visited next and the rest pushed with their entry distance.
-fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
+// The stack lives at module scope: a function's arrays are zeroed on every
+// call (WGSL's rule), a private one once per invocation.
+var<private> stack_ref_LEVEL: array<u32, BVH_STACK>;
+var<private> stack_count_LEVEL: array<u32, BVH_STACK>;
+var<private> stack_near_LEVEL: array<f32, BVH_STACK>;
+
+fn traverse_bvh_LEVEL(ray: Ray, root: u32, root_count: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     var best = no_hit();
     var closest = t_max;
-    var stack_ref: array<u32, BVH_STACK>;
-    var stack_count: array<u32, BVH_STACK>;
-    var stack_near: array<f32, BVH_STACK>;
     var sp = 0u;
     var cur = root;
-    var count = 0u;
+    var count = root_count;
     let inf = bitcast<f32>(0x7f800000u);
     loop {
         var pushed = false;
@@ -64,9 +68,9 @@ fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) ->
                 sort_pair(&d, &i, 1u, 3u);
                 sort_pair(&d, &i, 1u, 2u);
                 for (var k = n_hit - 1u; k > 0u; k--) {
-                    stack_ref[sp] = child[i[k]];
-                    stack_count[sp] = counts[i[k]];
-                    stack_near[sp] = d[k];
+                    stack_ref_LEVEL[sp] = child[i[k]];
+                    stack_count_LEVEL[sp] = counts[i[k]];
+                    stack_near_LEVEL[sp] = d[k];
                     sp += 1u;
                 }
                 cur = child[i[0]];
@@ -84,9 +88,9 @@ fn traverse_bvh_LEVEL(ray: Ray, root: u32, t_min: f32, t_max: f32, any: bool) ->
                 break;
             }
             sp -= 1u;
-            if stack_near[sp] <= closest {
-                cur = stack_ref[sp];
-                count = stack_count[sp];
+            if stack_near_LEVEL[sp] <= closest {
+                cur = stack_ref_LEVEL[sp];
+                count = stack_count_LEVEL[sp];
                 found = true;
                 break;
             }

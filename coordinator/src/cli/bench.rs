@@ -172,6 +172,12 @@ pub struct TraceBenchArgs {
     /// Skip the CPU traversal (slow on big scenes).
     #[arg(long)]
     pub no_cpu: bool,
+    /// Structures to measure, in order.
+    #[arg(long, value_delimiter = ',', default_value = "kd,bvh")]
+    pub accel: Vec<super::render::AccelArg>,
+    /// Skip the whole frames.
+    #[arg(long)]
+    pub no_frames: bool,
     /// Print JSON (always JSON; accepted for scripts).
     #[arg(long)]
     pub json: bool,
@@ -205,7 +211,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     // Shadow rays toward the sun from the first structure's primary hits:
     // the same rays for every structure.
     let mut shadow: Option<(Vec<Ray>, Vec<GpuRay>)> = None;
-    for kind in [AccelKind::Kd, AccelKind::Bvh] {
+    for kind in a.accel.iter().map(|&k| AccelKind::from(k)) {
         let t = Instant::now();
         let accel = SceneAccel::build(&scene, kind);
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -256,7 +262,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         }));
     }
     let mut frames = Vec::new();
-    for kind in [AccelKind::Kd, AccelKind::Bvh] {
+    for kind in a.accel.iter().filter(|_| !a.no_frames).map(|&k| AccelKind::from(k)) {
         let prepared = prepare(&ctx, &scene, kind, LightingMode::Lb, &|_| {})?;
         for spp in [1u32, 4] {
             let f =

@@ -8,6 +8,8 @@
 
 use super::{Aabb, Ray};
 use bytemuck::{Pod, Zeroable};
+use glam::Vec4;
+use std::mem::MaybeUninit;
 
 /// Children per node.
 pub const WIDTH: usize = 4;
@@ -35,6 +37,14 @@ pub struct BvhNode {
     pub child: [u32; WIDTH],
     /// Primitives in a leaf child (`prims[first .. first + count]`); 0 otherwise.
     pub count: [u32; WIDTH],
+}
+
+impl BvhNode {
+    /// A bit per used child slot.
+    #[inline(always)]
+    fn valid_mask(&self) -> u32 {
+        (0..WIDTH).fold(0, |m, i| m | (((self.child[i] != EMPTY) as u32) << i))
+    }
 }
 
 /// A four-wide BVH over primitive indices.
@@ -137,19 +147,49 @@ impl Bvh {
         best
     }
 
+    /// Up to `max` entries that together hold every primitive, each with
+    /// its box: the root's children, then the largest inner entry opened
+    /// into its children while the count allows. `(reference, leaf count,
+    /// box)`, the reference as in [`BvhNode::child`].
+    pub fn parts(&self, max: usize) -> Vec<(u32, u32, Aabb)> {
+        let Some(root) = self.nodes.first() else { return Vec::new() };
+        let entries =
+            |n: &BvhNode| (0..WIDTH).filter(|&i| n.child[i] != EMPTY).map(|i| (n.child[i], n.count[i], child_box(n, i))).collect::<Vec<_>>();
+        let mut parts = entries(root);
+        loop {
+            let open = (0..parts.len()).filter(|&i| parts[i].0 & LEAF == 0).max_by(|&i, &j| parts[i].2.area().total_cmp(&parts[j].2.area()));
+            let Some(i) = open else { break };
+            let kids = entries(&self.nodes[parts[i].0 as usize]);
+            if parts.len() - 1 + kids.len() > max {
+                break;
+            }
+            parts.swap_remove(i);
+            parts.extend(kids);
+        }
+        parts
+    }
+
     /// Visits, nearest first, every leaf a ray reaches before its closest
     /// hit: `leaf(first slot, count, closest so far)` returns a closer hit
     /// distance when it finds one. Returns the closest distance.
     #[inline]
-    pub fn walk(&self, ray: &Ray, t_min: f32, t_max: f32, mut leaf: impl FnMut(u32, u32, f32) -> Option<f32>) -> f32 {
+    pub fn walk(&self, ray: &Ray, t_min: f32, t_max: f32, leaf: impl FnMut(u32, u32, f32) -> Option<f32>) -> f32 {
+        self.walk_from((0, 0), ray, t_min, t_max, leaf)
+    }
+
+    /// As [`Bvh::walk`], from one entry (`(reference, leaf count)` of a
+    /// [`Bvh::parts`] entry) instead of the root.
+    #[inline]
+    pub fn walk_from(&self, start: (u32, u32), ray: &Ray, t_min: f32, t_max: f32, mut leaf: impl FnMut(u32, u32, f32) -> Option<f32>) -> f32 {
         let mut closest = t_max;
         if self.nodes.is_empty() {
             return closest;
         }
-        // (child reference, leaf count, entry distance)
-        let mut stack = [(0u32, 0u32, 0.0f32); MAX_STACK];
+        // (child reference, leaf count, entry distance); entries above `sp`
+        // are never read, so the array is not cleared per call.
+        let mut stack = [MaybeUninit::<(u32, u32, f32)>::uninit(); MAX_STACK];
         let mut sp = 0;
-        let (mut cur, mut count) = (0u32, 0u32);
+        let (mut cur, mut count) = start;
         loop {
             if cur & LEAF != 0 {
                 if let Some(t) = leaf(cur & !LEAF, count, closest) {
@@ -157,12 +197,18 @@ impl Bvh {
                 }
             } else {
                 let n = &self.nodes[cur as usize];
-                let near = child_entries(n, ray, t_min, closest);
-                // Hit children, sorted nearest first.
-                let mut order = [(0u32, 0u32, 0.0f32); WIDTH];
-                let mut hits = 0;
-                for i in 0..WIDTH {
-                    if let Some(d) = near[i] {
+                let (near, mut mask) = child_entries(n, ray, t_min, closest);
+                // Empty slots hold infinite boxes; the mask drops them too.
+                mask &= n.valid_mask();
+                if mask != 0 {
+                    // Hit children, sorted nearest first.
+                    let near = near.to_array();
+                    let mut order = [(0u32, 0u32, 0.0f32); WIDTH];
+                    let mut hits = 0;
+                    while mask != 0 {
+                        let i = mask.trailing_zeros() as usize;
+                        mask &= mask - 1;
+                        let d = near[i];
                         let mut j = hits;
                         while j > 0 && order[j - 1].2 > d {
                             order[j] = order[j - 1];
@@ -171,10 +217,8 @@ impl Bvh {
                         order[j] = (n.child[i], n.count[i], d);
                         hits += 1;
                     }
-                }
-                if hits > 0 {
                     for k in (1..hits).rev() {
-                        stack[sp] = order[k];
+                        stack[sp] = MaybeUninit::new(order[k]);
                         sp += 1;
                     }
                     (cur, count) = (order[0].0, order[0].1);
@@ -187,7 +231,8 @@ impl Bvh {
                     return closest;
                 }
                 sp -= 1;
-                let (c, k, d) = stack[sp];
+                // SAFETY: entries below the old `sp` were written by the push above.
+                let (c, k, d) = unsafe { stack[sp].assume_init() };
                 if d <= closest {
                     (cur, count) = (c, k);
                     break;
@@ -197,45 +242,32 @@ impl Bvh {
     }
 }
 
-/// Entry distances of a node's children along the ray, `None` where the
-/// child is missed (or empty). Lane-wise, so the compiler vectorizes it.
-#[inline]
-fn child_entries(n: &BvhNode, ray: &Ray, t_min: f32, t_max: f32) -> [Option<f32>; WIDTH] {
+/// Entry distances of a node's children along the ray, and a bit per
+/// child that is hit: one 4-lane SIMD test (glam's `Vec4` is SSE on x86).
+#[inline(always)]
+fn child_entries(n: &BvhNode, ray: &Ray, t_min: f32, t_max: f32) -> (Vec4, u32) {
     let (o, inv) = (ray.origin, ray.inv_dir);
-    let lane = |axis: usize, i: usize| {
-        let a = (n.min[axis][i] - o[axis]) * inv[axis];
-        let b = (n.max[axis][i] - o[axis]) * inv[axis];
-        (fmin(a, b), fmax(a, b))
+    let slab = |axis: usize| {
+        let (oa, ia) = (Vec4::splat(o[axis]), Vec4::splat(inv[axis]));
+        let a = (Vec4::from_array(n.min[axis]) - oa) * ia;
+        let b = (Vec4::from_array(n.max[axis]) - oa) * ia;
+        (a.min(b), a.max(b))
     };
-    let mut near = [0.0f32; WIDTH];
-    let mut far = [0.0f32; WIDTH];
-    for i in 0..WIDTH {
-        let (x0, x1) = lane(0, i);
-        let (y0, y1) = lane(1, i);
-        let (z0, z1) = lane(2, i);
-        near[i] = fmax(fmax(x0, y0), fmax(z0, t_min));
-        far[i] = fmin(fmin(x1, y1), fmin(z1, t_max));
-    }
-    std::array::from_fn(|i| (near[i] <= far[i] && n.child[i] != EMPTY).then_some(near[i]))
-}
-
-#[inline(always)]
-fn fmin(a: f32, b: f32) -> f32 {
-    if a < b { a } else { b }
-}
-
-#[inline(always)]
-fn fmax(a: f32, b: f32) -> f32 {
-    if a > b { a } else { b }
+    let (x0, x1) = slab(0);
+    let (y0, y1) = slab(1);
+    let (z0, z1) = slab(2);
+    let near = x0.max(y0).max(z0.max(Vec4::splat(t_min)));
+    let far = x1.min(y1).min(z1.min(Vec4::splat(t_max)));
+    (near, near.cmple(far).bitmask())
 }
 
 fn empty_node() -> BvhNode {
-    BvhNode {
-        min: [[f32::INFINITY; WIDTH]; 3],
-        max: [[f32::NEG_INFINITY; WIDTH]; 3],
-        child: [EMPTY; WIDTH],
-        count: [0; WIDTH],
-    }
+    BvhNode { min: [[f32::INFINITY; WIDTH]; 3], max: [[f32::NEG_INFINITY; WIDTH]; 3], child: [EMPTY; WIDTH], count: [0; WIDTH] }
+}
+
+/// The box of a node's child `i`.
+fn child_box(n: &BvhNode, i: usize) -> Aabb {
+    Aabb { min: glam::Vec3::new(n.min[0][i], n.min[1][i], n.min[2][i]), max: glam::Vec3::new(n.max[0][i], n.max[1][i], n.max[2][i]) }
 }
 
 /// Puts binary node `b`'s box in `slot`, and its leaf reference if a leaf.
@@ -340,11 +372,7 @@ fn best_split(prims: &mut [u32], bounds: &[Aabb], centroids: &[glam::Vec3], bb: 
             mid += 1;
         }
     }
-    if mid > 0 && mid < count {
-        Some(mid)
-    } else {
-        (count > MAX_LEAF).then_some(count / 2)
-    }
+    if mid > 0 && mid < count { Some(mid) } else { (count > MAX_LEAF).then_some(count / 2) }
 }
 
 #[cfg(test)]
@@ -370,7 +398,10 @@ mod tests {
                     if c == EMPTY {
                         continue;
                     }
-                    let bx = Aabb { min: Vec3::new(node.min[0][i], node.min[1][i], node.min[2][i]), max: Vec3::new(node.max[0][i], node.max[1][i], node.max[2][i]) };
+                    let bx = Aabb {
+                        min: Vec3::new(node.min[0][i], node.min[1][i], node.min[2][i]),
+                        max: Vec3::new(node.max[0][i], node.max[1][i], node.max[2][i]),
+                    };
                     if c & LEAF != 0 {
                         for &p in &bvh.prims[(c & !LEAF) as usize..][..node.count[i] as usize] {
                             seen[p as usize] += 1;

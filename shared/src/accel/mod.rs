@@ -8,8 +8,8 @@
 //! tracer is tested against.
 
 mod aabb;
-pub mod coverage;
 pub mod bvh;
+pub mod coverage;
 pub mod kdtree;
 pub mod scene;
 pub mod triangle;

@@ -38,6 +38,29 @@ pub struct SceneAccel {
     pub to_model: Vec<Affine3A>,
     /// Per model, with a BVH: its triangles in the BVH's slot order.
     pub records: Vec<Vec<TriangleRecord>>,
+    /// With a BVH, what the top level is built over: pieces of instances.
+    pub parts: Vec<InstancePart>,
+}
+
+/// Most pieces an instance is split into for the top level. Crowns overlap,
+/// so a ray entering a whole tree's box meets several; split into
+/// subtrees of its model's BVH, the top level orders and culls the pieces
+/// of all trees together, nearest first.
+pub const PARTS_PER_INSTANCE: usize = 8;
+
+/// A piece of an instance: one subtree of its model's BVH, placed where
+/// the instance is.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct InstancePart {
+    /// Instance index.
+    pub instance: u32,
+    /// The subtree's entry in the model's BVH (as [`super::BvhNode::child`]).
+    pub entry: u32,
+    /// Its leaf count when the entry is a leaf; 0 otherwise.
+    pub count: u32,
+    /// Padding (the GPU reads a part as one 16-byte entry).
+    pub pad: u32,
 }
 
 impl SceneAccel {
@@ -56,26 +79,51 @@ impl SceneAccel {
                 (accel, records)
             })
             .unzip();
-        let world: Vec<Aabb> = scene.instances.iter().map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world)).collect();
-        let top = Accel::build(kind, &world);
         let to_model = scene.instances.iter().map(|i| i.to_world.inverse()).collect();
-        Self { kind, top, models, to_model, records }
+        let mut parts = Vec::new();
+        let top = match kind {
+            AccelKind::Bvh => {
+                let model_parts: Vec<Vec<(u32, u32, Aabb)>> = models
+                    .iter()
+                    .map(|a| match a {
+                        Accel::Bvh(b) => b.parts(PARTS_PER_INSTANCE),
+                        Accel::Kd(_) => unreachable!("one kind for both levels"),
+                    })
+                    .collect();
+                let mut world = Vec::new();
+                for (i, inst) in scene.instances.iter().enumerate() {
+                    for &(entry, count, b) in &model_parts[inst.model as usize] {
+                        parts.push(InstancePart { instance: i as u32, entry, count, pad: 0 });
+                        world.push(b.transformed(&inst.to_world));
+                    }
+                }
+                Accel::build(kind, &world)
+            }
+            AccelKind::Kd => {
+                let world: Vec<Aabb> =
+                    scene.instances.iter().map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world)).collect();
+                Accel::build(kind, &world)
+            }
+        };
+        Self { kind, top, models, to_model, records, parts }
     }
 
     /// Bytes of all nodes, primitive lists and triangle records.
     pub fn bytes(&self) -> usize {
-        self.top.bytes() + self.models.iter().map(Accel::bytes).sum::<usize>() + self.records.iter().map(|r| size_of_val(r.as_slice())).sum::<usize>()
+        self.top.bytes()
+            + self.models.iter().map(Accel::bytes).sum::<usize>()
+            + self.records.iter().map(|r| size_of_val(r.as_slice())).sum::<usize>()
+            + size_of_val(self.parts.as_slice())
     }
 
     /// The closest opaque hit in `(t_min, t_max)`: hits on transparent
     /// texels are passed through.
     pub fn closest(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> Option<SceneHit> {
         let mut best: Option<SceneHit> = None;
-        self.top.closest(ray, t_min, t_max, &mut |inst, limit| {
+        self.top_level(ray, t_min, t_max, &mut |inst, start, limit| {
             let m = scene.instances[inst as usize].model as usize;
-            let to_model = &self.to_model[inst as usize];
-            let local = Ray::new(to_model.transform_point3(ray.origin), to_model.transform_vector3(ray.dir));
-            let (tri, t, u, v) = self.model_closest(m, &scene.models[m].model, &local, t_min, limit, false)?;
+            let local = self.local_ray(inst, ray);
+            let (tri, t, u, v) = self.model_closest(m, &scene.models[m].model, start, &local, t_min, limit, false)?;
             best = Some(SceneHit { instance: inst, triangle: tri, t, u, v });
             Some(t)
         });
@@ -86,42 +134,77 @@ impl SceneAccel {
     /// the first hit found ends the search (shadow rays).
     pub fn occluded(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> bool {
         let mut found = false;
-        let test = |inst: u32, limit: f32| {
+        self.top_level(ray, t_min, t_max, &mut |inst, start, limit| {
             let m = scene.instances[inst as usize].model as usize;
-            let to_model = &self.to_model[inst as usize];
-            let local = Ray::new(to_model.transform_point3(ray.origin), to_model.transform_vector3(ray.dir));
-            self.model_closest(m, &scene.models[m].model, &local, t_min, limit, true).is_some()
-        };
+            let local = self.local_ray(inst, ray);
+            found |= self.model_closest(m, &scene.models[m].model, start, &local, t_min, limit, true).is_some();
+            // An empty interval: nothing more is in reach.
+            found.then_some(f32::NEG_INFINITY)
+        });
+        found
+    }
+
+    /// The ray in instance `inst`'s model space (unnormalized: same `t`).
+    fn local_ray(&self, inst: u32, ray: &Ray) -> Ray {
+        let to_model = &self.to_model[inst as usize];
+        Ray::new(to_model.transform_point3(ray.origin), to_model.transform_vector3(ray.dir))
+    }
+
+    /// Walks the top level, nearest first: `enter(instance, model entry,
+    /// closest so far)` returns a closer hit distance when it finds one.
+    fn top_level(&self, ray: &Ray, t_min: f32, t_max: f32, enter: &mut dyn FnMut(u32, (u32, u32), f32) -> Option<f32>) {
         match &self.top {
             Accel::Bvh(b) => {
                 b.walk(ray, t_min, t_max, |first, count, limit| {
-                    found = b.prims[first as usize..(first + count) as usize].iter().any(|&p| test(p, limit));
-                    // An empty interval: nothing more is in reach.
-                    found.then_some(f32::NEG_INFINITY)
+                    let mut closest = limit;
+                    for &p in &b.prims[first as usize..(first + count) as usize] {
+                        let part = &self.parts[p as usize];
+                        if let Some(t) = enter(part.instance, (part.entry, part.count), closest) {
+                            closest = t;
+                            if t == f32::NEG_INFINITY {
+                                break;
+                            }
+                        }
+                    }
+                    (closest < limit).then_some(closest)
                 });
             }
             Accel::Kd(k) => {
-                k.closest(ray, t_min, t_max, &mut |p, limit| {
-                    if !found && test(p, limit) {
-                        found = true;
+                let mut done = false;
+                k.closest(ray, t_min, t_max, &mut |inst, limit| {
+                    if done {
+                        return None;
                     }
-                    None
+                    let t = enter(inst, (0, 0), limit)?;
+                    // -inf: a shadow ray found its blocker; test nothing more.
+                    done = t == f32::NEG_INFINITY;
+                    (!done).then_some(t)
                 });
             }
         }
-        found
     }
 }
 
 impl SceneAccel {
     /// The closest opaque hit on model `m` in `(t_min, t_max)`:
-    /// `(triangle, t, u, v)`; with `any`, the first found.
-    pub fn model_closest(&self, m: usize, model: &Model, ray: &Ray, t_min: f32, t_max: f32, any: bool) -> Option<(u32, f32, f32, f32)> {
+    /// `(triangle, t, u, v)`; with `any`, the first found. A BVH is walked
+    /// from `start` (an [`InstancePart`]'s entry; `(0, 0)` is the root).
+    #[allow(clippy::too_many_arguments)]
+    pub fn model_closest(
+        &self,
+        m: usize,
+        model: &Model,
+        start: (u32, u32),
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        any: bool,
+    ) -> Option<(u32, f32, f32, f32)> {
         let mut found = None;
         match &self.models[m] {
             Accel::Bvh(bvh) => {
                 let records = &self.records[m];
-                bvh.walk(ray, t_min, t_max, |first, count, limit| {
+                bvh.walk_from(start, ray, t_min, t_max, |first, count, limit| {
                     let mut closest = limit;
                     for r in &records[first as usize..(first + count) as usize] {
                         let Some((t, u, v)) = r.intersect(ray, t_min, closest) else { continue };

@@ -219,12 +219,12 @@ struct Flat {
 }
 
 impl Flat {
-    /// Appends a structure; leaves' primitives get `prim_shift` added.
-    /// Returns the root's node index.
-    /// Appends one level's structure; returns its root's entry. With a
-    /// BVH, a model's triangle records follow its nodes (their triangle and
-    /// material indices shifted by `tri0` and `mat0`).
-    fn push_accel(&mut self, accel: &Accel, prim_shift: u32, records: &[TriangleRecord], mat0: u32) -> anyhow::Result<u32> {
+    /// Appends one level's structure; returns the entries of its root and
+    /// of its first leaf record. A kd-tree's leaves list primitives (plus
+    /// `prim_shift`) in `prims`; a BVH's leaves point at `records`
+    /// (`stride` entries each, in the BVH's slot order), which follow its
+    /// nodes.
+    fn push_accel(&mut self, accel: &Accel, prim_shift: u32, records: &[[u32; 4]], stride: u32) -> anyhow::Result<(u32, u32)> {
         let prim_base = self.prims.len() as u32;
         Ok(match accel {
             Accel::Bvh(b) => {
@@ -236,29 +236,20 @@ impl Flat {
                 let base = self.nodes.len() as u32;
                 let nodes: &[BvhNode] = if b.nodes.is_empty() { std::slice::from_ref(&EMPTY_NODE) } else { &b.nodes };
                 let record_base = base + (nodes.len() * NODE_ENTRIES) as u32;
-                anyhow::ensure!(record_base as usize + 3 * records.len() < bvh::LEAF as usize, "the scene's BVH is too large to address");
+                anyhow::ensure!(record_base as usize + records.len() < bvh::LEAF as usize, "the scene's BVH is too large to address");
                 for n in nodes {
                     let mut n = *n;
                     for (c, &k) in n.child.iter_mut().zip(&n.count) {
                         *c = match *c {
                             bvh::EMPTY => bvh::EMPTY,
-                            leaf if leaf & bvh::LEAF != 0 && k > 0 => {
-                                let first = leaf & !bvh::LEAF;
-                                bvh::LEAF | if records.is_empty() { prim_base + first } else { record_base + 3 * first }
-                            }
+                            leaf if leaf & bvh::LEAF != 0 && k > 0 => bvh::LEAF | (record_base + stride * (leaf & !bvh::LEAF)),
                             inner => base + inner * NODE_ENTRIES as u32,
                         };
                     }
                     self.nodes.extend_from_slice(bytemuck::cast_slice::<BvhNode, [u32; 4]>(std::slice::from_ref(&n)));
                 }
-                if records.is_empty() {
-                    self.prims.extend(b.prims.iter().map(|p| p + prim_shift));
-                }
-                for r in records {
-                    let r = TriangleRecord { triangle: r.triangle + prim_shift, material: r.material + mat0, ..*r };
-                    self.nodes.extend_from_slice(bytemuck::cast_slice::<TriangleRecord, [u32; 4]>(std::slice::from_ref(&r)));
-                }
-                base
+                self.nodes.extend_from_slice(records);
+                (base, record_base)
             }
             Accel::Kd(k) => {
                 let [x0, y0, z0] = k.bounds.min.to_array().map(f32::to_bits);
@@ -271,7 +262,7 @@ impl Flat {
                     self.nodes.push([n.split.to_bits(), n.axis, first, n.count]);
                 }
                 self.prims.extend(k.prims.iter().map(|p| p + prim_shift));
-                base
+                (base, 0)
             }
         })
     }
@@ -282,15 +273,34 @@ impl GpuScene {
     pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, light: &SceneLight) -> anyhow::Result<Self> {
         let (lb, lb_scales) = (&light.models, &light.instance_scales);
         let mut f = Flat::default();
-        let top_root = f.push_accel(&accel.top, 0, &[], 0)?;
+        // With a BVH the top level's leaves hold instance parts, one entry
+        // each: (instance, entry of its subtree, leaf count, 0), the entry
+        // patched once the models' places are known.
+        let top_records: Vec<[u32; 4]> = match &accel.top {
+            Accel::Bvh(b) => b.prims.iter().map(|&p| bytemuck::cast(accel.parts[p as usize])).collect(),
+            Accel::Kd(_) => Vec::new(),
+        };
+        let (top_root, parts_at) = f.push_accel(&accel.top, 0, &top_records, 1)?;
         debug_assert_eq!(top_root, if matches!(accel.top, Accel::Kd(_)) { 2 } else { 0 });
+        let mut model_places = Vec::with_capacity(scene.models.len());
         let mut triangle_offsets = Vec::with_capacity(scene.models.len());
         for (m, sm) in scene.models.iter().enumerate() {
             let model = &sm.model;
             let (tri0, vert0) = (f.triangles.len() as u32, (f.positions.len() / 3) as u32);
             let (mat0, tex0) = (f.materials.len() as u32, f.textures.len() as u32);
             triangle_offsets.push(tri0);
-            let root = f.push_accel(&accel.models[m], tri0, accel.records.get(m).map_or(&[], |r| r.as_slice()), mat0)?;
+            let records: Vec<[u32; 4]> = accel
+                .records
+                .get(m)
+                .map_or(&[][..], |r| r.as_slice())
+                .iter()
+                .flat_map(|r| {
+                    let r = TriangleRecord { triangle: r.triangle + tri0, material: r.material + mat0, ..*r };
+                    bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
+                })
+                .collect();
+            let (root, records_at) = f.push_accel(&accel.models[m], tri0, &records, 3)?;
+            model_places.push((root, records_at));
             f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
             f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
             f.triangles
@@ -333,6 +343,11 @@ impl GpuScene {
                 }
             }
             f.models.push(gm);
+        }
+        for k in 0..top_records.len() {
+            let e = &mut f.nodes[parts_at as usize + k];
+            let (root, records_at) = model_places[scene.instances[e[0] as usize].model as usize];
+            e[1] = if e[1] & bvh::LEAF != 0 { bvh::LEAF | (records_at + 3 * (e[1] & !bvh::LEAF)) } else { root + e[1] * NODE_ENTRIES as u32 };
         }
         for (i, inst) in scene.instances.iter().enumerate() {
             let m = accel.to_model[i];
