@@ -82,6 +82,7 @@ fn bench_lb(a: LbBenchArgs) -> anyhow::Result<()> {
     let sun = Sun::default();
     let opts = SolveOptions::default();
     let nodes = medium.dims.len() as f64;
+    let triad = stream_triad();
     let mut results = Vec::new();
     for &backend in &a.backends {
         let mut solver = open_solver(backend)?;
@@ -113,6 +114,7 @@ fn bench_lb(a: LbBenchArgs) -> anyhow::Result<()> {
             "step_mlups": updates / (step_ms / 1e3) / 1e6,
             "ms_per_step": step_ms / steps as f64,
             "bytes_per_second": BYTES_PER_NODE_UPDATE as f64 * updates / (step_ms / 1e3),
+            "fraction_of_triad": BYTES_PER_NODE_UPDATE as f64 * updates / (step_ms / 1e3) / triad,
             "phases_ms": s.channels.iter().map(|c| &c.report.phases).collect::<Vec<_>>(),
         }));
     }
@@ -130,17 +132,43 @@ fn bench_lb(a: LbBenchArgs) -> anyhow::Result<()> {
         "tolerance": opts.tolerance,
         "max_steps": opts.cap(medium.dims),
         "bytes_per_node_update": BYTES_PER_NODE_UPDATE,
+        "triad_bytes_per_second": triad,
         "machine": machine(),
         "figures": {
             "mlups": "node updates per second over the whole solve of all three channels (set-up, upload, steps, convergence checks, read-back): what a user waits for",
             "step_mlups": "node updates per second over the stepping phase alone",
             "bytes_per_second": "bytes_per_node_update × node updates / stepping time",
+            "triad_bytes_per_second": "a[i] = b[i] + s·c[i] over three 32 MiB f32 arrays on every thread, best of 8, counting 12 bytes per element as STREAM does, measured in this run",
+            "fraction_of_triad": "the CPU backend's bytes_per_second over triad_bytes_per_second: 1 is memory-bound",
         },
         "results": results,
         "gpu_over_cpu": ratio,
     });
     println!("{}", serde_json::to_string_pretty(&out)?);
     Ok(())
+}
+
+/// Bytes per second of a STREAM-style triad on all threads (best of 8).
+fn stream_triad() -> f64 {
+    use rayon::prelude::*;
+    const N: usize = 8 << 20;
+    const CHUNK: usize = 1 << 16;
+    let b = vec![1.0f32; N];
+    let c = vec![2.0f32; N];
+    let mut a = vec![0.0f32; N];
+    let mut best = f64::INFINITY;
+    for rep in 0..8 {
+        let s = 0.5 + rep as f32;
+        let t = Instant::now();
+        a.par_chunks_mut(CHUNK).zip(b.par_chunks(CHUNK)).zip(c.par_chunks(CHUNK)).for_each(|((a, b), c)| {
+            for i in 0..a.len() {
+                a[i] = b[i] + s * c[i];
+            }
+        });
+        best = best.min(t.elapsed().as_secs_f64());
+        std::hint::black_box(&a);
+    }
+    (12 * N) as f64 / best
 }
 
 /// The host the benchmark ran on.

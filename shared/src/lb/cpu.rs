@@ -3,12 +3,13 @@
 //!
 //! One step, for every interior node `r`: gather `f_m(r − c_m)` from the
 //! previous state (streaming), then collide, `f'_m = f_m + ρ Σ_n Ω[m][n] f_n`
-//! with Ω summed in `n` order, zero `f'_0` at green nodes, and store. Boundary
+//! with Ω in its pair form ([`PairedOmega`]), zero `f'_0` at green nodes,
+//! and store. Boundary
 //! nodes are never written, so they hold the sun's densities for the whole
 //! solve, and flow into them or off the lattice is dropped.
 
 use super::boundary::{Boundary, GroundReflection};
-use super::collision::{Collision, Omega};
+use super::collision::{Collision, PAIRS, PairedOmega};
 use super::lattice::{DIRECTIONS, Q};
 use super::medium::{MediumGrid, NodeClass};
 use super::params::ChannelParams;
@@ -190,8 +191,9 @@ impl<'m> CpuLattice<'m> {
 }
 
 /// Streams and collides `len` nodes starting at node `base`; returns the sum
-/// of their new densities when asked. Runs the AVX2 build of the same code
-/// where the processor has it (no FMA, so the arithmetic is identical).
+/// of their new densities when asked. Runs the AVX2 + FMA build of the same
+/// code where the processor has it (fused multiply-adds, as the GPU's
+/// `fma`); elsewhere separate multiplies and adds.
 #[allow(clippy::too_many_arguments)]
 fn update_row(
     src: &[f32],
@@ -205,15 +207,15 @@ fn update_row(
     want_total: bool,
 ) -> f64 {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the processor supports AVX2, checked just above.
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the processor supports AVX2 and FMA, checked just above.
         return unsafe { update_row_avx2(src, dst, n, base, len, offsets, medium, coll, want_total) };
     }
-    update_row_portable(src, dst, n, base, len, offsets, medium, coll, want_total)
+    update_row_portable::<false>(src, dst, n, base, len, offsets, medium, coll, want_total)
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
 unsafe fn update_row_avx2(
     src: &[f32],
@@ -226,12 +228,19 @@ unsafe fn update_row_avx2(
     coll: &Collision,
     want_total: bool,
 ) -> f64 {
-    update_row_portable(src, dst, n, base, len, offsets, medium, coll, want_total)
+    update_row_portable::<true>(src, dst, n, base, len, offsets, medium, coll, want_total)
+}
+
+/// `a · b + c`, fused when `FMA` (inside the FMA build only: elsewhere a
+/// fused multiply-add is a library call).
+#[inline(always)]
+fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
+    if FMA { a.mul_add(b, c) } else { a * b + c }
 }
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn update_row_portable(
+fn update_row_portable<const FMA: bool>(
     src: &[f32],
     dst: RowWriter,
     n: usize,
@@ -242,89 +251,143 @@ fn update_row_portable(
     coll: &Collision,
     want_total: bool,
 ) -> f64 {
+    // Scratch reused by every block of the row.
+    let mut f = [[0.0f32; LANES]; Q];
+    let mut out = [[0.0f32; LANES]; Q];
+    if len < LANES {
+        return block::<FMA, false>(src, dst, n, base, len, 0, offsets, medium, coll, want_total, &mut f, &mut out);
+    }
+    // Whole blocks only, the last one overlapping its neighbour (its
+    // nodes are recomputed to the same values), so every copy has a
+    // constant length: inlined vector moves rather than library calls.
     let mut sum = 0.0f64;
     let mut x = 0;
     while x < len {
-        let lanes = LANES.min(len - x);
-        let node = base + x;
-        let mut f = [[0.0f32; LANES]; Q];
-        for m in 0..Q {
-            let start = (m * n + node) as isize - offsets[m];
-            let s = &src[start as usize..start as usize + lanes];
-            f[m][..lanes].copy_from_slice(s);
-        }
-        let rho = &medium.density[node..node + lanes];
-        let class = &medium.class[node..node + lanes];
-        let mut out = f;
-        if rho.iter().any(|&r| r != 0.0) {
-            if class.iter().all(|&c| c == class[0]) {
-                let mut r = [0.0f32; LANES];
-                r[..lanes].copy_from_slice(rho);
-                collide_lanes(&f, &r, omega_for(coll, class[0]), &mut out);
-                if class[0] == NodeClass::Green {
-                    out[0] = [0.0; LANES];
-                }
-            } else {
-                for k in 0..lanes {
-                    collide_one(&f, k, rho[k], omega_for(coll, class[k]), class[k], &mut out);
-                }
-            }
-        }
-        for m in 0..Q {
-            // SAFETY: `node..node + lanes` lies in this row, which no other
-            // worker writes; `m · n + node + lanes ≤ Q · n`.
-            unsafe {
-                std::ptr::copy_nonoverlapping(out[m].as_ptr(), dst.0.add(m * n + node), lanes);
-            }
-        }
-        if want_total {
-            for k in 0..lanes {
-                sum += (0..Q).map(|m| out[m][k] as f64).sum::<f64>();
-            }
-        }
-        x += lanes;
+        let start = x.min(len - LANES);
+        sum += block::<FMA, true>(src, dst, n, base + start, LANES, x - start, offsets, medium, coll, want_total, &mut f, &mut out);
+        x += LANES;
     }
     sum
 }
 
-fn omega_for(coll: &Collision, class: NodeClass) -> &Omega {
+/// Streams and collides the `lanes` nodes from `node` (`LANES` of them
+/// when `FULL`); returns the new densities' sum over lanes from `counted`
+/// on, when asked.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn block<const FMA: bool, const FULL: bool>(
+    src: &[f32],
+    dst: RowWriter,
+    n: usize,
+    node: usize,
+    lanes: usize,
+    counted: usize,
+    offsets: &[isize; Q],
+    medium: &MediumGrid,
+    coll: &Collision,
+    want_total: bool,
+    f: &mut [[f32; LANES]; Q],
+    out: &mut [[f32; LANES]; Q],
+) -> f64 {
+    let lanes = if FULL { LANES } else { lanes };
+    for m in 0..Q {
+        let start = ((m * n + node) as isize - offsets[m]) as usize;
+        f[m][..lanes].copy_from_slice(&src[start..start + lanes]);
+    }
+    let rho = &medium.density[node..node + lanes];
+    let class = &medium.class[node..node + lanes];
+    let res = if rho.iter().any(|&r| r != 0.0) {
+        if class.iter().all(|&c| c == class[0]) {
+            let mut r = [0.0f32; LANES];
+            r[..lanes].copy_from_slice(rho);
+            collide_lanes::<FMA>(f, &r, omega_for(coll, class[0]), out);
+            if class[0] == NodeClass::Green {
+                out[0] = [0.0; LANES];
+            }
+        } else {
+            *out = *f;
+            for k in 0..lanes {
+                collide_one::<FMA>(f, k, rho[k], omega_for(coll, class[k]), class[k], out);
+            }
+        }
+        &*out
+    } else {
+        &*f
+    };
+    for m in 0..Q {
+        // SAFETY: `node..node + lanes` lies in this row, which no other
+        // worker writes; `m · n + node + lanes ≤ Q · n`.
+        unsafe {
+            std::ptr::copy_nonoverlapping(res[m].as_ptr(), dst.0.add(m * n + node), lanes);
+        }
+    }
+    let mut sum = 0.0;
+    if want_total {
+        for k in counted..lanes {
+            sum += (0..Q).map(|m| res[m][k] as f64).sum::<f64>();
+        }
+    }
+    sum
+}
+
+fn omega_for(coll: &Collision, class: NodeClass) -> &PairedOmega {
     match class {
         NodeClass::Brown => &coll.brown,
         NodeClass::Medium | NodeClass::Green => &coll.medium,
     }
 }
 
-/// `out_m = f_m + ρ · Σ_n Ω[m][n] f_n` for all lanes at once.
+/// `out_m = f_m + ρ · Σ_n Ω[m][n] f_n` for all lanes at once, in the
+/// order of [`PairedOmega::apply`].
 #[inline(always)]
-fn collide_lanes(f: &[[f32; LANES]; Q], rho: &[f32; LANES], omega: &Omega, out: &mut [[f32; LANES]; Q]) {
-    for m in 0..Q {
-        let row = &omega.0[m];
-        let mut acc = [0.0f32; LANES];
+fn collide_lanes<const FMA: bool>(f: &[[f32; LANES]; Q], rho: &[f32; LANES], w: &PairedOmega, out: &mut [[f32; LANES]; Q]) {
+    let mut s = [[0.0f32; LANES]; PAIRS];
+    let mut d = [[0.0f32; LANES]; PAIRS];
+    for b in 0..PAIRS {
         for k in 0..LANES {
-            acc[k] = row[0] * f[0][k];
+            s[b][k] = f[2 * b + 1][k] + f[2 * b + 2][k];
+            d[b][k] = f[2 * b + 1][k] - f[2 * b + 2][k];
         }
-        for j in 1..Q {
-            let w = row[j];
+    }
+    let mut rest = [0.0f32; LANES];
+    for k in 0..LANES {
+        rest[k] = w.from_rest[0] * f[0][k];
+    }
+    for b in 0..PAIRS {
+        for k in 0..LANES {
+            rest[k] = madd::<FMA>(w.rest_even[b], s[b][k], rest[k]);
+            rest[k] = madd::<FMA>(w.rest_odd[b], d[b][k], rest[k]);
+        }
+    }
+    for k in 0..LANES {
+        out[0][k] = madd::<FMA>(rho[k], rest[k], f[0][k]);
+    }
+    for a in 0..PAIRS {
+        let mut even = [0.0f32; LANES];
+        let mut odd = [0.0f32; LANES];
+        for b in 0..PAIRS {
+            let (e, o) = (w.even[a][b], w.odd[a][b]);
             for k in 0..LANES {
-                acc[k] += w * f[j][k];
+                even[k] = madd::<FMA>(e, s[b][k], even[k]);
+                odd[k] = madd::<FMA>(o, d[b][k], odd[k]);
             }
         }
+        let (i, ib) = (2 * a + 1, 2 * a + 2);
         for k in 0..LANES {
-            out[m][k] = f[m][k] + rho[k] * acc[k];
+            let p = madd::<FMA>(w.from_rest[i], f[0][k], even[k] + odd[k]);
+            let q = madd::<FMA>(w.from_rest[ib], f[0][k], even[k] - odd[k]);
+            out[i][k] = madd::<FMA>(rho[k], p, f[i][k]);
+            out[ib][k] = madd::<FMA>(rho[k], q, f[ib][k]);
         }
     }
 }
 
 /// The same arithmetic for one lane whose class differs from its neighbours'.
 #[inline(always)]
-fn collide_one(f: &[[f32; LANES]; Q], k: usize, rho: f32, omega: &Omega, class: NodeClass, out: &mut [[f32; LANES]; Q]) {
+fn collide_one<const FMA: bool>(f: &[[f32; LANES]; Q], k: usize, rho: f32, w: &PairedOmega, class: NodeClass, out: &mut [[f32; LANES]; Q]) {
+    let acc = w.apply(&std::array::from_fn(|m| f[m][k]));
     for m in 0..Q {
-        let row = &omega.0[m];
-        let mut acc = row[0] * f[0][k];
-        for j in 1..Q {
-            acc += row[j] * f[j][k];
-        }
-        out[m][k] = f[m][k] + rho * acc;
+        out[m][k] = madd::<FMA>(rho, acc[m], f[m][k]);
     }
     if class == NodeClass::Green {
         out[0][k] = 0.0;

@@ -2,8 +2,9 @@
 //! direction unrolled, every Ω entry a literal, zero entries dropped.
 
 use std::fmt::Write;
+use sylva_shared::lb::collision::{PAIRS, PairedOmega};
 use sylva_shared::lb::lattice::{DIRECTIONS, Q};
-use sylva_shared::lb::{Collision, GridDims, GroundReflection, Omega};
+use sylva_shared::lb::{Collision, GridDims, GroundReflection};
 
 /// The kernel template.
 const TEMPLATE: &str = include_str!("../../../shaders/lb/step.wgsl");
@@ -176,17 +177,29 @@ fn ground_code(layout: &StateLayout, ground: &GroundReflection) -> String {
     )
 }
 
-/// `o_m = f_m + rho * (Σ_n Ω[m][n] f_n)`, summed in `n` order as the CPU
-/// reference does; zero entries are left out (adding +0 changes nothing).
-fn collide(omega: &Omega) -> String {
+/// `o_m = f_m + rho * (Σ_n Ω[m][n] f_n)` in Ω's pair form, with the CPU
+/// reference's order of fused multiply-adds (`PairedOmega::apply`); zero
+/// coefficients are left out (a fused add of 0 · x changes nothing).
+fn collide(w: &PairedOmega) -> String {
     let mut out = String::new();
-    for m in 0..Q {
-        let terms: Vec<String> = (0..Q).filter(|&n| omega.0[m][n] != 0.0).map(|n| format!("{} * f{n}", literal(omega.0[m][n]))).collect();
-        if terms.is_empty() {
-            writeln!(out, "        o{m} = f{m};").unwrap();
-        } else {
-            writeln!(out, "        o{m} = f{m} + rho * ({});", terms.join(" + ")).unwrap();
-        }
+    // A chain of fma over the non-zero terms, starting from `start`.
+    let chain = |start: String, terms: &[(f32, String)]| {
+        terms.iter().filter(|(c, _)| *c != 0.0).fold(start, |acc, (c, x)| format!("fma({}, {x}, {acc})", literal(*c)))
+    };
+    for b in 0..PAIRS {
+        let (j, jb) = (2 * b + 1, 2 * b + 2);
+        writeln!(out, "        let s{b} = f{j} + f{jb};\n        let d{b} = f{j} - f{jb};").unwrap();
+    }
+    let rest_terms: Vec<(f32, String)> = (0..PAIRS).flat_map(|b| [(w.rest_even[b], format!("s{b}")), (w.rest_odd[b], format!("d{b}"))]).collect();
+    let rest = chain(format!("{} * f0", literal(w.from_rest[0])), &rest_terms);
+    writeln!(out, "        o0 = fma(rho, {rest}, f0);").unwrap();
+    for a in 0..PAIRS {
+        let even = chain("0.0".into(), &(0..PAIRS).map(|b| (w.even[a][b], format!("s{b}"))).collect::<Vec<_>>());
+        let odd = chain("0.0".into(), &(0..PAIRS).map(|b| (w.odd[a][b], format!("d{b}"))).collect::<Vec<_>>());
+        let (i, ib) = (2 * a + 1, 2 * a + 2);
+        writeln!(out, "        let e{a} = {even};\n        let q{a} = {odd};").unwrap();
+        writeln!(out, "        o{i} = fma(rho, fma({}, f0, e{a} + q{a}), f{i});", literal(w.from_rest[i])).unwrap();
+        writeln!(out, "        o{ib} = fma(rho, fma({}, f0, e{a} - q{a}), f{ib});", literal(w.from_rest[ib])).unwrap();
     }
     out.trim_end().to_string()
 }
