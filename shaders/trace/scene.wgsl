@@ -12,8 +12,9 @@
 override ACCEL_KIND: u32 = 0u;
 
 const MIN_DIRECTION: f32 = 1e-20;
-// Entries of the wide BVH's traversal stack; the upload refuses deeper trees.
-const BVH_STACK: u32 = 64u;
+// Entries of the wide BVH's traversal stack, both levels together; the
+// upload refuses deeper trees (GPU_BVH_STACK in gpu_scene.rs).
+const BVH_STACK: u32 = 96u;
 // A wide BVH child reference: a leaf (its first record or prim slot), or empty.
 const BVH_LEAF: u32 = 0x80000000u;
 const BVH_EMPTY: u32 = 0xffffffffu;
@@ -281,36 +282,27 @@ fn test_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> Hit {
     return no_hit();
 }
 
-// The closest hit inside an instance, from one entry of its model's
-// structure (a BVH's top-level leaves hold instance parts, a kd-tree's
-// whole instances): the ray carried into model space unnormalized, so t
-// means the same in both spaces.
-fn test_instance(ray: Ray, index: u32, entry: u32, entry_count: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
+// The closest hit inside an instance (kd-tree): the ray carried into
+// model space unnormalized, so t means the same in both spaces.
+fn test_instance(ray: Ray, index: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     let inst = instances[index];
     let local = make_ray(to_model_point(inst, ray.origin), to_model_vector(inst, ray.dir));
-    var h = traverse_model(local, entry, entry_count, t_min, t_max, any);
+    var h = traverse_kd_model(local, models[inst.model].root, t_min, t_max, any);
     h.instance = index;
     return h;
 }
 
 fn test_prim_top(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
-    return test_instance(ray, prim, models[instances[prim].model].root, 0u, t_min, t_max, any);
+    return test_instance(ray, prim, t_min, t_max, any);
 }
 
 fn test_prim_model(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
     return test_triangle(ray, prim, t_min, t_max);
 }
 
-// The k-th entry of a wide BVH leaf at the top level: a part of an
-// instance (instance, entry of its subtree, leaf count).
-fn test_leaf_top(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
-    let part = nodes[first + k];
-    return test_instance(ray, part.x, part.y, part.z, t_min, t_max, any);
-}
-
 // The k-th triangle record of a wide BVH leaf (model level): the alpha
 // test only where the triangle's texels are mixed.
-fn test_leaf_model(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
+fn test_record(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32) -> Hit {
     let r = first + 3u * k;
     let a = nodes[r];
     let b = nodes[r + 1u];
@@ -327,11 +319,17 @@ fn test_leaf_model(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32, any: bo
 
 // The closest opaque hit in the scene in (t_min, t_max).
 fn closest_hit(ray: Ray, t_min: f32, t_max: f32) -> Hit {
+    if ACCEL_KIND == 0u {
+        return traverse_bvh(ray, t_min, t_max, false);
+    }
     // A kd-tree's root follows its two bounds entries.
-    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), 0u, t_min, t_max, false);
+    return traverse_kd_top(ray, 2u, t_min, t_max, false);
 }
 
 // Whether anything opaque lies along the ray in (t_min, t_max).
 fn occluded(ray: Ray, t_min: f32, t_max: f32) -> bool {
-    return traverse_top(ray, select(0u, 2u, ACCEL_KIND == 1u), 0u, t_min, t_max, true).triangle != NO_HIT;
+    if ACCEL_KIND == 0u {
+        return traverse_bvh(ray, t_min, t_max, true).triangle != NO_HIT;
+    }
+    return traverse_kd_top(ray, 2u, t_min, t_max, true).triangle != NO_HIT;
 }

@@ -7,8 +7,9 @@ use sylva_shared::accel::bvh::{self, BvhNode};
 use sylva_shared::accel::triangle::TriangleRecord;
 use sylva_shared::accel::{Accel, KdNode, SceneAccel};
 
-/// Stack entries of the GPU's BVH traversal (`BVH_STACK` in scene.wgsl).
-const GPU_BVH_STACK: usize = 64;
+/// Stack entries of the GPU's BVH traversal, both levels together
+/// (`BVH_STACK` in scene.wgsl).
+const GPU_BVH_STACK: usize = 96;
 /// Entries (16 bytes) of one wide BVH node.
 const NODE_ENTRIES: usize = size_of::<BvhNode>() / 16;
 /// The node of a BVH over nothing: every child empty.
@@ -228,11 +229,6 @@ impl Flat {
         let prim_base = self.prims.len() as u32;
         Ok(match accel {
             Accel::Bvh(b) => {
-                anyhow::ensure!(
-                    b.stack_depth <= GPU_BVH_STACK,
-                    "a BVH needs {} stack entries, more than the GPU traversal's {GPU_BVH_STACK}",
-                    b.stack_depth
-                );
                 let base = self.nodes.len() as u32;
                 let nodes: &[BvhNode] = if b.nodes.is_empty() { std::slice::from_ref(&EMPTY_NODE) } else { &b.nodes };
                 let record_base = base + (nodes.len() * NODE_ENTRIES) as u32;
@@ -273,6 +269,12 @@ impl GpuScene {
     pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, light: &SceneLight) -> anyhow::Result<Self> {
         let (lb, lb_scales) = (&light.models, &light.instance_scales);
         let mut f = Flat::default();
+        if let Accel::Bvh(top) = &accel.top {
+            // The top level's entries, one part's remainder, then a model's.
+            let deepest_model = accel.models.iter().map(|m| if let Accel::Bvh(b) = m { b.stack_depth } else { 0 }).max().unwrap_or(0);
+            let need = top.stack_depth + 1 + deepest_model;
+            anyhow::ensure!(need <= GPU_BVH_STACK, "the scene's BVH needs {need} stack entries, more than the GPU traversal's {GPU_BVH_STACK}");
+        }
         // With a BVH the top level's leaves hold instance parts, one entry
         // each: (instance, entry of its subtree, leaf count, 0), the entry
         // patched once the models' places are known.

@@ -1,17 +1,21 @@
 //! Assembles the tracer's WGSL: the scene and traversal code shared by
-//! every entry point, with the traversal template instantiated per level.
+//! every entry point, with the kd-tree's traversal template instantiated
+//! per level and the BVH's two-level loop.
 
 const SCENE: &str = include_str!("../../../shaders/trace/scene.wgsl");
 const TRAVERSE: &str = include_str!("../../../shaders/trace/traverse.wgsl");
+const BVH: &str = include_str!("../../../shaders/trace/bvh.wgsl");
 
 /// The full module for an entry-point file's source.
 pub fn tracer_source(entry: &str) -> String {
-    let mut s = String::with_capacity(SCENE.len() + 2 * TRAVERSE.len() + entry.len());
+    let mut s = String::with_capacity(SCENE.len() + 2 * TRAVERSE.len() + BVH.len() + entry.len());
     s.push_str(SCENE);
     for level in ["top", "model"] {
         s.push('\n');
         s.push_str(&TRAVERSE.replace("LEVEL", level));
     }
+    s.push('\n');
+    s.push_str(BVH);
     s.push('\n');
     s.push_str(entry);
     s

@@ -1,0 +1,135 @@
+// Both levels of the wide BVH in one loop. A nested traversal (one loop for
+// the instances, another inside it for an instance's triangles) leaves
+// lanes idle: while one lane of a SIMD group walks a tree, the others wait
+// at the top level. Here every lane runs the same step each iteration (a
+// node's four boxes, or a leaf), whichever level it is on; entering an
+// instance swaps in the ray carried into model space, and popping an entry
+// pushed before that swaps the world ray back. Visits are in the order of
+// the CPU reference (shared/src/accel/scene.rs), so ties resolve alike.
+
+// The stack lives at module scope: a function's arrays are zeroed on every
+// call (WGSL's rule), a private one once per invocation.
+var<private> bvh_stack_ref: array<u32, BVH_STACK>;
+var<private> bvh_stack_count: array<u32, BVH_STACK>;
+var<private> bvh_stack_near: array<f32, BVH_STACK>;
+
+// The closest opaque hit in (t_min, t_max); with `any`, the first found.
+// The top level's root is entry 0; its leaves hold instance parts
+// (instance, entry of a subtree of the model's BVH, leaf count).
+fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
+    let inf = bitcast<f32>(0x7f800000u);
+    var best = no_hit();
+    var closest = t_max;
+    var ray = world;
+    // The instance being walked (NO_HIT at the top level) and the stack
+    // depth when it was entered: entries below it are the top level's.
+    var inst = NO_HIT;
+    var inst_sp = 0u;
+    var sp = 0u;
+    var cur = 0u;
+    var count = 0u;
+    // The entry distance of `cur`.
+    var near_cur = t_min;
+    loop {
+        var descended = false;
+        if (cur & BVH_LEAF) != 0u {
+            let first = cur & ~BVH_LEAF;
+            if inst == NO_HIT {
+                // A top-level leaf: enter its first part, keep the rest.
+                if count > 1u {
+                    bvh_stack_ref[sp] = BVH_LEAF | (first + 1u);
+                    bvh_stack_count[sp] = count - 1u;
+                    bvh_stack_near[sp] = near_cur;
+                    sp += 1u;
+                }
+                let part = nodes[first];
+                inst = part.x;
+                inst_sp = sp;
+                let r0 = instances[inst].to_model[0];
+                let r1 = instances[inst].to_model[1];
+                let r2 = instances[inst].to_model[2];
+                let o = vec4<f32>(world.origin, 1.0);
+                let d = vec4<f32>(world.dir, 0.0);
+                ray = make_ray(vec3<f32>(dot(r0, o), dot(r1, o), dot(r2, o)), vec3<f32>(dot(r0, d), dot(r1, d), dot(r2, d)));
+                cur = part.y;
+                count = part.z;
+                descended = true;
+            } else {
+                for (var k = 0u; k < count; k++) {
+                    let h = test_record(ray, first, k, t_min, closest);
+                    if h.triangle != NO_HIT {
+                        best = h;
+                        best.instance = inst;
+                        closest = h.t;
+                        if any {
+                            return best;
+                        }
+                    }
+                }
+            }
+        } else {
+            let o = ray.origin;
+            let inv = ray.inv_dir;
+            let x0 = (bitcast<vec4<f32>>(nodes[cur]) - o.x) * inv.x;
+            let y0 = (bitcast<vec4<f32>>(nodes[cur + 1u]) - o.y) * inv.y;
+            let z0 = (bitcast<vec4<f32>>(nodes[cur + 2u]) - o.z) * inv.z;
+            let x1 = (bitcast<vec4<f32>>(nodes[cur + 3u]) - o.x) * inv.x;
+            let y1 = (bitcast<vec4<f32>>(nodes[cur + 4u]) - o.y) * inv.y;
+            let z1 = (bitcast<vec4<f32>>(nodes[cur + 5u]) - o.z) * inv.z;
+            let child = nodes[cur + 6u];
+            let counts = nodes[cur + 7u];
+            let near = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), vec4<f32>(t_min)));
+            let far = min(min(max(x0, x1), max(y0, y1)), min(max(z0, z1), vec4<f32>(closest)));
+            let hit = (near <= far) & (child != vec4<u32>(BVH_EMPTY));
+            let n_hit = dot(select(vec4<u32>(0u), vec4<u32>(1u), hit), vec4<u32>(1u));
+            if n_hit > 0u {
+                // Misses sort last: their key is infinite, a hit's is finite.
+                var dist = select(vec4<f32>(inf), min(near, vec4<f32>(3.0e38)), hit);
+                var slot = vec4<u32>(0u, 1u, 2u, 3u);
+                sort_pair(&dist, &slot, 0u, 1u);
+                sort_pair(&dist, &slot, 2u, 3u);
+                sort_pair(&dist, &slot, 0u, 2u);
+                sort_pair(&dist, &slot, 1u, 3u);
+                sort_pair(&dist, &slot, 1u, 2u);
+                for (var k = n_hit - 1u; k > 0u; k--) {
+                    bvh_stack_ref[sp] = child[slot[k]];
+                    bvh_stack_count[sp] = counts[slot[k]];
+                    bvh_stack_near[sp] = dist[k];
+                    sp += 1u;
+                }
+                cur = child[slot[0]];
+                count = counts[slot[0]];
+                near_cur = dist[0];
+                descended = true;
+            }
+        }
+        if descended {
+            continue;
+        }
+        // Pop the next entry still in reach, back in world space once below
+        // the instance's entries.
+        var found = false;
+        loop {
+            if sp == 0u {
+                break;
+            }
+            sp -= 1u;
+            if sp < inst_sp {
+                inst = NO_HIT;
+                inst_sp = 0u;
+                ray = world;
+            }
+            if bvh_stack_near[sp] <= closest {
+                cur = bvh_stack_ref[sp];
+                count = bvh_stack_count[sp];
+                near_cur = bvh_stack_near[sp];
+                found = true;
+                break;
+            }
+        }
+        if !found {
+            return best;
+        }
+    }
+    return best;
+}
