@@ -13,6 +13,11 @@ var<private> bvh_stack_ref: array<u32, BVH_STACK>;
 var<private> bvh_stack_count: array<u32, BVH_STACK>;
 var<private> bvh_stack_near: array<f32, BVH_STACK>;
 
+// The four bytes of `w` as grid cells.
+fn cells(w: u32) -> vec4<f32> {
+    return vec4<f32>(vec4<u32>(w, w >> 8u, w >> 16u, w >> 24u) & vec4<u32>(0xffu));
+}
+
 // The closest opaque hit in (t_min, t_max); with `any`, the first found.
 // The top level's root is entry 0; its leaves hold instance parts
 // (instance, entry of a subtree of the model's BVH, leaf count).
@@ -70,14 +75,24 @@ fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
         } else {
             let o = ray.origin;
             let inv = ray.inv_dir;
-            let x0 = (bitcast<vec4<f32>>(nodes[cur]) - o.x) * inv.x;
-            let y0 = (bitcast<vec4<f32>>(nodes[cur + 1u]) - o.y) * inv.y;
-            let z0 = (bitcast<vec4<f32>>(nodes[cur + 2u]) - o.z) * inv.z;
-            let x1 = (bitcast<vec4<f32>>(nodes[cur + 3u]) - o.x) * inv.x;
-            let y1 = (bitcast<vec4<f32>>(nodes[cur + 4u]) - o.y) * inv.y;
-            let z1 = (bitcast<vec4<f32>>(nodes[cur + 5u]) - o.z) * inv.z;
-            let child = nodes[cur + 6u];
-            let counts = nodes[cur + 7u];
+            // (grid origin, exponents), children, (lo x y z, hi x), (hi y z, counts).
+            let e0 = nodes[cur];
+            let child = nodes[cur + 1u];
+            let q0 = nodes[cur + 2u];
+            let q1 = nodes[cur + 3u];
+            let org = bitcast<vec3<f32>>(e0.xyz);
+            let step = vec3<f32>(
+                bitcast<f32>((e0.w & 0xffu) << 23u),
+                bitcast<f32>(((e0.w >> 8u) & 0xffu) << 23u),
+                bitcast<f32>(((e0.w >> 16u) & 0xffu) << 23u),
+            );
+            let x0 = (org.x + cells(q0.x) * step.x - o.x) * inv.x;
+            let y0 = (org.y + cells(q0.y) * step.y - o.y) * inv.y;
+            let z0 = (org.z + cells(q0.z) * step.z - o.z) * inv.z;
+            let x1 = (org.x + cells(q0.w) * step.x - o.x) * inv.x;
+            let y1 = (org.y + cells(q1.x) * step.y - o.y) * inv.y;
+            let z1 = (org.z + cells(q1.y) * step.z - o.z) * inv.z;
+            let counts = vec4<u32>(q1.z & 0xffffu, q1.z >> 16u, q1.w & 0xffffu, q1.w >> 16u);
             let near = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), vec4<f32>(t_min)));
             let far = min(min(max(x0, x1), max(y0, y1)), min(max(z0, z1), vec4<f32>(closest)));
             let hit = (near <= far) & (child != vec4<u32>(BVH_EMPTY));

@@ -77,8 +77,9 @@ struct Model {
     has_envelope: u32,
 }
 
-// Wide BVH nodes take eight entries (min x, y, z and max x, y, z of the four
-// children, their references, their leaf counts) and each model's triangle
+// Wide BVH nodes take four entries (the grid's origin and exponents, the
+// four children's references, their boxes in 8-bit grid cells and their
+// leaf counts: shared/src/accel/bvh.rs) and each model's triangle
 // records three (first vertex + triangle, edge 1 + coverage, edge 2 +
 // material), after its nodes; kd nodes take one (split, axis, first,
 // count). References are entry indices. The top level's root is entry 0.

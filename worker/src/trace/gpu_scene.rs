@@ -12,13 +12,6 @@ use sylva_shared::accel::{Accel, KdNode, SceneAccel};
 const GPU_BVH_STACK: usize = 96;
 /// Entries (16 bytes) of one wide BVH node.
 const NODE_ENTRIES: usize = size_of::<BvhNode>() / 16;
-/// The node of a BVH over nothing: every child empty.
-const EMPTY_NODE: BvhNode = BvhNode {
-    min: [[f32::INFINITY; bvh::WIDTH]; 3],
-    max: [[f32::NEG_INFINITY; bvh::WIDTH]; 3],
-    child: [bvh::EMPTY; bvh::WIDTH],
-    count: [0; bvh::WIDTH],
-};
 use sylva_shared::lb::LbGrid;
 use sylva_shared::scene::Scene;
 use wgpu::util::DeviceExt;
@@ -230,12 +223,13 @@ impl Flat {
         Ok(match accel {
             Accel::Bvh(b) => {
                 let base = self.nodes.len() as u32;
-                let nodes: &[BvhNode] = if b.nodes.is_empty() { std::slice::from_ref(&EMPTY_NODE) } else { &b.nodes };
+                let nodes: &[BvhNode] = if b.nodes.is_empty() { std::slice::from_ref(&BvhNode::EMPTY) } else { &b.nodes };
                 let record_base = base + (nodes.len() * NODE_ENTRIES) as u32;
                 anyhow::ensure!(record_base as usize + records.len() < bvh::LEAF as usize, "the scene's BVH is too large to address");
                 for n in nodes {
                     let mut n = *n;
-                    for (c, &k) in n.child.iter_mut().zip(&n.count) {
+                    let counts: [u32; bvh::WIDTH] = std::array::from_fn(|i| n.leaf_count(i));
+                    for (c, &k) in n.child.iter_mut().zip(&counts) {
                         *c = match *c {
                             bvh::EMPTY => bvh::EMPTY,
                             leaf if leaf & bvh::LEAF != 0 && k > 0 => bvh::LEAF | (record_base + stride * (leaf & !bvh::LEAF)),
