@@ -148,6 +148,25 @@ fn bench_lb(a: LbBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Writes the rays and the flattened triangles a ray can hit (fully cut
+/// ones left out, alpha otherwise ignored: Embree's opaque baseline).
+fn export_rays(dir: &std::path::Path, scene: &sylva_shared::scene::Scene, rays: &[sylva_shared::accel::Ray]) -> anyhow::Result<()> {
+    use sylva_shared::accel::coverage::{Coverage, triangle_coverage};
+    std::fs::create_dir_all(dir)?;
+    let r: Vec<f32> = rays.iter().flat_map(|r| r.origin.to_array().into_iter().chain(r.dir.to_array())).collect();
+    sylva_shared::npy::write_f32(&dir.join("rays.npy"), &[rays.len() as u64, 6], &r)?;
+    let coverage: Vec<Vec<Coverage>> = scene.models.iter().map(|m| triangle_coverage(&m.model)).collect();
+    let mut tris = Vec::new();
+    for inst in &scene.instances {
+        let m = &scene.models[inst.model as usize].model;
+        for t in (0..m.triangle_count()).filter(|&t| coverage[inst.model as usize][t] != Coverage::Cut) {
+            tris.extend(m.triangle(t).iter().flat_map(|p| inst.to_world.transform_point3(*p).to_array()));
+        }
+    }
+    sylva_shared::npy::write_f32(&dir.join("triangles.npy"), &[tris.len() as u64 / 9, 3, 3], &tris)?;
+    Ok(())
+}
+
 /// Bytes per second of a STREAM-style triad on all threads (best of 8).
 fn stream_triad() -> f64 {
     use rayon::prelude::*;
@@ -206,6 +225,11 @@ pub struct TraceBenchArgs {
     /// Skip the whole frames.
     #[arg(long)]
     pub no_frames: bool,
+    /// Also write the rays (`rays.npy`: origin and direction per row) and
+    /// every instance's triangles that a ray can hit, flattened to world
+    /// space (`triangles.npy`), for `benchmarks/embree.py`.
+    #[arg(long)]
+    pub export: Option<std::path::PathBuf>,
     /// Print JSON (always JSON; accepted for scripts).
     #[arg(long)]
     pub json: bool,
@@ -234,6 +258,9 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         .collect();
     let gpu_rays: Vec<GpuRay> =
         rays.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 0.0, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
+    if let Some(dir) = &a.export {
+        export_rays(dir, &scene, &rays)?;
+    }
     let ctx = GpuContext::new()?;
     let mut traversal = Vec::new();
     // Shadow rays toward the sun from the first structure's primary hits:
