@@ -130,17 +130,17 @@ impl BvhNode {
     }
 }
 
-/// Asks for `node`'s cache line ahead of its visit: traversal waits on
+/// Asks for the cache line at `item` ahead of its use: traversal waits on
 /// memory, not arithmetic.
 #[inline(always)]
-fn prefetch(node: &BvhNode) {
+pub fn prefetch<T>(item: &T) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: a prefetch reads nothing and cannot fault; SSE is part of x86-64.
     unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((node as *const BvhNode).cast());
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((item as *const T).cast());
     }
     #[cfg(not(target_arch = "x86_64"))]
-    let _ = node;
+    let _ = item;
 }
 
 /// Byte `i` of `w`.
@@ -294,13 +294,23 @@ impl Bvh {
     /// distance when it finds one. Returns the closest distance.
     #[inline]
     pub fn walk(&self, ray: &Ray, t_min: f32, t_max: f32, leaf: impl FnMut(u32, u32, f32) -> Option<f32>) -> f32 {
-        self.walk_from((0, 0), ray, t_min, t_max, leaf)
+        self.walk_from((0, 0), ray, t_min, t_max, |_| {}, leaf)
     }
 
     /// As [`Bvh::walk`], from one entry (`(reference, leaf count)` of a
-    /// [`Bvh::parts`] entry) instead of the root.
+    /// [`Bvh::parts`] entry) instead of the root; `ahead(first slot)` hears
+    /// of each leaf the ray will visit, when its parent is visited, to
+    /// fetch what the leaf holds early.
     #[inline]
-    pub fn walk_from(&self, start: (u32, u32), ray: &Ray, t_min: f32, t_max: f32, mut leaf: impl FnMut(u32, u32, f32) -> Option<f32>) -> f32 {
+    pub fn walk_from(
+        &self,
+        start: (u32, u32),
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        ahead: impl Fn(u32),
+        mut leaf: impl FnMut(u32, u32, f32) -> Option<f32>,
+    ) -> f32 {
         let mut closest = t_max;
         if self.nodes.is_empty() {
             return closest;
@@ -338,6 +348,8 @@ impl Bvh {
                         hits += 1;
                         if n.child[i] & LEAF == 0 {
                             prefetch(&self.nodes[n.child[i] as usize]);
+                        } else {
+                            ahead(n.child[i] & !LEAF);
                         }
                     }
                     for k in (1..hits).rev() {

@@ -204,7 +204,8 @@ impl SceneAccel {
         match &self.models[m] {
             Accel::Bvh(bvh) => {
                 let records = &self.records[m];
-                bvh.walk_from(start, ray, t_min, t_max, |first, count, limit| {
+                let ahead = |first: u32| super::bvh::prefetch(&records[first as usize]);
+                bvh.walk_from(start, ray, t_min, t_max, ahead, |first, count, limit| {
                     let mut closest = limit;
                     for r in &records[first as usize..(first + count) as usize] {
                         let Some((t, u, v)) = r.intersect(ray, t_min, closest) else { continue };
