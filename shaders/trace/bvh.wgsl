@@ -13,6 +13,19 @@ var<private> bvh_stack_ref: array<u32, BVH_STACK>;
 var<private> bvh_stack_count: array<u32, BVH_STACK>;
 var<private> bvh_stack_near: array<f32, BVH_STACK>;
 
+// Orders lanes a and b of the distances d (and their child slots i).
+fn sort_pair(d: ptr<function, vec4<f32>>, i: ptr<function, vec4<u32>>, a: u32, b: u32) {
+    let da = (*d)[a];
+    let db = (*d)[b];
+    if db < da {
+        (*d)[a] = db;
+        (*d)[b] = da;
+        let ia = (*i)[a];
+        (*i)[a] = (*i)[b];
+        (*i)[b] = ia;
+    }
+}
+
 // The four bytes of `w` as grid cells.
 fn cells(w: u32) -> vec4<f32> {
     return vec4<f32>(vec4<u32>(w, w >> 8u, w >> 16u, w >> 24u) & vec4<u32>(0xffu));
@@ -50,12 +63,8 @@ fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
                 let part = nodes[first];
                 inst = part.x;
                 inst_sp = sp;
-                let r0 = instances[inst].to_model[0];
-                let r1 = instances[inst].to_model[1];
-                let r2 = instances[inst].to_model[2];
-                let o = vec4<f32>(world.origin, 1.0);
-                let d = vec4<f32>(world.dir, 0.0);
-                ray = make_ray(vec3<f32>(dot(r0, o), dot(r1, o), dot(r2, o)), vec3<f32>(dot(r0, d), dot(r1, d), dot(r2, d)));
+                let instance = instances[inst];
+                ray = make_ray(to_model_point(instance, world.origin), to_model_vector(instance, world.dir));
                 cur = part.y;
                 count = part.z;
                 descended = true;

@@ -239,19 +239,6 @@ fn intersect_edges(ray: Ray, a: vec3<f32>, e1: vec3<f32>, e2: vec3<f32>, t_min: 
     return miss;
 }
 
-// Orders lanes a and b of the distances d (and their child slots i).
-fn sort_pair(d: ptr<function, vec4<f32>>, i: ptr<function, vec4<u32>>, a: u32, b: u32) {
-    let da = (*d)[a];
-    let db = (*d)[b];
-    if db < da {
-        (*d)[a] = db;
-        (*d)[b] = da;
-        let ia = (*i)[a];
-        (*i)[a] = (*i)[b];
-        (*i)[b] = ia;
-    }
-}
-
 struct KdEntry {
     node: u32,
     lo: f32,

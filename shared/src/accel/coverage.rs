@@ -49,16 +49,16 @@ impl OpaqueTable {
     }
 
     /// The texel ranges a coordinate interval can fetch, wrapping as
-    /// `Texture::texel` does, with a texel's margin for rounding; one or two
-    /// plain ranges.
-    fn spans(lo: f32, hi: f32, n: usize) -> Vec<(usize, usize)> {
+    /// `Texture::texel` does, with a texel's margin for rounding: one or two
+    /// plain ranges (an empty second one when one suffices).
+    fn spans(lo: f32, hi: f32, n: usize) -> [(usize, usize); 2] {
         let (a, b) = ((lo * n as f32).floor() - 1.0, (hi * n as f32).floor() + 1.0);
         if !(a.is_finite() && b.is_finite()) || b - a + 1.0 >= n as f32 || a.abs() > 1e7 || b.abs() > 1e7 {
-            return vec![(0, n)];
+            return [(0, n), (0, 0)];
         }
         let start = (a as i64).rem_euclid(n as i64) as usize;
         let len = (b - a) as usize + 1;
-        if start + len <= n { vec![(start, start + len)] } else { vec![(start, n), (0, start + len - n)] }
+        if start + len <= n { [(start, start + len), (0, 0)] } else { [(start, n), (0, start + len - n)] }
     }
 
     /// Opaque texels and all texels a triangle with these coordinates can fetch.
@@ -66,8 +66,8 @@ impl OpaqueTable {
         let lo = uv[0].min(uv[1]).min(uv[2]);
         let hi = uv[0].max(uv[1]).max(uv[2]);
         let (mut opaque, mut all) = (0, 0);
-        for &(x0, x1) in &Self::spans(lo.x, hi.x, self.width) {
-            for &(y0, y1) in &Self::spans(lo.y, hi.y, self.height) {
+        for (x0, x1) in Self::spans(lo.x, hi.x, self.width) {
+            for (y0, y1) in Self::spans(lo.y, hi.y, self.height) {
                 opaque += self.count(x0, x1, y0, y1);
                 all += ((x1 - x0) * (y1 - y0)) as u64;
             }
@@ -149,10 +149,10 @@ mod tests {
 
     #[test]
     fn spans_wrap_and_cover_the_whole_texture_when_wide() {
-        assert_eq!(OpaqueTable::spans(0.25, 0.5, 16), vec![(3, 10)]);
-        assert_eq!(OpaqueTable::spans(0.95, 1.05, 16), vec![(14, 16), (0, 2)]);
-        assert_eq!(OpaqueTable::spans(-2.0, 3.0, 16), vec![(0, 16)]);
-        assert_eq!(OpaqueTable::spans(f32::NAN, 0.5, 16), vec![(0, 16)]);
+        assert_eq!(OpaqueTable::spans(0.25, 0.5, 16), [(3, 10), (0, 0)]);
+        assert_eq!(OpaqueTable::spans(0.95, 1.05, 16), [(14, 16), (0, 2)]);
+        assert_eq!(OpaqueTable::spans(-2.0, 3.0, 16), [(0, 16), (0, 0)]);
+        assert_eq!(OpaqueTable::spans(f32::NAN, 0.5, 16), [(0, 16), (0, 0)]);
         let table = OpaqueTable::new(4, 2, |i| i % 2 == 0);
         assert_eq!(table.count(0, 4, 0, 2), 4);
         assert_eq!(table.count(1, 2, 0, 2), 0);

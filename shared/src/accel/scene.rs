@@ -183,9 +183,7 @@ impl SceneAccel {
             }
         }
     }
-}
 
-impl SceneAccel {
     /// The closest opaque hit on model `m` in `(t_min, t_max)`:
     /// `(triangle, t, u, v)`; with `any`, the first found. A BVH is walked
     /// from `start` (an [`InstancePart`]'s entry; `(0, 0)` is the root).

@@ -6,15 +6,28 @@ use bytemuck::{Pod, Zeroable};
 use sylva_shared::accel::bvh::{self, BvhNode};
 use sylva_shared::accel::triangle::TriangleRecord;
 use sylva_shared::accel::{Accel, KdNode, SceneAccel};
+use sylva_shared::lb::LbGrid;
+use sylva_shared::scene::Scene;
+use wgpu::util::DeviceExt;
 
 /// Stack entries of the GPU's BVH traversal, both levels together
 /// (`BVH_STACK` in scene.wgsl).
 const GPU_BVH_STACK: usize = 96;
 /// Entries (16 bytes) of one wide BVH node.
-const NODE_ENTRIES: usize = size_of::<BvhNode>() / 16;
-use sylva_shared::lb::LbGrid;
-use sylva_shared::scene::Scene;
-use wgpu::util::DeviceExt;
+const NODE_ENTRIES: u32 = (size_of::<BvhNode>() / 16) as u32;
+/// Entries of one triangle record (`test_record` in scene.wgsl reads three).
+const RECORD_ENTRIES: u32 = (size_of::<TriangleRecord>() / 16) as u32;
+
+/// A BVH child reference placed in the node buffer: an inner node at
+/// `base` (its structure's first entry) plus its index times the node's
+/// entries, a leaf at its records (`stride` entries each from `records_at`).
+fn placed(reference: u32, base: u32, records_at: u32, stride: u32) -> u32 {
+    match reference {
+        bvh::EMPTY => bvh::EMPTY,
+        r if r & bvh::LEAF != 0 => bvh::LEAF | (records_at + stride * (r & !bvh::LEAF)),
+        inner => base + inner * NODE_ENTRIES,
+    }
+}
 
 /// A material as `scene.wgsl` reads it.
 #[repr(C)]
@@ -224,18 +237,11 @@ impl Flat {
             Accel::Bvh(b) => {
                 let base = self.nodes.len() as u32;
                 let nodes: &[BvhNode] = if b.nodes.is_empty() { std::slice::from_ref(&BvhNode::EMPTY) } else { &b.nodes };
-                let record_base = base + (nodes.len() * NODE_ENTRIES) as u32;
+                let record_base = base + nodes.len() as u32 * NODE_ENTRIES;
                 anyhow::ensure!(record_base as usize + records.len() < bvh::LEAF as usize, "the scene's BVH is too large to address");
                 for n in nodes {
                     let mut n = *n;
-                    let counts: [u32; bvh::WIDTH] = std::array::from_fn(|i| n.leaf_count(i));
-                    for (c, &k) in n.child.iter_mut().zip(&counts) {
-                        *c = match *c {
-                            bvh::EMPTY => bvh::EMPTY,
-                            leaf if leaf & bvh::LEAF != 0 && k > 0 => bvh::LEAF | (record_base + stride * (leaf & !bvh::LEAF)),
-                            inner => base + inner * NODE_ENTRIES as u32,
-                        };
-                    }
+                    n.child = n.child.map(|c| placed(c, base, record_base, stride));
                     self.nodes.extend_from_slice(bytemuck::cast_slice::<BvhNode, [u32; 4]>(std::slice::from_ref(&n)));
                 }
                 self.nodes.extend_from_slice(records);
@@ -295,7 +301,7 @@ impl GpuScene {
                     bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
                 })
                 .collect();
-            let (root, records_at) = f.push_accel(&accel.models[m], tri0, &records, 3)?;
+            let (root, records_at) = f.push_accel(&accel.models[m], tri0, &records, RECORD_ENTRIES)?;
             model_places.push((root, records_at));
             f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
             f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
@@ -343,7 +349,7 @@ impl GpuScene {
         for k in 0..top_records.len() {
             let e = &mut f.nodes[parts_at as usize + k];
             let (root, records_at) = model_places[scene.instances[e[0] as usize].model as usize];
-            e[1] = if e[1] & bvh::LEAF != 0 { bvh::LEAF | (records_at + 3 * (e[1] & !bvh::LEAF)) } else { root + e[1] * NODE_ENTRIES as u32 };
+            e[1] = placed(e[1], root, records_at, RECORD_ENTRIES);
         }
         for (i, inst) in scene.instances.iter().enumerate() {
             let m = accel.to_model[i];
