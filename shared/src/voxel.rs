@@ -4,7 +4,7 @@
 //! fraction. Cells whose marks come mostly from wood are brown, others green.
 
 use crate::color::srgb8_to_linear;
-use crate::lb::radiometry::LeafScattering;
+use crate::lb::radiometry::{ClumpedCell, LeafScattering, clumped_cell};
 use crate::lb::{GridDims, MediumGrid, NodeClass};
 use crate::leaf::LeafOptics;
 use crate::model::{Model, Surface};
@@ -208,6 +208,15 @@ pub struct LeafArea {
     /// Area-weighted mean reflectance and transmittance of what blocks
     /// light (leaves by the leaf optics × texture colour, wood by its colour).
     pub scattering: LeafScattering,
+    /// Per node: the probability that light crossing its cell along an
+    /// axis meets a leaf, from the leaf area's columns at the clumping
+    /// resolution ([`ClumpedCell::density`]); the medium's density.
+    pub density: Vec<f32>,
+    /// Per node: the light on its leaves over the node's light
+    /// ([`ClumpedCell::readout`]), which the solved field is scaled by.
+    pub readout: Vec<f32>,
+    /// Sub-cells per cell edge the clumping statistics used (1: none finer than the grid).
+    pub clumping_sub: usize,
     /// Σ area, in model units².
     pub total_area: f64,
     /// Fraction of the leaf triangles' area their alpha masks cut away.
@@ -222,10 +231,28 @@ fn subdivisions(tri: &[Vec3; 3], cell: f32, masked: bool) -> usize {
     m.max(if masked { 4 } else { 1 }).min(32)
 }
 
+/// Sub-cells per model-grid axis at which leaf clumping is resolved: a
+/// cell of a coarser grid takes its gap fraction from the columns of this
+/// finer grid, so every grid sees the same clumps (the finest grid the
+/// auto choice tries is 128³).
+pub const CLUMPING_RESOLUTION: usize = 256;
+
+/// Sub-cells per cell edge that put `dims`' longest side at
+/// [`CLUMPING_RESOLUTION`] sub-cells (1 when the grid is that fine already).
+pub fn clumping_sub(dims: GridDims) -> usize {
+    (CLUMPING_RESOLUTION / dims.nx.max(dims.ny).max(dims.nz).max(1)).max(1)
+}
+
 /// Where `mesh`'s opaque area lies in the grid `dims` placed by `frame`.
 /// Each triangle is cut into m² equal sub-triangles whose centres carry
 /// their area to the cell they fall in, unless the alpha mask cuts them.
-pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, dims: GridDims) -> LeafArea {
+/// The area is gathered on sub-cells ([`clumping_sub`] per cell edge) whose
+/// columns give each cell its gap fraction: leaves clumped in a corner of a
+/// cell stop less light than the same area spread through it.
+pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, coarse: GridDims) -> LeafArea {
+    let sub = clumping_sub(coarse);
+    let dims = GridDims { nx: coarse.nx * sub, ny: coarse.ny * sub, nz: coarse.nz * sub };
+    let frame = GridFrame { origin: frame.origin, cell: frame.cell / sub as f32 };
     let origin = Vec3::from(frame.origin);
     let n = dims.len();
     #[derive(Clone)]
@@ -238,9 +265,11 @@ pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, dims: G
         cut: f64,
     }
     let empty = || Acc { area: vec![0.0; n], reflect: [0.0; 3], transmit: [0.0; 3], weight: 0.0, leaf: 0.0, cut: 0.0 };
+    // One accumulator per thread, not per split: each holds the whole sub-cell grid.
+    let per_thread = mesh.triangle_count().div_ceil(rayon::current_num_threads()).max(4096);
     let acc = (0..mesh.triangle_count())
         .into_par_iter()
-        .with_min_len(4096)
+        .with_min_len(per_thread)
         .fold(empty, |mut acc, t| {
             let tri = mesh.triangle(t);
             let uv = mesh.triangles[t].map(|i| mesh.uvs.get(i as usize).copied().unwrap_or_default());
@@ -308,31 +337,71 @@ pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, dims: G
             a
         });
     let w = acc.weight.max(f64::MIN_POSITIVE);
+    let (area, cells) = coarsen(&acc.area, coarse, sub, frame.cell as f64);
     LeafArea {
-        area: acc.area.iter().map(|&a| a as f32).collect(),
+        area,
+        density: cells.iter().map(|c| c.density).collect(),
+        readout: cells.iter().map(|c| c.readout).collect(),
+        clumping_sub: sub,
         scattering: LeafScattering { reflect: acc.reflect.map(|r| r / w), transmit: acc.transmit.map(|t| t / w) },
         total_area: acc.weight,
         cut_fraction: if acc.leaf > 0.0 { acc.cut / acc.leaf } else { 0.0 },
     }
 }
 
-/// The grounded LB medium of a leaf-area grid: each node's density is the
-/// probability that light crossing its cell meets a leaf (see
-/// [`density_from_leaf_area`](crate::lb::radiometry::density_from_leaf_area));
+/// Each coarse cell's leaf area (the sum of its `sub`³ sub-cells') and
+/// what its sub-cell columns along the three axes make of it.
+fn coarsen(fine: &[f64], coarse: GridDims, sub: usize, sub_cell: f64) -> (Vec<f32>, Vec<ClumpedCell>) {
+    let fd = GridDims { nx: coarse.nx * sub, ny: coarse.ny * sub, nz: coarse.nz * sub };
+    let cells: Vec<(f32, ClumpedCell)> = (0..coarse.len())
+        .into_par_iter()
+        .map(|i| {
+            let (x, y, z) = (i % coarse.nx, (i / coarse.nx) % coarse.ny, i / (coarse.nx * coarse.ny));
+            let at = |a: usize, b: usize, c: usize| fine[fd.index(x * sub + a, y * sub + b, z * sub + c)];
+            let mut total = 0.0;
+            let mut columns = Vec::with_capacity(3 * sub * sub);
+            for a in 0..sub {
+                for b in 0..sub {
+                    let (mut cx, mut cy, mut cz) = (0.0, 0.0, 0.0);
+                    for c in 0..sub {
+                        cx += at(c, a, b);
+                        cy += at(a, c, b);
+                        cz += at(a, b, c);
+                    }
+                    total += cx;
+                    columns.extend([cx, cy, cz]);
+                }
+            }
+            (total as f32, clumped_cell(&columns, sub_cell))
+        })
+        .collect();
+    cells.into_iter().unzip()
+}
+
+/// The grounded LB medium of a model's densities ([`LeafArea::density`]):
 /// every occupied node absorbs for real (green). The shell stays empty.
-pub fn medium_from_leaf_area(area: &[f32], dims: GridDims, cell: f32) -> MediumGrid {
+pub fn medium_from_density(density: &[f32], dims: GridDims) -> MediumGrid {
     let mut m = MediumGrid::empty(dims).with_class(NodeClass::Green);
     for z in 0..dims.nz {
         for y in 0..dims.ny {
             for x in 0..dims.nx {
                 if !dims.is_boundary(x, y, z) {
                     let i = dims.index(x, y, z);
-                    m.density[i] = crate::lb::radiometry::density_from_leaf_area(area[i] as f64, cell as f64);
+                    m.density[i] = density[i];
                 }
             }
         }
     }
     m
+}
+
+/// The grounded LB medium of a leaf-area grid with no finer structure
+/// (the forest grid): each node's density is the probability that light
+/// crossing its cell meets a leaf, the area spread evenly (see
+/// [`density_from_leaf_area`](crate::lb::radiometry::density_from_leaf_area)).
+pub fn medium_from_leaf_area(area: &[f32], dims: GridDims, cell: f32) -> MediumGrid {
+    let density: Vec<f32> = area.iter().map(|&a| crate::lb::radiometry::density_from_leaf_area(a as f64, cell as f64)).collect();
+    medium_from_density(&density, dims)
 }
 
 /// Triangle–box overlap by the separating axis theorem (Akenine-Möller
@@ -431,6 +500,60 @@ mod tests {
         let o = Vec3::from(frame.origin);
         let far = o + Vec3::new(dims.nx as f32, dims.ny as f32, dims.nz as f32) * frame.cell;
         assert!((lo - o).min_element() >= frame.cell && (far - hi).min_element() >= frame.cell, "{frame:?} {dims}");
+    }
+
+    #[test]
+    fn clumped_leaves_stop_the_same_light_on_a_coarse_grid_as_on_the_fine_one() {
+        // A horizontal layer of small dense clumps (stacks of leaf squares),
+        // light falling straight down: the transmitted fraction is the
+        // open area's plus what the stacks let through, whatever the grid.
+        let mut mesh = Model::default();
+        let leaf = mesh.add_material(crate::model::Material::plain("leaf", Surface::Leaf, [0.2, 0.5, 0.1]));
+        let (size, pitch, layers) = (0.06f32, 0.5f32, 6);
+        for i in 0..8 {
+            for k in 0..8 {
+                let (x, z) = (0.1 + i as f32 * pitch, 0.1 + k as f32 * pitch);
+                for l in 0..layers {
+                    let y = 1.0 + 0.005 * l as f32;
+                    mesh.push_quad(
+                        [Vec3::new(x, y, z), Vec3::new(x, y, z + size), Vec3::new(x + size, y, z + size), Vec3::new(x + size, y, z)],
+                        leaf,
+                    );
+                }
+            }
+        }
+        let (lo, hi) = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(4.0, 2.0, 4.0));
+        let down = |n: usize| {
+            let (frame, dims) = GridFrame::fit(lo, hi, n);
+            let a = leaf_area_in(&mesh, &LeafOptics::default(), frame, dims);
+            let mut open = 0.0;
+            for z in 0..dims.nz {
+                for x in 0..dims.nx {
+                    open += (0..dims.ny).map(|y| 1.0 - a.density[dims.index(x, y, z)] as f64).product::<f64>();
+                }
+            }
+            (open / (dims.nx * dims.nz) as f64, a.clumping_sub)
+        };
+        let (fine, s_fine) = down(CLUMPING_RESOLUTION);
+        let (coarse, s_coarse) = down(16);
+        assert_eq!(s_fine, 1);
+        assert!(s_coarse >= 4, "{s_coarse}");
+        // The clumps cover 64 · 0.06² / 16 = 1.4 % of the ground (a little
+        // more where they straddle sub-cells).
+        assert!(fine > 0.95 && fine < 0.995, "{fine}");
+        assert!((coarse - fine).abs() < 0.01, "16³ {coarse} against {CLUMPING_RESOLUTION}³ {fine}");
+        // Spread evenly through each 16³ cell the same area would stop far more.
+        let (frame, dims) = GridFrame::fit(lo, hi, 16);
+        let a = leaf_area_in(&mesh, &LeafOptics::default(), frame, dims);
+        let even = medium_from_leaf_area(&a.area, dims, frame.cell);
+        let mut open = 0.0;
+        for z in 0..dims.nz {
+            for x in 0..dims.nx {
+                open += (0..dims.ny).map(|y| 1.0 - even.density[dims.index(x, y, z)] as f64).product::<f64>();
+            }
+        }
+        let even = open / (dims.nx * dims.nz) as f64;
+        assert!(1.0 - even > 2.0 * (1.0 - coarse), "even {even}, clumped {coarse}");
     }
 
     #[test]

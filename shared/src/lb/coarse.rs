@@ -166,7 +166,8 @@ pub struct ModelArea {
 
 /// The forest grid's blocking leaf area per cell (world units²) and the
 /// area-weighted optics of what blocks light. Each of a model's cells
-/// carries its leaf area to the forest cell its centre falls in, turned
+/// carries its effective leaf area ([`effective_area`]: what its clumped
+/// leaves stop, spread evenly) to the forest cell its centre falls in, turned
 /// and scaled with the instance, so the crown's area stays up in the
 /// crown. (Spread evenly over the instance's box, 40 % of a tall tree's
 /// leaves sat in its trunk zone and shaded the ground from the low sky
@@ -190,10 +191,12 @@ pub fn forest_leaf_area(scene: &Scene, areas: &[Option<ModelArea>], grid: &World
         for z in 0..md.nz {
             for y in 0..md.ny {
                 for x in 0..md.nx {
-                    let cell_area = a.area[md.index(x, y, z)];
-                    if cell_area <= 0.0 {
+                    let i = md.index(x, y, z);
+                    if a.area[i] <= 0.0 {
                         continue;
                     }
+                    // What the cell stops, as evenly spread area: its clumps leave gaps.
+                    let cell_area = effective_area(a.density[i], m.frame.cell);
                     let centre = Vec3::from(m.frame.origin) + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) * m.frame.cell;
                     let q = ((inst.to_world.transform_point3(centre) - Vec3::from(grid.origin)) / grid.cell).floor().clamp(Vec3::ONE, last);
                     area[d.index(q.x as usize, q.y as usize, q.z as usize)] += (cell_area as f64 * scale2) as f32;
@@ -203,6 +206,14 @@ pub fn forest_leaf_area(scene: &Scene, areas: &[Option<ModelArea>], grid: &World
     }
     let w = weight.max(f64::MIN_POSITIVE);
     (area, LeafScattering { reflect: reflect.map(|r| r / w), transmit: transmit.map(|t| t / w) })
+}
+
+/// The evenly spread one-sided leaf area that stops what a cell of edge
+/// `cell` and density `density` stops (the inverse of
+/// [`density_from_leaf_area`](super::radiometry::density_from_leaf_area)).
+pub fn effective_area(density: f32, cell: f32) -> f32 {
+    let open = (1.0 - density as f64).max(1e-12);
+    (-open.ln() * (cell as f64).powi(2) / super::radiometry::LEAF_PROJECTION) as f32
 }
 
 /// The fraction of the open field's fluence `free` (summed over channels)

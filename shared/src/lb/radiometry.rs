@@ -207,6 +207,46 @@ pub fn density_from_leaf_area(area: f64, cell: f64) -> f32 {
     (1.0 - (-LEAF_PROJECTION * area / (cell * cell)).exp()) as f32
 }
 
+/// What a cell's sub-cell columns of leaf area make of it: how much light
+/// it stops and how much of its light its own leaves receive.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClumpedCell {
+    /// The probability that light crossing the cell along an axis meets a
+    /// leaf, 1 − ⟨exp(−τ_column)⟩ with τ_column = G · a_column / sub_cell².
+    /// Leaves clumped into a few columns leave the others open, so the cell
+    /// stops less light than [`density_from_leaf_area`] of the same area
+    /// spread evenly (Jensen: ⟨e^(−τ)⟩ ≥ e^(−⟨τ⟩)); with one column per
+    /// axis the two agree.
+    pub density: f32,
+    /// The mean light on the cell's leaves over what an even medium of the
+    /// same density would give them: each leaf in a column of depth τ is
+    /// shaded by its neighbours to (1 − e^(−τ))/τ of the light around the
+    /// column (the depth average of a two-sided slab), weighted by leaf
+    /// area, over the same factor at the cell's effective depth. 1 without
+    /// finer structure.
+    pub readout: f32,
+}
+
+/// (1 − e^(−τ))/τ: the mean over a slab of optical depth τ of the light
+/// reaching a depth from its nearer face, lit equally from both faces.
+fn slab_mean(tau: f64) -> f64 {
+    if tau < 1e-6 { 1.0 - 0.5 * tau } else { -(-tau).exp_m1() / tau }
+}
+
+/// A cell's [`ClumpedCell`] from the one-sided leaf area of the columns of
+/// sub-cells (edge `sub_cell`) that cross it along the three axes.
+pub fn clumped_cell(columns: &[f64], sub_cell: f64) -> ClumpedCell {
+    let total: f64 = columns.iter().map(|&a| a.max(0.0)).sum();
+    if total <= 0.0 || sub_cell <= 0.0 {
+        return ClumpedCell { density: 0.0, readout: 1.0 };
+    }
+    let k = LEAF_PROJECTION / (sub_cell * sub_cell);
+    let open: f64 = columns.iter().map(|&a| (-k * a.max(0.0)).exp()).sum::<f64>() / columns.len() as f64;
+    let on_leaves: f64 = columns.iter().map(|&a| a.max(0.0) * slab_mean(k * a.max(0.0))).sum::<f64>() / total;
+    let effective = -open.max(f64::MIN_POSITIVE).ln();
+    ClumpedCell { density: (1.0 - open) as f32, readout: (on_leaves / slab_mean(effective)) as f32 }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -303,6 +343,28 @@ mod tests {
         assert!((p.channels[0].sigma_s - 0.2).abs() < 1e-6 && p.channels[0].g.abs() < 1e-6);
         assert!((p.channels[1].sigma_s - 0.6).abs() < 1e-6 && (p.channels[1].g as f64 - 4.0 / 27.0).abs() < 1e-6);
         assert_eq!(p.channels[2].sigma_s, 0.0);
+    }
+
+    #[test]
+    fn clumped_leaves_stop_what_their_columns_stop() {
+        let h = 0.25;
+        // Two sub-cells per edge: 4 columns per axis. Even: every column
+        // holds the same area, as one cell of twice the edge holding 4 × it.
+        let even = clumped_cell(&[0.1; 12], h);
+        assert!((even.readout - 1.0).abs() < 1e-6);
+        let even = even.density as f64;
+        let mean = density_from_leaf_area(0.4, 2.0 * h) as f64;
+        assert!((even - (1.0 - (-LEAF_PROJECTION * 0.1 / (h * h)).exp())).abs() < 1e-6);
+        assert!((even - mean).abs() < 1e-6, "{even} {mean}");
+        // The same area in a quarter of the columns: three quarters open.
+        let mut clumped = [0.0; 12];
+        clumped.iter_mut().step_by(4).for_each(|a| *a = 0.4);
+        let cell = clumped_cell(&clumped, h);
+        let (rho, tau) = (cell.density as f64, LEAF_PROJECTION * 0.4 / (h * h));
+        assert!((rho - 0.25 * (1.0 - (-tau).exp())).abs() < 1e-6 && rho < even, "{rho} {even}");
+        // Its leaves, deep in their clumps, get less than an even medium's.
+        let expect = slab_mean(tau) / slab_mean(-(1.0 - rho).ln());
+        assert!((cell.readout as f64 - expect).abs() < 1e-6 && cell.readout < 0.8, "{cell:?}");
     }
 
     #[test]

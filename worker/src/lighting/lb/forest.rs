@@ -119,6 +119,7 @@ pub fn grounded(
 mod tests {
     use super::super::medium_of;
     use super::*;
+    use sylva_shared::lb::coarse::effective_area;
     use sylva_shared::scene::parse;
 
     #[test]
@@ -137,25 +138,32 @@ mod tests {
         let m = &scene.models[0];
         let mm = medium_of(&scene, m, 32).unwrap();
         let area = ModelArea { frame: mm.frame, dims: mm.medium.dims, area: mm.area.unwrap() };
-        // The model's own area-weighted mean height, in model space.
+        // The model's own effective area (what its cells stop, spread
+        // evenly) and its area-weighted mean height, in model space.
         let md = area.dims;
-        let mut model_height = 0.0f64;
+        let (mut model_total, mut model_height) = (0.0f64, 0.0f64);
         for z in 0..md.nz {
             for y in 0..md.ny {
                 for x in 0..md.nx {
-                    let y_centre = area.frame.origin[1] + (y as f32 + 0.5) * area.frame.cell;
-                    model_height += area.area.area[md.index(x, y, z)] as f64 * y_centre as f64;
+                    let i = md.index(x, y, z);
+                    if area.area.area[i] > 0.0 {
+                        let a = effective_area(area.area.density[i], area.frame.cell) as f64;
+                        model_total += a;
+                        model_height += a * (area.frame.origin[1] + (y as f32 + 0.5) * area.frame.cell) as f64;
+                    }
                 }
             }
         }
-        model_height /= area.area.total_area;
+        model_height /= model_total;
+        // Clumps stop less than their leaves' area spread evenly would.
+        assert!(model_total < area.area.total_area, "{model_total} of {}", area.area.total_area);
         let boxes = scene.instances.iter().map(|i| sylva_shared::accel::scene::model_bounds(&m.model).transformed(&i.to_world));
         let grid = WorldGrid::around(boxes.fold(Aabb::EMPTY, |b, o| b.union(o)), 16);
         let (cells, _) = forest_leaf_area(&scene, &[Some(area)], &grid);
         // All of it arrives: the first instance's area plus 1.5² the second's.
         let total: f64 = cells.iter().map(|&a| a as f64).sum();
         let want = 1.0 + 1.5 * 1.5;
-        let got = total / mm_total(&scene);
+        let got = total / model_total;
         assert!((got - want).abs() < 1e-3 * want, "area {got:.4}× the model's, want {want}");
         // At the crowns' height: the area-weighted mean height is the
         // instances' (1 and 1.5 × the model's), within a forest cell.
@@ -187,10 +195,5 @@ mod tests {
             .sum::<f64>()
             / want;
         assert!(height > even + 0.5 * grid.cell as f64, "mean height {height:.2} m, an even spread's {even:.2} m");
-    }
-
-    /// The model's total blocking area, solved again for the check.
-    fn mm_total(scene: &Scene) -> f64 {
-        medium_of(scene, &scene.models[0], 32).unwrap().area.unwrap().total_area
     }
 }

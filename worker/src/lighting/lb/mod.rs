@@ -20,7 +20,7 @@ use sylva_shared::lb::solver::PhaseTimer;
 use sylva_shared::lb::{GridDims, Illumination, LbGrid, LbParams, MediumGrid, NodeClass, SolveOptions, Sun, solve, solve_indirect};
 use sylva_shared::model::Model;
 use sylva_shared::scene::{LbModel, LightingMode, Scene, SceneModel};
-use sylva_shared::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_leaf_area, voxelize_in};
+use sylva_shared::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
 
 /// `lb`: the direct sun plus the LB light.
 pub const METHOD: Method = Method {
@@ -61,6 +61,9 @@ pub struct ModelLight {
     pub leaf_area: Option<f64>,
     /// Fraction of leaf area the alpha masks cut away (grounded).
     pub alpha_cut: Option<f64>,
+    /// Sub-cells per cell edge whose columns gave each cell its gap
+    /// fraction, so leaf clumps finer than the grid stop what they stop (grounded).
+    pub clumping_sub: Option<usize>,
     /// Fraction of nodes with matter.
     pub occupancy: f64,
     /// Steps per channel.
@@ -122,7 +125,7 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
     match leaves {
         true => {
             let area = leaf_area_in(&m.model, &scene.file.leaf_optics, frame, dims);
-            let medium = medium_from_leaf_area(&area.area, dims, frame.cell);
+            let medium = medium_from_density(&area.density, dims);
             Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area), on_ground })
         }
         false => {
@@ -149,7 +152,13 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
             let light = Illumination { floor_reflects: mm.on_ground, ..scene.illumination() };
             let s = solve_indirect(solver, &mm.medium, &mm.params, &light, &opts, &|_| {})?;
             let r = &s.reports;
-            (s.indirect.concat(), std::array::from_fn(|c| r[c].steps), std::array::from_fn(|c| r[c].converged), Some(r[3].steps))
+            let mut rgb = s.indirect.concat();
+            if let Some(area) = &mm.area {
+                // The light a node's own leaves receive, not the node's mean.
+                let n = area.readout.len();
+                rgb.iter_mut().enumerate().for_each(|(i, v)| *v *= area.readout[i % n]);
+            }
+            (rgb, std::array::from_fn(|c| r[c].steps), std::array::from_fn(|c| r[c].converged), Some(r[3].steps))
         }
         LbModel::Paper => {
             let s = solve(solver, &mm.medium, &mm.params, &sun_of(scene)?, &opts, &|_, _, _| {})?;
@@ -171,6 +180,7 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
         g: std::array::from_fn(|c| p[c].g),
         leaf_area: mm.area.as_ref().map(|a| a.total_area),
         alpha_cut: mm.area.as_ref().map(|a| a.cut_fraction),
+        clumping_sub: mm.area.as_ref().map(|a| a.clumping_sub),
         occupancy: mm.medium.occupancy(),
         steps,
         converged,
