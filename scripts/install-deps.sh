@@ -4,6 +4,7 @@
 # code works without a GPU) and, if absent, a Rust toolchain through rustup.
 # Idempotent: packages already present are not fetched again.
 set -euo pipefail
+cd "$(dirname "$0")/.."
 
 # libc6-dev is only a recommendation of gcc, and rustc links through it (crt1.o, libc.so).
 packages=(mesa-vulkan-drivers libvulkan1 gcc libc6-dev pkg-config ca-certificates curl)
@@ -11,6 +12,10 @@ missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+# Node.js and npm run the Khronos glTF validator on exported scenes (tests
+# only); a Node.js installed otherwise (with its own npm) is used as it is.
+command -v node >/dev/null 2>&1 || missing+=(nodejs)
+command -v npm >/dev/null 2>&1 || missing+=(npm)
 if ((${#missing[@]})); then
   sudo=""
   [ "$(id -u)" -eq 0 ] || sudo="sudo"
@@ -41,4 +46,10 @@ export PATH="$HOME/.cargo/bin:$PATH"
 if ! cargo fmt --version >/dev/null 2>&1 || ! cargo clippy --version >/dev/null 2>&1; then
   echo "installing rustfmt and clippy" >&2
   rustup component add rustfmt clippy
+fi
+
+# The Khronos glTF validator (npm registry), for the export tests; pinned.
+if [ ! -f .tools/node_modules/gltf-validator/package.json ]; then
+  echo "installing gltf-validator" >&2
+  npm install --silent --no-audit --no-fund --prefix .tools gltf-validator@2.0.0-dev.3.10 >&2
 fi

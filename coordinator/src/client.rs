@@ -8,6 +8,7 @@ use std::time::Duration;
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_client::CoordinatorClient;
 use tokio_stream::StreamExt;
+use tonic::service::interceptor::InterceptedService;
 
 /// A finished job, fetched.
 pub struct FinishedJob {
@@ -21,6 +22,23 @@ pub struct FinishedJob {
     pub stats: serde_json::Value,
 }
 
+/// A client of the coordinator at `addr`, carrying `token`.
+pub type Client = CoordinatorClient<InterceptedService<tonic::transport::Channel, sylva_proto::auth::Attach>>;
+
+/// Connects to the coordinator at `addr` (within 10 s), with `token` on every call.
+pub async fn connect(addr: &str, token: Option<String>, tls: Option<&tonic::transport::ClientTlsConfig>) -> anyhow::Result<Client> {
+    let ch =
+        sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.with_context(|| format!("cannot reach the coordinator at {addr}"))?;
+    Ok(CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token))
+        .max_decoding_message_size(1 << 30)
+        .max_encoding_message_size(1 << 30))
+}
+
+/// A call's error as a person reads it: the code and the server's message.
+pub fn status_error(s: tonic::Status) -> anyhow::Error {
+    anyhow::anyhow!("{:?}: {}", s.code(), s.message())
+}
+
 /// Sends a job to the coordinator at `addr`, follows it with a progress
 /// bar and fetches its image.
 pub async fn submit_and_follow(
@@ -31,14 +49,10 @@ pub async fn submit_and_follow(
     bundle: &sylva_shared::bundle::SceneBundle,
     exr: bool,
 ) -> anyhow::Result<FinishedJob> {
-    let ch =
-        sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.with_context(|| format!("cannot reach the coordinator at {addr}"))?;
-    let mut c = CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token))
-        .max_decoding_message_size(1 << 30)
-        .max_encoding_message_size(1 << 30);
+    let mut c = connect(addr, token, tls).await?;
     let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: bundle.hash.clone(), total_size: bundle.bytes.len() as u64, data: vec![] }];
     chunks.extend(bundle.bytes.chunks(1 << 20).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
-    let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?.into_inner().id;
+    let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(status_error)?.into_inner().id;
     let bar = ProgressBar::new(1);
     bar.set_style(ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
     bar.set_message(id.clone());

@@ -34,6 +34,13 @@ use tonic::{Request, Response, Status, Streaming};
 pub const MAX_NAME: usize = 256;
 /// Longest job id or worker address looked at, bytes: longer ones cannot exist.
 pub const MAX_ID: usize = 128;
+/// Longest submitter name accepted, bytes.
+pub const MAX_SUBMITTER: usize = 64;
+
+/// Milliseconds since the Unix epoch, for listings.
+fn unix_ms() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0)
+}
 
 /// How the coordinator runs.
 #[derive(Debug)]
@@ -242,6 +249,7 @@ impl State {
             j.bundle = None;
             j.task = None;
             j.finished = Some(Instant::now());
+            j.summary.finished_unix_ms = unix_ms();
         }
     }
 
@@ -273,6 +281,7 @@ impl State {
             };
             if let Some(j) = lock(&self.jobs).get_mut(&next) {
                 j.summary.state = "running".into();
+                j.summary.started_unix_ms = unix_ms();
             }
             let s = self.clone();
             let id = next.clone();
@@ -347,6 +356,9 @@ impl State {
                 match e {
                     FarmEvent::StripDone { worker, ms, bytes, .. } => {
                         me.metrics.strip_done(ms / 1e3, bytes);
+                        if let Some(w) = lock(&me.workers).get_mut(&worker) {
+                            w.info.strips_done += 1;
+                        }
                         let mut jobs = lock(&me.jobs);
                         if let Some(j) = jobs.get_mut(&jid) {
                             j.summary.strips_done += 1;
@@ -357,6 +369,12 @@ impl State {
                     }
                     FarmEvent::StripRetried { worker, error, .. } => {
                         me.metrics.strip_retried();
+                        if let Some(w) = lock(&me.workers).get_mut(&worker) {
+                            w.info.strips_failed += 1;
+                        }
+                        if let Some(j) = lock(&me.jobs).get_mut(&jid) {
+                            j.summary.retries += 1;
+                        }
                         ev.message = format!("strip re-queued from {worker}: {error}");
                     }
                     FarmEvent::BundleSent { bytes, .. } => {
@@ -539,6 +557,7 @@ fn schedule_from_wire(v: i32) -> Result<ScheduleKind, Status> {
 #[tonic::async_trait]
 impl Coordinator for CoordinatorService {
     async fn submit_job(&self, request: Request<Streaming<pb::SubmitChunk>>) -> Result<Response<pb::JobId>, Status> {
+        let remote = request.remote_addr();
         let mut stream = request.into_inner();
         let first = stream.next().await.ok_or_else(|| Status::invalid_argument("empty submission"))??;
         let spec = first.spec.ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
@@ -547,6 +566,11 @@ impl Coordinator for CoordinatorService {
         if spec.name.len() > MAX_NAME {
             return Err(Status::invalid_argument(format!("job name of {} bytes: at most {MAX_NAME}", spec.name.len())));
         }
+        if spec.submitter.len() > MAX_SUBMITTER || spec.submitter.chars().any(char::is_control) {
+            return Err(Status::invalid_argument(format!("submitter name: at most {MAX_SUBMITTER} bytes, no control characters")));
+        }
+        let from = remote.map(|a| a.ip().to_string()).unwrap_or_else(|| "local".into());
+        let submitter = if spec.submitter.is_empty() { from } else { format!("{}@{from}", spec.submitter) };
         let hash = first.hash.to_ascii_lowercase();
         if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
             return Err(Status::invalid_argument(format!("hash {:?} is not a 64-digit hex BLAKE3 hash", clip(&first.hash))));
@@ -592,8 +616,15 @@ impl Coordinator for CoordinatorService {
         .map_err(|_| Status::internal("the scene check failed unexpectedly"))?;
         checked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
         let (tx, _) = broadcast::channel(256);
-        let summary =
-            pb::JobSummary { id: id.clone(), state: "queued".into(), name: spec.name.clone(), priority: spec.priority, ..Default::default() };
+        let summary = pb::JobSummary {
+            id: id.clone(),
+            state: "queued".into(),
+            name: spec.name.clone(),
+            priority: spec.priority,
+            submitter,
+            submitted_unix_ms: unix_ms(),
+            ..Default::default()
+        };
         lock(&self.state.jobs).insert(
             id.clone(),
             Job { seq, spec, frame, schedule, bundle: Some(Arc::new(SceneBundle { bytes, hash })), summary, events: tx, task: None, finished: None },
@@ -691,6 +722,7 @@ impl Coordinator for CoordinatorService {
                 j.summary.state = "cancelled".into();
                 j.bundle = None;
                 j.finished = Some(Instant::now());
+                j.summary.finished_unix_ms = unix_ms();
             }
             (j.summary.clone(), j.events.clone())
         };
@@ -710,6 +742,20 @@ impl Coordinator for CoordinatorService {
     async fn list_jobs(&self, _: Request<pb::ListJobsRequest>) -> Result<Response<pb::JobList>, Status> {
         let jobs = lock(&self.state.jobs).values().map(|j| j.summary.clone()).collect();
         Ok(Response::new(pb::JobList { jobs }))
+    }
+
+    async fn set_priority(&self, request: Request<pb::SetPriorityRequest>) -> Result<Response<pb::JobSummary>, Status> {
+        let r = request.into_inner();
+        let id = job_id(&r.id)?;
+        let summary = {
+            let mut jobs = lock(&self.state.jobs);
+            let j = jobs.get_mut(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            j.spec.priority = r.priority;
+            j.summary.priority = r.priority;
+            j.summary.clone()
+        };
+        tracing::info!(%id, priority = r.priority, "job re-prioritised");
+        Ok(Response::new(summary))
     }
 
     async fn list_workers(&self, _: Request<pb::ListWorkersRequest>) -> Result<Response<pb::WorkerList>, Status> {

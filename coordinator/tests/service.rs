@@ -177,6 +177,7 @@ async fn submit_raw(
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,
         name: "raw".into(),
+        submitter: "raw".into(),
     };
     let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: b.hash.clone(), total_size: b.bytes.len() as u64, data: vec![] }];
     chunks.extend(b.bytes.chunks(1 << 16).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));

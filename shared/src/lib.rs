@@ -9,6 +9,7 @@ pub mod camera;
 pub mod color;
 pub mod film;
 pub mod frame;
+pub mod interchange;
 pub mod lb;
 pub mod leaf;
 pub mod model;

@@ -117,6 +117,29 @@ impl Model {
         self.material.extend([material, material]);
     }
 
+    /// Drops materials no triangle uses and textures no material uses,
+    /// renumbering the rest in order.
+    pub fn drop_unused_materials(&mut self) {
+        let mut used = vec![false; self.materials.len()];
+        self.material.iter().for_each(|&m| used[m as usize] = true);
+        let mut new_index = vec![u32::MAX; self.materials.len()];
+        let old = std::mem::take(&mut self.materials);
+        for (i, m) in old.into_iter().enumerate().filter(|(i, _)| used[*i]) {
+            new_index[i] = self.materials.len() as u32;
+            self.materials.push(m);
+        }
+        self.material.iter_mut().for_each(|m| *m = new_index[*m as usize]);
+        let mut tex_index = vec![None; self.textures.len()];
+        let old = std::mem::take(&mut self.textures);
+        for (i, t) in old.into_iter().enumerate() {
+            if self.materials.iter().any(|m| m.texture == Some(i as u32)) {
+                tex_index[i] = Some(self.textures.len() as u32);
+                self.textures.push(t);
+            }
+        }
+        self.materials.iter_mut().for_each(|m| m.texture = m.texture.and_then(|t| tex_index[t as usize]));
+    }
+
     /// Corners of triangle `t`.
     pub fn triangle(&self, t: usize) -> [Vec3; 3] {
         self.triangles[t].map(|i| self.positions[i as usize])
@@ -168,7 +191,7 @@ pub fn classify_material(name: Option<&str>) -> Surface {
 pub fn load_gltf(path: &Path) -> anyhow::Result<Model> {
     let folder = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut budget = GltfBudget::UNLIMITED;
-    load_gltf_with(path, &FileAccess::Anywhere(folder), &mut budget)
+    load_gltf_with(path, &FileAccess::Anywhere(folder), &mut budget, None)
 }
 
 /// What a glTF file may still add to a scene; the loader counts its
@@ -191,12 +214,14 @@ impl GltfBudget {
 /// default scene, with node transforms applied, texture coordinates,
 /// base-colour textures and alpha modes (`BLEND` is treated as a mask at
 /// 0.5). Buffers and images are read only where `access` allows, `data:`
-/// URIs always; sizes are checked against `budget` first.
-pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> anyhow::Result<Model> {
+/// URIs always; sizes are checked against `budget` first. With `mesh`,
+/// only the mesh of that name is read, in its own space (one species of
+/// an instanced scene, whose placements the scene file gives).
+pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mesh: Option<&str>) -> anyhow::Result<Model> {
     // The glTF crates assert on some malformed accessors instead of
     // returning errors; a hostile file must cost its scene, not the process.
     let mut b = *budget;
-    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load_unguarded(path, access, &mut b)));
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load_unguarded(path, access, &mut b, mesh)));
     match r {
         Ok(Ok(m)) => {
             *budget = b;
@@ -207,7 +232,7 @@ pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget)
     }
 }
 
-fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> anyhow::Result<Model> {
+fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mesh: Option<&str>) -> anyhow::Result<Model> {
     // Inside a bundle, name files as the bundle does: its folder is ours.
     let shown = match access {
         FileAccess::Inside(base) => {
@@ -237,30 +262,62 @@ fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> 
         }
     }
     let scene = doc.default_scene().or_else(|| doc.scenes().next()).with_context(|| format!("{shown}: the glTF file has no scene"))?;
-    let triangles = scene_triangles(&scene).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    let only = match mesh {
+        Some(name) => Some(
+            doc.meshes()
+                .find(|m| m.name() == Some(name))
+                .with_context(|| format!("{shown}: no mesh named {:?}", name.chars().take(64).collect::<String>()))?,
+        ),
+        None => None,
+    };
+    let triangles = match &only {
+        Some(m) => mesh_triangles(m),
+        None => scene_triangles(&scene).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?,
+    };
     check_accessors(&doc).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     if triangles > budget.triangles {
         bail!("{shown}: {triangles} triangles is more than the {} this scene may still have", budget.triangles);
     }
     let buffers =
         gltf::import_buffers(&doc, Some(folder), blob).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF buffers: {}", gltf_error(&e)))?;
+    // The images the read triangles can show: all of them, or the base
+    // colours of the named mesh's materials.
+    let wanted: Vec<bool> = match &only {
+        None => vec![true; doc.images().len()],
+        Some(m) => {
+            let mut w = vec![false; doc.images().len()];
+            for p in m.primitives() {
+                if let Some(t) = p.material().pbr_metallic_roughness().base_color_texture() {
+                    w[t.texture().source().index()] = true;
+                }
+            }
+            w
+        }
+    };
     let mut texels = 0u64;
-    for img in doc.images() {
+    for img in doc.images().filter(|i| wanted[i.index()]) {
         let (w, h) = image_size(&img, &files, &buffers).with_context(|| format!("{shown}: image {}: cannot read its size", img.index()))?;
         texels = texels.saturating_add(u64::from(w) * u64::from(h));
     }
     if texels > budget.texture_pixels {
         bail!("{shown}: {texels} texels of textures is more than the {} this scene may still have", budget.texture_pixels);
     }
-    let images =
-        gltf::import_images(&doc, Some(folder), &buffers).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF images: {}", gltf_error(&e)))?;
+    let images = doc
+        .images()
+        .map(|i| {
+            wanted[i.index()]
+                .then(|| gltf::image::Data::from_source(i.source(), Some(folder), &buffers))
+                .transpose()
+                .map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF images: {}", gltf_error(&e)))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
     budget.triangles -= triangles;
     budget.texture_pixels -= texels;
     let path = Path::new(&shown);
     let mut model = Model::default();
     // glTF images decoded to RGBA8, as the textures of this model.
     let mut texture_of_image = vec![None; images.len()];
-    for (i, img) in images.iter().enumerate() {
+    for (i, img) in images.iter().enumerate().filter_map(|(i, d)| Some((i, d.as_ref()?))) {
         if let Some(t) = to_rgba8(img) {
             model.textures.push(t);
             texture_of_image[i] = Some(model.textures.len() as u32 - 1);
@@ -276,7 +333,7 @@ fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> 
             gltf::material::AlphaMode::Mask => Some(m.alpha_cutoff().unwrap_or(0.5)),
             gltf::material::AlphaMode::Blend => Some(0.5),
         };
-        let image = pbr.base_color_texture().and_then(|t| images.get(t.texture().source().index()));
+        let image = pbr.base_color_texture().and_then(|t| images.get(t.texture().source().index())?.as_ref());
         if let (Some(_), Some(img)) = (alpha_cutoff, image)
             && matches!(
                 img.format,
@@ -308,8 +365,16 @@ fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget) -> 
         alpha_cutoff: None,
         double_sided: false,
     });
-    for node in scene.nodes() {
-        add_node(&node, Mat4::IDENTITY, &buffers, &mut model, path, default_material)?;
+    match &only {
+        Some(m) => {
+            add_mesh(m, Mat4::IDENTITY, &buffers, &mut model, path, default_material)?;
+            model.drop_unused_materials();
+        }
+        None => {
+            for node in scene.nodes() {
+                add_node(&node, Mat4::IDENTITY, &buffers, &mut model, path, default_material)?;
+            }
+        }
     }
     if model.triangles.is_empty() {
         bail!("{}: the glTF scene has no triangles", path.display());
@@ -338,14 +403,19 @@ fn scene_triangles(scene: &gltf::Scene) -> Result<u64, String> {
             return Err(format!("the nodes place meshes more than {MAX_NODE_PLACEMENTS} times"));
         }
         if let Some(m) = node.mesh() {
-            for p in m.primitives().filter(|p| p.mode() == gltf::mesh::Mode::Triangles) {
-                let n = p.indices().or_else(|| p.get(&gltf::Semantic::Positions)).map_or(0, |a| a.count() as u64 / 3);
-                triangles = triangles.saturating_add(n);
-            }
+            triangles = triangles.saturating_add(mesh_triangles(&m));
         }
         stack.extend(node.children().map(|c| (c, depth + 1)));
     }
     Ok(triangles)
+}
+
+/// Triangles of one mesh, from its accessor counts.
+fn mesh_triangles(m: &gltf::Mesh) -> u64 {
+    m.primitives()
+        .filter(|p| p.mode() == gltf::mesh::Mode::Triangles)
+        .map(|p| p.indices().or_else(|| p.get(&gltf::Semantic::Positions)).map_or(0, |a| a.count() as u64 / 3))
+        .fold(0u64, u64::saturating_add)
 }
 
 /// Checks every accessor a triangle primitive reads — the type and
@@ -451,6 +521,24 @@ fn add_node(
 ) -> anyhow::Result<()> {
     let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
     if let Some(m) = node.mesh() {
+        add_mesh(&m, world, buffers, model, path, default_material)?;
+    }
+    for child in node.children() {
+        add_node(&child, world, buffers, model, path, default_material)?;
+    }
+    Ok(())
+}
+
+/// Adds the triangle primitives of `m`, placed by `world`.
+fn add_mesh(
+    m: &gltf::Mesh,
+    world: Mat4,
+    buffers: &[gltf::buffer::Data],
+    model: &mut Model,
+    path: &Path,
+    default_material: u32,
+) -> anyhow::Result<()> {
+    {
         for prim in m.primitives() {
             if prim.mode() != gltf::mesh::Mode::Triangles {
                 tracing::warn!(mesh = m.name(), mode = ?prim.mode(), "skipping a non-triangle primitive");
@@ -492,9 +580,6 @@ fn add_node(
                 model.material.push(material);
             }
         }
-    }
-    for child in node.children() {
-        add_node(&child, world, buffers, model, path, default_material)?;
     }
     Ok(())
 }

@@ -3,6 +3,7 @@
 mod bench;
 mod compare;
 mod coordinator;
+mod farm;
 mod lb;
 mod limits;
 mod local;
@@ -49,6 +50,16 @@ enum Command {
     Coordinator(coordinator::CoordinatorArgs),
     /// Send a render job to a running coordinator and follow it.
     Submit(coordinator::SubmitArgs),
+    /// List a coordinator's jobs.
+    Jobs(farm::JobsArgs),
+    /// List a coordinator's workers.
+    Workers(farm::WorkersArgs),
+    /// Cancel queued or running jobs.
+    Cancel(farm::CancelArgs),
+    /// Set a job's priority (higher runs first).
+    Priority(farm::PriorityArgs),
+    /// Fetch a finished job's image.
+    Fetch(farm::FetchArgs),
     /// Serve the worker API: hold scenes, render strips on this machine's GPU.
     Worker(worker::WorkerArgs),
     /// Scene files: the paper's forest.
@@ -72,5 +83,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Worker(a) => worker::run(a),
         Command::Coordinator(a) => coordinator::run_coordinator(a),
         Command::Submit(a) => coordinator::run_submit(a),
+        Command::Jobs(a) => farm::run_jobs(a),
+        Command::Workers(a) => farm::run_workers(a),
+        Command::Cancel(a) => farm::run_cancel(a),
+        Command::Priority(a) => farm::run_priority(a),
+        Command::Fetch(a) => farm::run_fetch(a),
     }
 }

@@ -203,8 +203,27 @@ pub fn job_spec(frame: &FrameSettings, schedule: ScheduleArg, priority: i32, nam
         .into(),
         priority,
         // The coordinator refuses names over MAX_NAME bytes: cut at a character.
-        name: name.char_indices().take_while(|(i, c)| i + c.len_utf8() <= MAX_NAME).map(|(_, c)| c).collect(),
+        name: cut(name, MAX_NAME),
+        submitter: cut(&submitter_name(), sylva_coordinator::service::MAX_SUBMITTER),
     }
+}
+
+/// `s` cut at a character so it holds at most `max` bytes, without control characters.
+fn cut(s: &str, max: usize) -> String {
+    s.chars()
+        .filter(|c| !c.is_control())
+        .scan(0, |n, c| {
+            (*n + c.len_utf8() <= max).then(|| {
+                *n += c.len_utf8();
+                c
+            })
+        })
+        .collect()
+}
+
+/// Who submits, for listings: `$SYLVA_USER`, else the login name.
+fn submitter_name() -> String {
+    ["SYLVA_USER", "USER", "LOGNAME"].iter().find_map(|v| std::env::var(v).ok().filter(|u| !u.is_empty())).unwrap_or_default()
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {

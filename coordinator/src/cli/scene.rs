@@ -11,6 +11,43 @@ use sylva_shared::trees::Species;
 pub enum SceneCommand {
     /// Write the forest paper's Table 2 forest as a scene file.
     Forest(ForestArgs),
+    /// Write a scene for other tools: glTF 2.0 (instanced, for Blender) or pbrt-v4.
+    Export(ExportArgs),
+    /// Write a scene file for an instanced glTF scene (each mesh a model).
+    Import(ImportArgs),
+}
+
+/// Formats `sylva scene export` writes.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum ExportFormat {
+    /// Binary glTF 2.0 (`.glb`) with EXT_mesh_gpu_instancing and KHR_lights_punctual.
+    Gltf,
+    /// A pbrt-v4 scene (`.pbrt`) with object instancing, its meshes and textures beside it.
+    Pbrt,
+}
+
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// Scene file.
+    pub scene: PathBuf,
+    /// Output format.
+    #[arg(long, value_enum)]
+    pub format: ExportFormat,
+    /// Output file.
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// Print what was written as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ImportArgs {
+    /// A glTF 2.0 file (`.glb` or `.gltf`).
+    pub gltf: PathBuf,
+    /// Where to write the scene file (it names the glTF file relative to itself).
+    #[arg(short, long)]
+    pub out: PathBuf,
 }
 
 #[derive(Debug, Args)]
@@ -34,6 +71,16 @@ pub struct ForestArgs {
 
 pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
     match cmd {
+        SceneCommand::Export(a) => export(a),
+        SceneCommand::Import(a) => {
+            let dir = a.out.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+            let file = sylva_shared::interchange::import::import_gltf(&a.gltf, dir)?;
+            // Checked as `render` would load it, before it is written.
+            sylva_shared::scene::Scene::build(file.clone(), dir, &a.out.display().to_string())?;
+            std::fs::write(&a.out, serde_json::to_string_pretty(&file)? + "\n").with_context(|| format!("{}: cannot write", a.out.display()))?;
+            println!("wrote {}: {} models, {} instances", a.out.display(), file.models.len(), file.instances.len());
+            Ok(())
+        }
         SceneCommand::Forest(a) => {
             let o = ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: a.seed };
             let scene = forest(&o).map_err(anyhow::Error::msg)?;
@@ -64,4 +111,22 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+fn export(a: ExportArgs) -> anyhow::Result<()> {
+    let scene = sylva_shared::scene::Scene::load(&a.scene)?;
+    let summary = match a.format {
+        ExportFormat::Gltf => {
+            let (bytes, summary) = sylva_shared::interchange::gltf::export_glb(&scene)?;
+            std::fs::write(&a.out, &bytes).with_context(|| format!("{}: cannot write", a.out.display()))?;
+            serde_json::to_value(summary)?
+        }
+        ExportFormat::Pbrt => serde_json::to_value(sylva_shared::interchange::pbrt::export_pbrt(&scene, &a.out)?)?,
+    };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&json!({ "out": a.out, "summary": summary }))?);
+    } else {
+        println!("wrote {}: {summary}", a.out.display());
+    }
+    Ok(())
 }

@@ -154,6 +154,7 @@ pub fn spec(width: u32, height: u32) -> pb::JobSpec {
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,
         name: "test".into(),
+        submitter: "test".into(),
     }
 }
 

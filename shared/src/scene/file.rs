@@ -53,6 +53,10 @@ pub struct ModelSpec {
     /// A glTF 2.0 file, relative to the scene file.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gltf: Option<PathBuf>,
+    /// With `gltf`: only the mesh of this name, in its own space (one
+    /// species of an instanced glTF scene, as `sylva scene import` writes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<String>,
     /// A generated tree.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tree: Option<TreeParams>,

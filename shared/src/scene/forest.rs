@@ -46,7 +46,7 @@ pub fn forest(o: &ForestOptions) -> Result<SceneFile, String> {
         let tris = ((sp.shape().paper_triangles as f64 * o.triangle_scale).round() as u32).max(1000);
         models.insert(
             sp.name().to_string(),
-            ModelSpec { gltf: None, tree: Some(TreeParams { species: sp, triangles: Some(tris), seed: o.seed + k as u64 }), lb: None },
+            ModelSpec { gltf: None, mesh: None, tree: Some(TreeParams { species: sp, triangles: Some(tris), seed: o.seed + k as u64 }), lb: None },
         );
         kinds.extend(std::iter::repeat_n(sp, instances_at(sp, o.scale) as usize));
     }

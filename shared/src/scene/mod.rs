@@ -144,7 +144,7 @@ impl Scene {
             let model = match (&spec.gltf, &spec.tree) {
                 (Some(p), None) => {
                     let full = access.resolve(access.base(), p).map_err(|m| err(format!("{field}.gltf"), m))?;
-                    load_gltf_with(&full, access, &mut budget).map_err(|e| err(format!("{field}.gltf"), format!("{e:#}")))?
+                    load_gltf_with(&full, access, &mut budget, spec.mesh.as_deref()).map_err(|e| err(format!("{field}.gltf"), format!("{e:#}")))?
                 }
                 (None, Some(t)) => trees::generate(t).map_err(|e| err(format!("{field}.tree"), e.to_string()))?,
                 _ => unreachable!("checked above"),
@@ -210,6 +210,12 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
         match (&spec.gltf, &spec.tree) {
             (Some(_), None) | (None, Some(_)) => {}
             _ => return Err(err(field, "give exactly one of \"gltf\" and \"tree\"".into())),
+        }
+        if spec.mesh.is_some() && spec.gltf.is_none() {
+            return Err(err(format!("{field}.mesh"), "names a mesh of a \"gltf\" file; this model has none".into()));
+        }
+        if spec.mesh.as_ref().is_some_and(|m| m.is_empty() || m.len() > 256) {
+            return Err(err(format!("{field}.mesh"), "a mesh name of 1 to 256 bytes".into()));
         }
     }
     check_lb(&file.lb).map_err(|m| err("lb".into(), m))?;

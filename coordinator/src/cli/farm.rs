@@ -1,0 +1,330 @@
+//! The farm from the command line, beside `submit`: `jobs`, `workers`,
+//! `cancel`, `priority` and `fetch` (as OpenCue's `cueman` and Flamenco's
+//! CLI offer). Tables for people, `--json` for scripts.
+
+use super::security::{ConnectTlsArgs, TokenArgs};
+use anyhow::Context;
+use clap::Args;
+use serde::Serialize;
+use std::path::PathBuf;
+use sylva_coordinator::client::{Client, connect, status_error};
+use sylva_proto::pb;
+
+/// Where the coordinator is and how to reach it.
+#[derive(Args, Debug)]
+pub struct CoordinatorArg {
+    /// The coordinator, `host:port`.
+    #[arg(long, env = "SYLVA_COORDINATOR")]
+    pub coordinator: String,
+    #[command(flatten)]
+    pub auth: TokenArgs,
+    #[command(flatten)]
+    pub tls: ConnectTlsArgs,
+}
+
+impl CoordinatorArg {
+    /// Runs `f` with a connected client on a fresh runtime.
+    fn call<T>(&self, f: impl AsyncFnOnce(Client) -> anyhow::Result<T>) -> anyhow::Result<T> {
+        let (token, tls) = (self.auth.load()?, self.tls.load()?);
+        let rt = tokio::runtime::Runtime::new()?;
+        rt.block_on(async { f(connect(&self.coordinator, token, tls.as_ref()).await?).await })
+    }
+}
+
+/// `sylva jobs`: every job the coordinator knows.
+#[derive(Args, Debug)]
+pub struct JobsArgs {
+    #[command(flatten)]
+    pub at: CoordinatorArg,
+    /// Only jobs in this state (queued, running, done, failed, cancelled).
+    #[arg(long)]
+    pub state: Option<String>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `sylva workers`: the workers, alive or not.
+#[derive(Args, Debug)]
+pub struct WorkersArgs {
+    #[command(flatten)]
+    pub at: CoordinatorArg,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `sylva cancel`: stops queued or running jobs.
+#[derive(Args, Debug)]
+pub struct CancelArgs {
+    /// Job ids.
+    #[arg(required = true)]
+    pub ids: Vec<String>,
+    #[command(flatten)]
+    pub at: CoordinatorArg,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `sylva priority`: moves a job in the queue.
+#[derive(Args, Debug)]
+pub struct PriorityArgs {
+    /// Job id.
+    pub id: String,
+    /// The new priority; higher runs first.
+    #[arg(allow_negative_numbers = true)]
+    pub priority: i32,
+    #[command(flatten)]
+    pub at: CoordinatorArg,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `sylva fetch`: a finished job's image.
+#[derive(Args, Debug)]
+pub struct FetchArgs {
+    /// Job id.
+    pub id: String,
+    /// Output file: PNG, or OpenEXR (linear HDR) when it ends in `.exr`.
+    #[arg(short, long, default_value = "sylva-out/fetched.png")]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub at: CoordinatorArg,
+}
+
+/// A job as listings show it (the wire summary, times as seconds).
+#[derive(Serialize)]
+struct JobRow {
+    id: String,
+    name: String,
+    state: String,
+    priority: i32,
+    strips_done: u32,
+    strips_total: u32,
+    retries: u32,
+    submitter: String,
+    submitted_unix_ms: u64,
+    started_unix_ms: Option<u64>,
+    finished_unix_ms: Option<u64>,
+    /// Seconds queued, then running (up to now while it runs).
+    queued_s: Option<f64>,
+    running_s: Option<f64>,
+    error: Option<String>,
+}
+
+impl JobRow {
+    fn of(j: pb::JobSummary, now_ms: u64) -> Self {
+        let nz = |v: u64| (v > 0).then_some(v);
+        let (sub, start, end) = (j.submitted_unix_ms, nz(j.started_unix_ms), nz(j.finished_unix_ms));
+        let secs = |a: u64, b: u64| b.saturating_sub(a) as f64 / 1e3;
+        Self {
+            queued_s: (sub > 0).then(|| secs(sub, start.or(end).unwrap_or(now_ms))),
+            running_s: start.map(|s| secs(s, end.unwrap_or(now_ms))),
+            id: j.id,
+            name: j.name,
+            state: j.state,
+            priority: j.priority,
+            strips_done: j.strips_done,
+            strips_total: j.strips_total,
+            retries: j.retries,
+            submitter: j.submitter,
+            submitted_unix_ms: sub,
+            started_unix_ms: start,
+            finished_unix_ms: end,
+            error: Some(j.error).filter(|e| !e.is_empty()),
+        }
+    }
+}
+
+fn now_ms() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0)
+}
+
+/// Left-aligned columns, two spaces apart, the header first.
+fn table(header: &[&str], rows: &[Vec<String>]) -> String {
+    let mut width: Vec<usize> = header.iter().map(|h| h.chars().count()).collect();
+    for r in rows {
+        for (w, c) in width.iter_mut().zip(r) {
+            *w = (*w).max(c.chars().count());
+        }
+    }
+    let line = |cells: Vec<String>| {
+        let mut s: String = cells.iter().zip(&width).map(|(c, w)| format!("{c:<w$}  ")).collect();
+        s.truncate(s.trim_end().len());
+        s + "\n"
+    };
+    std::iter::once(line(header.iter().map(|h| h.to_string()).collect())).chain(rows.iter().map(|r| line(r.clone()))).collect()
+}
+
+fn seconds(s: Option<f64>) -> String {
+    s.map(|s| format!("{s:.1}s")).unwrap_or_else(|| "-".into())
+}
+
+fn job_table(rows: &[JobRow]) -> String {
+    let cells: Vec<Vec<String>> = rows
+        .iter()
+        .map(|j| {
+            vec![
+                j.id.clone(),
+                j.state.clone(),
+                j.priority.to_string(),
+                format!("{}/{}", j.strips_done, j.strips_total),
+                j.retries.to_string(),
+                seconds(j.queued_s),
+                seconds(j.running_s),
+                j.submitter.clone(),
+                j.name.clone(),
+                j.error.clone().unwrap_or_default(),
+            ]
+        })
+        .collect();
+    table(&["ID", "STATE", "PRIO", "STRIPS", "RETRIES", "QUEUED", "RUNNING", "SUBMITTER", "NAME", "ERROR"], &cells)
+}
+
+/// Runs `sylva jobs`.
+pub fn run_jobs(a: JobsArgs) -> anyhow::Result<()> {
+    let list = a.at.call(async |mut c| Ok(c.list_jobs(pb::ListJobsRequest {}).await.map_err(status_error)?.into_inner().jobs))?;
+    let now = now_ms();
+    let mut rows: Vec<JobRow> = list.into_iter().map(|j| JobRow::of(j, now)).filter(|j| a.state.as_ref().is_none_or(|s| &j.state == s)).collect();
+    rows.sort_by_key(|j| j.submitted_unix_ms);
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        print!("{}", job_table(&rows));
+    }
+    Ok(())
+}
+
+/// A worker as listings show it.
+#[derive(Serialize)]
+struct WorkerRow {
+    addr: String,
+    alive: bool,
+    adapter: String,
+    gpu_memory_bytes: u64,
+    busy_strips: u32,
+    strips_done: u64,
+    strips_failed: u64,
+    cached_scenes: Vec<String>,
+}
+
+/// Runs `sylva workers`.
+pub fn run_workers(a: WorkersArgs) -> anyhow::Result<()> {
+    let list = a.at.call(async |mut c| Ok(c.list_workers(pb::ListWorkersRequest {}).await.map_err(status_error)?.into_inner().workers))?;
+    let mut rows: Vec<WorkerRow> = list
+        .into_iter()
+        .map(|w| WorkerRow {
+            addr: w.addr,
+            alive: w.alive,
+            adapter: w.adapter,
+            gpu_memory_bytes: w.gpu_memory_bytes,
+            busy_strips: w.busy_strips,
+            strips_done: w.strips_done,
+            strips_failed: w.strips_failed,
+            cached_scenes: w.cached_scenes,
+        })
+        .collect();
+    rows.sort_by(|a, b| a.addr.cmp(&b.addr));
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+        return Ok(());
+    }
+    let cells: Vec<Vec<String>> = rows
+        .iter()
+        .map(|w| {
+            vec![
+                w.addr.clone(),
+                if w.alive { "yes" } else { "no" }.into(),
+                w.adapter.clone(),
+                w.busy_strips.to_string(),
+                w.strips_done.to_string(),
+                w.strips_failed.to_string(),
+                // A bundle hash's first 12 digits name it well enough in a table.
+                w.cached_scenes.iter().map(|h| h.chars().take(12).collect::<String>()).collect::<Vec<_>>().join(","),
+            ]
+        })
+        .collect();
+    print!("{}", table(&["ADDR", "ALIVE", "ADAPTER", "BUSY", "DONE", "FAILED", "CACHED"], &cells));
+    Ok(())
+}
+
+/// Runs `sylva cancel`: every id is tried; the command fails if any was not found.
+pub fn run_cancel(a: CancelArgs) -> anyhow::Result<()> {
+    let results = a.at.call(async |mut c| {
+        let mut out = Vec::new();
+        for id in &a.ids {
+            out.push(c.cancel_job(pb::JobId { id: id.clone() }).await.map(|r| r.into_inner()).map_err(status_error));
+        }
+        Ok(out)
+    })?;
+    let now = now_ms();
+    let mut rows = Vec::new();
+    let mut failed = Vec::new();
+    for (id, r) in a.ids.iter().zip(results) {
+        match r {
+            Ok(s) => rows.push(JobRow::of(s, now)),
+            Err(e) => failed.push(format!("{id}: {e}")),
+        }
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        for j in &rows {
+            println!("{} {}", j.id, j.state);
+        }
+    }
+    anyhow::ensure!(failed.is_empty(), "{}", failed.join("; "));
+    Ok(())
+}
+
+/// Runs `sylva priority`.
+pub fn run_priority(a: PriorityArgs) -> anyhow::Result<()> {
+    let s = a.at.call(async |mut c| {
+        Ok(c.set_priority(pb::SetPriorityRequest { id: a.id.clone(), priority: a.priority }).await.map_err(status_error)?.into_inner())
+    })?;
+    let row = JobRow::of(s, now_ms());
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&row)?);
+    } else {
+        println!("{} {} priority {}", row.id, row.state, row.priority);
+    }
+    Ok(())
+}
+
+/// Runs `sylva fetch`.
+pub fn run_fetch(a: FetchArgs) -> anyhow::Result<()> {
+    let exr = a.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    let format = if exr { "exr" } else { "png" };
+    let data = a.at.call(async |mut c| {
+        Ok(c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: format.into() }).await.map_err(status_error)?.into_inner().data)
+    })?;
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(&a.out, &data).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    println!("{}: wrote {} ({} bytes)", a.id, a.out.display(), data.len());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_table_lines_up_its_columns() {
+        let t = table(&["ID", "STATE"], &[vec!["job-1".into(), "done".into()], vec!["j".into(), "queued".into()]]);
+        assert_eq!(t, "ID     STATE\njob-1  done\nj      queued\n");
+    }
+
+    #[test]
+    fn a_running_jobs_times_count_to_now() {
+        let s = pb::JobSummary { submitted_unix_ms: 1_000, started_unix_ms: 3_000, ..Default::default() };
+        let r = JobRow::of(s, 10_000);
+        assert_eq!((r.queued_s, r.running_s), (Some(2.0), Some(7.0)));
+        let s = pb::JobSummary { submitted_unix_ms: 1_000, finished_unix_ms: 1_500, ..Default::default() };
+        let r = JobRow::of(s, 10_000);
+        assert_eq!((r.queued_s, r.running_s), (Some(0.5), None), "cancelled while queued");
+    }
+}
