@@ -15,6 +15,8 @@ done
 # Node.js and npm run the Khronos glTF validator on exported scenes (tests
 # only); a Node.js installed otherwise (with its own npm) is used as it is.
 command -v node >/dev/null 2>&1 || missing+=(nodejs)
+# Chromium (headless) drives the web dashboard's test.
+command -v chromium >/dev/null 2>&1 || missing+=(chromium)
 command -v npm >/dev/null 2>&1 || missing+=(npm)
 if ((${#missing[@]})); then
   sudo=""

@@ -20,6 +20,17 @@ pub struct StripPixels {
 }
 
 impl StripPixels {
+    /// The strip as 8-bit sRGB for a live preview, tone mapped per pixel
+    /// (x / (1 + x)): the frame's exposure is not known until it is whole.
+    pub fn preview(&self) -> Vec<[u8; 3]> {
+        let srgb = |v: f32| {
+            let v = v / (1.0 + v);
+            let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+            (s.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
+        };
+        self.rgb.iter().map(|p| p.map(srgb)).collect()
+    }
+
     /// Checks a strip's sizes and values against the columns it was asked
     /// for and the frame's height.
     pub fn check(&self, height: u32) -> Result<(), String> {

@@ -29,8 +29,9 @@ const CHUNK: usize = 1 << 20;
 /// What happened, for progress bars and logs.
 #[derive(Clone, Debug)]
 pub enum FarmEvent {
-    /// A strip came back with `bytes` of pixels.
-    StripDone { strip: Strip, worker: String, ms: f64, bytes: u64 },
+    /// A strip came back with `bytes` of pixels; `preview` is it in 8-bit
+    /// sRGB, rows from the top (for a live view).
+    StripDone { strip: Strip, worker: String, ms: f64, bytes: u64, preview: Arc<Vec<[u8; 3]>> },
     /// A scene bundle of `bytes` was sent to a worker.
     BundleSent { worker: String, bytes: u64 },
     /// A strip failed on a worker and was put back on the queue.
@@ -230,7 +231,8 @@ pub async fn render_frame(
                         report.render_ms += r.render_ms;
                         report.prepare_ms += r.prepare_ms;
                         let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
-                        events(FarmEvent::StripDone { strip, worker: report.worker.clone(), ms: r.render_ms, bytes });
+                        let preview = Arc::new(px.preview());
+                        events(FarmEvent::StripDone { strip, worker: report.worker.clone(), ms: r.render_ms, bytes, preview });
                         shared.done.lock().expect("lock").push((px, r.render_ms, sent.elapsed().as_secs_f64() * 1e3));
                     }
                     Err(error) => {

@@ -1,11 +1,12 @@
 //! The coordinator: cuts frames into vertical strips ([`schedule`]), hands
 //! them to GPU workers over gRPC ([`farm`]) and assembles what comes back
 //! ([`assembly`]); the service that queues jobs ([`service`]) and its
-//! clients ([`client`]); the worker's registration ([`registration`]).
+//! clients ([`client`]) and web page ([`dashboard`]); the worker's registration ([`registration`]).
 
 pub mod assembly;
 pub mod chart;
 pub mod client;
+pub mod dashboard;
 pub mod executor;
 pub mod farm;
 pub mod metrics;

@@ -156,6 +156,17 @@ pub async fn serve_with(
     accept_loop(accept, router(metrics.registry(gauges)), config).await
 }
 
+/// Serves `app` on `listener` under the default limits (slow and idle
+/// clients closed, connections capped); never returns. The dashboard's server.
+pub async fn serve_app(listener: TcpListener, app: axum::Router) {
+    let listener = Arc::new(listener);
+    let accept = move || {
+        let l = listener.clone();
+        async move { l.accept().await }
+    };
+    accept_loop(accept, app, MetricsServerConfig::default()).await
+}
+
 /// `/metrics` answers GET (and HEAD); axum answers 405 to other methods and 404 elsewhere.
 fn router(registry: Registry) -> axum::Router {
     axum::Router::new().route("/metrics", axum::routing::get(scrape)).with_state(Arc::new(registry))

@@ -13,7 +13,7 @@
 
 use crate::farm::{self, FarmEvent, Workers};
 use crate::results::{ResultStore, Retention};
-use crate::schedule::{ScheduleKind, scheduler};
+use crate::schedule::{ScheduleKind, Strip, scheduler};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::pin::Pin;
@@ -67,6 +67,8 @@ pub struct CoordinatorConfig {
     pub work_dir: PathBuf,
     /// Serve Prometheus metrics here.
     pub metrics: Option<tokio::net::TcpListener>,
+    /// Serve the web dashboard here.
+    pub http: Option<tokio::net::TcpListener>,
     /// Serve the API over TLS with this identity.
     pub tls: Option<tonic::transport::ServerTlsConfig>,
     /// Reach workers over TLS with this.
@@ -87,6 +89,7 @@ impl Default for CoordinatorConfig {
             retention: Retention::default(),
             work_dir: std::env::temp_dir().join(format!("sylva-coordinator-{}", std::process::id())),
             metrics: None,
+            http: None,
             tls: None,
             worker_tls: None,
         }
@@ -110,6 +113,49 @@ struct Job {
     events: broadcast::Sender<pb::JobEvent>,
     task: Option<tokio::task::AbortHandle>,
     finished: Option<Instant>,
+    live: LiveFrame,
+}
+
+/// A frame as the dashboard shows it while (and after) it renders.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct LiveFrame {
+    /// Image size.
+    pub width: u32,
+    pub height: u32,
+    /// Strips in the order they came back or failed.
+    pub strips: Vec<LiveStrip>,
+    /// 8-bit sRGB, `width × height × 3`, black where no strip is yet;
+    /// dropped when the job ends (its result is the image then).
+    #[serde(skip)]
+    pub preview: Vec<u8>,
+}
+
+/// One strip's outcome on one worker.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct LiveStrip {
+    /// Columns [x0, x1).
+    pub x0: u32,
+    pub x1: u32,
+    /// The worker that rendered (or failed) it.
+    pub worker: String,
+    /// Render time on the worker, ms (0 when it failed).
+    pub ms: f64,
+    /// Why it failed; empty when it came back.
+    pub error: String,
+}
+
+impl LiveFrame {
+    fn paint(&mut self, strip: Strip, px: &[[u8; 3]]) {
+        let (x0, x1) = strip;
+        let w = (x1 - x0) as usize;
+        if self.preview.len() != self.width as usize * self.height as usize * 3 || px.len() != w * self.height as usize || x1 > self.width {
+            return;
+        }
+        for (y, row) in px.chunks_exact(w).enumerate() {
+            let at = 3 * (y * self.width as usize + x0 as usize);
+            self.preview[at..at + 3 * w].copy_from_slice(row.as_flattened());
+        }
+    }
 }
 
 /// A worker the coordinator knows.
@@ -151,6 +197,7 @@ impl CoordinatorService {
     /// A coordinator; call [`CoordinatorService::spawn_background`] to run jobs.
     pub fn new(mut config: CoordinatorConfig) -> Self {
         let metrics_listener = config.metrics.take();
+        let http_listener = config.http.take();
         // Named workers count as alive until a heartbeat says otherwise, so a
         // job submitted at once can use them (the farm copes if one is not).
         let workers = config
@@ -183,7 +230,28 @@ impl CoordinatorService {
             let s = service.state.clone();
             tokio::spawn(crate::metrics::serve(l, service.state.metrics.clone(), move || s.gauges()));
         }
+        if let Some(l) = http_listener {
+            tokio::spawn(crate::dashboard::serve(l, service.clone()));
+        }
         service
+    }
+
+    /// A job's frame as it renders (strips so far and their preview).
+    pub fn live(&self, id: &str) -> Option<LiveFrame> {
+        lock(&self.state.jobs).get(id).map(|j| j.live.clone())
+    }
+
+    /// Whether `token` is the one this coordinator asks of callers (any, when it asks none).
+    pub fn accepts_token(&self, token: Option<&str>) -> bool {
+        match &self.state.config.token {
+            None => true,
+            Some(want) => token.is_some_and(|t| sylva_proto::auth::constant_time_eq(t.as_bytes(), want.as_bytes())),
+        }
+    }
+
+    /// Whether callers must bring a token.
+    pub fn needs_token(&self) -> bool {
+        self.state.config.token.is_some()
     }
 
     /// Starts the scheduler loop and the worker heartbeats.
@@ -250,6 +318,7 @@ impl State {
             j.task = None;
             j.finished = Some(Instant::now());
             j.summary.finished_unix_ms = unix_ms();
+            j.live.preview = Vec::new();
         }
     }
 
@@ -339,6 +408,12 @@ impl State {
         let plan = scheduler(schedule).plan(frame.width, addrs.len().max(1), &cost);
         if let Some(j) = lock(&self.jobs).get_mut(id) {
             j.summary.strips_total = plan.len() as u32;
+            j.live = LiveFrame {
+                width: frame.width,
+                height: frame.height,
+                strips: Vec::new(),
+                preview: vec![0; frame.width as usize * frame.height as usize * 3],
+            };
         }
         let span = tracing::info_span!("job", %id, strips = plan.len(), workers = addrs.len());
         let _g = span.enter();
@@ -354,7 +429,7 @@ impl State {
                 let mut ev = me.event(&jid);
                 ev.state = "running".into();
                 match e {
-                    FarmEvent::StripDone { worker, ms, bytes, .. } => {
+                    FarmEvent::StripDone { worker, ms, bytes, strip, preview } => {
                         me.metrics.strip_done(ms / 1e3, bytes);
                         if let Some(w) = lock(&me.workers).get_mut(&worker) {
                             w.info.strips_done += 1;
@@ -363,17 +438,20 @@ impl State {
                         if let Some(j) = jobs.get_mut(&jid) {
                             j.summary.strips_done += 1;
                             ev.strips_done = j.summary.strips_done;
+                            j.live.paint(strip, &preview);
+                            j.live.strips.push(LiveStrip { x0: strip.0, x1: strip.1, worker: worker.clone(), ms, error: String::new() });
                         }
                         ev.worker = worker;
                         ev.strip_ms = ms;
                     }
-                    FarmEvent::StripRetried { worker, error, .. } => {
+                    FarmEvent::StripRetried { worker, error, strip } => {
                         me.metrics.strip_retried();
                         if let Some(w) = lock(&me.workers).get_mut(&worker) {
                             w.info.strips_failed += 1;
                         }
                         if let Some(j) = lock(&me.jobs).get_mut(&jid) {
                             j.summary.retries += 1;
+                            j.live.strips.push(LiveStrip { x0: strip.0, x1: strip.1, worker: worker.clone(), ms: 0.0, error: clip(&error) });
                         }
                         ev.message = format!("strip re-queued from {worker}: {error}");
                     }
@@ -627,7 +705,18 @@ impl Coordinator for CoordinatorService {
         };
         lock(&self.state.jobs).insert(
             id.clone(),
-            Job { seq, spec, frame, schedule, bundle: Some(Arc::new(SceneBundle { bytes, hash })), summary, events: tx, task: None, finished: None },
+            Job {
+                seq,
+                spec,
+                frame,
+                schedule,
+                bundle: Some(Arc::new(SceneBundle { bytes, hash })),
+                summary,
+                events: tx,
+                task: None,
+                finished: None,
+                live: LiveFrame::default(),
+            },
         );
         self.state.wake.notify_one();
         tracing::info!(%id, "job queued");
@@ -723,6 +812,7 @@ impl Coordinator for CoordinatorService {
                 j.bundle = None;
                 j.finished = Some(Instant::now());
                 j.summary.finished_unix_ms = unix_ms();
+                j.live.preview = Vec::new();
             }
             (j.summary.clone(), j.events.clone())
         };

@@ -90,7 +90,8 @@ pub fn check_proof(token: Option<&str>, nonce: &[u8], proof: &[u8]) -> bool {
     constant_time_eq(&prove(token, nonce), proof)
 }
 
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+/// Compares two byte strings in time that depends on their length only.
+pub fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 

@@ -37,6 +37,9 @@ pub struct CoordinatorArgs {
     /// Serve Prometheus metrics on this address (`GET /metrics`).
     #[arg(long)]
     pub metrics: Option<String>,
+    /// Serve the web dashboard on this address (`http://ADDR/`).
+    #[arg(long)]
+    pub http: Option<String>,
     #[command(flatten)]
     pub limits: super::limits::LimitArgs,
     /// Seconds a finished job (and its image) is kept for FetchResult.
@@ -79,8 +82,14 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             None => None,
         };
         let metrics_addr = metrics.as_ref().map(|l| l.local_addr()).transpose()?;
+        let http = match &a.http {
+            Some(h) => Some(tokio::net::TcpListener::bind(h).await.with_context(|| format!("cannot listen on {h}"))?),
+            None => None,
+        };
+        let http_addr = http.as_ref().map(|l| l.local_addr()).transpose()?;
         let config = CoordinatorConfig {
             metrics,
+            http,
             max_running: a.max_running,
             max_bundle_bytes: a.max_bundle_mib << 20,
             token,
@@ -100,6 +109,9 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
         };
         if let Some(m) = metrics_addr {
             eprintln!("sylva coordinator metrics on http://{m}/metrics");
+        }
+        if let Some(h) = http_addr {
+            eprintln!("sylva coordinator dashboard on http://{h}/");
         }
         println!("sylva coordinator listening on {addr}");
         std::io::stdout().flush()?;

@@ -1,0 +1,226 @@
+//! The farm's web page (`sylva coordinator --http ADDR`): jobs, workers and
+//! the frame being rendered, live. Plain HTML, CSS and JavaScript compiled
+//! into the binary (`index.html`, `app.js`, `style.css` beside this file),
+//! a JSON API over the same gRPC service methods the command line calls,
+//! and server-sent events that push a snapshot twice a second.
+//!
+//! Access: where the coordinator has a token, reading needs it too (as
+//! `Authorization: Bearer …` or the `sylva_token` cookie the page sets, since
+//! an `EventSource` or an `<img>` cannot send headers); changing anything
+//! (cancel, priority) needs the header, which another site's form cannot
+//! send, so a page elsewhere cannot act with the cookie.
+
+use crate::service::{CoordinatorService, ended};
+use axum::Router;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::sse::{Event, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use serde_json::{Value, json};
+use std::convert::Infallible;
+use std::time::Duration;
+use sylva_proto::pb;
+use sylva_proto::pb::coordinator_server::Coordinator;
+use tonic::Request;
+
+const INDEX: &str = include_str!("index.html");
+const APP: &str = include_str!("app.js");
+const STYLE: &str = include_str!("style.css");
+/// How often the event stream sends a snapshot.
+const TICK: Duration = Duration::from_millis(500);
+
+/// Serves the dashboard on `listener` (never returns).
+pub async fn serve(listener: tokio::net::TcpListener, service: CoordinatorService) {
+    crate::metrics::serve_app(listener, router(service)).await
+}
+
+/// The page's routes.
+pub fn router(service: CoordinatorService) -> Router {
+    Router::new()
+        .route("/", get(|| async { ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], INDEX) }))
+        .route("/app.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], APP) }))
+        .route("/style.css", get(|| async { ([(header::CONTENT_TYPE, "text/css; charset=utf-8")], STYLE) }))
+        .route("/api/snapshot", get(snapshot_route))
+        .route("/api/events", get(events))
+        .route("/api/jobs/{id}/live", get(live))
+        .route("/api/jobs/{id}/preview.png", get(preview))
+        .route("/api/jobs/{id}/cancel", post(cancel))
+        .route("/api/jobs/{id}/priority", post(priority))
+        .with_state(service)
+}
+
+/// The bearer token of a request: its header, or (`cookie_too`) its cookie.
+fn token(headers: &HeaderMap, cookie_too: bool) -> Option<String> {
+    let bearer = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().split_once(' '))
+        .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+        .map(|(_, t)| t.trim().to_string());
+    let cookie = || {
+        headers.get_all(header::COOKIE).iter().filter_map(|v| v.to_str().ok()).flat_map(|v| v.split(';')).find_map(|c| {
+            let (k, v) = c.trim().split_once('=')?;
+            (k == "sylva_token").then(|| percent_decode(v))
+        })
+    };
+    bearer.or_else(|| if cookie_too { cookie() } else { None })
+}
+
+/// `%XX` escapes of a cookie value undone (the page writes it with encodeURIComponent).
+fn percent_decode(v: &str) -> String {
+    let b = v.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%'
+            && i + 2 < b.len()
+            && let Ok(x) = u8::from_str_radix(std::str::from_utf8(&b[i + 1..i + 3]).unwrap_or("zz"), 16)
+        {
+            out.push(x);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+fn refused() -> Response {
+    (StatusCode::UNAUTHORIZED, "this coordinator needs its token: enter it at the top of the page").into_response()
+}
+
+fn status_response(s: tonic::Status) -> Response {
+    let code = match s.code() {
+        tonic::Code::NotFound => StatusCode::NOT_FOUND,
+        tonic::Code::InvalidArgument => StatusCode::BAD_REQUEST,
+        tonic::Code::FailedPrecondition => StatusCode::CONFLICT,
+        _ => StatusCode::INTERNAL_SERVER_ERROR,
+    };
+    (code, s.message().to_string()).into_response()
+}
+
+/// Jobs and workers as the page lists them.
+async fn snapshot(service: &CoordinatorService) -> Value {
+    let jobs = service.list_jobs(Request::new(pb::ListJobsRequest {})).await.map(|r| r.into_inner().jobs).unwrap_or_default();
+    let workers = service.list_workers(Request::new(pb::ListWorkersRequest {})).await.map(|r| r.into_inner().workers).unwrap_or_default();
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0);
+    json!({
+        "now_unix_ms": now,
+        "needs_token": service.needs_token(),
+        "jobs": jobs.iter().map(|j| json!({
+            "id": j.id, "name": j.name, "state": j.state, "priority": j.priority,
+            "strips_done": j.strips_done, "strips_total": j.strips_total, "retries": j.retries,
+            "submitter": j.submitter, "error": j.error, "ended": ended(&j.state),
+            "submitted_unix_ms": j.submitted_unix_ms, "started_unix_ms": j.started_unix_ms, "finished_unix_ms": j.finished_unix_ms,
+        })).collect::<Vec<_>>(),
+        "workers": workers.iter().map(|w| json!({
+            "addr": w.addr, "adapter": w.adapter, "alive": w.alive, "busy_strips": w.busy_strips,
+            "strips_done": w.strips_done, "strips_failed": w.strips_failed, "cached_scenes": w.cached_scenes,
+            "gpu_memory_bytes": w.gpu_memory_bytes,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+async fn snapshot_route(State(service): State<CoordinatorService>, headers: HeaderMap) -> Response {
+    if !service.accepts_token(token(&headers, true).as_deref()) {
+        return refused();
+    }
+    axum::Json(snapshot(&service).await).into_response()
+}
+
+/// A snapshot now and every [`TICK`] after, as `snapshot` events.
+async fn events(State(service): State<CoordinatorService>, headers: HeaderMap) -> Response {
+    if !service.accepts_token(token(&headers, true).as_deref()) {
+        return refused();
+    }
+    let stream = futures_util::stream::unfold((service, true), |(service, first)| async move {
+        if !first {
+            tokio::time::sleep(TICK).await;
+        }
+        let data = snapshot(&service).await.to_string();
+        Some((Ok::<_, Infallible>(Event::default().event("snapshot").data(data)), (service, false)))
+    });
+    // A snapshot every tick keeps the connection busy: no keep-alive comments needed.
+    Sse::new(stream).into_response()
+}
+
+/// A job's strips: which worker rendered which columns, in what time, and
+/// which failed where; with the per-column cost they imply.
+async fn live(State(service): State<CoordinatorService>, headers: HeaderMap, Path(id): Path<String>) -> Response {
+    if !service.accepts_token(token(&headers, true).as_deref()) {
+        return refused();
+    }
+    let Some(f) = service.live(&id) else { return (StatusCode::NOT_FOUND, "no such job").into_response() };
+    let mut cost = vec![0.0f64; f.width as usize];
+    for s in f.strips.iter().filter(|s| s.error.is_empty() && s.x1 > s.x0) {
+        let per = s.ms / (s.x1 - s.x0) as f64;
+        for c in cost.iter_mut().take(s.x1 as usize).skip(s.x0 as usize) {
+            *c = per;
+        }
+    }
+    axum::Json(json!({ "width": f.width, "height": f.height, "strips": f.strips, "column_ms": cost })).into_response()
+}
+
+/// The frame so far (black where no strip has come back), or the finished image.
+async fn preview(State(service): State<CoordinatorService>, headers: HeaderMap, Path(id): Path<String>) -> Response {
+    if !service.accepts_token(token(&headers, true).as_deref()) {
+        return refused();
+    }
+    let Some(f) = service.live(&id) else { return (StatusCode::NOT_FOUND, "no such job").into_response() };
+    let png = if f.preview.is_empty() {
+        match service.fetch_result(Request::new(pb::FetchRequest { id: id.clone(), format: "png".into() })).await {
+            Ok(r) => r.into_inner().data,
+            Err(s) => return status_response(s),
+        }
+    } else {
+        let Some(img) = image::RgbImage::from_raw(f.width, f.height, f.preview) else {
+            return StatusCode::INTERNAL_SERVER_ERROR.into_response();
+        };
+        let mut out = std::io::Cursor::new(Vec::new());
+        if img.write_to(&mut out, image::ImageFormat::Png).is_err() {
+            return StatusCode::INTERNAL_SERVER_ERROR.into_response();
+        }
+        out.into_inner()
+    };
+    ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], png).into_response()
+}
+
+async fn cancel(State(service): State<CoordinatorService>, headers: HeaderMap, Path(id): Path<String>) -> Response {
+    if !service.accepts_token(token(&headers, false).as_deref()) {
+        return refused();
+    }
+    match service.cancel_job(Request::new(pb::JobId { id })).await {
+        Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "state": r.get_ref().state })).into_response(),
+        Err(s) => status_response(s),
+    }
+}
+
+async fn priority(State(service): State<CoordinatorService>, headers: HeaderMap, Path(id): Path<String>, body: String) -> Response {
+    if !service.accepts_token(token(&headers, false).as_deref()) {
+        return refused();
+    }
+    let Some(p) = serde_json::from_str::<Value>(&body).ok().and_then(|v| v.get("priority")?.as_i64()).and_then(|p| i32::try_from(p).ok()) else {
+        return (StatusCode::BAD_REQUEST, "send {\"priority\": N}").into_response();
+    };
+    match service.set_priority(Request::new(pb::SetPriorityRequest { id, priority: p })).await {
+        Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "priority": r.get_ref().priority })).into_response(),
+        Err(s) => status_response(s),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_token_comes_from_the_header_or_for_reading_the_cookie() {
+        let mut h = HeaderMap::new();
+        h.insert(header::COOKIE, "a=b; sylva_token=s%3Acret".parse().unwrap());
+        assert_eq!(token(&h, true).as_deref(), Some("s:cret"));
+        assert_eq!(token(&h, false), None, "a cookie does not authorise a change");
+        h.insert(header::AUTHORIZATION, "Bearer abc".parse().unwrap());
+        assert_eq!(token(&h, false).as_deref(), Some("abc"));
+    }
+}
