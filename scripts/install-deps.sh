@@ -12,12 +12,16 @@ missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
-# Node.js and npm run the Khronos glTF validator on exported scenes (tests
-# only); a Node.js installed otherwise (with its own npm) is used as it is.
-command -v node >/dev/null 2>&1 || missing+=(nodejs)
-# Chromium (headless) drives the web dashboard's test.
-command -v chromium >/dev/null 2>&1 || missing+=(chromium)
-command -v npm >/dev/null 2>&1 || missing+=(npm)
+# With --test, what only the tests use: Node.js and npm run the Khronos
+# glTF validator on exported scenes (a Node.js installed otherwise, with its
+# own npm, is used as it is), and headless Chromium drives the dashboard.
+tests=0
+[ "${1:-}" = "--test" ] && tests=1
+if ((tests)); then
+  command -v node >/dev/null 2>&1 || missing+=(nodejs)
+  command -v npm >/dev/null 2>&1 || missing+=(npm)
+  command -v chromium >/dev/null 2>&1 || missing+=(chromium)
+fi
 if ((${#missing[@]})); then
   sudo=""
   [ "$(id -u)" -eq 0 ] || sudo="sudo"
@@ -51,7 +55,7 @@ if ! cargo fmt --version >/dev/null 2>&1 || ! cargo clippy --version >/dev/null 
 fi
 
 # The Khronos glTF validator (npm registry), for the export tests; pinned.
-if [ ! -f .tools/node_modules/gltf-validator/package.json ]; then
+if ((tests)) && [ ! -f .tools/node_modules/gltf-validator/package.json ]; then
   echo "installing gltf-validator" >&2
   npm install --silent --no-audit --no-fund --prefix .tools gltf-validator@2.0.0-dev.3.10 >&2
 fi

@@ -4,7 +4,7 @@
 # `cargo test`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/install-deps.sh
+bash scripts/install-deps.sh --test
 . scripts/env.sh
 cargo fmt --all --check
 cargo clippy --workspace --all-targets --locked -- -D warnings
