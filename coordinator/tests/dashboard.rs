@@ -47,6 +47,16 @@ async fn get(addr: &str, path: &str, headers: &str) -> (u16, String) {
     }
 }
 
+/// A plain HTTP/1.1 POST with an empty body: the status.
+async fn post(addr: &str, path: &str, headers: &str) -> (u16, String) {
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(format!("POST {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: 0\r\n{headers}\r\n").as_bytes()).await.unwrap();
+    let mut out = Vec::new();
+    tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out)).await.expect("an answer").unwrap();
+    let text = String::from_utf8_lossy(&out).to_string();
+    (text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0), text)
+}
+
 /// A headless Chromium and one DevTools connection to its page.
 struct Browser {
     child: Child,
@@ -253,6 +263,19 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     )
     .await;
     tokio::time::sleep(Duration::from_millis(800)).await;
+    // Raised from the page: the + button sends the token in its header.
+    b.eval(&format!("document.querySelector('button[data-priority=\"{long}\"][data-delta=\"1\"]').click(), true")).await;
+    b.wait_for(
+        &format!("(document.querySelector('tr[data-job=\"{long}\"] .priority') || {{}}).textContent === '1 '"),
+        "the raised priority",
+        Duration::from_secs(30),
+    )
+    .await;
+    let listed = c.list_jobs(sylva_proto::pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
+    assert_eq!(listed.iter().find(|j| j.id == long).unwrap().priority, 1);
+    // A change without the header (the cookie alone, as a form elsewhere would send it) is refused.
+    let (status, _) = post(&http, &format!("/api/jobs/{long}/cancel"), &format!("Cookie: sylva_token={TOKEN}\r\n")).await;
+    assert_eq!(status, 401);
     let shot = b.call("Page.captureScreenshot", json!({ "format": "png", "captureBeyondViewport": true })).await;
     b.eval(&format!("document.querySelector('button[data-cancel=\"{long}\"]').click(), true")).await;
     b.wait_for(&format!("{} === 'cancelled'", state_of(&long)), "the long job cancelled", Duration::from_secs(30)).await;
