@@ -14,10 +14,10 @@ use tonic::service::interceptor::InterceptedService;
 pub struct FinishedJob {
     /// Its id.
     pub id: String,
-    /// The tone-mapped image.
-    pub png: Vec<u8>,
-    /// The linear HDR frame, when asked for.
-    pub exr: Option<Vec<u8>>,
+    /// The tone-mapped image of each frame (one unless a sequence).
+    pub pngs: Vec<Vec<u8>>,
+    /// The linear HDR frames, when asked for.
+    pub exrs: Option<Vec<Vec<u8>>>,
     /// The coordinator's stats of the frame.
     pub stats: serde_json::Value,
 }
@@ -49,12 +49,18 @@ pub async fn submit_and_follow(
     bundle: &sylva_shared::bundle::SceneBundle,
     exr: bool,
 ) -> anyhow::Result<FinishedJob> {
+    let views = spec.views.len();
     let mut c = connect(addr, token, tls).await?;
     let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: bundle.hash.clone(), total_size: bundle.bytes.len() as u64, data: vec![] }];
     chunks.extend(bundle.bytes.chunks(1 << 20).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
     let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(status_error)?.into_inner().id;
     let bar = ProgressBar::new(1);
-    bar.set_style(ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
+    let unit = if views > 1 { format!("strips of {views} frames") } else { "strips".into() };
+    bar.set_style(
+        ProgressStyle::with_template(&format!("{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit} {{elapsed}}"))
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
     bar.set_message(id.clone());
     let mut events = c.watch_job(pb::JobId { id: id.clone() }).await?.into_inner();
     let mut end = None;
@@ -75,8 +81,18 @@ pub async fn submit_and_follow(
     if end.state != "done" {
         bail!("job {id} {}: {}", end.state, end.message);
     }
-    let png = c.fetch_result(pb::FetchRequest { id: id.clone(), format: "png".into() }).await?.into_inner().data;
-    let exr = if exr { Some(c.fetch_result(pb::FetchRequest { id: id.clone(), format: "exr".into() }).await?.into_inner().data) } else { None };
+    let frames = views.max(1) as u32;
+    let mut fetch = async |format: &str| -> anyhow::Result<Vec<Vec<u8>>> {
+        let mut out = Vec::new();
+        for frame in 0..frames {
+            out.push(
+                c.fetch_result(pb::FetchRequest { id: id.clone(), format: format.into(), frame }).await.map_err(status_error)?.into_inner().data,
+            );
+        }
+        Ok(out)
+    };
+    let pngs = fetch("png").await?;
+    let exrs = if exr { Some(fetch("exr").await?) } else { None };
     let stats = serde_json::from_str(&end.stats_json).unwrap_or(serde_json::Value::Null);
-    Ok(FinishedJob { id, png, exr, stats })
+    Ok(FinishedJob { id, pngs, exrs, stats })
 }

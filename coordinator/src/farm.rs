@@ -21,6 +21,9 @@ use sylva_shared::frame::FrameSettings;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig};
 
+/// A strip, its render time and its whole call's time, ms.
+type StripTime = (Strip, f64, f64);
+
 /// Failures after which a worker is dropped for the frame.
 pub const MAX_FAILURES: u32 = 3;
 /// Bytes per upload chunk.
@@ -29,13 +32,14 @@ const CHUNK: usize = 1 << 20;
 /// What happened, for progress bars and logs.
 #[derive(Clone, Debug)]
 pub enum FarmEvent {
-    /// A strip came back with `bytes` of pixels; `preview` is it in 8-bit
-    /// sRGB, rows from the top (for a live view).
-    StripDone { strip: Strip, worker: String, ms: f64, bytes: u64, preview: Arc<Vec<[u8; 3]>> },
+    /// A strip of `frame` (0 unless a sequence) came back with `bytes` of
+    /// pixels; `preview` is it in 8-bit sRGB, rows from the top (for a
+    /// live view).
+    StripDone { frame: usize, strip: Strip, worker: String, ms: f64, bytes: u64, preview: Arc<Vec<[u8; 3]>> },
     /// A scene bundle of `bytes` was sent to a worker.
     BundleSent { worker: String, bytes: u64 },
     /// A strip failed on a worker and was put back on the queue.
-    StripRetried { strip: Strip, worker: String, error: String },
+    StripRetried { frame: usize, strip: Strip, worker: String, error: String },
     /// A worker was dropped for this frame.
     WorkerDropped { worker: String, error: String },
 }
@@ -90,9 +94,10 @@ pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<u64, to
 }
 
 struct Shared {
-    queue: Mutex<VecDeque<Strip>>,
-    /// Checked strips with their render and RPC times.
-    done: Mutex<Vec<(StripPixels, f64, f64)>>,
+    /// (frame, strip) in pull order.
+    queue: Mutex<VecDeque<(usize, Strip)>>,
+    /// Checked strips with their frame, render and RPC times.
+    done: Mutex<Vec<(usize, StripPixels, f64, f64)>>,
     total: usize,
 }
 
@@ -157,7 +162,25 @@ pub async fn render_frame(
     deadline: Duration,
     events: impl Fn(FarmEvent) + Send + Sync + 'static,
 ) -> anyhow::Result<RenderedFrame> {
+    let mut frames = render_frames(workers, bundle, &[frame], vec![plan], deadline, events).await?;
+    Ok(frames.pop().expect("one frame"))
+}
+
+/// Renders every frame of a sequence (same size, own views) of `bundle` on
+/// `workers`: all (frame, strip) pairs go on one queue, frame by frame in
+/// `plans` order, so idle workers start the next frame while the last
+/// strips of one finish. Each frame carries the whole job's worker reports.
+pub async fn render_frames(
+    workers: &Workers,
+    bundle: &SceneBundle,
+    frames: &[FrameSettings],
+    plans: Vec<Vec<Strip>>,
+    deadline: Duration,
+    events: impl Fn(FarmEvent) + Send + Sync + 'static,
+) -> anyhow::Result<Vec<RenderedFrame>> {
     anyhow::ensure!(!workers.addrs.is_empty(), "no workers to render on");
+    anyhow::ensure!(!frames.is_empty() && frames.len() == plans.len(), "one strip plan per frame");
+    anyhow::ensure!(frames.iter().all(|f| (f.width, f.height) == (frames[0].width, frames[0].height)), "a sequence's frames share one size");
     let t = Instant::now();
     // Every worker gets the bundle at once; a slow one delays only itself.
     let uploads = workers.addrs.iter().map(|w| {
@@ -194,18 +217,19 @@ pub async fn render_frame(
         }
         reports.push(report);
     }
-    let wire = pb::FrameSettings::from(&frame);
-    let shared = Arc::new(Shared { total: plan.len(), queue: Mutex::new(plan.into_iter().collect()), done: Mutex::new(Vec::new()) });
+    let wires: Arc<Vec<pb::FrameSettings>> = Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
+    let queue: VecDeque<(usize, Strip)> = plans.iter().enumerate().flat_map(|(f, p)| p.iter().map(move |s| (f, *s))).collect();
+    let shared = Arc::new(Shared { total: queue.len(), queue: Mutex::new(queue), done: Mutex::new(Vec::new()) });
     let events = Arc::new(events);
     let mut tasks = Vec::new();
     for (client, report) in clients.into_iter().zip(reports) {
-        let (shared, events, wire, hash, height) = (shared.clone(), events.clone(), wire.clone(), bundle.hash.clone(), frame.height);
+        let (shared, events, wires, hash, height) = (shared.clone(), events.clone(), wires.clone(), bundle.hash.clone(), frames[0].height);
         tasks.push(tokio::spawn(async move {
             let mut report = report;
             let Some(mut client) = client else { return report };
             loop {
                 let next = shared.queue.lock().expect("lock").pop_front();
-                let Some(strip) = next else {
+                let Some((frame, strip)) = next else {
                     if shared.done.lock().expect("lock").len() == shared.total {
                         return report;
                     }
@@ -213,8 +237,12 @@ pub async fn render_frame(
                     tokio::time::sleep(Duration::from_millis(5)).await;
                     continue;
                 };
-                let mut req =
-                    tonic::Request::new(pb::RenderStripRequest { scene_hash: hash.clone(), frame: Some(wire.clone()), x0: strip.0, x1: strip.1 });
+                let mut req = tonic::Request::new(pb::RenderStripRequest {
+                    scene_hash: hash.clone(),
+                    frame: Some(wires[frame].clone()),
+                    x0: strip.0,
+                    x1: strip.1,
+                });
                 req.set_timeout(deadline);
                 let sent = Instant::now();
                 let outcome = match tokio::time::timeout(deadline + Duration::from_secs(1), client.render_strip(req)).await {
@@ -232,14 +260,14 @@ pub async fn render_frame(
                         report.prepare_ms += r.prepare_ms;
                         let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
                         let preview = Arc::new(px.preview());
-                        events(FarmEvent::StripDone { strip, worker: report.worker.clone(), ms: r.render_ms, bytes, preview });
-                        shared.done.lock().expect("lock").push((px, r.render_ms, sent.elapsed().as_secs_f64() * 1e3));
+                        events(FarmEvent::StripDone { frame, strip, worker: report.worker.clone(), ms: r.render_ms, bytes, preview });
+                        shared.done.lock().expect("lock").push((frame, px, r.render_ms, sent.elapsed().as_secs_f64() * 1e3));
                     }
                     Err(error) => {
-                        shared.queue.lock().expect("lock").push_back(strip);
+                        shared.queue.lock().expect("lock").push_back((frame, strip));
                         report.failures += 1;
                         report.last_error = Some(error.clone());
-                        events(FarmEvent::StripRetried { strip, worker: report.worker.clone(), error: error.clone() });
+                        events(FarmEvent::StripRetried { frame, strip, worker: report.worker.clone(), error: error.clone() });
                         if report.failures >= MAX_FAILURES {
                             report.dropped = true;
                             events(FarmEvent::WorkerDropped { worker: report.worker.clone(), error });
@@ -250,7 +278,7 @@ pub async fn render_frame(
             }
         }));
     }
-    // Wait for the frame, or for every worker to be gone.
+    // Wait for the frames, or for every worker to be gone.
     let mut reports = Vec::new();
     for t in tasks {
         reports.push(t.await?);
@@ -259,15 +287,22 @@ pub async fn render_frame(
     if done.len() < shared.total {
         let why: Vec<String> =
             reports.iter().filter(|r| r.dropped).map(|r| format!("{}: {}", r.worker, r.last_error.as_deref().unwrap_or("dropped"))).collect();
-        anyhow::bail!("the frame failed: {} of {} strips rendered; no worker left that can finish it ({})", done.len(), shared.total, why.join("; "));
+        let what = if frames.len() == 1 { "the frame" } else { "the sequence" };
+        anyhow::bail!("{what} failed: {} of {} strips rendered; no worker left that can finish it ({})", done.len(), shared.total, why.join("; "));
     }
-    let mut frame_px = Assembly::new(frame.width, frame.height);
-    let mut strip_ms = Vec::new();
-    for (px, render_ms, rpc_ms) in &done {
-        frame_px.add(px).map_err(|e| anyhow::anyhow!("assembling the frame: {e}"))?;
-        strip_ms.push((px.strip, *render_ms, *rpc_ms));
+    let mut assembled: Vec<(Assembly, Vec<StripTime>)> = frames.iter().map(|f| (Assembly::new(f.width, f.height), Vec::new())).collect();
+    for (frame, px, render_ms, rpc_ms) in &done {
+        let (a, strips) = &mut assembled[*frame];
+        a.add(px).map_err(|e| anyhow::anyhow!("assembling frame {frame}: {e}"))?;
+        strips.push((px.strip, *render_ms, *rpc_ms));
     }
-    anyhow::ensure!(frame_px.complete(), "the strips do not cover the frame");
-    strip_ms.sort_by_key(|s| s.0);
-    Ok(RenderedFrame { image: frame_px.image, coverage: frame_px.coverage, rays: frame_px.rays, workers: reports, strip_ms, upload_ms })
+    assembled
+        .into_iter()
+        .enumerate()
+        .map(|(i, (a, mut strip_ms))| {
+            anyhow::ensure!(a.complete(), "the strips do not cover frame {i}");
+            strip_ms.sort_by_key(|s| s.0);
+            Ok(RenderedFrame { image: a.image, coverage: a.coverage, rays: a.rays, workers: reports.clone(), strip_ms, upload_ms })
+        })
+        .collect()
 }

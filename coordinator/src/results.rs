@@ -51,11 +51,12 @@ impl Stored {
     }
 }
 
-/// Every kept result, by job id and format.
+/// Every kept result, by job id, frame and format.
 pub struct ResultStore {
     dir: PathBuf,
     retention: Retention,
-    items: HashMap<String, [Stored; 2]>,
+    /// Per job, per frame (one unless a sequence): PNG and EXR.
+    items: HashMap<String, Vec<[Stored; 2]>>,
     in_memory: u64,
 }
 
@@ -77,24 +78,27 @@ impl ResultStore {
         Ok(Stored::Disk(p))
     }
 
-    /// Keeps a job's PNG and EXR.
-    pub fn put(&mut self, id: &str, png: Vec<u8>, exr: Vec<u8>) -> anyhow::Result<()> {
-        let png = self.keep(id, "png", png)?;
-        let exr = self.keep(id, "exr", exr)?;
+    /// Keeps a job's frames, each as PNG and EXR.
+    pub fn put(&mut self, id: &str, frames: Vec<(Vec<u8>, Vec<u8>)>) -> anyhow::Result<()> {
         self.remove(id);
-        self.items.insert(id.to_string(), [png, exr]);
+        let mut kept = Vec::with_capacity(frames.len());
+        for (i, (png, exr)) in frames.into_iter().enumerate() {
+            let name = if i == 0 { id.to_string() } else { format!("{id}.{i:05}") };
+            kept.push([self.keep(&name, "png", png)?, self.keep(&name, "exr", exr)?]);
+        }
+        self.items.insert(id.to_string(), kept);
         Ok(())
     }
 
-    /// A job's image in `format` (`png` or `exr`), if kept.
-    pub fn get(&self, id: &str, format: &str) -> Option<Stored> {
-        self.items.get(id).map(|[png, exr]| if format == "exr" { exr.clone() } else { png.clone() })
+    /// Frame `frame` of a job in `format` (`png` or `exr`), if kept.
+    pub fn get(&self, id: &str, frame: usize, format: &str) -> Option<Stored> {
+        self.items.get(id)?.get(frame).map(|[png, exr]| if format == "exr" { exr.clone() } else { png.clone() })
     }
 
     /// Forgets a job's results.
     pub fn remove(&mut self, id: &str) {
         if let Some(items) = self.items.remove(id) {
-            for s in items {
+            for s in items.into_iter().flatten() {
                 self.in_memory -= s.memory();
                 if let Stored::Disk(p) = s {
                     let _ = std::fs::remove_file(p);
@@ -118,14 +122,16 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("sylva-results-{}", std::process::id()));
         let r = Retention { memory_bytes: 100, spill_bytes: 60, ..Default::default() };
         let mut s = ResultStore::new(dir.clone(), r);
-        s.put("a", vec![1; 50], vec![2; 70]).unwrap();
-        assert!(matches!(s.get("a", "png"), Some(Stored::Memory(_))));
-        let exr = s.get("a", "exr").unwrap();
+        s.put("a", vec![(vec![1; 50], vec![2; 70])]).unwrap();
+        assert!(matches!(s.get("a", 0, "png"), Some(Stored::Memory(_))));
+        let exr = s.get("a", 0, "exr").unwrap();
         assert!(matches!(exr, Stored::Disk(_)), "over spill_bytes");
         assert_eq!(exr.read().unwrap(), vec![2; 70]);
-        s.put("b", vec![3; 55], vec![4; 10]).unwrap();
-        assert!(matches!(s.get("b", "png"), Some(Stored::Disk(_))), "over the memory budget");
-        assert_eq!(s.memory_bytes(), 60);
+        s.put("b", vec![(vec![3; 55], vec![4; 10]), (vec![5; 5], vec![6; 5])]).unwrap();
+        assert!(matches!(s.get("b", 0, "png"), Some(Stored::Disk(_))), "over the memory budget");
+        assert_eq!(s.get("b", 1, "exr").unwrap().read().unwrap(), vec![6; 5], "a sequence's frames kept apart");
+        assert!(s.get("b", 2, "png").is_none());
+        assert_eq!(s.memory_bytes(), 70);
         s.remove("a");
         s.remove("b");
         assert_eq!(s.memory_bytes(), 0);

@@ -22,10 +22,11 @@ use std::time::{Duration, Instant};
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::{Coordinator, CoordinatorServer};
 use sylva_shared::bundle::{self, SceneBundle};
-use sylva_shared::film::reinhard;
+use sylva_shared::film::{reinhard, reinhard_like};
 use sylva_shared::frame::FrameSettings;
 use sylva_shared::scene::SceneLimits;
 use sylva_shared::scene::files::clip;
+use sylva_shared::sequence::{MAX_FRAMES, View};
 use tokio::sync::{Semaphore, broadcast};
 use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
@@ -106,6 +107,8 @@ struct Job {
     seq: u64,
     spec: pb::JobSpec,
     frame: FrameSettings,
+    /// A sequence's views, one per frame; empty: one frame of the scene's view.
+    views: Vec<View>,
     schedule: ScheduleKind,
     /// Dropped when the job ends: only queued and running jobs need it.
     bundle: Option<Arc<SceneBundle>>,
@@ -122,6 +125,9 @@ pub struct LiveFrame {
     /// Image size.
     pub width: u32,
     pub height: u32,
+    /// The newest frame (of a sequence) a strip came back for: the preview
+    /// shows its strips over the frames before it.
+    pub frame: usize,
     /// Strips in the order they came back or failed.
     pub strips: Vec<LiveStrip>,
     /// 8-bit sRGB, `width × height × 3`, black where no strip is yet;
@@ -133,6 +139,8 @@ pub struct LiveFrame {
 /// One strip's outcome on one worker.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct LiveStrip {
+    /// The frame of a sequence (0 for one frame).
+    pub frame: usize,
     /// Columns [x0, x1).
     pub x0: u32,
     pub x1: u32,
@@ -381,9 +389,9 @@ impl State {
     }
 
     async fn run_job(self: &Arc<Self>, id: &str) {
-        let Some((frame, schedule, bundle, tx)) = ({
+        let Some((frame, views, schedule, bundle, tx)) = ({
             let jobs = lock(&self.jobs);
-            jobs.get(id).and_then(|j| Some((j.frame, j.schedule, j.bundle.clone()?, j.events.clone())))
+            jobs.get(id).and_then(|j| Some((j.frame, j.views.clone(), j.schedule, j.bundle.clone()?, j.events.clone())))
         }) else {
             return;
         };
@@ -399,61 +407,83 @@ impl State {
         if addrs.is_empty() {
             return fail("no worker is registered and alive: start workers with --coordinator, or the coordinator with --workers".into());
         }
+        let frames: Vec<FrameSettings> =
+            if views.is_empty() { vec![frame] } else { views.iter().map(|v| FrameSettings { view: *v, ..frame }).collect() };
         // A frame seen before is cut by its measured cost; a new one by
         // guided self-scheduling alone, whose shrinking strips still let
         // the last ones finish close together.
         let cost_key = format!("{}/{}x{}/{}/{:?}/{:?}", bundle.hash, frame.width, frame.height, frame.spp, frame.lighting, frame.accel);
         let cost = lock(&self.costs).get(&cost_key).cloned().unwrap_or_default();
         let cost_source = if cost.is_empty() { "uniform (first frame of this scene and size)" } else { "measured on the previous frame" };
-        let plan = scheduler(schedule).plan(frame.width, addrs.len().max(1), &cost);
+        // A sequence with at least as many frames as workers renders whole
+        // frames side by side (no strip is worth cutting); a shorter one
+        // cuts each frame for its share of the workers.
+        let plans: Vec<Vec<Strip>> = if frames.len() > 1 && frames.len() >= addrs.len() {
+            vec![vec![(0, frame.width)]; frames.len()]
+        } else {
+            let plan = scheduler(schedule).plan(frame.width, addrs.len().div_ceil(frames.len()).max(1), &cost);
+            vec![plan; frames.len()]
+        };
+        let total: usize = plans.iter().map(Vec::len).sum();
         if let Some(j) = lock(&self.jobs).get_mut(id) {
-            j.summary.strips_total = plan.len() as u32;
+            j.summary.strips_total = total as u32;
             j.live = LiveFrame {
                 width: frame.width,
                 height: frame.height,
+                frame: 0,
                 strips: Vec::new(),
                 preview: vec![0; frame.width as usize * frame.height as usize * 3],
             };
         }
-        let span = tracing::info_span!("job", %id, strips = plan.len(), workers = addrs.len());
+        let span = tracing::info_span!("job", %id, frames = frames.len(), strips = total, workers = addrs.len());
         let _g = span.enter();
         let (me, jid, tx2) = (self.clone(), id.to_string(), tx.clone());
+        let left: Mutex<Vec<usize>> = Mutex::new(plans.iter().map(Vec::len).collect());
         let started = Instant::now();
-        let result = farm::render_frame(
+        let result = farm::render_frames(
             &Workers { addrs: addrs.clone(), token: self.config.token.clone(), tls: self.config.worker_tls.clone() },
             &bundle,
-            frame,
-            plan,
+            &frames,
+            plans,
             self.config.strip_deadline,
             move |e| {
                 let mut ev = me.event(&jid);
                 ev.state = "running".into();
                 match e {
-                    FarmEvent::StripDone { worker, ms, bytes, strip, preview } => {
+                    FarmEvent::StripDone { frame, worker, ms, bytes, strip, preview } => {
                         me.metrics.strip_done(ms / 1e3, bytes);
                         if let Some(w) = lock(&me.workers).get_mut(&worker) {
                             w.info.strips_done += 1;
                         }
+                        let frame_done = {
+                            let mut left = lock(&left);
+                            left[frame] -= 1;
+                            left[frame] == 0
+                        };
                         let mut jobs = lock(&me.jobs);
                         if let Some(j) = jobs.get_mut(&jid) {
                             j.summary.strips_done += 1;
+                            j.summary.frames_done += frame_done as u32;
                             ev.strips_done = j.summary.strips_done;
+                            j.live.frame = j.live.frame.max(frame);
                             j.live.paint(strip, &preview);
-                            j.live.strips.push(LiveStrip { x0: strip.0, x1: strip.1, worker: worker.clone(), ms, error: String::new() });
+                            j.live.strips.push(LiveStrip { frame, x0: strip.0, x1: strip.1, worker: worker.clone(), ms, error: String::new() });
                         }
                         ev.worker = worker;
                         ev.strip_ms = ms;
+                        ev.frame = frame as u32;
                     }
-                    FarmEvent::StripRetried { worker, error, strip } => {
+                    FarmEvent::StripRetried { frame, worker, error, strip } => {
                         me.metrics.strip_retried();
                         if let Some(w) = lock(&me.workers).get_mut(&worker) {
                             w.info.strips_failed += 1;
                         }
                         if let Some(j) = lock(&me.jobs).get_mut(&jid) {
                             j.summary.retries += 1;
-                            j.live.strips.push(LiveStrip { x0: strip.0, x1: strip.1, worker: worker.clone(), ms: 0.0, error: clip(&error) });
+                            j.live.strips.push(LiveStrip { frame, x0: strip.0, x1: strip.1, worker: worker.clone(), ms: 0.0, error: clip(&error) });
                         }
                         ev.message = format!("strip re-queued from {worker}: {error}");
+                        ev.frame = frame as u32;
                     }
                     FarmEvent::BundleSent { bytes, .. } => {
                         me.metrics.bundle_sent(bytes);
@@ -466,22 +496,28 @@ impl State {
         )
         .await;
         drop(bundle);
-        let f = match result {
+        let rendered = match result {
             Ok(f) => f,
             Err(e) => return fail(format!("{e:#}")),
         };
         // Tone mapping and encoding are CPU work: off the async runtime.
-        let image = f.image.clone();
+        let images: Vec<sylva_shared::film::HdrImage> = rendered.iter().map(|f| f.image.clone()).collect();
+        // A sequence keeps one exposure (its middle frame's), so a sun
+        // sweep shows the light change rather than the tone mapper's.
         let encoded = tokio::task::spawn_blocking(move || {
-            let (ldr, tone) = reinhard(&image, 0.18);
-            let png = encode_png(image.width, image.height, &ldr);
-            let exr = encode_exr(&image);
-            (png, exr, tone)
+            let exposure = reinhard(&images[images.len() / 2], 0.18).1;
+            images
+                .iter()
+                .map(|image| {
+                    let (ldr, tone) = if images.len() == 1 { reinhard(image, 0.18) } else { (reinhard_like(image, &exposure), exposure) };
+                    Ok((encode_png(image.width, image.height, &ldr)?, encode_exr(image)?, tone))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()
         })
         .await;
-        let (png, exr, tone) = match encoded {
-            Ok((Ok(png), Ok(exr), tone)) => (png, exr, tone),
-            Ok((Err(e), _, _)) | Ok((_, Err(e), _)) => return fail(format!("the frame could not be encoded: {e:#}")),
+        let encoded = match encoded {
+            Ok(Ok(e)) => e,
+            Ok(Err(e)) => return fail(format!("the frame could not be encoded: {e:#}")),
             Err(e) => return fail(format!("the frame could not be encoded: {e}")),
         };
         let frame_ms = started.elapsed().as_secs_f64() * 1e3;
@@ -490,20 +526,38 @@ impl State {
             if costs.len() >= 1024 {
                 costs.clear();
             }
-            costs.insert(cost_key, crate::schedule::column_cost(frame.width, &f.strip_ms));
+            if rendered[0].strip_ms.len() > 1 {
+                costs.insert(cost_key, crate::schedule::column_cost(frame.width, &rendered[0].strip_ms));
+            }
         }
-        let stats = serde_json::json!({
+        let per_frame = |f: &crate::executor::RenderedFrame, tone: &sylva_shared::film::ToneMapStats, ms: f64| {
+            serde_json::json!({
+                "strips": f.strip_ms.iter().map(|(s, ms, rpc)| serde_json::json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
+                "rays": { "primary": f.rays[0], "shadow": f.rays[1], "transparent_passed": f.rays[2], "mrays_per_second": (f.rays[0] + f.rays[1]) as f64 / (ms / 1e3) / 1e6 },
+                "coverage": f.coverage.iter().map(|&c| c as f64).sum::<f64>() / f.coverage.len().max(1) as f64,
+                "tone_map": tone,
+            })
+        };
+        let mut stats = serde_json::json!({
             "schedule": schedule,
             "strip_cost": cost_source,
             "frame_ms": frame_ms,
-            "upload_ms": f.upload_ms,
-            "workers": f.workers,
-            "strips": f.strip_ms.iter().map(|(s, ms, rpc)| serde_json::json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
-            "rays": { "primary": f.rays[0], "shadow": f.rays[1], "transparent_passed": f.rays[2], "mrays_per_second": (f.rays[0] + f.rays[1]) as f64 / (frame_ms / 1e3) / 1e6 },
-            "coverage": f.coverage.iter().map(|&c| c as f64).sum::<f64>() / f.coverage.len().max(1) as f64,
-            "tone_map": tone,
+            "upload_ms": rendered[0].upload_ms,
+            "workers": rendered[0].workers,
         });
-        let stored = lock(&self.results).put(id, png, exr);
+        if views.is_empty() {
+            if let (Some(s), serde_json::Value::Object(f)) = (stats.as_object_mut(), per_frame(&rendered[0], &encoded[0].2, frame_ms)) {
+                s.extend(f);
+            }
+        } else {
+            stats["sequence"] = serde_json::json!({
+                "frames": rendered.len(),
+                "ms_per_frame": frame_ms / rendered.len() as f64,
+                "whole_frames_in_parallel": rendered[0].strip_ms.len() == 1,
+                "per_frame": rendered.iter().zip(&encoded).map(|(f, e)| per_frame(f, &e.2, frame_ms / rendered.len() as f64)).collect::<Vec<_>>(),
+            });
+        }
+        let stored = lock(&self.results).put(id, encoded.into_iter().map(|(png, exr, _)| (png, exr)).collect());
         if let Err(e) = stored {
             return fail(format!("the result could not be stored: {e:#}"));
         }
@@ -641,6 +695,15 @@ impl Coordinator for CoordinatorService {
         let spec = first.spec.ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
         let frame = FrameSettings::try_from(spec.frame.as_ref().ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?)?;
         let schedule = schedule_from_wire(spec.schedule)?;
+        if spec.views.len() > MAX_FRAMES as usize {
+            return Err(Status::invalid_argument(format!("a sequence of {} frames: at most {MAX_FRAMES}", spec.views.len())));
+        }
+        let views = spec
+            .views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| View::try_from(v).map_err(|e| Status::invalid_argument(format!("frame {i}: {}", e.message()))))
+            .collect::<Result<Vec<View>, Status>>()?;
         if spec.name.len() > MAX_NAME {
             return Err(Status::invalid_argument(format!("job name of {} bytes: at most {MAX_NAME}", spec.name.len())));
         }
@@ -701,6 +764,7 @@ impl Coordinator for CoordinatorService {
             priority: spec.priority,
             submitter,
             submitted_unix_ms: unix_ms(),
+            frames: views.len().max(1) as u32,
             ..Default::default()
         };
         lock(&self.state.jobs).insert(
@@ -709,6 +773,7 @@ impl Coordinator for CoordinatorService {
                 seq,
                 spec,
                 frame,
+                views,
                 schedule,
                 bundle: Some(Arc::new(SceneBundle { bytes, hash })),
                 summary,
@@ -786,8 +851,11 @@ impl Coordinator for CoordinatorService {
             if j.summary.state != "done" {
                 return Err(Status::failed_precondition(format!("job {id} is {}", j.summary.state)));
             }
+            if r.frame >= j.summary.frames.max(1) {
+                return Err(Status::out_of_range(format!("job {id} has {} frame(s), from 0; no frame {}", j.summary.frames.max(1), r.frame)));
+            }
         }
-        let stored = lock(&self.state.results).get(id, format);
+        let stored = lock(&self.state.results).get(id, r.frame as usize, format);
         let data = match stored {
             Some(s) => tokio::task::spawn_blocking(move || s.read())
                 .await

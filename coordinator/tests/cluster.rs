@@ -56,6 +56,7 @@ fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
         lighting: sylva_shared::scene::LightingMode::Lb,
         ambient: [0.0; 3],
         lb_strength: 0.35,
+        view: Default::default(),
     };
     p.renderer.render_strip(&ctx, &f, 0, 96).unwrap().pixels.iter().flatten().map(|v| v.to_bits()).collect()
 }

@@ -267,7 +267,7 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
     })
     .await;
     assert_eq!(end.state, "done", "{end:?}");
-    let png = c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into() }).await.unwrap().into_inner().data;
+    let png = c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into(), ..Default::default() }).await.unwrap().into_inner().data;
     assert_eq!(png, want, "the frame is the one a single process renders");
     let stats: serde_json::Value = serde_json::from_str(&end.stats_json).unwrap();
     let w = stats["workers"].as_array().unwrap().iter().find(|w| w["worker"] == bad_addr.as_str()).unwrap().clone();
@@ -331,7 +331,7 @@ async fn job_ids_do_not_repeat_after_a_restart() {
     let mut c = coordinator(&second.addr, None).await;
     let b2 = submit_and_wait(&mut c, spec(16, 8), &b, |_| {}).await;
     assert_ne!(a.id, b2.id);
-    let e = c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: "png".into() }).await.unwrap_err();
+    let e = c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: "png".into(), ..Default::default() }).await.unwrap_err();
     assert_eq!(e.code(), Code::NotFound);
 }
 
@@ -354,7 +354,7 @@ async fn finished_jobs_and_folders_are_freed() {
     let end = submit_and_wait(&mut c, spec(32, 16), &b, |_| {}).await;
     assert_eq!(end.state, "done");
     // With no memory budget, the result went to disk; it is still served.
-    let png = c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into() }).await.unwrap().into_inner().data;
+    let png = c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into(), ..Default::default() }).await.unwrap().into_inner().data;
     assert_eq!(&png[1..4], b"PNG");
     assert!(work.join("results").read_dir().unwrap().count() >= 1);
     // A refused scene leaves nothing behind either.
@@ -373,7 +373,10 @@ async fn finished_jobs_and_folders_are_freed() {
     let checks = work.join("check");
     assert!(!checks.exists() || checks.read_dir().unwrap().count() == 0, "scene checks are cleaned up");
     tokio::time::sleep(Duration::from_millis(3500)).await;
-    assert_eq!(c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into() }).await.unwrap_err().code(), Code::NotFound);
+    assert_eq!(
+        c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into(), ..Default::default() }).await.unwrap_err().code(),
+        Code::NotFound
+    );
     assert!(c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs.is_empty());
     assert_eq!(work.join("results").read_dir().unwrap().count(), 0, "spilled results are removed with their job");
     assert!(cache.exists());
@@ -448,7 +451,7 @@ async fn bad_specs_and_strings_are_refused_at_submit() {
     named.name = "n".repeat(4 << 20);
     let e = c.submit_job(tokio_stream::iter(submission(named, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap_err();
     assert!(e.code() == Code::InvalidArgument && e.message().contains("job name of 4194304 bytes"), "{e:?}");
-    let e = c.fetch_result(pb::FetchRequest { id: "x".repeat(1 << 20), format: "png".into() }).await.unwrap_err();
+    let e = c.fetch_result(pb::FetchRequest { id: "x".repeat(1 << 20), format: "png".into(), ..Default::default() }).await.unwrap_err();
     assert_eq!(e.code(), Code::NotFound);
     assert!(e.message().len() < 200);
     assert!(c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs.is_empty());

@@ -80,8 +80,11 @@ async fn three_clients_at_once_get_the_single_process_image() {
     let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     assert_eq!(jobs.len(), 3);
     assert!(jobs.iter().all(|j| j.state == "done" && j.strips_done == j.strips_total && j.strips_total > 0), "{jobs:?}");
-    assert_eq!(c.fetch_result(pb::FetchRequest { id: "job-99".into(), format: "png".into() }).await.unwrap_err().code(), Code::NotFound);
-    let exr = c.fetch_result(pb::FetchRequest { id: jobs[0].id.clone(), format: "exr".into() }).await.unwrap().into_inner();
+    assert_eq!(
+        c.fetch_result(pb::FetchRequest { id: "job-99".into(), format: "png".into(), ..Default::default() }).await.unwrap_err().code(),
+        Code::NotFound
+    );
+    let exr = c.fetch_result(pb::FetchRequest { id: jobs[0].id.clone(), format: "exr".into(), ..Default::default() }).await.unwrap().into_inner();
     assert!(exr.data.starts_with(&[0x76, 0x2f, 0x31, 0x01]), "OpenEXR magic");
 
     // Prometheus text on the metrics port.
@@ -173,11 +176,13 @@ async fn submit_raw(
             accel: pb::Accel::Bvh.into(),
             lb_strength: 0.35,
             ambient: vec![],
+            view: None,
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,
         name: "raw".into(),
         submitter: "raw".into(),
+        views: vec![],
     };
     let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: b.hash.clone(), total_size: b.bytes.len() as u64, data: vec![] }];
     chunks.extend(b.bytes.chunks(1 << 16).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
@@ -194,7 +199,7 @@ async fn submit_raw(
     }
     let last = last.unwrap();
     assert_eq!(last.state, "done", "{last:?}");
-    let png = c.fetch_result(pb::FetchRequest { id, format: "png".into() }).await.unwrap().into_inner().data;
+    let png = c.fetch_result(pb::FetchRequest { id, format: "png".into(), ..Default::default() }).await.unwrap().into_inner().data;
     (last, png)
 }
 

@@ -61,6 +61,7 @@ fn frame() -> pb::FrameSettings {
         accel: pb::Accel::Bvh.into(),
         lb_strength: 0.35,
         ambient: vec![],
+        view: None,
     }
 }
 
@@ -104,6 +105,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
         lighting: sylva_shared::scene::LightingMode::Lb,
         ambient: [0.0; 3],
         lb_strength: 0.35,
+        view: Default::default(),
     };
     let local = p.renderer.render_strip(&ctx, &f, 0, 48).unwrap();
     let local: Vec<u32> = local.pixels.iter().flatten().map(|v| v.to_bits()).collect();

@@ -7,6 +7,8 @@ use crate::pb;
 use sylva_shared::accel::AccelKind;
 use sylva_shared::frame::FrameSettings;
 use sylva_shared::scene::LightingMode;
+use sylva_shared::scene::file::CameraSpec;
+use sylva_shared::sequence::View;
 use tonic::Status;
 
 /// The wire's lighting for a method (`None`: the scene's).
@@ -63,6 +65,7 @@ impl TryFrom<&pb::FrameSettings> for FrameSettings {
             accel: accel_from_wire(f.accel)?,
             lb_strength: f.lb_strength,
             ambient,
+            view: f.view.as_ref().map(View::try_from).transpose()?.unwrap_or_default(),
         };
         frame.check().map_err(|e| Status::invalid_argument(e.to_string()))?;
         Ok(frame)
@@ -84,6 +87,47 @@ impl From<&FrameSettings> for pb::FrameSettings {
             .into(),
             lb_strength: f.lb_strength,
             ambient: f.ambient.map(|a| a.to_vec()).unwrap_or_default(),
+            view: (f.view != View::default()).then(|| pb::FrameView::from(&f.view)),
+        }
+    }
+}
+
+/// Three values from the wire, or why not.
+fn three(v: &[f32], name: &str) -> Result<[f32; 3], Status> {
+    <[f32; 3]>::try_from(v).map_err(|_| Status::invalid_argument(format!("{name}: three values, not {}", v.len())))
+}
+
+impl TryFrom<&pb::FrameView> for View {
+    type Error = Status;
+
+    /// Reads and checks a frame's view from the wire.
+    fn try_from(v: &pb::FrameView) -> Result<Self, Status> {
+        let camera = match &v.camera {
+            None => None,
+            Some(c) => Some(CameraSpec {
+                position: three(&c.position, "camera.position")?,
+                look_at: three(&c.look_at, "camera.look_at")?,
+                up: three(&c.up, "camera.up")?,
+                fov_y_deg: c.fov_y_deg,
+            }),
+        };
+        let sun_towards = if v.sun_towards.is_empty() { None } else { Some(three(&v.sun_towards, "sun_towards")?) };
+        let view = View { camera, sun_towards };
+        view.check().map_err(Status::invalid_argument)?;
+        Ok(view)
+    }
+}
+
+impl From<&View> for pb::FrameView {
+    fn from(v: &View) -> Self {
+        pb::FrameView {
+            camera: v.camera.map(|c| pb::CameraPose {
+                position: c.position.to_vec(),
+                look_at: c.look_at.to_vec(),
+                up: c.up.to_vec(),
+                fov_y_deg: c.fov_y_deg,
+            }),
+            sun_towards: v.sun_towards.map(|s| s.to_vec()).unwrap_or_default(),
         }
     }
 }
@@ -106,6 +150,17 @@ mod tests {
         let mut wire = pb::FrameSettings::from(&FrameSettings::default());
         wire.accel = 7;
         assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("accel 7"));
+        let camera = CameraSpec { position: [1.0, 2.0, 3.0], look_at: [0.0; 3], up: [0.0, 1.0, 0.0], fov_y_deg: 30.0 };
+        let f = FrameSettings { view: View { camera: Some(camera), sun_towards: Some([0.0, 1.0, 0.0]) }, ..Default::default() };
+        assert_eq!(FrameSettings::try_from(&pb::FrameSettings::from(&f)).unwrap(), f);
+        let mut wire = pb::FrameSettings::from(&f);
+        wire.view.as_mut().unwrap().sun_towards = vec![1.0, 2.0];
+        assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("sun_towards: three values"));
+        wire.view.as_mut().unwrap().sun_towards = vec![f32::NAN, 1.0, 0.0];
+        assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("sun_towards"));
+        wire.view.as_mut().unwrap().sun_towards = Vec::new();
+        wire.view.as_mut().unwrap().camera.as_mut().unwrap().look_at = vec![1.0, 2.0, 3.0];
+        assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("look_at"));
         let mut wire = pb::FrameSettings::from(&FrameSettings::default());
         wire.spp = 0;
         assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("spp 0"));

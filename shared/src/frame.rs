@@ -32,11 +32,25 @@ pub struct FrameSettings {
     /// The `ambient` method's constant, linear RGB; `None`: matched to the
     /// LB image by the worker.
     pub ambient: Option<[f32; 3]>,
+    /// The frame's camera and sun, where they differ from the scene's (a
+    /// frame of a sequence).
+    #[serde(default)]
+    pub view: crate::sequence::View,
 }
 
 impl Default for FrameSettings {
     fn default() -> Self {
-        Self { width: 896, height: 448, spp: 1, seed: 1, lighting: None, accel: AccelKind::Bvh, lb_strength: 0.35, ambient: None }
+        Self {
+            width: 896,
+            height: 448,
+            spp: 1,
+            seed: 1,
+            lighting: None,
+            accel: AccelKind::Bvh,
+            lb_strength: 0.35,
+            ambient: None,
+            view: Default::default(),
+        }
     }
 }
 
@@ -63,7 +77,7 @@ impl FrameSettings {
         {
             return bad(format!("ambient {a:?}: three finite values ≥ 0"));
         }
-        Ok(())
+        self.view.check().map_err(FrameError)
     }
 
     /// The lighting method, given the scene's own.

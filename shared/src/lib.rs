@@ -16,6 +16,7 @@ pub mod model;
 pub mod npy;
 pub mod rng;
 pub mod scene;
+pub mod sequence;
 pub mod shapes;
 pub mod trees;
 pub mod visualize;

@@ -5,11 +5,12 @@
 //! caller has gone is not started.
 
 use crate::gpu::GpuContext;
-use crate::prepare::{PreparedScene, prepare};
+use crate::lighting::lb::SceneLb;
+use crate::prepare::{PreparedScene, Reuse, prepare_reusing};
 use crate::trace::RenderSettings;
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 use sylva_proto::pb;
@@ -19,6 +20,7 @@ use sylva_shared::accel::AccelKind;
 use sylva_shared::bundle;
 use sylva_shared::frame::FrameSettings;
 use sylva_shared::scene::{LightingMode, Scene, SceneLimits};
+use sylva_shared::sequence::View;
 use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status, Streaming};
 
@@ -49,6 +51,10 @@ pub struct WorkerConfig {
     pub limits: SceneLimits,
     /// Keep `cache_dir` when the worker stops (default: removed).
     pub keep_cache: bool,
+    /// LB light kept per scene and sun direction, so a sequence that comes
+    /// back to a sun (or a second pass over a sun sweep) solves it once;
+    /// 0: only the light of the sun being rendered is kept.
+    pub lb_cache_entries: usize,
 }
 
 impl Default for WorkerConfig {
@@ -61,6 +67,7 @@ impl Default for WorkerConfig {
             tls: None,
             limits: SceneLimits::default(),
             keep_cache: false,
+            lb_cache_entries: 64,
         }
     }
 }
@@ -72,17 +79,41 @@ struct Cached {
     last_used: Instant,
 }
 
-/// A prepared scene's key: bundle hash, structure, and what the lighting
-/// needs prepared.
-type PreparedKey = (String, AccelKind, &'static str);
+/// A prepared scene's key: bundle hash, structure, what the lighting needs
+/// prepared, and the sun's bits where that depends on the sun (`None`: the
+/// scene's own sun, or a method the sun does not change).
+type PreparedKey = (String, AccelKind, &'static str, Option<[u32; 3]>);
+
+/// A scene's LB light's key: bundle hash and the sun's bits (`None`: the
+/// scene's own sun).
+type LbKey = (String, Option<[u32; 3]>);
+
+/// Sun variants of one scene kept prepared at once (the frame being
+/// rendered and the one before, as strips of two frames overlap).
+const PREPARED_SUNS: usize = 2;
+
+/// A value and when it was last used.
+struct Used<T> {
+    value: T,
+    stamp: u64,
+}
 
 /// What the service shares between requests.
 struct State {
     ctx: GpuContext,
     config: WorkerConfig,
     bundles: Mutex<HashMap<String, Cached>>,
-    /// Prepared scenes by (hash, structure, what the lighting needs prepared).
-    prepared: Mutex<HashMap<PreparedKey, Arc<PreparedScene>>>,
+    /// Prepared scenes by (hash, structure, what the lighting needs
+    /// prepared, sun).
+    prepared: Mutex<HashMap<PreparedKey, Used<Arc<PreparedScene>>>>,
+    /// Acceleration structures by (hash, structure): kept across views.
+    accels: Mutex<HashMap<(String, AccelKind), Arc<sylva_shared::accel::SceneAccel>>>,
+    /// LB light by (hash, sun), least recently used dropped first.
+    lbs: Mutex<HashMap<LbKey, Used<Arc<SceneLb>>>>,
+    /// Use counter for the caches' recency.
+    clock: AtomicU64,
+    /// LB solves done, for status and benchmarks.
+    lb_solves: AtomicU64,
     /// Matched ambient constants by scene and frame shape.
     ambient: Mutex<HashMap<String, [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
@@ -107,6 +138,10 @@ impl WorkerService {
                 config,
                 bundles: Mutex::new(HashMap::new()),
                 prepared: Mutex::new(HashMap::new()),
+                accels: Mutex::new(HashMap::new()),
+                lbs: Mutex::new(HashMap::new()),
+                clock: AtomicU64::new(0),
+                lb_solves: AtomicU64::new(0),
                 ambient: Mutex::new(HashMap::new()),
                 gpu: Mutex::new(()),
                 incoming: Mutex::new(0),
@@ -129,9 +164,77 @@ impl State {
             let oldest = bundles.iter().min_by_key(|(_, c)| c.last_used).map(|(h, _)| h.clone()).expect("not empty");
             bundles.remove(&oldest);
             lock(&self.prepared).retain(|k, _| k.0 != oldest);
+            lock(&self.accels).retain(|k, _| k.0 != oldest);
+            lock(&self.lbs).retain(|k, _| k.0 != oldest);
             let _ = std::fs::remove_dir_all(self.config.cache_dir.join(&oldest));
             tracing::info!(hash = %oldest, "evicted a scene bundle");
         }
+    }
+}
+
+impl State {
+    fn tick(&self) -> u64 {
+        self.clock.fetch_add(1, Ordering::Relaxed)
+    }
+
+    /// The scene prepared for a frame's structure, lighting and view: kept
+    /// from an earlier strip, or prepared now from the structures and the
+    /// LB light kept for this sun, building only what is missing.
+    fn prepared_for(&self, scene: &Scene, hash: &str, accel: AccelKind, lighting: LightingMode, view: &View) -> anyhow::Result<Arc<PreparedScene>> {
+        let needs = crate::lighting::method(lighting).needs;
+        let sun = if needs.lb || needs.clouds { view.sun_key() } else { None };
+        let key = (hash.to_string(), accel, lighting.preparation(), sun);
+        if let Some(p) = lock(&self.prepared).get_mut(&key) {
+            p.stamp = self.tick();
+            return Ok(p.value.clone());
+        }
+        let lb_key = (hash.to_string(), sun);
+        let mut reuse = Reuse {
+            accel: lock(&self.accels).get(&(hash.to_string(), accel)).cloned(),
+            lb: if needs.lb {
+                lock(&self.lbs).get_mut(&lb_key).map(|l| {
+                    l.stamp = self.tick();
+                    l.value.clone()
+                })
+            } else {
+                None
+            },
+        };
+        let solved_before = reuse.lb.is_some();
+        let scene = scene.with_view(view);
+        let p = Arc::new(prepare_reusing(&self.ctx, &scene, accel, lighting, &mut reuse, &|m| tracing::info!("{m}"))?);
+        if let Some(a) = reuse.accel {
+            lock(&self.accels).insert((hash.to_string(), accel), a);
+        }
+        if let (Some(lb), false) = (reuse.lb, solved_before) {
+            self.lb_solves.fetch_add(1, Ordering::Relaxed);
+            let mut lbs = lock(&self.lbs);
+            lbs.insert(lb_key, Used { value: lb, stamp: self.tick() });
+            let keep = self.config.lb_cache_entries.max(1);
+            while lbs.len() > keep {
+                let oldest = lbs.iter().min_by_key(|(_, u)| u.stamp).map(|(k, _)| k.clone()).expect("not empty");
+                lbs.remove(&oldest);
+            }
+        }
+        let mut prepared = lock(&self.prepared);
+        prepared.insert(key.clone(), Used { value: p.clone(), stamp: self.tick() });
+        // Each sun variant holds the whole scene on the GPU: keep the
+        // newest few of this scene's.
+        loop {
+            let variants: Vec<(&PreparedKey, u64)> =
+                prepared.iter().filter(|(k, _)| (&k.0, k.1, k.2) == (&key.0, key.1, key.2)).map(|(k, u)| (k, u.stamp)).collect();
+            if variants.len() <= PREPARED_SUNS {
+                break;
+            }
+            let oldest = variants.iter().min_by_key(|v| v.1).map(|v| v.0.clone()).expect("not empty");
+            prepared.remove(&oldest);
+        }
+        Ok(p)
+    }
+
+    /// LB solves this worker has done.
+    pub fn lb_solves(&self) -> u64 {
+        self.lb_solves.load(Ordering::Relaxed)
     }
 }
 
@@ -262,7 +365,9 @@ impl Worker for WorkerService {
             lighting,
             ambient: f.ambient.unwrap_or([0.0; 3]),
             lb_strength: f.lb_strength,
+            view: f.view,
         };
+        let view = f.view;
         let ambient_given = f.ambient.is_some();
         let cancelled = Arc::new(AtomicBool::new(false));
         let mut guard = CancelOnDrop(cancelled.clone(), false);
@@ -275,22 +380,13 @@ impl Worker for WorkerService {
             // Strips queue for the GPU; one whose caller left meanwhile is
             // not worth starting.
             anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
-            let key = (hash.clone(), accel, lighting.preparation());
             let t = Instant::now();
-            let cached = lock(&state.prepared).get(&key).cloned();
-            let prepared = match cached {
-                Some(p) => p,
-                None => {
-                    let p = Arc::new(prepare(&state.ctx, &scene, accel, lighting, &|m| tracing::info!("{m}"))?);
-                    lock(&state.prepared).insert(key, p.clone());
-                    p
-                }
-            };
+            let prepared = state.prepared_for(&scene, &hash, accel, lighting, &view)?;
             let mut settings = settings;
             if lighting == LightingMode::Ambient && !ambient_given {
                 // Matched here, once per frame shape, so every client gets
                 // the paper's ambient without a round of its own.
-                let key = format!("{hash}/{accel:?}/{}x{}/{}/{}", settings.width, settings.height, settings.seed, settings.lb_strength);
+                let key = format!("{hash}/{accel:?}/{}x{}/{}/{}/{:?}", settings.width, settings.height, settings.seed, settings.lb_strength, view);
                 let known = lock(&state.ambient).get(&key).copied();
                 settings.ambient = match known {
                     Some(a) => a,
@@ -331,12 +427,13 @@ impl Worker for WorkerService {
 
     async fn status(&self, _: Request<pb::StatusRequest>) -> Result<Response<pb::WorkerStatus>, Status> {
         let cached: Vec<String> = lock(&self.state.bundles).keys().cloned().collect();
-        let gpu_bytes = lock(&self.state.prepared).values().map(|p| p.renderer.scene_bytes()).sum();
+        let gpu_bytes = lock(&self.state.prepared).values().map(|p| p.value.renderer.scene_bytes()).sum();
         Ok(Response::new(pb::WorkerStatus {
             adapter: self.state.ctx.adapter_name(),
             gpu_memory_bytes: gpu_bytes,
             cached_scenes: cached,
             busy_strips: self.state.busy.load(Ordering::SeqCst),
+            lb_solves: self.state.lb_solves(),
         }))
     }
 }

@@ -72,7 +72,16 @@ fn quad_scene(name: &str, material: &str, sky: &str, ground: &str) -> Scene {
 }
 
 fn frame(w: u32, h: u32) -> RenderSettings {
-    RenderSettings { width: w, height: h, spp: 1, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 }
+    RenderSettings {
+        width: w,
+        height: h,
+        spp: 1,
+        seed: 1,
+        lighting: LightingMode::Local,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+        view: Default::default(),
+    }
 }
 
 #[test]

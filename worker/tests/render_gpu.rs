@@ -74,7 +74,16 @@ fn a_lit_quad_matches_the_shading_formula() {
     let ctx = ctx();
     for kind in [AccelKind::Bvh, AccelKind::Kd] {
         let p = prepare(&ctx, &scene, kind, LightingMode::Local, &|_| {}).unwrap();
-        let f = RenderSettings { width: 33, height: 33, spp: 1, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.0 };
+        let f = RenderSettings {
+            width: 33,
+            height: 33,
+            spp: 1,
+            seed: 1,
+            lighting: LightingMode::Local,
+            ambient: [0.0; 3],
+            lb_strength: 0.0,
+            view: Default::default(),
+        };
         let s = p.renderer.render_strip(&ctx, &f, 0, 33).unwrap();
         let centre = s.pixels[16 * 33 + 16];
         // kd (N·L) + ks (V·R)^24 with V = +z, R = reflect(−L, N) = (−0.866, 0, 0.5).
@@ -110,7 +119,16 @@ fn a_frame_is_bit_identical_however_it_is_split_and_repeated() {
     let ctx = ctx();
     let scene = small_forest();
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Lb, &|_| {}).unwrap();
-    let f = RenderSettings { width: 70, height: 40, spp: 3, seed: 7, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
+    let f = RenderSettings {
+        width: 70,
+        height: 40,
+        spp: 3,
+        seed: 7,
+        lighting: LightingMode::Lb,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+        view: Default::default(),
+    };
     let whole = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
     let again = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
     assert_eq!(whole.pixels, again.pixels);
@@ -131,7 +149,16 @@ fn leaves_have_holes_where_their_texture_is_transparent() {
     let ctx = ctx();
     let scene = small_forest();
     let p = prepare(&ctx, &scene, AccelKind::Kd, LightingMode::Lb, &|_| {}).unwrap();
-    let f = RenderSettings { width: 96, height: 64, spp: 1, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
+    let f = RenderSettings {
+        width: 96,
+        height: 64,
+        spp: 1,
+        seed: 1,
+        lighting: LightingMode::Lb,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+        view: Default::default(),
+    };
     let s = p.renderer.render_strip(&ctx, &f, 0, 96).unwrap();
     assert!(s.rays.transparent > 100, "rays passed {} transparent texels", s.rays.transparent);
     let lit = s.coverage.iter().filter(|&&c| c > 0.0).count();
@@ -155,7 +182,16 @@ fn a_cloud_dims_what_lies_behind_it_and_glows_where_lit() {
         let text = base.replace("CLOUDS", clouds);
         let scene = Scene::build(parse(&text, "c.json").unwrap(), Path::new("."), "c.json").unwrap();
         let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Lb, &|_| {}).unwrap();
-        let f = RenderSettings { width: 32, height: 32, spp: 1, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
+        let f = RenderSettings {
+            width: 32,
+            height: 32,
+            spp: 1,
+            seed: 1,
+            lighting: LightingMode::Lb,
+            ambient: [0.0; 3],
+            lb_strength: 0.35,
+            view: Default::default(),
+        };
         p.renderer.render_strip(&ctx, &f, 0, 32).unwrap()
     };
     let clear = render("");

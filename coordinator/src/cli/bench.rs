@@ -326,8 +326,16 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     for kind in a.accel.iter().filter(|_| !a.no_frames).map(|&k| AccelKind::from(k)) {
         let prepared = prepare(&ctx, &scene, kind, LightingMode::Lb, &|_| {})?;
         for spp in [1u32, 4] {
-            let f =
-                RenderSettings { width: a.width, height: a.height, spp, seed: 1, lighting: LightingMode::Lb, ambient: [0.0; 3], lb_strength: 0.35 };
+            let f = RenderSettings {
+                width: a.width,
+                height: a.height,
+                spp,
+                seed: 1,
+                lighting: LightingMode::Lb,
+                ambient: [0.0; 3],
+                lb_strength: 0.35,
+                view: Default::default(),
+            };
             prepared.renderer.render_strip(&ctx, &RenderSettings { width: 64, height: 32, ..f }, 0, 64)?; // warm-up
             let t = Instant::now();
             let frame = InProcess::new(&ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;

@@ -114,8 +114,16 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let say = |m: &str| bar.set_message(m.to_string());
-    let settings =
-        RenderSettings { width: a.width, height: a.height, spp: a.spp, seed: 1, lighting: LightingMode::Local, ambient: [0.0; 3], lb_strength: 0.35 };
+    let settings = RenderSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        seed: 1,
+        lighting: LightingMode::Local,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+        view: Default::default(),
+    };
 
     // The reference first: every error is measured against it.
     say("reference: path tracing");

@@ -152,14 +152,27 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     let bundle = sylva_shared::bundle::pack(&a.scene)?;
     let frame = a.frame.settings();
     frame.check()?;
-    let spec = super::render::job_spec(&frame, a.schedule, a.priority, &a.scene.display().to_string());
+    let text = std::fs::read_to_string(&a.scene).with_context(|| format!("{}: cannot read", a.scene.display()))?;
+    let views = a.frame.views(&sylva_shared::scene::parse(&text, &a.scene.display().to_string())?)?;
+    let spec = super::render::job_spec(&frame, &views, a.schedule, a.priority, &a.scene.display().to_string());
     let rt = tokio::runtime::Runtime::new()?;
     let done = rt.block_on(submit_and_follow(&a.coordinator, token, tls.as_ref(), spec, &bundle, a.exr))?;
+    if !views.is_empty() {
+        let written = sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
+        println!(
+            "{} done: wrote {} frames, {} and {}",
+            done.id,
+            views.len(),
+            written[written.len() - 2].display(),
+            written[written.len() - 1].display()
+        );
+        return Ok(());
+    }
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
     }
-    std::fs::write(&a.out, &done.png).with_context(|| format!("{}: cannot write", a.out.display()))?;
-    if let Some(exr) = &done.exr {
+    std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    if let Some(exr) = done.exrs.as_ref().map(|e| &e[0]) {
         std::fs::write(a.out.with_extension("exr"), exr)?;
     }
     println!("{} done: wrote {}", done.id, a.out.display());

@@ -90,6 +90,13 @@ pub struct FetchArgs {
     /// Output file: PNG, or OpenEXR (linear HDR) when it ends in `.exr`.
     #[arg(short, long, default_value = "sylva-out/fetched.png")]
     pub out: PathBuf,
+    /// Which frame of a sequence (from 0).
+    #[arg(long, default_value_t = 0)]
+    pub frame: u32,
+    /// Every frame of a sequence: numbered files beside --out, a contact
+    /// sheet and an animated preview.
+    #[arg(long, conflicts_with = "frame")]
+    pub all: bool,
     #[command(flatten)]
     pub at: CoordinatorArg,
 }
@@ -103,6 +110,9 @@ struct JobRow {
     priority: i32,
     strips_done: u32,
     strips_total: u32,
+    /// Frames (1 unless a sequence) and frames finished.
+    frames: u32,
+    frames_done: u32,
     retries: u32,
     submitter: String,
     submitted_unix_ms: u64,
@@ -128,6 +138,8 @@ impl JobRow {
             priority: j.priority,
             strips_done: j.strips_done,
             strips_total: j.strips_total,
+            frames: j.frames.max(1),
+            frames_done: j.frames_done,
             retries: j.retries,
             submitter: j.submitter,
             submitted_unix_ms: sub,
@@ -171,6 +183,7 @@ fn job_table(rows: &[JobRow]) -> String {
                 j.state.clone(),
                 j.priority.to_string(),
                 format!("{}/{}", j.strips_done, j.strips_total),
+                format!("{}/{}", j.frames_done, j.frames),
                 j.retries.to_string(),
                 seconds(j.queued_s),
                 seconds(j.running_s),
@@ -180,7 +193,7 @@ fn job_table(rows: &[JobRow]) -> String {
             ]
         })
         .collect();
-    table(&["ID", "STATE", "PRIO", "STRIPS", "RETRIES", "QUEUED", "RUNNING", "SUBMITTER", "NAME", "ERROR"], &cells)
+    table(&["ID", "STATE", "PRIO", "STRIPS", "FRAMES", "RETRIES", "QUEUED", "RUNNING", "SUBMITTER", "NAME", "ERROR"], &cells)
 }
 
 /// Runs `sylva jobs`.
@@ -297,8 +310,29 @@ pub fn run_priority(a: PriorityArgs) -> anyhow::Result<()> {
 pub fn run_fetch(a: FetchArgs) -> anyhow::Result<()> {
     let exr = a.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
     let format = if exr { "exr" } else { "png" };
+    if a.all {
+        anyhow::ensure!(!exr, "--all writes PNG frames (and their sheet and preview); fetch EXR frames one by one with --frame");
+        let pngs = a.at.call(async |mut c| {
+            let jobs = c.list_jobs(pb::ListJobsRequest {}).await.map_err(status_error)?.into_inner().jobs;
+            let frames = jobs.iter().find(|j| j.id == a.id).map(|j| j.frames.max(1)).with_context(|| format!("no job {}", a.id))?;
+            let mut pngs = Vec::new();
+            for frame in 0..frames {
+                pngs.push(
+                    c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: "png".into(), frame }).await.map_err(status_error)?.into_inner().data,
+                );
+            }
+            Ok(pngs)
+        })?;
+        let written = sylva_coordinator::sequence::write_all(&a.out, &pngs, None)?;
+        println!("{}: wrote {} frames, {} and {}", a.id, pngs.len(), written[written.len() - 2].display(), written[written.len() - 1].display());
+        return Ok(());
+    }
     let data = a.at.call(async |mut c| {
-        Ok(c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: format.into() }).await.map_err(status_error)?.into_inner().data)
+        Ok(c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: format.into(), frame: a.frame })
+            .await
+            .map_err(status_error)?
+            .into_inner()
+            .data)
     })?;
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;

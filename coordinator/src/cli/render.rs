@@ -21,7 +21,9 @@ use sylva_worker::trace::RenderSettings;
 use sylva_coordinator::schedule::ScheduleKind;
 use sylva_coordinator::service::MAX_NAME;
 use sylva_shared::frame::{FrameSettings, MAX_SPP};
+use sylva_shared::scene::file::SceneFile;
 use sylva_shared::scene::{FileAccess, SceneLimits};
+use sylva_shared::sequence::{SequenceSpec, SunAngles, SunSweep, View};
 use sylva_worker::lighting::reference::MIN_BATCH_SPP;
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
@@ -77,6 +79,29 @@ pub struct FrameArgs {
     /// Weight of the LB light relative to the sun's.
     #[arg(long, default_value_t = 0.35)]
     pub lb_strength: f32,
+    /// Render a sequence of this many frames (with --sun-from/--sun-to, a
+    /// --camera-path, or the scene's own `sequence`).
+    #[arg(long)]
+    pub frames: Option<u32>,
+    /// A sun sweep's first position: ELEVATION,AZIMUTH in degrees.
+    #[arg(long, value_parser = sun_angles, requires = "sun_to")]
+    pub sun_from: Option<SunAngles>,
+    /// A sun sweep's last position: ELEVATION,AZIMUTH in degrees.
+    #[arg(long, value_parser = sun_angles, requires = "sun_from")]
+    pub sun_to: Option<SunAngles>,
+    /// Camera keyframes: a JSON file holding an array of
+    /// `{"frame", "position", "look_at", "up", "fov_y_deg"}`.
+    #[arg(long)]
+    pub camera_path: Option<PathBuf>,
+}
+
+/// `ELEVATION,AZIMUTH` in degrees.
+fn sun_angles(s: &str) -> Result<SunAngles, String> {
+    let v: Vec<f32> = s.split(',').map(|x| x.trim().parse::<f32>().map_err(|e| format!("{x:?}: {e}"))).collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [e, a] => Ok(SunAngles { elevation_deg: *e, azimuth_deg: *a }),
+        _ => Err(format!("{s:?}: ELEVATION,AZIMUTH in degrees")),
+    }
 }
 
 impl FrameArgs {
@@ -91,7 +116,33 @@ impl FrameArgs {
             accel: self.accel.into(),
             lb_strength: self.lb_strength,
             ambient: None,
+            view: Default::default(),
         }
+    }
+
+    /// The views of the sequence these flags (over the scene's own
+    /// `sequence`) ask for, one per frame; empty for a single frame.
+    pub fn views(&self, scene: &SceneFile) -> anyhow::Result<Vec<View>> {
+        let flags = self.frames.is_some() || self.sun_from.is_some() || self.camera_path.is_some();
+        let mut seq = match (&scene.sequence, flags) {
+            (None, false) => return Ok(Vec::new()),
+            (Some(s), _) => s.clone(),
+            (None, true) => SequenceSpec { frames: 0, sun: None, camera: Vec::new() },
+        };
+        if let Some(n) = self.frames {
+            seq.frames = n;
+        }
+        if let (Some(from), Some(to)) = (self.sun_from, self.sun_to) {
+            seq.sun = Some(SunSweep { from, to });
+        }
+        if let Some(p) = &self.camera_path {
+            let text = std::fs::read_to_string(p).with_context(|| format!("{}: cannot read", p.display()))?;
+            seq.camera = serde_json::from_str(&text).with_context(|| format!("{}: not a JSON array of camera keyframes", p.display()))?;
+        }
+        if seq.frames == 0 {
+            bail!("a sequence needs --frames N (or the scene's sequence.frames)");
+        }
+        seq.views().map_err(anyhow::Error::msg)
     }
 }
 
@@ -191,10 +242,12 @@ impl From<ScheduleArg> for ScheduleKind {
     }
 }
 
-/// A job for the coordinator: the frame, how to cut it, its priority and label.
-pub fn job_spec(frame: &FrameSettings, schedule: ScheduleArg, priority: i32, name: &str) -> sylva_proto::pb::JobSpec {
+/// A job for the coordinator: the frame (and a sequence's views), how to
+/// cut it, its priority and label.
+pub fn job_spec(frame: &FrameSettings, views: &[View], schedule: ScheduleArg, priority: i32, name: &str) -> sylva_proto::pb::JobSpec {
     use sylva_proto::pb;
     sylva_proto::pb::JobSpec {
+        views: views.iter().map(pb::FrameView::from).collect(),
         frame: Some(pb::FrameSettings::from(frame)),
         schedule: match ScheduleKind::from(schedule) {
             ScheduleKind::Static => pb::Schedule::Static,
@@ -256,8 +309,12 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     };
     let lighting = request.lighting_or(scene.lighting);
     let accel = request.accel;
+    let views = a.frame.views(&scene.file)?;
     if remote {
-        return render_through_coordinator(&a, &request, &scene, lighting, accel, phases);
+        return render_through_coordinator(&a, &request, &views, &scene, lighting, accel, phases);
+    }
+    if !views.is_empty() {
+        bail!("a sequence renders on workers, frames and strips scheduled over them: leave out --local-workers 0");
     }
     let bar = ProgressBar::new_spinner();
     bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
@@ -287,6 +344,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         lighting,
         ambient: [0.0; 3],
         lb_strength: a.frame.lb_strength,
+        view: Default::default(),
     };
     if lighting == LightingMode::Ambient {
         bar.set_message("matching the ambient constant to the LB image");
@@ -486,6 +544,7 @@ fn ms(t: Instant) -> f64 {
 fn render_through_coordinator(
     a: &RenderArgs,
     request: &FrameSettings,
+    views: &[View],
     scene: &Scene,
     lighting: LightingMode,
     accel: AccelKind,
@@ -510,17 +569,45 @@ fn render_through_coordinator(
     };
     let coordinator = processes.start_coordinator(&workers, &token, &flags)?;
     phases.push(("start processes", ms(t)));
-    let spec = job_spec(request, a.schedule, 0, &a.scene.display().to_string());
+    let spec = job_spec(request, views, a.schedule, 0, &a.scene.display().to_string());
     let rt = tokio::runtime::Runtime::new()?;
     let t = Instant::now();
     let done = rt.block_on(sylva_coordinator::client::submit_and_follow(&coordinator, Some(token), None, spec, &bundle, a.exr))?;
     let frame_ms = ms(t);
-    phases.push(("frame", frame_ms));
+    phases.push((if views.is_empty() { "frame" } else { "sequence" }, frame_ms));
     drop(processes);
 
     create_parent(&a.out)?;
-    std::fs::write(&a.out, &done.png).with_context(|| format!("{}: cannot write", a.out.display()))?;
-    let exr = match &done.exr {
+    if !views.is_empty() {
+        let written = sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
+        let mut stats = with_head(
+            a,
+            None,
+            accel,
+            lighting,
+            &phases,
+            json!({
+                "coordinator": coordinator,
+                "job": done.id,
+                "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
+                "views": views,
+                "written": written,
+            }),
+        );
+        if let (Some(s), serde_json::Value::Object(c)) = (stats.as_object_mut(), done.stats) {
+            s.extend(c);
+        }
+        let how = format!(
+            "{} frames through a coordinator and {} workers in {:.0} ms ({:.0} ms a frame)",
+            views.len(),
+            workers.len(),
+            frame_ms,
+            frame_ms / views.len() as f64
+        );
+        return report(a, &stats, accel, lighting, &how);
+    }
+    std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    let exr = match done.exrs.as_ref().map(|e| &e[0]) {
         Some(bytes) => {
             let p = a.out.with_extension("exr");
             std::fs::write(&p, bytes).with_context(|| format!("{}: cannot write", p.display()))?;

@@ -39,6 +39,10 @@ pub struct WorkerArgs {
     /// Keep the bundle cache folder when the worker stops.
     #[arg(long)]
     pub keep_cache: bool,
+    /// LB solutions kept per scene and sun direction, for sequences that
+    /// come back to a sun (0: only the sun being rendered).
+    #[arg(long, default_value_t = 64)]
+    pub lb_cache_entries: usize,
 }
 
 pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
@@ -56,6 +60,7 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
             tls,
             limits: a.limits.limits(),
             keep_cache: a.keep_cache,
+            lb_cache_entries: a.lb_cache_entries,
             ..WorkerConfig::default()
         };
         if let Some(d) = &a.cache_dir {

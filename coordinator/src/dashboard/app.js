@@ -65,7 +65,8 @@ function renderJobs(snap) {
     const bar = document.createElement('progress');
     bar.max = Math.max(1, j.strips_total);
     bar.value = j.strips_done;
-    progress.append(bar, text('span', ' ' + j.strips_done + '/' + j.strips_total + (j.retries ? ' (' + j.retries + ' retried)' : '')));
+    const frames = j.frames > 1 ? ' · frames ' + j.frames_done + '/' + j.frames : '';
+    progress.append(bar, text('span', ' ' + j.strips_done + '/' + j.strips_total + frames + (j.retries ? ' (' + j.retries + ' retried)' : '')));
     const now = snap.now_unix_ms;
     const queuedEnd = j.started_unix_ms || j.finished_unix_ms || now;
     tr.append(prio, progress,

@@ -112,6 +112,7 @@ async fn snapshot(service: &CoordinatorService) -> Value {
         "jobs": jobs.iter().map(|j| json!({
             "id": j.id, "name": j.name, "state": j.state, "priority": j.priority,
             "strips_done": j.strips_done, "strips_total": j.strips_total, "retries": j.retries,
+            "frames": j.frames, "frames_done": j.frames_done,
             "submitter": j.submitter, "error": j.error, "ended": ended(&j.state),
             "submitted_unix_ms": j.submitted_unix_ms, "started_unix_ms": j.started_unix_ms, "finished_unix_ms": j.finished_unix_ms,
         })).collect::<Vec<_>>(),
@@ -170,7 +171,7 @@ async fn preview(State(service): State<CoordinatorService>, headers: HeaderMap, 
     }
     let Some(f) = service.live(&id) else { return (StatusCode::NOT_FOUND, "no such job").into_response() };
     let png = if f.preview.is_empty() {
-        match service.fetch_result(Request::new(pb::FetchRequest { id: id.clone(), format: "png".into() })).await {
+        match service.fetch_result(Request::new(pb::FetchRequest { id: id.clone(), format: "png".into(), frame: f.frame as u32 })).await {
             Ok(r) => r.into_inner().data,
             Err(s) => return status_response(s),
         }

@@ -150,11 +150,13 @@ pub fn spec(width: u32, height: u32) -> pb::JobSpec {
             accel: pb::Accel::Bvh.into(),
             lb_strength: 0.35,
             ambient: vec![],
+            view: None,
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,
         name: "test".into(),
         submitter: "test".into(),
+        views: vec![],
     }
 }
 

@@ -44,6 +44,10 @@ pub struct SceneFile {
     /// Boulanger methods (default: from the measured leaf scattering).
     #[serde(default)]
     pub leaf_optics: crate::leaf::LeafOptics,
+    /// A sequence of frames: a sun sweep and/or a camera path
+    /// ([`crate::sequence`]); absent: one frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sequence: Option<crate::sequence::SequenceSpec>,
 }
 
 /// Where a model comes from: exactly one of `gltf` and `tree`.
@@ -96,7 +100,7 @@ fn is_zero(v: &f32) -> bool {
 }
 
 /// The camera.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSpec {
     /// Eye position.

@@ -83,6 +83,7 @@ pub fn forest(o: &ForestOptions) -> Result<SceneFile, String> {
         forest_grid: ForestGridSpec::default(),
         clouds: Vec::new(),
         leaf_optics: Default::default(),
+        sequence: None,
     })
 }
 

@@ -88,6 +88,16 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// The scene with a frame's sun in place of its own (the camera is the
+    /// renderer's per frame); models are shared, not copied.
+    pub fn with_view(&self, view: &crate::sequence::View) -> Scene {
+        let mut s = self.clone();
+        if let Some(t) = view.sun() {
+            s.sun.towards = t;
+        }
+        s
+    }
+
     /// The light the scene sends into an LB lattice: the sun's irradiance
     /// E⊥ = π × its radiance scale (a surface facing it shows ρ × radiance,
     /// docs/lighting.md), and the sky, per colour.
@@ -247,6 +257,9 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
     bounded3(&c.up).map_err(|m| err("camera.up".into(), m))?;
     let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg).map_err(|e| err("camera".into(), e.to_string()))?;
     let sun = sun_light(&file.sun).map_err(|(f, m)| err(format!("sun.{f}"), m))?;
+    if let Some(s) = &file.sequence {
+        s.views().map_err(|m| err("sequence".into(), m))?;
+    }
     for (name, v) in [("zenith", file.sky.zenith), ("horizon", file.sky.horizon)] {
         colour(&v).map_err(|m| err(format!("sky.{name}"), m))?;
     }

@@ -8,6 +8,7 @@ use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 use sylva_shared::scene::{LightingMode, Scene};
+use sylva_shared::sequence::View;
 use wgpu::util::DeviceExt;
 
 const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
@@ -80,6 +81,9 @@ pub struct RenderSettings {
     /// The paper LB model's weight of LB light relative to the sun's: a
     /// non-physical override the grounded model does not read.
     pub lb_strength: f32,
+    /// The frame's camera and sun where they differ from the scene's.
+    #[serde(skip)]
+    pub view: View,
 }
 
 /// Rays traced, by kind.
@@ -227,6 +231,19 @@ impl StripRenderer {
         anyhow::ensure!(x0 < x1 && x1 <= f.width, "strip [{x0}, {x1}) is not inside a frame {} wide", f.width);
         let strip_width = x1 - x0;
         let method = lighting::method(f.lighting);
+        // A frame of a sequence: its own camera and sun (the LB light it
+        // reads was prepared for that sun: the worker keys it so).
+        let mut base = self.base;
+        if let Some(c) = f.view.camera() {
+            let c = c.map_err(anyhow::Error::msg)?;
+            (base.cam_position, base.cam_forward, base.cam_right, base.cam_up) =
+                (c.position.to_array(), c.forward.to_array(), c.right.to_array(), c.up.to_array());
+            base.tan_half_fov_y = c.tan_half_fov_y;
+        }
+        if let Some(towards) = f.view.sun() {
+            base.sun_towards = towards.to_array();
+            base.lb_free = sylva_shared::lb::Sun::towards(towards.as_dvec3().to_array(), 1.0)?.boundary().values.iter().sum();
+        }
         ctx.checked("rendering a strip", || {
             let device = &ctx.device;
             let uniform = FrameUniform {
@@ -240,7 +257,7 @@ impl StripRenderer {
                 ambient: f.ambient,
                 lighting: method.code,
                 lb_strength: f.lb_strength,
-                ..self.base
+                ..base
             };
             let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("frame"),

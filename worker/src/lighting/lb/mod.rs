@@ -197,6 +197,7 @@ pub(crate) fn solve_model(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel,
 }
 
 /// The LB light of a scene, ready to upload, and what it took.
+#[derive(Clone)]
 pub struct SceneLb {
     /// Each model's light (indexed by model).
     pub grids: Vec<Option<LbGrid>>,
