@@ -22,6 +22,9 @@ pub enum BenchCommand {
     Trace(TraceBenchArgs),
     /// Strip-scaling speedup over worker counts, static against dynamic.
     Scaling(ScalingBenchArgs),
+    /// Sequences: a camera path as one job against one job per frame, and
+    /// a sun sweep's second pass with the workers' LB cache against without.
+    Sequence(super::bench_sequence::SequenceBenchArgs),
 }
 
 /// What the benchmark solves.
@@ -58,6 +61,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Lb(a) => bench_lb(a),
         BenchCommand::Trace(a) => bench_trace(a),
         BenchCommand::Scaling(a) => bench_scaling(a),
+        BenchCommand::Sequence(a) => super::bench_sequence::run(a),
     }
 }
 
@@ -197,7 +201,7 @@ fn stream_triad() -> f64 {
 }
 
 /// The host the benchmark ran on.
-fn machine() -> serde_json::Value {
+pub(super) fn machine() -> serde_json::Value {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|s| s.lines().find(|l| l.starts_with("model name")).map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string()));

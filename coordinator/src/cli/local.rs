@@ -35,9 +35,16 @@ pub struct LocalProcesses {
 impl LocalProcesses {
     /// Starts `n` workers on loopback that require `token`; returns their addresses.
     pub fn start_workers(&mut self, n: usize, token: &str) -> anyhow::Result<Vec<String>> {
+        self.start_workers_with(n, token, &[])
+    }
+
+    /// [`LocalProcesses::start_workers`] with more worker flags.
+    pub fn start_workers_with(&mut self, n: usize, token: &str, extra: &[String]) -> anyhow::Result<Vec<String>> {
         let mut addrs = Vec::new();
         for _ in 0..n {
-            let (child, addr) = spawn_announcing(&["worker".into(), "--listen".into(), "127.0.0.1:0".into()], token)?;
+            let mut args: Vec<String> = ["worker", "--listen", "127.0.0.1:0"].map(String::from).to_vec();
+            args.extend_from_slice(extra);
+            let (child, addr) = spawn_announcing(&args, token)?;
             self.children.push(child);
             addrs.push(addr);
         }

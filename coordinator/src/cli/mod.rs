@@ -1,6 +1,7 @@
 //! The `sylva` subcommands.
 
 mod bench;
+mod bench_sequence;
 mod compare;
 mod coordinator;
 mod farm;
