@@ -222,13 +222,22 @@ pub async fn render_frames(
     let shared = Arc::new(Shared { total: queue.len(), queue: Mutex::new(queue), done: Mutex::new(Vec::new()) });
     let events = Arc::new(events);
     let mut tasks = Vec::new();
-    for (client, report) in clients.into_iter().zip(reports) {
+    let n_workers = clients.len();
+    for (me, (client, report)) in clients.into_iter().zip(reports).enumerate() {
         let (shared, events, wires, hash, height) = (shared.clone(), events.clone(), wires.clone(), bundle.hash.clone(), frames[0].height);
         tasks.push(tokio::spawn(async move {
             let mut report = report;
             let Some(mut client) = client else { return report };
             loop {
-                let next = shared.queue.lock().expect("lock").pop_front();
+                let next = {
+                    // In a sequence each worker prefers the frames that
+                    // are its own by number (frame mod workers), so a
+                    // second pass over the same views meets the light it
+                    // kept per sun; it takes any other when it has none left.
+                    let mut q = shared.queue.lock().expect("lock");
+                    let mine = if wires.len() > 1 { q.iter().position(|(f, _)| f % n_workers == me) } else { None };
+                    mine.and_then(|i| q.remove(i)).or_else(|| q.pop_front())
+                };
                 let Some((frame, strip)) = next else {
                     if shared.done.lock().expect("lock").len() == shared.total {
                         return report;

@@ -77,6 +77,7 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
             let file = sylva_shared::interchange::import::import_gltf(&a.gltf, dir)?;
             // Checked as `render` would load it, before it is written.
             sylva_shared::scene::Scene::build(file.clone(), dir, &a.out.display().to_string())?;
+            create_parent(&a.out)?;
             std::fs::write(&a.out, serde_json::to_string_pretty(&file)? + "\n").with_context(|| format!("{}: cannot write", a.out.display()))?;
             println!("wrote {}: {} models, {} instances", a.out.display(), file.models.len(), file.instances.len());
             Ok(())
@@ -84,6 +85,7 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
         SceneCommand::Forest(a) => {
             let o = ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: a.seed };
             let scene = forest(&o).map_err(anyhow::Error::msg)?;
+            create_parent(&a.out)?;
             std::fs::write(&a.out, serde_json::to_string_pretty(&scene)? + "\n").with_context(|| format!("{}: cannot write", a.out.display()))?;
             let per_species: Vec<_> = Species::ALL
                 .iter()
@@ -118,6 +120,7 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
     let summary = match a.format {
         ExportFormat::Gltf => {
             let (bytes, summary) = sylva_shared::interchange::gltf::export_glb(&scene)?;
+            create_parent(&a.out)?;
             std::fs::write(&a.out, &bytes).with_context(|| format!("{}: cannot write", a.out.display()))?;
             serde_json::to_value(summary)?
         }
@@ -127,6 +130,14 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&json!({ "out": a.out, "summary": summary }))?);
     } else {
         println!("wrote {}: {summary}", a.out.display());
+    }
+    Ok(())
+}
+
+/// Creates the folder `path` goes in, as `render` does for its image.
+fn create_parent(path: &std::path::Path) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     }
     Ok(())
 }
