@@ -71,7 +71,7 @@ EOF
   fi
 fi
 
-compose=(docker-compose -f deploy/compose.yaml)
+compose=(docker-compose -p sylva -f deploy/compose.yaml)
 echo "building sylva:latest from deploy/Dockerfile" >&2
 $DOCKER build --network host -f deploy/Dockerfile -t sylva:latest . >&2
 stop() {

@@ -510,6 +510,11 @@ fn create_parent(path: &Path) -> anyhow::Result<()> {
 
 /// Writes the stats beside the image and tells the user.
 fn report(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting: LightingMode, how: &str) -> anyhow::Result<()> {
+    report_wrote(a, stats, accel, lighting, how, &a.out.display().to_string())
+}
+
+/// [`report`], naming what was written as `wrote`.
+fn report_wrote(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting: LightingMode, how: &str, wrote: &str) -> anyhow::Result<()> {
     let path = stats_path(&a.out);
     std::fs::write(&path, serde_json::to_string_pretty(stats)? + "\n").with_context(|| format!("{}: cannot write", path.display()))?;
     if a.json {
@@ -521,7 +526,7 @@ fn report(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting:
             a.frame.width,
             a.frame.height,
             a.frame.spp,
-            a.out.display(),
+            wrote,
             path.display()
         );
     }
@@ -604,7 +609,9 @@ fn render_through_coordinator(
             frame_ms,
             frame_ms / views.len() as f64
         );
-        return report(a, &stats, accel, lighting, &how);
+        let names = |i: usize| written.get(i).map(|p| p.display().to_string()).unwrap_or_default();
+        let wrote = format!("{} … {}, {}, {}", names(0), names(views.len() - 1), names(written.len() - 2), names(written.len() - 1));
+        return report_wrote(a, &stats, accel, lighting, &how, &wrote);
     }
     std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
     let exr = match done.exrs.as_ref().map(|e| &e[0]) {
