@@ -5,7 +5,7 @@
 //! command line's `--frames`/`--sun-from`/`--sun-to`/`--camera-path` give it.
 
 use crate::camera::Camera;
-use crate::scene::file::CameraSpec;
+use crate::scene::file::{CameraSpec, default_fov, y_up};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
@@ -105,7 +105,9 @@ pub struct SunSweep {
     pub to: SunAngles,
 }
 
-/// A camera keyframe: the camera at one frame of the sequence.
+/// A camera keyframe: the camera at one frame of the sequence (the scene
+/// file's camera and its defaults, plus the frame; serde cannot flatten a
+/// struct that denies unknown fields, so the fields stand again here).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraKey {
@@ -121,13 +123,6 @@ pub struct CameraKey {
     /// Vertical field of view, degrees.
     #[serde(default = "default_fov")]
     pub fov_y_deg: f32,
-}
-
-fn y_up() -> [f32; 3] {
-    [0.0, 1.0, 0.0]
-}
-fn default_fov() -> f32 {
-    40.0
 }
 
 /// A sequence of frames, as the scene file's `sequence` gives it.

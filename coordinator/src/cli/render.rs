@@ -643,3 +643,39 @@ fn render_through_coordinator(
     }
     report(a, &stats, accel, lighting, &format!("through a coordinator and {} workers in {:.0} ms", workers.len(), frame_ms))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Flags {
+        #[command(flatten)]
+        frame: FrameArgs,
+    }
+
+    fn views(flags: &[&str], scene: &str) -> anyhow::Result<Vec<View>> {
+        let f = Flags::try_parse_from(std::iter::once("sylva").chain(flags.iter().copied()))?;
+        f.frame.views(&sylva_shared::scene::parse(scene, "s.json")?)
+    }
+
+    #[test]
+    fn the_scene_files_sequence_is_rendered_and_flags_override_it() {
+        let plain = include_str!("../../../shared/tests/data/small_scene.json");
+        assert!(views(&[], plain).unwrap().is_empty(), "no sequence: one frame");
+        let with = plain.trim_end().trim_end_matches('}').to_string()
+            + r#", "sequence": { "frames": 6, "sun": { "from": { "elevation_deg": 10, "azimuth_deg": 0 }, "to": { "elevation_deg": 50, "azimuth_deg": 0 } } } }"#;
+        let v = views(&[], &with).unwrap();
+        assert_eq!(v.len(), 6);
+        assert!(v.iter().all(|v| v.camera.is_none() && v.sun_towards.is_some()));
+        // Flags: more frames, and the sun sweep replaced.
+        let v = views(&["--frames", "3", "--sun-from", "60,0", "--sun-to", "60,90"], &with).unwrap();
+        assert_eq!(v.len(), 3);
+        assert!((v[0].sun_towards.unwrap()[1] - 60f32.to_radians().sin()).abs() < 1e-6);
+        // A sweep without a frame count is refused, and so is half a sweep.
+        assert!(views(&["--sun-from", "10,0", "--sun-to", "20,0"], plain).unwrap_err().to_string().contains("--frames"));
+        assert!(views(&["--frames", "2", "--sun-from", "10,0"], plain).is_err());
+        assert!(views(&["--frames", "2", "--sun-from", "10", "--sun-to", "20,0"], plain).is_err());
+    }
+}

@@ -115,10 +115,10 @@ pub struct CameraSpec {
     pub fov_y_deg: f32,
 }
 
-fn y_up() -> [f32; 3] {
+pub(crate) fn y_up() -> [f32; 3] {
     [0.0, 1.0, 0.0]
 }
-fn default_fov() -> f32 {
+pub(crate) fn default_fov() -> f32 {
     40.0
 }
 
