@@ -55,6 +55,9 @@ pub struct WorkerConfig {
     /// back to a sun (or a second pass over a sun sweep) solves it once;
     /// 0: only the light of the sun being rendered is kept.
     pub lb_cache_entries: usize,
+    /// Bytes of LB light kept at most, all suns together (the newest is
+    /// kept whatever its size): fine grids make the count alone no bound.
+    pub lb_cache_bytes: u64,
 }
 
 impl Default for WorkerConfig {
@@ -68,6 +71,7 @@ impl Default for WorkerConfig {
             limits: SceneLimits::default(),
             keep_cache: false,
             lb_cache_entries: 64,
+            lb_cache_bytes: 1 << 30,
         }
     }
 }
@@ -211,7 +215,8 @@ impl State {
             let mut lbs = lock(&self.lbs);
             lbs.insert(lb_key, Used { value: lb, stamp: self.tick() });
             let keep = self.config.lb_cache_entries.max(1);
-            while lbs.len() > keep {
+            let bytes = |lbs: &HashMap<LbKey, Used<Arc<SceneLb>>>| lbs.values().map(|u| u.value.bytes()).sum::<u64>();
+            while lbs.len() > keep || (lbs.len() > 1 && bytes(&lbs) > self.config.lb_cache_bytes) {
                 let oldest = lbs.iter().min_by_key(|(_, u)| u.stamp).map(|(k, _)| k.clone()).expect("not empty");
                 lbs.remove(&oldest);
             }

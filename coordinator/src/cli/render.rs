@@ -583,65 +583,45 @@ fn render_through_coordinator(
     drop(processes);
 
     create_parent(&a.out)?;
-    if !views.is_empty() {
+    let mut body = json!({
+        "coordinator": coordinator,
+        "job": done.id,
+        "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
+        "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
+        "instances": scene.instances.len(),
+        "models": scene.models.len(),
+    });
+    // A sequence's numbered frames, sheet and preview; or the one image.
+    let (exr, wrote, how) = if views.is_empty() {
+        std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
+        let exr = match done.exrs.as_ref().map(|e| &e[0]) {
+            Some(bytes) => {
+                let p = a.out.with_extension("exr");
+                std::fs::write(&p, bytes).with_context(|| format!("{}: cannot write", p.display()))?;
+                Some(p)
+            }
+            None => None,
+        };
+        (exr, a.out.display().to_string(), format!("through a coordinator and {} workers in {:.0} ms", workers.len(), frame_ms))
+    } else {
         let written = sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
-        let mut stats = with_head(
-            a,
-            None,
-            accel,
-            lighting,
-            &phases,
-            json!({
-                "coordinator": coordinator,
-                "job": done.id,
-                "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
-                "views": views,
-                "written": written,
-            }),
-        );
-        if let (Some(s), serde_json::Value::Object(c)) = (stats.as_object_mut(), done.stats) {
-            s.extend(c);
-        }
-        let how = format!(
-            "{} frames through a coordinator and {} workers in {:.0} ms ({:.0} ms a frame)",
-            views.len(),
-            workers.len(),
-            frame_ms,
-            frame_ms / views.len() as f64
-        );
         let names = |i: usize| written.get(i).map(|p| p.display().to_string()).unwrap_or_default();
         let wrote = format!("{} … {}, {}, {}", names(0), names(views.len() - 1), names(written.len() - 2), names(written.len() - 1));
-        return report_wrote(a, &stats, accel, lighting, &how, &wrote);
-    }
-    std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
-    let exr = match done.exrs.as_ref().map(|e| &e[0]) {
-        Some(bytes) => {
-            let p = a.out.with_extension("exr");
-            std::fs::write(&p, bytes).with_context(|| format!("{}: cannot write", p.display()))?;
-            Some(p)
-        }
-        None => None,
+        body["views"] = json!(views);
+        body["written"] = json!(written);
+        let n = views.len();
+        (
+            None,
+            wrote,
+            format!("{n} frames through a coordinator and {} workers in {frame_ms:.0} ms ({:.0} ms a frame)", workers.len(), frame_ms / n as f64),
+        )
     };
-    let mut stats = with_head(
-        a,
-        exr,
-        accel,
-        lighting,
-        &phases,
-        json!({
-            "coordinator": coordinator,
-            "job": done.id,
-            "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
-            "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
-            "instances": scene.instances.len(),
-            "models": scene.models.len(),
-        }),
-    );
+    let mut stats = with_head(a, exr, accel, lighting, &phases, body);
     // The coordinator's own figures: schedule, strips, workers, rays, tone map.
     if let (Some(s), serde_json::Value::Object(c)) = (stats.as_object_mut(), done.stats) {
         s.extend(c);
     }
-    report(a, &stats, accel, lighting, &format!("through a coordinator and {} workers in {:.0} ms", workers.len(), frame_ms))
+    report_wrote(a, &stats, accel, lighting, &how, &wrote)
 }
 
 #[cfg(test)]

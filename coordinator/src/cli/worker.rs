@@ -43,6 +43,9 @@ pub struct WorkerArgs {
     /// come back to a sun (0: only the sun being rendered).
     #[arg(long, default_value_t = 64)]
     pub lb_cache_entries: usize,
+    /// MiB of LB light kept at most, all suns together.
+    #[arg(long, default_value_t = 1024)]
+    pub lb_cache_mib: u64,
 }
 
 pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
@@ -61,6 +64,7 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
             limits: a.limits.limits(),
             keep_cache: a.keep_cache,
             lb_cache_entries: a.lb_cache_entries,
+            lb_cache_bytes: a.lb_cache_mib << 20,
             ..WorkerConfig::default()
         };
         if let Some(d) = &a.cache_dir {

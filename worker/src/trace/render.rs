@@ -63,6 +63,23 @@ pub struct FrameUniform {
     pub pad4: [u32; 3],
 }
 
+impl FrameUniform {
+    /// Puts the camera in.
+    fn set_camera(&mut self, c: &sylva_shared::camera::Camera) {
+        (self.cam_position, self.cam_forward, self.cam_right, self.cam_up) =
+            (c.position.to_array(), c.forward.to_array(), c.right.to_array(), c.up.to_array());
+        self.tan_half_fov_y = c.tan_half_fov_y;
+    }
+
+    /// Puts the sun's direction in, with the paper model's free-space LB
+    /// total for it (`lb_free`, its boundary's sum at unit strength).
+    fn set_sun(&mut self, towards: glam::Vec3) -> anyhow::Result<()> {
+        self.sun_towards = towards.to_array();
+        self.lb_free = sylva_shared::lb::Sun::towards(towards.as_dvec3().to_array(), 1.0)?.boundary().values.iter().sum();
+        Ok(())
+    }
+}
+
 /// What a frame is rendered with.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct RenderSettings {
@@ -188,21 +205,12 @@ impl StripRenderer {
                 cache: None,
             })
         });
-        let c = &scene.camera;
-        let sun = sylva_shared::lb::Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0).expect("scene checked the sun");
-        let base = FrameUniform {
-            cam_position: c.position.to_array(),
-            tan_half_fov_y: c.tan_half_fov_y,
-            cam_forward: c.forward.to_array(),
-            cam_right: c.right.to_array(),
-            cam_up: c.up.to_array(),
-            sun_towards: scene.sun.towards.to_array(),
+        let mut base = FrameUniform {
             sun_radiance: scene.sun.radiance,
             sky_zenith: scene.sky.zenith,
             sky_horizon: scene.sky.horizon,
             ground_color: scene.ground.as_ref().map_or([0.0; 3], |g| g.color),
             has_ground: scene.ground.is_some() as u32,
-            lb_free: sun.boundary().values.iter().sum(),
             epsilon: ray_offset(scene),
             max_bounces: MAX_BOUNCES,
             leaf_reflect_front: scene.file.leaf_optics.reflect_front,
@@ -218,6 +226,8 @@ impl StripRenderer {
             },
             ..FrameUniform::zeroed()
         };
+        base.set_camera(&scene.camera);
+        base.set_sun(scene.sun.towards).expect("the scene checked its sun");
         Self { scene: gpu_scene, pipelines, layout, base }
     }
 
@@ -235,14 +245,10 @@ impl StripRenderer {
         // reads was prepared for that sun: the worker keys it so).
         let mut base = self.base;
         if let Some(c) = f.view.camera() {
-            let c = c.map_err(anyhow::Error::msg)?;
-            (base.cam_position, base.cam_forward, base.cam_right, base.cam_up) =
-                (c.position.to_array(), c.forward.to_array(), c.right.to_array(), c.up.to_array());
-            base.tan_half_fov_y = c.tan_half_fov_y;
+            base.set_camera(&c.map_err(anyhow::Error::msg)?);
         }
         if let Some(towards) = f.view.sun() {
-            base.sun_towards = towards.to_array();
-            base.lb_free = sylva_shared::lb::Sun::towards(towards.as_dvec3().to_array(), 1.0)?.boundary().values.iter().sum();
+            base.set_sun(towards)?;
         }
         ctx.checked("rendering a strip", || {
             let device = &ctx.device;

@@ -244,6 +244,14 @@ pub fn prepare(ctx: &GpuContext, scene: &Scene, phases: &mut PhaseTimer, progres
     Ok(SceneLb { grids, scales, ground, light, forest })
 }
 
+impl SceneLb {
+    /// Bytes of light it holds (the grids and the ground's), for caches.
+    pub fn bytes(&self) -> u64 {
+        let grids: usize = self.grids.iter().flatten().map(|g| g.rgb.len()).sum();
+        ((grids + self.ground.as_ref().map_or(0, |g| g.rgb.len())) * std::mem::size_of::<f32>() + self.scales.len() * 4) as u64
+    }
+}
+
 /// The scene's sun as the paper model's boundary takes it (unit strength).
 pub(crate) fn sun_of(scene: &Scene) -> anyhow::Result<Sun> {
     Ok(Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)?)
