@@ -162,7 +162,7 @@ fn material(
             let (w, h) = (tex.width, tex.height);
             let mut refl = image::RgbImage::new(w, h);
             let mut trans = image::RgbImage::new(w, h);
-            for (i, px) in tex.rgba.chunks_exact(4).enumerate() {
+            for (i, px) in tex.rgba.as_chunks::<4>().0.iter().enumerate() {
                 let albedo: [f32; 3] = std::array::from_fn(|c| base[c] * srgb8_to_linear(px[c]));
                 let (r, t) = if surface == Surface::Leaf { leaf(albedo) } else { (albedo, [0.0; 3]) };
                 let (x, y) = (i as u32 % w, i as u32 / w);
