@@ -293,6 +293,7 @@ fn block<const FMA: bool, const FULL: bool>(
     for m in 0..Q {
         let start = ((m * n + node) as isize - offsets[m]) as usize;
         f[m][..lanes].copy_from_slice(&src[start..start + lanes]);
+        prefetch_ahead(src.as_ptr().wrapping_add(start), dst.0.wrapping_add(m * n + node));
     }
     let rho = &medium.density[node..node + lanes];
     let class = &medium.class[node..node + lanes];
@@ -328,6 +329,30 @@ fn block<const FMA: bool, const FULL: bool>(
         }
     }
     sum
+}
+
+/// How far ahead of a block its streams are prefetched, in nodes (four
+/// blocks). The step reads 19 streams and writes 19 more, more than the
+/// hardware prefetchers follow: at 128³ on 2 cores the step went from
+/// about 60 to 100 MLUPS with this (0.35 to 0.6–0.7 of the triad), and
+/// from 99 to 114 at 64³; 32 to 256 nodes ahead were all within 10 %.
+const PREFETCH_AHEAD: usize = 4 * LANES;
+
+/// Asks for the lines `PREFETCH_AHEAD` nodes past a block's read and
+/// write positions (the write for ownership), so they arrive while this
+/// block collides. A prefetch never faults, so addresses past the end of
+/// the state are harmless.
+#[inline(always)]
+fn prefetch_ahead(read: *const f32, write: *mut f32) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetches only hint the cache; they never dereference.
+    unsafe {
+        use std::arch::x86_64::{_MM_HINT_ET0, _MM_HINT_T0, _mm_prefetch};
+        _mm_prefetch::<_MM_HINT_T0>(read.wrapping_add(PREFETCH_AHEAD) as *const i8);
+        _mm_prefetch::<_MM_HINT_ET0>(write.wrapping_add(PREFETCH_AHEAD) as *const i8);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (read, write);
 }
 
 fn omega_for(coll: &Collision, class: NodeClass) -> &PairedOmega {
