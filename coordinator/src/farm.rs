@@ -28,6 +28,8 @@ type StripTime = (Strip, f64, f64);
 pub const MAX_FAILURES: u32 = 3;
 /// Bytes per upload chunk.
 const CHUNK: usize = 1 << 20;
+/// Most bytes of prepared data the coordinator forwards between workers.
+const MAX_PREPARED_BYTES: u64 = 4 << 30;
 
 /// What happened, for progress bars and logs.
 #[derive(Clone, Debug)]
@@ -42,6 +44,9 @@ pub enum FarmEvent {
     StripRetried { frame: usize, strip: Strip, worker: String, error: String },
     /// A worker was dropped for this frame.
     WorkerDropped { worker: String, error: String },
+    /// The scene's prepared data (structures, LB light) was made or found
+    /// on `from` and sent to the workers `to` that lacked it, `bytes` each.
+    PreparedShared { from: String, to: Vec<String>, bytes: u64, prepare_ms: f64, share_ms: f64 },
 }
 
 /// Per-worker figures of one frame.
@@ -152,6 +157,78 @@ pub fn decode_reply(r: &pb::RenderStripReply, strip: Strip, height: u32) -> Resu
     Ok(px)
 }
 
+/// Has the farm pre-process the scene once: asks every worker whether it
+/// holds what `frame` needs prepared; unless all do, one that does (or the
+/// first, told to prepare it now) exports it, and the coordinator forwards
+/// it to the others, which check it before keeping it. Meanwhile no strip
+/// is sent, so the others do not start the same work.
+async fn share_prepared(
+    clients: &[Option<Client>],
+    addrs: &[String],
+    hash: &str,
+    frame: &pb::FrameSettings,
+    deadline: Duration,
+    events: &(impl Fn(FarmEvent) + Send + Sync),
+) -> Result<(), String> {
+    let live: Vec<(usize, Client)> = clients.iter().enumerate().filter_map(|(i, c)| c.clone().map(|c| (i, c))).collect();
+    if live.len() < 2 {
+        return Ok(());
+    }
+    let ask = |build: bool| pb::PrepareRequest { scene_hash: hash.to_string(), frame: Some(frame.clone()), build };
+    let held = futures_util::future::join_all(live.iter().map(|(_, c)| {
+        let (mut c, req) = (c.clone(), ask(false));
+        async move { c.prepare(req).await.ok().map(|r| r.into_inner().held) }
+    }))
+    .await;
+    // Workers that cannot answer (an older build) are left to prepare alone.
+    let lacking: Vec<usize> = (0..live.len()).filter(|&k| held[k] == Some(false)).collect();
+    if lacking.is_empty() {
+        return Ok(());
+    }
+    let t = Instant::now();
+    let (source, prepare_ms) = match (0..live.len()).find(|&k| held[k] == Some(true)) {
+        Some(k) => (k, 0.0),
+        None => {
+            let k = lacking[0];
+            let mut req = tonic::Request::new(ask(true));
+            req.set_timeout(deadline);
+            let r = live[k].1.clone().prepare(req).await.map_err(|s| format!("{} could not prepare: {}", addrs[live[k].0], s.message()))?;
+            (k, r.into_inner().prepare_ms)
+        }
+    };
+    let from = addrs[live[source].0].clone();
+    let mut stream =
+        live[source].1.clone().export_prepared(ask(false)).await.map_err(|s| format!("{from} could not export: {}", s.message()))?.into_inner();
+    let mut chunks: Vec<pb::PreparedChunk> = Vec::new();
+    let (mut bytes, mut declared) = (0u64, None);
+    while let Some(c) = stream.message().await.map_err(|s| format!("{from} broke off its export: {}", s.message()))? {
+        let total = *declared.get_or_insert(c.total_size);
+        bytes += c.data.len() as u64;
+        if bytes > total || total > MAX_PREPARED_BYTES {
+            return Err(format!("{from} exported more than its declared {total} bytes, or over {MAX_PREPARED_BYTES}"));
+        }
+        chunks.push(c);
+    }
+    let chunks = Arc::new(chunks);
+    let to: Vec<usize> = lacking.into_iter().filter(|&k| k != source).collect();
+    let imported = futures_util::future::join_all(to.iter().map(|&k| {
+        let (mut c, chunks) = (live[k].1.clone(), chunks.clone());
+        async move { c.import_prepared(tokio_stream::iter(chunks.iter().cloned().collect::<Vec<_>>())).await.map(|r| r.into_inner().held) }
+    }))
+    .await;
+    let mut sent = Vec::new();
+    for (&k, r) in to.iter().zip(imported) {
+        let addr = addrs[live[k].0].clone();
+        match r {
+            Ok(true) => sent.push(addr),
+            Ok(false) => tracing::warn!(worker = %addr, "took the prepared data but does not hold it"),
+            Err(s) => tracing::warn!(worker = %addr, from = %from, "refused the prepared data: {}", s.message()),
+        }
+    }
+    events(FarmEvent::PreparedShared { from, to: sent, bytes, prepare_ms, share_ms: t.elapsed().as_secs_f64() * 1e3 - prepare_ms });
+    Ok(())
+}
+
 /// Renders `frame` of `bundle` on `workers`, strips pulled in `plan` order;
 /// `deadline` bounds each strip's RPC.
 pub async fn render_frame(
@@ -218,6 +295,10 @@ pub async fn render_frames(
         reports.push(report);
     }
     let wires: Arc<Vec<pb::FrameSettings>> = Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
+    if let Err(e) = share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline, &events).await {
+        // Not fatal: each worker then prepares the scene itself.
+        tracing::warn!("prepared data not shared: {e}");
+    }
     let queue: VecDeque<(usize, Strip)> = plans.iter().enumerate().flat_map(|(f, p)| p.iter().map(move |s| (f, *s))).collect();
     let shared = Arc::new(Shared { total: queue.len(), queue: Mutex::new(queue), done: Mutex::new(Vec::new()) });
     let events = Arc::new(events);

@@ -490,6 +490,14 @@ impl State {
                         return;
                     }
                     FarmEvent::WorkerDropped { worker, error } => ev.message = format!("worker {worker} dropped: {error}"),
+                    FarmEvent::PreparedShared { from, to, bytes, prepare_ms, share_ms } => {
+                        ev.worker = from.clone();
+                        ev.message = format!(
+                            "scene prepared once, on {from} ({prepare_ms:.0} ms), and sent to {} other workers ({:.1} MB each, {share_ms:.0} ms)",
+                            to.len(),
+                            bytes as f64 / 1e6
+                        );
+                    }
                 }
                 let _ = tx2.send(ev);
             },

@@ -1,6 +1,7 @@
 //! Frames rendered by real worker processes over real gRPC on loopback:
-//! identical to a single in-process render, through a worker killed with
-//! SIGKILL mid-frame, and with several jobs at once.
+//! identical to a single in-process render (the scene prepared once for the
+//! farm), through a worker killed with SIGKILL mid-frame, and with several
+//! jobs at once.
 
 mod common;
 
@@ -74,11 +75,29 @@ async fn three_workers_render_the_frame_a_single_process_renders() {
     let want = reference(&b, &dir.join("ref"), 5);
     let workers: Vec<Worker> = (0..3).map(|_| start_worker()).collect();
     let addrs: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
+    let shared = Arc::new(Mutex::new(Vec::new()));
     for plan in [Static.plan(96, 3, &[]), Dynamic::default().plan(96, 3, &[])] {
-        let f = farm::render_frame(&farm::Workers::open(&addrs), &b, frame(5), plan, DEADLINE, |_| {}).await.unwrap();
+        let seen = shared.clone();
+        let events = move |e: FarmEvent| {
+            if let FarmEvent::PreparedShared { from, to, bytes, .. } = e {
+                seen.lock().unwrap().push((from, to.len(), bytes));
+            }
+        };
+        let f = farm::render_frame(&farm::Workers::open(&addrs), &b, frame(5), plan, DEADLINE, events).await.unwrap();
         assert_eq!(bits(&f.image), want);
         assert!(f.workers.iter().all(|w| w.strips > 0 && !w.dropped), "{:?}", f.workers);
     }
+    // One worker prepared the scene, the other two took its data; the
+    // second frame found it everywhere.
+    let shared = shared.lock().unwrap().clone();
+    assert!(shared.len() == 1 && shared[0].1 == 2 && shared[0].2 > 0, "{shared:?}");
+    let mut totals = [0u64; 3];
+    for a in &addrs {
+        let mut w = sylva_proto::pb::worker_client::WorkerClient::connect(format!("http://{a}")).await.unwrap();
+        let s = w.status(sylva_proto::pb::StatusRequest {}).await.unwrap().into_inner();
+        totals = [totals[0] + s.accel_builds, totals[1] + s.lb_solves, totals[2] + s.prepared_imports];
+    }
+    assert_eq!(totals, [1, 1, 2], "structure builds, LB solves and imports over the farm");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

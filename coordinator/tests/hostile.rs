@@ -221,6 +221,37 @@ impl pb::worker_server::Worker for BadWorker {
         self.note(&r);
         Ok(tonic::Response::new(pb::WorkerStatus { adapter: "bad".into(), ..Default::default() }))
     }
+
+    /// Claims to hold every scene's prepared data...
+    async fn prepare(&self, r: tonic::Request<pb::PrepareRequest>) -> Result<tonic::Response<pb::PrepareReply>, tonic::Status> {
+        self.note(&r);
+        Ok(tonic::Response::new(pb::PrepareReply { held: true, prepare_ms: 0.0 }))
+    }
+
+    type ExportPreparedStream = std::pin::Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::PreparedChunk, tonic::Status>> + Send>>;
+
+    /// ...and exports bytes that match their hash but are no prepared data.
+    async fn export_prepared(&self, r: tonic::Request<pb::PrepareRequest>) -> Result<tonic::Response<Self::ExportPreparedStream>, tonic::Status> {
+        self.note(&r);
+        let r = r.into_inner();
+        let junk = vec![0xA5u8; 4096];
+        let chunk = pb::PreparedChunk {
+            scene_hash: r.scene_hash,
+            frame: r.frame,
+            content_hash: blake3::hash(&junk).to_hex().to_string(),
+            total_size: junk.len() as u64,
+            data: junk,
+        };
+        Ok(tonic::Response::new(Box::pin(tokio_stream::iter(vec![Ok(chunk)]))))
+    }
+
+    async fn import_prepared(
+        &self,
+        r: tonic::Request<tonic::Streaming<pb::PreparedChunk>>,
+    ) -> Result<tonic::Response<pb::PrepareReply>, tonic::Status> {
+        self.note(&r);
+        Ok(tonic::Response::new(pb::PrepareReply { held: true, prepare_ms: 0.0 }))
+    }
 }
 
 #[tonic::async_trait]

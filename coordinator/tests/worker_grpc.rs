@@ -177,3 +177,89 @@ async fn with_a_token_calls_without_it_are_refused() {
     let h = health.check(tonic_health::pb::HealthCheckRequest { service: "sylva.v1.Worker".into() }).await.unwrap().into_inner();
     assert_eq!(h.status, tonic_health::pb::health_check_response::ServingStatus::Serving as i32);
 }
+
+/// Every chunk of a worker's export of `f`'s prepared data.
+async fn export(c: &mut WorkerClient<tonic::transport::Channel>, hash: &str, f: pb::FrameSettings) -> Vec<pb::PreparedChunk> {
+    let mut s = c.export_prepared(pb::PrepareRequest { scene_hash: hash.into(), frame: Some(f), build: false }).await.unwrap().into_inner();
+    let mut out = Vec::new();
+    while let Some(c) = s.message().await.unwrap() {
+        out.push(c);
+    }
+    out
+}
+
+/// Columns [0, 48) of `f` as bits.
+async fn strip_bits(c: &mut WorkerClient<tonic::transport::Channel>, hash: &str, f: pb::FrameSettings) -> Vec<u8> {
+    c.render_strip(pb::RenderStripRequest { scene_hash: hash.into(), frame: Some(f), x0: 0, x1: 48 }).await.unwrap().into_inner().rgb_f32
+}
+
+/// Prepared data made on one worker and taken by another: the second builds
+/// and solves nothing and renders the same bits. Data that does not match
+/// its hash, is cut short, is over the limit or walks in a loop is refused
+/// with a reason, and the worker still prepares and renders by itself.
+#[tokio::test]
+async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
+    let dir = std::env::temp_dir().join(format!("sylva-grpc-share-{}", std::process::id()));
+    let b = bundle::pack(&scene_file(&dir)).unwrap();
+    let (wa, wb) = (WorkerProcess::start(&[]), WorkerProcess::start(&["--max-bundle-mib", "4"]));
+    let (mut a, mut bw) = (wa.client().await, wb.client().await);
+    for c in [&mut a, &mut bw] {
+        c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
+    }
+    let ask = |f: pb::FrameSettings, build| pb::PrepareRequest { scene_hash: b.hash.clone(), frame: Some(f), build };
+    assert!(!a.prepare(ask(frame(), false)).await.unwrap().into_inner().held);
+    let e = a.export_prepared(ask(frame(), false)).await.unwrap_err();
+    assert_eq!(e.code(), Code::NotFound, "{e:?}");
+    assert!(a.prepare(ask(frame(), true)).await.unwrap().into_inner().held);
+    let good = export(&mut a, &b.hash, frame()).await;
+    assert!(good[0].total_size > 0 && good[0].content_hash.len() == 64);
+
+    let refused = |e: tonic::Status, code: Code, says: &str| {
+        assert!(e.code() == code && e.message().contains(says), "{e:?} should be {code:?} saying {says:?}");
+    };
+    let mut bw2 = bw.clone();
+    let mut import = async move |c: Vec<pb::PreparedChunk>| bw2.import_prepared(tokio_stream::iter(c)).await;
+    // Bytes that do not match their hash.
+    let mut wrong = good.clone();
+    wrong[0].content_hash = "0".repeat(64);
+    refused(import(wrong).await.unwrap_err(), Code::InvalidArgument, "do not match");
+    // Cut short, and over this worker's 4 MiB limit.
+    let mut short = good.clone();
+    short[0].total_size += 1;
+    refused(import(short).await.unwrap_err(), Code::InvalidArgument, "truncated");
+    let mut big = good.clone();
+    big[0].total_size = 5 << 20;
+    refused(import(big).await.unwrap_err(), Code::ResourceExhausted, "limit");
+    // A well-formed tree whose first node points back at itself, under
+    // its correct hash: walking it would never end.
+    let local = frame_with(pb::Lighting::Local);
+    let scene = bundle::unpack(&b.bytes, &dir.join("local-share")).unwrap();
+    let mut accel = sylva_shared::accel::SceneAccel::build(&scene, sylva_shared::accel::AccelKind::Bvh);
+    let sylva_shared::accel::Accel::Bvh(bvh) = &mut accel.models[0] else { unreachable!() };
+    let inner = bvh.nodes[0].child.iter().position(|&c| c & sylva_shared::accel::bvh::LEAF == 0).unwrap();
+    bvh.nodes[0].child[inner] = 0;
+    let loop_data = sylva_worker::share::export(&accel, None).unwrap();
+    let looped = pb::PreparedChunk {
+        scene_hash: b.hash.clone(),
+        frame: Some(local.clone()),
+        content_hash: loop_data.hash,
+        total_size: loop_data.bytes.len() as u64,
+        data: loop_data.bytes,
+    };
+    refused(import(vec![looped]).await.unwrap_err(), Code::InvalidArgument, "not a later node");
+    let st = bw.status(pb::StatusRequest {}).await.unwrap().into_inner();
+    assert_eq!((st.prepared_imports, st.accel_builds), (0, 0), "nothing refused was kept");
+
+    // The real data: held at once, nothing built or solved, the same bits.
+    assert!(import(good).await.unwrap().into_inner().held);
+    assert!(bw.prepare(ask(frame(), false)).await.unwrap().into_inner().held);
+    assert_eq!(strip_bits(&mut bw, &b.hash, frame()).await, strip_bits(&mut a, &b.hash, frame()).await);
+    let st = bw.status(pb::StatusRequest {}).await.unwrap().into_inner();
+    assert_eq!((st.prepared_imports, st.accel_builds, st.lb_solves), (1, 0, 0));
+    // Other lighting renders from the same structures.
+    assert_eq!(strip_bits(&mut bw, &b.hash, frame_with(pb::Lighting::Local)).await.len(), 48 * 24 * 12);
+}
+
+fn frame_with(lighting: pb::Lighting) -> pb::FrameSettings {
+    pb::FrameSettings { lighting: lighting.into(), ..frame() }
+}

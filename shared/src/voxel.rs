@@ -27,7 +27,7 @@ pub struct Voxelization {
 
 /// Placement of a cubic-celled grid in model space: node `(i, j, k)` is the
 /// cell `[origin + (i, j, k) · cell, origin + (i + 1, j + 1, k + 1) · cell)`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct GridFrame {
     /// Corner of node (0, 0, 0).
     pub origin: [f32; 3],

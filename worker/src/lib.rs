@@ -8,6 +8,7 @@ pub mod lb;
 pub mod lighting;
 pub mod prepare;
 pub mod service;
+pub mod share;
 pub mod trace;
 
 pub use gpu::GpuContext;

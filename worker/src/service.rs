@@ -96,6 +96,19 @@ type LbKey = (String, Option<[u32; 3]>);
 /// rendered and the one before, as strips of two frames overlap).
 const PREPARED_SUNS: usize = 2;
 
+/// What one frame of a loaded scene needs prepared.
+struct Preparation {
+    accel_key: (String, AccelKind),
+    lb_key: LbKey,
+    needs_lb: bool,
+    scene: Arc<Scene>,
+    frame: FrameSettings,
+    lighting: LightingMode,
+}
+
+/// Bytes per chunk of exported prepared data.
+const EXPORT_CHUNK: usize = 1 << 20;
+
 /// A value and when it was last used.
 struct Used<T> {
     value: T,
@@ -118,6 +131,10 @@ struct State {
     clock: AtomicU64,
     /// LB solves done, for status and benchmarks.
     lb_solves: AtomicU64,
+    /// Acceleration structures built here.
+    accel_builds: AtomicU64,
+    /// Prepared data taken from other workers.
+    prepared_imports: AtomicU64,
     /// Matched ambient constants by scene and frame shape.
     ambient: Mutex<HashMap<String, [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
@@ -146,6 +163,8 @@ impl WorkerService {
                 lbs: Mutex::new(HashMap::new()),
                 clock: AtomicU64::new(0),
                 lb_solves: AtomicU64::new(0),
+                accel_builds: AtomicU64::new(0),
+                prepared_imports: AtomicU64::new(0),
                 ambient: Mutex::new(HashMap::new()),
                 gpu: Mutex::new(()),
                 incoming: Mutex::new(0),
@@ -204,22 +223,16 @@ impl State {
                 None
             },
         };
-        let solved_before = reuse.lb.is_some();
+        let (solved_before, built_before) = (reuse.lb.is_some(), reuse.accel.is_some());
         let scene = scene.with_view(view);
         let p = Arc::new(prepare_reusing(&self.ctx, &scene, accel, lighting, &mut reuse, &|m| tracing::info!("{m}"))?);
-        if let Some(a) = reuse.accel {
+        if let (Some(a), false) = (reuse.accel, built_before) {
+            self.accel_builds.fetch_add(1, Ordering::Relaxed);
             lock(&self.accels).insert((hash.to_string(), accel), a);
         }
         if let (Some(lb), false) = (reuse.lb, solved_before) {
             self.lb_solves.fetch_add(1, Ordering::Relaxed);
-            let mut lbs = lock(&self.lbs);
-            lbs.insert(lb_key, Used { value: lb, stamp: self.tick() });
-            let keep = self.config.lb_cache_entries.max(1);
-            let bytes = |lbs: &HashMap<LbKey, Used<Arc<SceneLb>>>| lbs.values().map(|u| u.value.bytes()).sum::<u64>();
-            while lbs.len() > keep || (lbs.len() > 1 && bytes(&lbs) > self.config.lb_cache_bytes) {
-                let oldest = lbs.iter().min_by_key(|(_, u)| u.stamp).map(|(k, _)| k.clone()).expect("not empty");
-                lbs.remove(&oldest);
-            }
+            self.keep_lb(lb_key, lb);
         }
         let mut prepared = lock(&self.prepared);
         prepared.insert(key.clone(), Used { value: p.clone(), stamp: self.tick() });
@@ -235,6 +248,49 @@ impl State {
             prepared.remove(&oldest);
         }
         Ok(p)
+    }
+
+    /// Keeps `lb` for its scene and sun, dropping the least recently used
+    /// beyond the configured count and bytes.
+    fn keep_lb(&self, key: LbKey, lb: Arc<SceneLb>) {
+        let mut lbs = lock(&self.lbs);
+        lbs.insert(key, Used { value: lb, stamp: self.tick() });
+        let keep = self.config.lb_cache_entries.max(1);
+        let bytes = |lbs: &HashMap<LbKey, Used<Arc<SceneLb>>>| lbs.values().map(|u| u.value.bytes()).sum::<u64>();
+        while lbs.len() > keep || (lbs.len() > 1 && bytes(&lbs) > self.config.lb_cache_bytes) {
+            let oldest = lbs.iter().min_by_key(|(_, u)| u.stamp).map(|(k, _)| k.clone()).expect("not empty");
+            lbs.remove(&oldest);
+        }
+    }
+
+    /// A loaded scene by hash, marked used.
+    fn scene(&self, hash: &str) -> Result<Arc<Scene>, Status> {
+        let mut bundles = lock(&self.bundles);
+        let c = bundles.get_mut(hash).ok_or_else(|| Status::not_found(format!("scene {hash} is not loaded here; LoadScene it first")))?;
+        c.last_used = Instant::now();
+        Ok(c.scene.clone())
+    }
+
+    /// What a frame of a loaded scene needs prepared: the scene, the keys
+    /// of its structures and LB light, and whether it needs the light.
+    fn preparation(&self, scene_hash: &str, frame: Option<&pb::FrameSettings>) -> Result<Preparation, Status> {
+        let f = FrameSettings::try_from(frame.ok_or_else(|| Status::invalid_argument("frame settings missing"))?)?;
+        let hash = normalize_hash(scene_hash)?;
+        let scene = self.scene(&hash)?;
+        let lighting = f.lighting_or(scene.lighting);
+        let needs = crate::lighting::method(lighting).needs;
+        let sun = if needs.lb || needs.clouds { f.view.sun_key() } else { None };
+        Ok(Preparation { accel_key: (hash.clone(), f.accel), lb_key: (hash, sun), needs_lb: needs.lb, scene, frame: f, lighting })
+    }
+
+    /// The structures and LB light held for `p`, if all it needs is held.
+    fn held(&self, p: &Preparation) -> Option<(Arc<sylva_shared::accel::SceneAccel>, Option<Arc<SceneLb>>)> {
+        let accel = lock(&self.accels).get(&p.accel_key).cloned()?;
+        if !p.needs_lb {
+            return Some((accel, None));
+        }
+        let lb = lock(&self.lbs).get(&p.lb_key).map(|u| u.value.clone())?;
+        Some((accel, Some(lb)))
     }
 
     /// LB solves this worker has done.
@@ -354,12 +410,7 @@ impl Worker for WorkerService {
             return Err(Status::invalid_argument(format!("strip [{}, {}) is not inside a frame {} wide", r.x0, r.x1, f.width)));
         }
         let hash = normalize_hash(&r.scene_hash)?;
-        let scene = {
-            let mut bundles = lock(&self.state.bundles);
-            let c = bundles.get_mut(&hash).ok_or_else(|| Status::not_found(format!("scene {hash} is not loaded here; LoadScene it first")))?;
-            c.last_used = Instant::now();
-            c.scene.clone()
-        };
+        let scene = self.state.scene(&hash)?;
         let lighting = f.lighting_or(scene.lighting);
         let accel = f.accel;
         let settings = RenderSettings {
@@ -439,7 +490,104 @@ impl Worker for WorkerService {
             cached_scenes: cached,
             busy_strips: self.state.busy.load(Ordering::SeqCst),
             lb_solves: self.state.lb_solves(),
+            accel_builds: self.state.accel_builds.load(Ordering::Relaxed),
+            prepared_imports: self.state.prepared_imports.load(Ordering::Relaxed),
         }))
+    }
+
+    async fn prepare(&self, request: Request<pb::PrepareRequest>) -> Result<Response<pb::PrepareReply>, Status> {
+        let r = request.into_inner();
+        let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
+        let t = Instant::now();
+        if self.state.held(&p).is_some() || !r.build {
+            return Ok(Response::new(pb::PrepareReply { held: self.state.held(&p).is_some(), prepare_ms: 0.0 }));
+        }
+        let state = self.state.clone();
+        let span = tracing::info_span!("prepare", scene = %p.accel_key.0);
+        tokio::task::spawn_blocking(move || {
+            let _g = span.enter();
+            let _gpu = lock(&state.gpu);
+            state.prepared_for(&p.scene, &p.accel_key.0, p.frame.accel, p.lighting, &p.frame.view).map(|_| ())
+        })
+        .await
+        .map_err(|e| Status::internal(format!("preparing panicked: {e}")))?
+        .map_err(|e| Status::internal(format!("{e:#}")))?;
+        Ok(Response::new(pb::PrepareReply { held: true, prepare_ms: t.elapsed().as_secs_f64() * 1e3 }))
+    }
+
+    type ExportPreparedStream = std::pin::Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::PreparedChunk, Status>> + Send>>;
+
+    async fn export_prepared(&self, request: Request<pb::PrepareRequest>) -> Result<Response<Self::ExportPreparedStream>, Status> {
+        let r = request.into_inner();
+        let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
+        let (accel, lb) = self.state.held(&p).ok_or_else(|| Status::not_found("this worker does not hold that frame's prepared data"))?;
+        let out = tokio::task::spawn_blocking(move || crate::share::export(&accel, lb.as_deref()))
+            .await
+            .map_err(|e| Status::internal(format!("exporting panicked: {e}")))?
+            .map_err(|e| Status::internal(format!("{e:#}")))?;
+        let (total, hash, frame, scene_hash) = (out.bytes.len() as u64, out.hash, r.frame, p.accel_key.0);
+        let chunks: Vec<Result<pb::PreparedChunk, Status>> = out
+            .bytes
+            .chunks(EXPORT_CHUNK)
+            .enumerate()
+            .map(|(i, c)| {
+                let first = i == 0;
+                Ok(pb::PreparedChunk {
+                    scene_hash: if first { scene_hash.clone() } else { String::new() },
+                    frame: if first { frame.clone() } else { None },
+                    content_hash: if first { hash.clone() } else { String::new() },
+                    total_size: if first { total } else { 0 },
+                    data: c.to_vec(),
+                })
+            })
+            .collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    async fn import_prepared(&self, request: Request<Streaming<pb::PreparedChunk>>) -> Result<Response<pb::PrepareReply>, Status> {
+        let t = Instant::now();
+        let mut stream = request.into_inner();
+        let first = stream.next().await.ok_or_else(|| Status::invalid_argument("empty import: no chunk"))??;
+        let p = self.state.preparation(&first.scene_hash, first.frame.as_ref())?;
+        let content_hash = normalize_hash(&first.content_hash)?;
+        let (total, limit) = (first.total_size, self.state.config.max_bundle_bytes);
+        if total > limit {
+            return Err(Status::resource_exhausted(format!("prepared data of {total} bytes is over this worker's limit of {limit} bytes")));
+        }
+        // Counted as they arrive, against the claim, the limit and the
+        // room all uploads in progress share, as bundles are.
+        let mut held = Reservation { incoming: &self.state.incoming, bytes: 0 };
+        let mut bytes = Vec::new();
+        let mut chunk = Some(first.data);
+        while let Some(data) = chunk.take() {
+            let n = data.len() as u64;
+            if bytes.len() as u64 + n > total {
+                return Err(Status::invalid_argument(format!("import is longer than its declared {total} bytes")));
+            }
+            if !held.grow(n, self.state.config.cache_bytes.max(limit)) {
+                return Err(Status::resource_exhausted("this worker is receiving as many bytes as it can hold; try again"));
+            }
+            bytes.extend_from_slice(&data);
+            chunk = stream.next().await.transpose()?.map(|c| c.data);
+        }
+        if (bytes.len() as u64) < total {
+            return Err(Status::invalid_argument(format!("truncated import: {} of {total} bytes", bytes.len())));
+        }
+        let (scene, kind, needs_lb) = (p.scene.clone(), p.frame.accel, p.needs_lb);
+        let (accel, lb) = tokio::task::spawn_blocking(move || crate::share::import(&bytes, &content_hash, &scene, kind, needs_lb))
+            .await
+            .map_err(|e| Status::internal(format!("importing panicked: {e}")))?
+            .map_err(|e| Status::invalid_argument(format!("prepared data refused: {e}")))?;
+        drop(held);
+        lock(&self.state.accels).entry(p.accel_key.clone()).or_insert_with(|| Arc::new(accel));
+        if let Some(lb) = lb
+            && !lock(&self.state.lbs).contains_key(&p.lb_key)
+        {
+            self.state.keep_lb(p.lb_key.clone(), Arc::new(lb));
+        }
+        self.state.prepared_imports.fetch_add(1, Ordering::Relaxed);
+        tracing::info!(scene = %p.accel_key.0, "took prepared data from another worker");
+        Ok(Response::new(pb::PrepareReply { held: self.state.held(&p).is_some(), prepare_ms: t.elapsed().as_secs_f64() * 1e3 }))
     }
 }
 

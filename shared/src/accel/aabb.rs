@@ -4,7 +4,7 @@ use super::Ray;
 use glam::Vec3;
 
 /// An axis-aligned box; empty when `min > max`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Aabb {
     /// Lower corner.
     pub min: Vec3,

@@ -35,7 +35,7 @@ const MAX_LEAF_COUNT: usize = 0xffff;
 /// child is. Coordinate `q` on axis `a` means `origin[a] + q · 2^e[a]`,
 /// which f32 computes exactly (q < 256, a power-of-two step).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, serde::Serialize, serde::Deserialize)]
 pub struct BvhNode {
     /// The grid's lower corner.
     pub origin: [f32; 3],
@@ -169,7 +169,7 @@ fn bytes(w: u32) -> Vec4 {
 }
 
 /// A four-wide BVH over primitive indices.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Bvh {
     /// Nodes; the root is node 0. Empty when there is nothing to hit.
     pub nodes: Vec<BvhNode>,
@@ -219,6 +219,50 @@ impl Bvh {
 
     /// Makes the wide node for binary inner node `b`; returns the stack
     /// entries its subtree can need.
+    /// Checks a tree built elsewhere (another worker's) before any walk:
+    /// every inner child lies after its parent (so walks end), every leaf
+    /// holds primitives inside `prims`, every primitive index is below
+    /// `primitives`, grids are finite, and `stack_depth` is what the tree
+    /// needs and within [`MAX_STACK`].
+    pub fn check(&self, primitives: usize) -> Result<(), String> {
+        if let Some(p) = self.prims.iter().find(|&&p| p as usize >= primitives) {
+            return Err(format!("primitive {p} of a model with {primitives}"));
+        }
+        if self.nodes.is_empty() {
+            return if self.stack_depth == 0 { Ok(()) } else { Err("a stack depth for an empty tree".into()) };
+        }
+        let mut need = vec![0usize; self.nodes.len()];
+        for (i, n) in self.nodes.iter().enumerate().rev() {
+            if !n.origin.iter().all(|v| v.is_finite()) || (0..3).any(|a| !(1..=254).contains(&((n.exponents >> (8 * a)) & 0xff))) {
+                return Err(format!("node {i}: its grid is not finite"));
+            }
+            let (mut used, mut deepest) = (0, 0);
+            for slot in 0..WIDTH {
+                let c = n.child[slot];
+                if c == EMPTY {
+                    continue;
+                }
+                used += 1;
+                if c & LEAF != 0 {
+                    let (first, count) = ((c & !LEAF) as usize, n.leaf_count(slot) as usize);
+                    if count == 0 || first + count > self.prims.len() {
+                        return Err(format!("node {i}: a leaf of {count} primitives from slot {first}, of {}", self.prims.len()));
+                    }
+                } else if (c as usize) <= i || c as usize >= self.nodes.len() {
+                    return Err(format!("node {i}: child {c} is not a later node of {}", self.nodes.len()));
+                } else {
+                    deepest = deepest.max(need[c as usize]);
+                }
+            }
+            need[i] = used.max(1) - 1 + deepest;
+        }
+        let depth = need[0] + 1;
+        if depth != self.stack_depth || depth > MAX_STACK {
+            return Err(format!("stack depth {} where the tree needs {depth} (at most {MAX_STACK})", self.stack_depth));
+        }
+        Ok(())
+    }
+
     fn collapse(&mut self, binary: &[Binary], b: usize) -> usize {
         let mut kids = vec![binary[b].first, binary[b].first + 1];
         // Open the largest inner child until the node is full.

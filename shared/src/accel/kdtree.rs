@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 /// its above child at `above`; `axis == 3` marks a leaf holding
 /// `prims[first .. first + count]`.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, serde::Serialize, serde::Deserialize)]
 pub struct KdNode {
     /// Split coordinate (inner nodes).
     pub split: f32,
@@ -28,7 +28,7 @@ impl KdNode {
 }
 
 /// A kd-tree over primitive indices.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct KdTree {
     /// Nodes; the root is node 0.
     pub nodes: Vec<KdNode>,
@@ -48,6 +48,38 @@ const LEAF_PRIMS: usize = 4;
 const EMPTY_BONUS: f32 = 0.2;
 
 impl KdTree {
+    /// Checks a tree built elsewhere (another worker's) before any walk:
+    /// every inner node's children lie after it (so walks end), splits are
+    /// finite, leaves hold primitives inside `prims`, and every primitive
+    /// index is below `primitives`.
+    pub fn check(&self, primitives: usize) -> Result<(), String> {
+        if let Some(p) = self.prims.iter().find(|&&p| p as usize >= primitives) {
+            return Err(format!("primitive {p} of a model with {primitives}"));
+        }
+        let finite = |v: glam::Vec3| v.is_finite();
+        if self.nodes.is_empty() || !(finite(self.bounds.min) && finite(self.bounds.max) || self.bounds.is_empty()) {
+            return Err("no root, or bounds that are not finite".into());
+        }
+        for (i, n) in self.nodes.iter().enumerate() {
+            let ok = match n.axis {
+                KdNode::LEAF => n.first as usize + n.count as usize <= self.prims.len(),
+                0..=2 => n.split.is_finite() && i + 1 < self.nodes.len() && (n.first as usize) > i + 1 && (n.first as usize) < self.nodes.len(),
+                _ => false,
+            };
+            if !ok {
+                return Err(format!(
+                    "node {i} (axis {}, first {}, count {}) does not fit a tree of {} nodes and {} slots",
+                    n.axis,
+                    n.first,
+                    n.count,
+                    self.nodes.len(),
+                    self.prims.len()
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Builds a kd-tree over primitives with `bounds`; those with empty
     /// bounds can never be hit and are left out.
     pub fn build(bounds: &[Aabb]) -> Self {

@@ -64,7 +64,7 @@ impl Ray {
 }
 
 /// A built structure of either kind.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub enum Accel {
     /// kd-tree.
     Kd(KdTree),
@@ -88,6 +88,23 @@ impl Accel {
         match self {
             Accel::Kd(k) => k.closest(ray, t_min, t_max, hit),
             Accel::Bvh(b) => b.closest(ray, t_min, t_max, hit),
+        }
+    }
+
+    /// Checks a structure built elsewhere over `primitives` primitives
+    /// before any walk ([`Bvh::check`], [`KdTree::check`]).
+    pub fn check(&self, primitives: usize) -> Result<(), String> {
+        match self {
+            Accel::Kd(k) => k.check(primitives),
+            Accel::Bvh(b) => b.check(primitives),
+        }
+    }
+
+    /// The kind it is.
+    pub fn kind(&self) -> AccelKind {
+        match self {
+            Accel::Kd(_) => AccelKind::Kd,
+            Accel::Bvh(_) => AccelKind::Bvh,
         }
     }
 

@@ -26,7 +26,7 @@ pub struct SceneHit {
 }
 
 /// The acceleration structures of a scene.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct SceneAccel {
     /// Which kind both levels are.
     pub kind: AccelKind,
@@ -51,7 +51,7 @@ pub const PARTS_PER_INSTANCE: usize = 8;
 /// A piece of an instance: one subtree of its model's BVH, placed where
 /// the instance is.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable, serde::Serialize, serde::Deserialize)]
 pub struct InstancePart {
     /// Instance index.
     pub instance: u32,
@@ -66,19 +66,48 @@ pub struct InstancePart {
 impl SceneAccel {
     /// Builds both levels (the models' in parallel).
     pub fn build(scene: &Scene, kind: AccelKind) -> Self {
-        let (models, records): (Vec<Accel>, Vec<Vec<TriangleRecord>>) = scene
+        let (models, coverage) = scene
             .models
             .par_iter()
             .map(|m| {
                 let coverage = triangle_coverage(&m.model);
-                let accel = Accel::build(kind, &triangle_bounds(&m.model, &coverage));
-                let records = match &accel {
-                    Accel::Bvh(b) => b.prims.iter().map(|&t| record(&m.model, t, coverage[t as usize])).collect(),
-                    Accel::Kd(_) => Vec::new(),
-                };
-                (accel, records)
+                (Accel::build(kind, &triangle_bounds(&m.model, &coverage)), coverage)
             })
             .unzip();
+        Self::around(scene, kind, models, coverage)
+    }
+
+    /// Both levels around the models' structures built elsewhere (another
+    /// worker's, received over the wire, the costly part of [`Self::build`]):
+    /// each is checked against its model first; the triangle records, the
+    /// instance parts and the top level are derived here as `build` does.
+    pub fn from_models(scene: &Scene, kind: AccelKind, models: Vec<Accel>) -> Result<Self, String> {
+        if models.len() != scene.models.len() {
+            return Err(format!("{} model structures for a scene of {} models", models.len(), scene.models.len()));
+        }
+        for (i, (a, m)) in models.iter().zip(&scene.models).enumerate() {
+            if a.kind() != kind {
+                return Err(format!("model {i}: a {:?} where a {kind:?} was asked for", a.kind()));
+            }
+            a.check(m.model.triangle_count()).map_err(|e| format!("model {i} ({}): {e}", m.name))?;
+        }
+        let coverage = scene.models.par_iter().map(|m| triangle_coverage(&m.model)).collect();
+        Ok(Self::around(scene, kind, models, coverage))
+    }
+
+    /// The rest of both levels around the models' structures, given each
+    /// triangle's coverage class.
+    fn around(scene: &Scene, kind: AccelKind, models: Vec<Accel>, coverage: Vec<Vec<Coverage>>) -> Self {
+        let records = scene
+            .models
+            .par_iter()
+            .zip(&models)
+            .zip(&coverage)
+            .map(|((m, accel), coverage)| match accel {
+                Accel::Bvh(b) => b.prims.iter().map(|&t| record(&m.model, t, coverage[t as usize])).collect(),
+                Accel::Kd(_) => Vec::new(),
+            })
+            .collect();
         let to_model = scene.instances.iter().map(|i| i.to_world.inverse()).collect();
         let mut parts = Vec::new();
         let top = match kind {

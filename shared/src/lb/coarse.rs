@@ -24,7 +24,7 @@ pub struct Occupant {
 }
 
 /// A lattice over world space with cubic cells.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct WorldGrid {
     /// Nodes per axis.
     pub dims: GridDims,
@@ -88,7 +88,7 @@ pub fn forest_medium(grid: &WorldGrid, occupants: &[Occupant]) -> MediumGrid {
 }
 
 /// What the forest grid decided for the instances.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ForestLight {
     /// Whether instances' LB light is scaled by it.
     pub used: bool,

@@ -6,7 +6,7 @@ use crate::voxel::GridFrame;
 use glam::Vec3;
 
 /// A model's solved LB light on its own grid, in model space.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct LbGrid {
     /// Nodes per axis.
     pub dims: GridDims,

@@ -117,7 +117,7 @@ pub struct GpuModel {
 
 /// The indirect light that reaches the ground under a stand: the forest
 /// grid's first layer above its shell, per channel.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct GroundLight {
     /// World x and z of the corner of node (0, ·, 0).
     pub origin: [f32; 2],

@@ -41,7 +41,7 @@ pub const VISUALIZE: Method = Method {
 };
 
 /// What the LB pre-process did for one model.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ModelLight {
     /// Model name.
     pub model: String,
@@ -50,9 +50,9 @@ pub struct ModelLight {
     /// The grid's nodes per axis, fitted to the model's bounds.
     pub dims: GridDims,
     /// Which LB model ("grounded" or "paper").
-    pub lb_model: &'static str,
+    pub lb_model: String,
     /// Preset (the paper model) or "leaf optics" (the grounded one).
-    pub preset: &'static str,
+    pub preset: String,
     /// Single-scattering albedo σ_s/σ_t per channel.
     pub albedo: [f32; 3],
     /// Henyey–Greenstein g per channel.
@@ -174,8 +174,8 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
         model: m.name.clone(),
         grid: n,
         dims: mm.medium.dims,
-        lb_model: scene.file.lb_model.name(),
-        preset: if mm.area.is_some() { "leaf optics" } else { m.lb.preset.name() },
+        lb_model: scene.file.lb_model.name().to_string(),
+        preset: if mm.area.is_some() { "leaf optics" } else { m.lb.preset.name() }.to_string(),
         albedo: std::array::from_fn(|c| p[c].sigma_s / p[c].sigma_t()),
         g: std::array::from_fn(|c| p[c].g),
         leaf_area: mm.area.as_ref().map(|a| a.total_area),
@@ -197,7 +197,7 @@ pub(crate) fn solve_model(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel,
 }
 
 /// The LB light of a scene, ready to upload, and what it took.
-#[derive(Clone)]
+#[derive(Clone, serde::Serialize, serde::Deserialize)]
 pub struct SceneLb {
     /// Each model's light (indexed by model).
     pub grids: Vec<Option<LbGrid>>,

@@ -1,0 +1,109 @@
+//! Prepared data a farm shares, so that N workers pre-process a scene once
+//! instead of N times: the models' acceleration structures (the costly
+//! part of both levels) and the scene's LB light for one sun, serialized
+//! with postcard and named by the BLAKE3 hash of the bytes.
+//!
+//! What arrives comes from another worker and is checked before use, as a
+//! bundle is: its size as it arrives (by the caller), its hash, then every
+//! structure against its model (`SceneAccel::from_models`: walks end, leaves
+//! and indices stay in range) and every LB grid's shape and values. Data
+//! that passes can at worst light a frame wrongly, as a bad strip can; it
+//! cannot stop this worker or read outside its buffers.
+
+use crate::lighting::lb::SceneLb;
+use serde::{Deserialize, Serialize};
+use sylva_shared::accel::{Accel, AccelKind, SceneAccel};
+use sylva_shared::scene::Scene;
+
+/// The layout's version: data of another version is refused, not misread.
+const FORMAT: u32 = 1;
+
+/// What goes over the wire, borrowed for encoding.
+#[derive(Serialize)]
+struct Outgoing<'a> {
+    format: u32,
+    models: &'a [Accel],
+    lb: Option<&'a SceneLb>,
+}
+
+/// The same fields, owned, as they are decoded.
+#[derive(Deserialize)]
+struct Incoming {
+    format: u32,
+    models: Vec<Accel>,
+    lb: Option<SceneLb>,
+}
+
+/// Prepared data as one worker exports it.
+pub struct Exported {
+    /// The serialized data.
+    pub bytes: Vec<u8>,
+    /// BLAKE3 of `bytes`, hex.
+    pub hash: String,
+}
+
+/// Serializes a scene's model structures and, when given, its LB light.
+pub fn export(accel: &SceneAccel, lb: Option<&SceneLb>) -> anyhow::Result<Exported> {
+    let bytes = postcard::to_stdvec(&Outgoing { format: FORMAT, models: &accel.models, lb })?;
+    let hash = blake3::hash(&bytes).to_hex().to_string();
+    Ok(Exported { bytes, hash })
+}
+
+/// Reads prepared data for `scene`: its hash must be `hash`, its
+/// structures of `kind` and fit the scene's models, and its LB light (which
+/// it must hold when `want_lb`) fit the scene. Returns both levels, built
+/// around the received model structures, and the LB light.
+pub fn import(bytes: &[u8], hash: &str, scene: &Scene, kind: AccelKind, want_lb: bool) -> Result<(SceneAccel, Option<SceneLb>), String> {
+    if blake3::hash(bytes).to_hex().as_str() != hash {
+        return Err("the prepared data's bytes do not match its hash".into());
+    }
+    let d: Incoming = postcard::from_bytes(bytes).map_err(|e| format!("the prepared data cannot be read: {e}"))?;
+    if d.format != FORMAT {
+        return Err(format!("prepared data of format {} where this worker reads {FORMAT}", d.format));
+    }
+    let lb = match (d.lb, want_lb) {
+        (Some(lb), true) => {
+            check_lb(&lb, scene)?;
+            Some(lb)
+        }
+        (None, true) => return Err("the prepared data holds no LB light, which this frame's lighting needs".into()),
+        (_, false) => None,
+    };
+    let accel = SceneAccel::from_models(scene, kind, d.models)?;
+    Ok((accel, lb))
+}
+
+/// Checks LB light received for `scene`: one entry per model and per
+/// instance, every grid's values as many as its nodes, finite and not
+/// negative, and grid frames with finite corners and positive cells.
+fn check_lb(lb: &SceneLb, scene: &Scene) -> Result<(), String> {
+    let (models, instances) = (scene.models.len(), scene.instances.len());
+    if lb.grids.len() != models || lb.light.len() != models || lb.scales.len() != instances {
+        return Err(format!(
+            "LB light for {} models ({} reports) and {} instances, in a scene of {models} models and {instances} instances",
+            lb.grids.len(),
+            lb.light.len(),
+            lb.scales.len()
+        ));
+    }
+    let light = |v: &[f32]| v.iter().all(|x| x.is_finite() && *x >= 0.0);
+    if !light(&lb.scales) {
+        return Err("LB instance scales that are not finite and positive".into());
+    }
+    for (i, g) in lb.grids.iter().enumerate() {
+        let Some(g) = g else { continue };
+        let nodes = g.dims.nx.checked_mul(g.dims.ny).and_then(|n| n.checked_mul(g.dims.nz)).and_then(|n| n.checked_mul(3));
+        let framed = g.frame.origin.iter().all(|v| v.is_finite()) && g.frame.cell.is_finite() && g.frame.cell > 0.0;
+        if nodes != Some(g.rgb.len()) || g.dims.nx < 3 || g.dims.ny < 3 || g.dims.nz < 3 || !framed || !light(&g.rgb) {
+            return Err(format!("model {i}'s LB grid: its shape, frame or values do not hold together"));
+        }
+    }
+    if let Some(ground) = &lb.ground {
+        let framed = ground.origin.iter().all(|v| v.is_finite()) && ground.cell.is_finite() && ground.cell > 0.0;
+        let nodes = ground.nx.checked_mul(ground.nz).and_then(|n| n.checked_mul(3));
+        if nodes != Some(ground.rgb.len()) || !framed || !light(&ground.rgb) {
+            return Err("the ground's LB light: its shape, frame or values do not hold together".into());
+        }
+    }
+    Ok(())
+}
