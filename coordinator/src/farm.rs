@@ -44,9 +44,24 @@ pub enum FarmEvent {
     StripRetried { frame: usize, strip: Strip, worker: String, error: String },
     /// A worker was dropped for this frame.
     WorkerDropped { worker: String, error: String },
-    /// The scene's prepared data (structures, LB light) was made or found
-    /// on `from` and sent to the workers `to` that lacked it, `bytes` each.
-    PreparedShared { from: String, to: Vec<String>, bytes: u64, prepare_ms: f64, share_ms: f64 },
+    /// The scene's prepared data was made or found on one worker and sent
+    /// to the others.
+    PreparedShared(PreparedShare),
+}
+
+/// How a job's scene was prepared once for the farm.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PreparedShare {
+    /// The worker that held or made the prepared data.
+    pub from: String,
+    /// The workers that took it.
+    pub to: Vec<String>,
+    /// Bytes sent to each.
+    pub bytes: u64,
+    /// Time `from` spent preparing (0 when it held the data already), ms.
+    pub prepare_ms: f64,
+    /// Time to export it and for every other worker to take it, ms.
+    pub share_ms: f64,
 }
 
 /// Per-worker figures of one frame.
@@ -168,11 +183,10 @@ async fn share_prepared(
     hash: &str,
     frame: &pb::FrameSettings,
     deadline: Duration,
-    events: &(impl Fn(FarmEvent) + Send + Sync),
-) -> Result<(), String> {
+) -> Result<Option<PreparedShare>, String> {
     let live: Vec<(usize, Client)> = clients.iter().enumerate().filter_map(|(i, c)| c.clone().map(|c| (i, c))).collect();
     if live.len() < 2 {
-        return Ok(());
+        return Ok(None);
     }
     let ask = |build: bool| pb::PrepareRequest { scene_hash: hash.to_string(), frame: Some(frame.clone()), build };
     let held = futures_util::future::join_all(live.iter().map(|(_, c)| {
@@ -183,7 +197,7 @@ async fn share_prepared(
     // Workers that cannot answer (an older build) are left to prepare alone.
     let lacking: Vec<usize> = (0..live.len()).filter(|&k| held[k] == Some(false)).collect();
     if lacking.is_empty() {
-        return Ok(());
+        return Ok(None);
     }
     let t = Instant::now();
     let (source, prepare_ms) = match (0..live.len()).find(|&k| held[k] == Some(true)) {
@@ -225,8 +239,7 @@ async fn share_prepared(
             Err(s) => tracing::warn!(worker = %addr, from = %from, "refused the prepared data: {}", s.message()),
         }
     }
-    events(FarmEvent::PreparedShared { from, to: sent, bytes, prepare_ms, share_ms: t.elapsed().as_secs_f64() * 1e3 - prepare_ms });
-    Ok(())
+    Ok(Some(PreparedShare { from, to: sent, bytes, prepare_ms, share_ms: t.elapsed().as_secs_f64() * 1e3 - prepare_ms }))
 }
 
 /// Renders `frame` of `bundle` on `workers`, strips pulled in `plan` order;
@@ -295,10 +308,18 @@ pub async fn render_frames(
         reports.push(report);
     }
     let wires: Arc<Vec<pb::FrameSettings>> = Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
-    if let Err(e) = share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline, &events).await {
-        // Not fatal: each worker then prepares the scene itself.
-        tracing::warn!("prepared data not shared: {e}");
-    }
+    let prepared = match share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline).await {
+        Ok(Some(share)) => {
+            events(FarmEvent::PreparedShared(share.clone()));
+            Some(share)
+        }
+        Ok(None) => None,
+        Err(e) => {
+            // Not fatal: each worker then prepares the scene itself.
+            tracing::warn!("prepared data not shared: {e}");
+            None
+        }
+    };
     let queue: VecDeque<(usize, Strip)> = plans.iter().enumerate().flat_map(|(f, p)| p.iter().map(move |s| (f, *s))).collect();
     let shared = Arc::new(Shared { total: queue.len(), queue: Mutex::new(queue), done: Mutex::new(Vec::new()) });
     let events = Arc::new(events);
@@ -392,7 +413,15 @@ pub async fn render_frames(
         .map(|(i, (a, mut strip_ms))| {
             anyhow::ensure!(a.complete(), "the strips do not cover frame {i}");
             strip_ms.sort_by_key(|s| s.0);
-            Ok(RenderedFrame { image: a.image, coverage: a.coverage, rays: a.rays, workers: reports.clone(), strip_ms, upload_ms })
+            Ok(RenderedFrame {
+                image: a.image,
+                coverage: a.coverage,
+                rays: a.rays,
+                workers: reports.clone(),
+                strip_ms,
+                upload_ms,
+                prepared: prepared.clone(),
+            })
         })
         .collect()
 }

@@ -490,13 +490,16 @@ impl State {
                         return;
                     }
                     FarmEvent::WorkerDropped { worker, error } => ev.message = format!("worker {worker} dropped: {error}"),
-                    FarmEvent::PreparedShared { from, to, bytes, prepare_ms, share_ms } => {
-                        ev.worker = from.clone();
+                    FarmEvent::PreparedShared(p) => {
                         ev.message = format!(
-                            "scene prepared once, on {from} ({prepare_ms:.0} ms), and sent to {} other workers ({:.1} MB each, {share_ms:.0} ms)",
-                            to.len(),
-                            bytes as f64 / 1e6
+                            "scene prepared once, on {} ({:.0} ms), and sent to {} other workers ({:.1} MB each, {:.0} ms)",
+                            p.from,
+                            p.prepare_ms,
+                            p.to.len(),
+                            p.bytes as f64 / 1e6,
+                            p.share_ms
                         );
+                        ev.worker = p.from;
                     }
                 }
                 let _ = tx2.send(ev);
@@ -551,6 +554,7 @@ impl State {
             "strip_cost": cost_source,
             "frame_ms": frame_ms,
             "upload_ms": rendered[0].upload_ms,
+            "prepared_once": rendered[0].prepared,
             "workers": rendered[0].workers,
         });
         if views.is_empty() {

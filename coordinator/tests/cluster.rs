@@ -79,8 +79,8 @@ async fn three_workers_render_the_frame_a_single_process_renders() {
     for plan in [Static.plan(96, 3, &[]), Dynamic::default().plan(96, 3, &[])] {
         let seen = shared.clone();
         let events = move |e: FarmEvent| {
-            if let FarmEvent::PreparedShared { from, to, bytes, .. } = e {
-                seen.lock().unwrap().push((from, to.len(), bytes));
+            if let FarmEvent::PreparedShared(p) = e {
+                seen.lock().unwrap().push((p.from, p.to.len(), p.bytes));
             }
         };
         let f = farm::render_frame(&farm::Workers::open(&addrs), &b, frame(5), plan, DEADLINE, events).await.unwrap();

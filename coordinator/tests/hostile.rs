@@ -276,7 +276,7 @@ async fn serve_bad_worker(bad: BadWorker) -> String {
 }
 
 /// Finding 3: a worker whose replies do not fit fails itself, not the
-/// frame; an address that registers gets nothing before it proves it holds
+/// frame, and its prepared data is refused; an address that registers gets nothing before it proves it holds
 /// the token; stale registrations expire and metrics count live workers.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_bad_worker_fails_itself_not_the_frame() {
@@ -304,6 +304,13 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
     let w = stats["workers"].as_array().unwrap().iter().find(|w| w["worker"] == bad_addr.as_str()).unwrap().clone();
     assert!(w["dropped"].as_bool().unwrap() && w["failures"] == 3 && w["strips"] == 0, "{w}");
     assert!(!retries.is_empty() && retries.iter().all(|r| r.1 > 0), "retry events keep the progress: {retries:?}");
+    // It also claimed to hold the scene's prepared data and exported junk
+    // under a matching hash: the good workers refused it and prepared alone.
+    for g in &good {
+        let mut w = sylva_coordinator::farm::connect(&g.addr, None, None).await.unwrap();
+        let s = w.status(pb::StatusRequest {}).await.unwrap().into_inner();
+        assert_eq!((s.prepared_imports, s.accel_builds), (0, 1), "{s:?}");
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

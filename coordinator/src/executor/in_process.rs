@@ -38,6 +38,14 @@ impl StripExecutor for InProcess<'_> {
             on_strip((x0, x1));
         }
         anyhow::ensure!(frame.complete(), "the plan does not cover the frame");
-        Ok(RenderedFrame { image: frame.image, coverage: frame.coverage, rays: frame.rays, workers: Vec::new(), strip_ms, upload_ms: 0.0 })
+        Ok(RenderedFrame {
+            image: frame.image,
+            coverage: frame.coverage,
+            rays: frame.rays,
+            workers: Vec::new(),
+            strip_ms,
+            upload_ms: 0.0,
+            prepared: None,
+        })
     }
 }

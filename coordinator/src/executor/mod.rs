@@ -29,6 +29,8 @@ pub struct RenderedFrame {
     pub strip_ms: Vec<(Strip, f64, f64)>,
     /// Time to get the scene to the workers (0 in this process).
     pub upload_ms: f64,
+    /// How the scene was prepared once for the farm, when it was.
+    pub prepared: Option<crate::farm::PreparedShare>,
 }
 
 /// Renders the strips of a plan and assembles them into a frame.
