@@ -158,23 +158,68 @@ fn bench_lb(a: LbBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes the rays and the flattened triangles a ray can hit (fully cut
-/// ones left out, alpha otherwise ignored: Embree's opaque baseline).
-fn export_rays(dir: &std::path::Path, scene: &sylva_shared::scene::Scene, rays: &[sylva_shared::accel::Ray]) -> anyhow::Result<()> {
+/// Every instance's triangles a ray can hit (fully cut ones left out,
+/// alpha otherwise ignored: Embree's opaque baseline), in world space.
+fn flattened(scene: &sylva_shared::scene::Scene) -> Vec<[glam::Vec3; 3]> {
     use sylva_shared::accel::coverage::{Coverage, triangle_coverage};
-    std::fs::create_dir_all(dir)?;
-    let r: Vec<f32> = rays.iter().flat_map(|r| r.origin.to_array().into_iter().chain(r.dir.to_array())).collect();
-    sylva_shared::npy::write_f32(&dir.join("rays.npy"), &[rays.len() as u64, 6], &r)?;
     let coverage: Vec<Vec<Coverage>> = scene.models.iter().map(|m| triangle_coverage(&m.model)).collect();
     let mut tris = Vec::new();
     for inst in &scene.instances {
         let m = &scene.models[inst.model as usize].model;
         for t in (0..m.triangle_count()).filter(|&t| coverage[inst.model as usize][t] != Coverage::Cut) {
-            tris.extend(m.triangle(t).iter().flat_map(|p| inst.to_world.transform_point3(*p).to_array()));
+            tris.push(m.triangle(t).map(|p| inst.to_world.transform_point3(p)));
         }
     }
-    sylva_shared::npy::write_f32(&dir.join("triangles.npy"), &[tris.len() as u64 / 9, 3, 3], &tris)?;
+    tris
+}
+
+/// Writes the rays and the flattened triangles for `benchmarks/embree.py`.
+fn export_rays(dir: &std::path::Path, rays: &[sylva_shared::accel::Ray], tris: &[[glam::Vec3; 3]]) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    let r: Vec<f32> = rays.iter().flat_map(|r| r.origin.to_array().into_iter().chain(r.dir.to_array())).collect();
+    sylva_shared::npy::write_f32(&dir.join("rays.npy"), &[rays.len() as u64, 6], &r)?;
+    let t: Vec<f32> = tris.iter().flatten().flat_map(|p| p.to_array()).collect();
+    sylva_shared::npy::write_f32(&dir.join("triangles.npy"), &[tris.len() as u64, 3, 3], &t)?;
     Ok(())
+}
+
+/// Closest hits of `rays` on the CPU BVH built over `tris` as one level,
+/// every triangle opaque: Sylva's traversal in Embree's setup.
+fn flat_opaque(tris: &[[glam::Vec3; 3]], rays: &[sylva_shared::accel::Ray]) -> serde_json::Value {
+    use rayon::prelude::*;
+    use sylva_shared::accel::coverage::Coverage;
+    use sylva_shared::accel::triangle::TriangleRecord;
+    use sylva_shared::accel::{Aabb, Bvh};
+    let t = Instant::now();
+    let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
+    let bvh = Bvh::build(&bounds);
+    let records: Vec<TriangleRecord> = bvh.prims.iter().map(|&p| TriangleRecord::new(p, tris[p as usize], Coverage::Opaque, 0)).collect();
+    let build_ms = t.elapsed().as_secs_f64() * 1e3;
+    // Best of three, as benchmarks/embree.py times Embree.
+    let (mut s, mut hits) = (f64::INFINITY, 0);
+    for _ in 0..3 {
+        let t = Instant::now();
+        hits = rays
+            .par_iter()
+            .filter(|ray| {
+                let ahead = |first: u32| sylva_shared::accel::bvh::prefetch(&records[first as usize]);
+                let walked = bvh.walk_from((0, 0), ray, 0.0, f32::MAX, ahead, |first, count, limit| {
+                    let mut closest = limit;
+                    for r in &records[first as usize..(first + count) as usize] {
+                        if let Some((t, _, _)) = r.intersect(ray, 0.0, closest) {
+                            closest = t;
+                        }
+                    }
+                    (closest < limit).then_some(closest)
+                });
+                walked < f32::MAX
+            })
+            .count();
+        s = s.min(t.elapsed().as_secs_f64());
+    }
+    let bytes = bvh.nodes.len() * size_of::<sylva_shared::accel::BvhNode>() + size_of_val(records.as_slice());
+    json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": rayon::current_num_threads(),
+            "triangles": tris.len(), "build_ms": build_ms, "bytes": bytes })
 }
 
 /// Bytes per second of a STREAM-style triad on all threads (best of 8).
@@ -240,6 +285,11 @@ pub struct TraceBenchArgs {
     /// space (`triangles.npy`), for `benchmarks/embree.py`.
     #[arg(long)]
     pub export: Option<std::path::PathBuf>,
+    /// Also time the CPU BVH over those flattened triangles, opaque, as
+    /// one level: the setup `benchmarks/embree.py` gives Embree (memory
+    /// grows with the instanced triangles: for small scales only).
+    #[arg(long)]
+    pub flat: bool,
     /// Print JSON (always JSON; accepted for scripts).
     #[arg(long)]
     pub json: bool,
@@ -268,9 +318,12 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         .collect();
     let gpu_rays: Vec<GpuRay> =
         rays.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 0.0, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
+    let flat = if a.export.is_some() || a.flat { flattened(&scene) } else { Vec::new() };
     if let Some(dir) = &a.export {
-        export_rays(dir, &scene, &rays)?;
+        export_rays(dir, &rays, &flat)?;
     }
+    let cpu_flat_opaque = if a.flat { flat_opaque(&flat, &rays) } else { serde_json::Value::Null };
+    drop(flat);
     let ctx = GpuContext::new()?;
     let mut traversal = Vec::new();
     // Shadow rays toward the sun from the first structure's primary hits:
@@ -301,18 +354,26 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         let s = t.elapsed().as_secs_f64();
         let gpu_shadow = json!({ "mrays_per_second": shadow_gpu.len() as f64 / s / 1e6, "ms": s * 1e3,
                                  "blocked": blocked.iter().filter(|h| h.triangle != u32::MAX).count() });
-        let (cpu, cpu_shadow) = if a.no_cpu {
-            (serde_json::Value::Null, serde_json::Value::Null)
+        let (cpu, cpu_opaque, cpu_shadow) = if a.no_cpu {
+            (serde_json::Value::Null, serde_json::Value::Null, serde_json::Value::Null)
         } else {
-            let t = Instant::now();
-            let hits = rays.par_iter().filter(|r| accel.closest(&scene, r, 0.0, f32::MAX).is_some()).count();
-            let s = t.elapsed().as_secs_f64();
             let threads = rayon::current_num_threads();
-            let cpu = json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": threads });
+            let time = |alpha: bool| {
+                let t = Instant::now();
+                let hits = rays
+                    .par_iter()
+                    .filter(|r| {
+                        if alpha { accel.closest(&scene, r, 0.0, f32::MAX) } else { accel.closest_opaque(&scene, r, 0.0, f32::MAX) }.is_some()
+                    })
+                    .count();
+                let s = t.elapsed().as_secs_f64();
+                json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": threads })
+            };
+            let (cpu, cpu_opaque) = (time(true), time(false));
             let t = Instant::now();
             let blocked = shadow_cpu.par_iter().filter(|r| accel.occluded(&scene, r, 1e-3, f32::MAX)).count();
             let s = t.elapsed().as_secs_f64();
-            (cpu, json!({ "mrays_per_second": shadow_cpu.len() as f64 / s / 1e6, "ms": s * 1e3, "blocked": blocked, "threads": threads }))
+            (cpu, cpu_opaque, json!({ "mrays_per_second": shadow_cpu.len() as f64 / s / 1e6, "ms": s * 1e3, "blocked": blocked, "threads": threads }))
         };
         traversal.push(json!({
             "accel": kind,
@@ -320,6 +381,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             "bytes": accel.bytes(),
             "bytes_per_triangle": accel.bytes() as f64 / scene.unique_triangles().max(1) as f64,
             "cpu": cpu,
+            "cpu_opaque": cpu_opaque,
             "gpu": gpu,
             "shadow_rays": shadow_cpu.len(),
             "cpu_shadow": cpu_shadow,
@@ -364,9 +426,12 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         "adapter": ctx.summary(),
         "machine": machine(),
         "traversal": traversal,
+        "cpu_flat_opaque": cpu_flat_opaque,
         "frames": frames,
         "figures": {
             "traversal": "closest hits of one primary ray per pixel, the same rays for every structure and machine; GPU time includes upload of the rays and read-back of the hits",
+            "cpu_flat_opaque": "with --flat: the CPU BVH built over every instance's triangles flattened to world space as one level, opaque: the same triangles and rays benchmarks/embree.py gives Embree",
+            "cpu_opaque": "the CPU's closest hits on the same rays with every triangle opaque (no alpha test), as the Embree baseline of benchmarks/embree.py traces them",
             "shadow": "one shadow ray toward the sun from each primary hit, stopping at the first opaque hit; the same rays for every structure",
             "bytes_per_triangle": "nodes, primitive lists and triangle records of both levels over the scene's unique triangles",
             "frames": "a whole frame rendered as one strip with LB lighting: primary and shadow rays, shading, read-back; after a warm-up dispatch",

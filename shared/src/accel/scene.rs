@@ -148,11 +148,22 @@ impl SceneAccel {
     /// The closest opaque hit in `(t_min, t_max)`: hits on transparent
     /// texels are passed through.
     pub fn closest(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> Option<SceneHit> {
+        self.closest_with(scene, ray, t_min, t_max, true)
+    }
+
+    /// The closest hit with every triangle taken as opaque (fully cut ones
+    /// are not in the structures at all): what renderers without an alpha
+    /// test, Embree's baseline in `sylva bench trace`, compute.
+    pub fn closest_opaque(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> Option<SceneHit> {
+        self.closest_with(scene, ray, t_min, t_max, false)
+    }
+
+    fn closest_with(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32, alpha: bool) -> Option<SceneHit> {
         let mut best: Option<SceneHit> = None;
         self.top_level(ray, t_min, t_max, &mut |inst, start, limit| {
             let m = scene.instances[inst as usize].model as usize;
             let local = self.local_ray(inst, ray);
-            let (tri, t, u, v) = self.model_closest(m, &scene.models[m].model, start, &local, t_min, limit, false)?;
+            let (tri, t, u, v) = self.model_closest(m, &scene.models[m].model, start, &local, t_min, limit, false, alpha)?;
             best = Some(SceneHit { instance: inst, triangle: tri, t, u, v });
             Some(t)
         });
@@ -166,7 +177,7 @@ impl SceneAccel {
         self.top_level(ray, t_min, t_max, &mut |inst, start, limit| {
             let m = scene.instances[inst as usize].model as usize;
             let local = self.local_ray(inst, ray);
-            found |= self.model_closest(m, &scene.models[m].model, start, &local, t_min, limit, true).is_some();
+            found |= self.model_closest(m, &scene.models[m].model, start, &local, t_min, limit, true, true).is_some();
             // An empty interval: nothing more is in reach.
             found.then_some(f32::NEG_INFINITY)
         });
@@ -214,7 +225,8 @@ impl SceneAccel {
     }
 
     /// The closest opaque hit on model `m` in `(t_min, t_max)`:
-    /// `(triangle, t, u, v)`; with `any`, the first found. A BVH is walked
+    /// `(triangle, t, u, v)`; with `any`, the first found; without `alpha`,
+    /// every triangle it holds counts as opaque. A BVH is walked
     /// from `start` (an [`InstancePart`]'s entry; `(0, 0)` is the root).
     #[allow(clippy::too_many_arguments)]
     pub fn model_closest(
@@ -226,6 +238,7 @@ impl SceneAccel {
         t_min: f32,
         t_max: f32,
         any: bool,
+        alpha: bool,
     ) -> Option<(u32, f32, f32, f32)> {
         let mut found = None;
         match &self.models[m] {
@@ -236,7 +249,8 @@ impl SceneAccel {
                     let mut closest = limit;
                     for r in &records[first as usize..(first + count) as usize] {
                         let Some((t, u, v)) = r.intersect(ray, t_min, closest) else { continue };
-                        if r.coverage == Coverage::Mixed as u32 && model.is_transparent(r.triangle as usize, uv_at(model, r.triangle, u, v)) {
+                        if alpha && r.coverage == Coverage::Mixed as u32 && model.is_transparent(r.triangle as usize, uv_at(model, r.triangle, u, v))
+                        {
                             continue;
                         }
                         closest = t;
@@ -252,7 +266,7 @@ impl SceneAccel {
                 kd.closest(ray, t_min, t_max, &mut |tri, limit| {
                     let [a, b, c] = model.triangle(tri as usize);
                     let (t, u, v) = intersect(ray, a, b, c, t_min, limit)?;
-                    if model.is_transparent(tri as usize, uv_at(model, tri, u, v)) {
+                    if alpha && model.is_transparent(tri as usize, uv_at(model, tri, u, v)) {
                         return None;
                     }
                     found = Some((tri, t, u, v));
