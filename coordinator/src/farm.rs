@@ -175,8 +175,10 @@ pub fn decode_reply(r: &pb::RenderStripReply, strip: Strip, height: u32) -> Resu
 /// Has the farm pre-process the scene once: asks every worker whether it
 /// holds what `frame` needs prepared; unless all do, one that does (or the
 /// first, told to prepare it now) exports it, and the coordinator forwards
-/// it to the others, which check it before keeping it. Meanwhile no strip
-/// is sent, so the others do not start the same work.
+/// it to the others, which check it before keeping it. When every one of
+/// them refuses it, that source is not trusted again and a refusing worker
+/// (it checked the data, so it is sound) prepares and exports instead.
+/// Meanwhile no strip is sent, so the others do not start the same work.
 async fn share_prepared(
     clients: &[Option<Client>],
     addrs: &[String],
@@ -189,30 +191,68 @@ async fn share_prepared(
         return Ok(None);
     }
     let ask = |build: bool| pb::PrepareRequest { scene_hash: hash.to_string(), frame: Some(frame.clone()), build };
-    let held = futures_util::future::join_all(live.iter().map(|(_, c)| {
+    let mut held = futures_util::future::join_all(live.iter().map(|(_, c)| {
         let (mut c, req) = (c.clone(), ask(false));
         async move { c.prepare(req).await.ok().map(|r| r.into_inner().held) }
     }))
     .await;
-    // Workers that cannot answer (an older build) are left to prepare alone.
-    let lacking: Vec<usize> = (0..live.len()).filter(|&k| held[k] == Some(false)).collect();
-    if lacking.is_empty() {
-        return Ok(None);
-    }
     let t = Instant::now();
-    let (source, prepare_ms) = match (0..live.len()).find(|&k| held[k] == Some(true)) {
-        Some(k) => (k, 0.0),
-        None => {
-            let k = lacking[0];
-            let mut req = tonic::Request::new(ask(true));
-            req.set_timeout(deadline);
-            let r = live[k].1.clone().prepare(req).await.map_err(|s| format!("{} could not prepare: {}", addrs[live[k].0], s.message()))?;
-            (k, r.into_inner().prepare_ms)
+    let mut distrusted = Vec::new();
+    let mut last = None;
+    // Two rounds: the second only after every worker refused the first
+    // source's data.
+    for _ in 0..2 {
+        // Workers that cannot answer (an older build) are left to prepare alone.
+        let lacking: Vec<usize> = (0..live.len()).filter(|&k| held[k] == Some(false)).collect();
+        if lacking.is_empty() {
+            break;
         }
-    };
-    let from = addrs[live[source].0].clone();
-    let mut stream =
-        live[source].1.clone().export_prepared(ask(false)).await.map_err(|s| format!("{from} could not export: {}", s.message()))?.into_inner();
+        let holder = (0..live.len()).find(|&k| held[k] == Some(true) && !distrusted.contains(&k));
+        let (source, prepare_ms) = match holder {
+            Some(k) => (k, 0.0),
+            None => {
+                let k = lacking[0];
+                let mut req = tonic::Request::new(ask(true));
+                req.set_timeout(deadline);
+                let r = live[k].1.clone().prepare(req).await.map_err(|s| format!("{} could not prepare: {}", addrs[live[k].0], s.message()))?;
+                held[k] = Some(true);
+                (k, r.into_inner().prepare_ms)
+            }
+        };
+        let from = addrs[live[source].0].clone();
+        let chunks = Arc::new(export_from(&live[source].1, ask(false), &from).await?);
+        let bytes = chunks.iter().map(|c| c.data.len() as u64).sum();
+        let to: Vec<usize> = lacking.into_iter().filter(|&k| k != source).collect();
+        let imported = futures_util::future::join_all(to.iter().map(|&k| {
+            let (mut c, chunks) = (live[k].1.clone(), chunks.clone());
+            async move { c.import_prepared(tokio_stream::iter(chunks.iter().cloned().collect::<Vec<_>>())).await.map(|r| r.into_inner().held) }
+        }))
+        .await;
+        let mut sent = Vec::new();
+        for (&k, r) in to.iter().zip(imported) {
+            let addr = addrs[live[k].0].clone();
+            match r {
+                Ok(true) => {
+                    held[k] = Some(true);
+                    sent.push(addr);
+                }
+                Ok(false) => tracing::warn!(worker = %addr, "took the prepared data but does not hold it"),
+                Err(s) => tracing::warn!(worker = %addr, from = %from, "refused the prepared data: {}", s.message()),
+            }
+        }
+        let refused_by_all = sent.is_empty() && !to.is_empty();
+        last = Some(PreparedShare { from, to: sent, bytes, prepare_ms, share_ms: t.elapsed().as_secs_f64() * 1e3 - prepare_ms });
+        if !refused_by_all {
+            break;
+        }
+        distrusted.push(source);
+    }
+    Ok(last)
+}
+
+/// Every chunk of a worker's export, counted against what it declared.
+async fn export_from(client: &Client, req: pb::PrepareRequest, from: &str) -> Result<Vec<pb::PreparedChunk>, String> {
+    let mut stream = client.clone().export_prepared(req).await.map_err(|s| format!("{from} could not export: {}", s.message()))?.into_inner();
     let mut chunks: Vec<pb::PreparedChunk> = Vec::new();
     let (mut bytes, mut declared) = (0u64, None);
     while let Some(c) = stream.message().await.map_err(|s| format!("{from} broke off its export: {}", s.message()))? {
@@ -223,23 +263,7 @@ async fn share_prepared(
         }
         chunks.push(c);
     }
-    let chunks = Arc::new(chunks);
-    let to: Vec<usize> = lacking.into_iter().filter(|&k| k != source).collect();
-    let imported = futures_util::future::join_all(to.iter().map(|&k| {
-        let (mut c, chunks) = (live[k].1.clone(), chunks.clone());
-        async move { c.import_prepared(tokio_stream::iter(chunks.iter().cloned().collect::<Vec<_>>())).await.map(|r| r.into_inner().held) }
-    }))
-    .await;
-    let mut sent = Vec::new();
-    for (&k, r) in to.iter().zip(imported) {
-        let addr = addrs[live[k].0].clone();
-        match r {
-            Ok(true) => sent.push(addr),
-            Ok(false) => tracing::warn!(worker = %addr, "took the prepared data but does not hold it"),
-            Err(s) => tracing::warn!(worker = %addr, from = %from, "refused the prepared data: {}", s.message()),
-        }
-    }
-    Ok(Some(PreparedShare { from, to: sent, bytes, prepare_ms, share_ms: t.elapsed().as_secs_f64() * 1e3 - prepare_ms }))
+    Ok(chunks)
 }
 
 /// Renders `frame` of `bundle` on `workers`, strips pulled in `plan` order;
