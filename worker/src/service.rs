@@ -324,6 +324,46 @@ impl Drop for Reservation<'_> {
     }
 }
 
+impl State {
+    /// Receives a chunked upload of `what` (a bundle, prepared data) whose
+    /// first chunk declared `total` bytes and carried `first`. Nothing is
+    /// reserved from the sender's claim: bytes are counted as they arrive,
+    /// against the claim, `max_bundle_bytes` and the room all uploads in
+    /// progress share. Returns the bytes and their reservation, to be held
+    /// until they are kept.
+    async fn receive<C>(
+        &self,
+        what: &str,
+        total: u64,
+        first: Vec<u8>,
+        rest: &mut Streaming<C>,
+        data: impl Fn(C) -> Vec<u8>,
+    ) -> Result<(Vec<u8>, Reservation<'_>), Status> {
+        let limit = self.config.max_bundle_bytes;
+        if total > limit {
+            return Err(Status::resource_exhausted(format!("{what} of {total} bytes is over this worker's limit of {limit} bytes")));
+        }
+        let mut held = Reservation { incoming: &self.incoming, bytes: 0 };
+        let mut bytes = Vec::new();
+        let mut chunk = Some(first);
+        while let Some(d) = chunk.take() {
+            let n = d.len() as u64;
+            if bytes.len() as u64 + n > total {
+                return Err(Status::invalid_argument(format!("{what} is longer than its declared {total} bytes")));
+            }
+            if !held.grow(n, self.config.cache_bytes.max(limit)) {
+                return Err(Status::resource_exhausted("this worker is receiving as many bytes as it can hold; try again"));
+            }
+            bytes.extend_from_slice(&d);
+            chunk = rest.next().await.transpose()?.map(&data);
+        }
+        if (bytes.len() as u64) < total {
+            return Err(Status::invalid_argument(format!("truncated {what}: {} of {total} bytes", bytes.len())));
+        }
+        Ok((bytes, held))
+    }
+}
+
 /// Sets its flag when dropped: a handler future dropped before it finished
 /// means the caller cancelled or went away.
 struct CancelOnDrop(Arc<AtomicBool>, bool);
@@ -355,30 +395,7 @@ impl Worker for WorkerService {
             c.last_used = Instant::now();
             return Ok(Response::new(pb::LoadSceneReply { hash, was_cached: true }));
         }
-        let (total, limit) = (first.total_size, self.state.config.max_bundle_bytes);
-        if total > limit {
-            return Err(Status::resource_exhausted(format!("bundle of {total} bytes is over this worker's limit of {limit} bytes")));
-        }
-        // Nothing is reserved from the client's claim: bytes are counted as
-        // they arrive, against the claim, this bundle's limit and the room
-        // all uploads in progress share.
-        let mut held = Reservation { incoming: &self.state.incoming, bytes: 0 };
-        let mut bytes = Vec::new();
-        let mut chunk = Some(first.data);
-        while let Some(data) = chunk.take() {
-            let n = data.len() as u64;
-            if bytes.len() as u64 + n > total {
-                return Err(Status::invalid_argument(format!("upload is longer than its declared {total} bytes")));
-            }
-            if !held.grow(n, self.state.config.cache_bytes.max(limit)) {
-                return Err(Status::resource_exhausted("this worker is receiving as many bundle bytes as it can hold; try again"));
-            }
-            bytes.extend_from_slice(&data);
-            chunk = stream.next().await.transpose()?.map(|c| c.data);
-        }
-        if (bytes.len() as u64) < total {
-            return Err(Status::invalid_argument(format!("truncated upload: {} of {total} bytes", bytes.len())));
-        }
+        let (bytes, held) = self.state.receive("bundle", first.total_size, first.data, &mut stream, |c| c.data).await?;
         if bundle::hash_of(&bytes) != hash {
             return Err(Status::invalid_argument("the bundle's bytes do not match its hash"));
         }
@@ -550,29 +567,7 @@ impl Worker for WorkerService {
         let first = stream.next().await.ok_or_else(|| Status::invalid_argument("empty import: no chunk"))??;
         let p = self.state.preparation(&first.scene_hash, first.frame.as_ref())?;
         let content_hash = normalize_hash(&first.content_hash)?;
-        let (total, limit) = (first.total_size, self.state.config.max_bundle_bytes);
-        if total > limit {
-            return Err(Status::resource_exhausted(format!("prepared data of {total} bytes is over this worker's limit of {limit} bytes")));
-        }
-        // Counted as they arrive, against the claim, the limit and the
-        // room all uploads in progress share, as bundles are.
-        let mut held = Reservation { incoming: &self.state.incoming, bytes: 0 };
-        let mut bytes = Vec::new();
-        let mut chunk = Some(first.data);
-        while let Some(data) = chunk.take() {
-            let n = data.len() as u64;
-            if bytes.len() as u64 + n > total {
-                return Err(Status::invalid_argument(format!("import is longer than its declared {total} bytes")));
-            }
-            if !held.grow(n, self.state.config.cache_bytes.max(limit)) {
-                return Err(Status::resource_exhausted("this worker is receiving as many bytes as it can hold; try again"));
-            }
-            bytes.extend_from_slice(&data);
-            chunk = stream.next().await.transpose()?.map(|c| c.data);
-        }
-        if (bytes.len() as u64) < total {
-            return Err(Status::invalid_argument(format!("truncated import: {} of {total} bytes", bytes.len())));
-        }
+        let (bytes, held) = self.state.receive("prepared data", first.total_size, first.data, &mut stream, |c| c.data).await?;
         let (scene, kind, needs_lb) = (p.scene.clone(), p.frame.accel, p.needs_lb);
         let (accel, lb) = tokio::task::spawn_blocking(move || crate::share::import(&bytes, &content_hash, &scene, kind, needs_lb))
             .await

@@ -501,7 +501,7 @@ fn with_head(
 }
 
 /// Creates the folder `path` goes in, if any.
-fn create_parent(path: &Path) -> anyhow::Result<()> {
+pub(super) fn create_parent(path: &Path) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
     }

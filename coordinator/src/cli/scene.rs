@@ -1,5 +1,6 @@
 //! `sylva scene …`: scene files.
 
+use super::render::create_parent;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use serde_json::json;
@@ -130,14 +131,6 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&json!({ "out": a.out, "summary": summary }))?);
     } else {
         println!("wrote {}: {summary}", a.out.display());
-    }
-    Ok(())
-}
-
-/// Creates the folder `path` goes in, as `render` does for its image.
-fn create_parent(path: &std::path::Path) -> anyhow::Result<()> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     }
     Ok(())
 }
