@@ -491,15 +491,10 @@ impl State {
                     }
                     FarmEvent::WorkerDropped { worker, error } => ev.message = format!("worker {worker} dropped: {error}"),
                     FarmEvent::PreparedShared(p) => {
-                        ev.message = format!(
-                            "scene prepared once, on {} ({:.0} ms), and sent to {} other workers ({:.1} MB each, {:.0} ms)",
-                            p.from,
-                            p.prepare_ms,
-                            p.to.len(),
-                            p.bytes as f64 / 1e6,
-                            p.share_ms
-                        );
-                        ev.worker = p.from;
+                        // Not a notice for clients (their `message` is for
+                        // failures and retries): the job's stats carry it.
+                        tracing::info!(job = %jid, from = %p.from, to = p.to.len(), bytes = p.bytes, prepare_ms = p.prepare_ms, share_ms = p.share_ms, "scene prepared once and shared");
+                        return;
                     }
                 }
                 let _ = tx2.send(ev);

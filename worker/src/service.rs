@@ -516,8 +516,9 @@ impl Worker for WorkerService {
         let r = request.into_inner();
         let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
         let t = Instant::now();
-        if self.state.held(&p).is_some() || !r.build {
-            return Ok(Response::new(pb::PrepareReply { held: self.state.held(&p).is_some(), prepare_ms: 0.0 }));
+        let held = self.state.held(&p).is_some();
+        if held || !r.build {
+            return Ok(Response::new(pb::PrepareReply { held, prepare_ms: 0.0 }));
         }
         let state = self.state.clone();
         let span = tracing::info_span!("prepare", scene = %p.accel_key.0);

@@ -217,8 +217,6 @@ impl Bvh {
         bvh
     }
 
-    /// Makes the wide node for binary inner node `b`; returns the stack
-    /// entries its subtree can need.
     /// Checks a tree built elsewhere (another worker's) before any walk:
     /// every inner child lies after its parent (so walks end), every leaf
     /// holds primitives inside `prims`, every primitive index is below
@@ -263,6 +261,8 @@ impl Bvh {
         Ok(())
     }
 
+    /// Makes the wide node for binary inner node `b`; returns the stack
+    /// entries its subtree can need.
     fn collapse(&mut self, binary: &[Binary], b: usize) -> usize {
         let mut kids = vec![binary[b].first, binary[b].first + 1];
         // Open the largest inner child until the node is full.

@@ -26,7 +26,7 @@ pub struct SceneHit {
 }
 
 /// The acceleration structures of a scene.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug)]
 pub struct SceneAccel {
     /// Which kind both levels are.
     pub kind: AccelKind,
@@ -51,7 +51,7 @@ pub const PARTS_PER_INSTANCE: usize = 8;
 /// A piece of an instance: one subtree of its model's BVH, placed where
 /// the instance is.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct InstancePart {
     /// Instance index.
     pub instance: u32,

@@ -9,7 +9,7 @@ use glam::Vec3;
 /// A triangle as the inner loop reads it, in a BVH's leaf order: its first
 /// vertex and two edges, so no index chase precedes the test.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct TriangleRecord {
     /// First vertex.
     pub a: [f32; 3],
