@@ -203,7 +203,7 @@ fn compare_lists_every_method_with_its_time_and_error() {
         "--height",
         "24",
         "--spp",
-        "1",
+        "2",
         "--grids",
         "8,12",
         "--target-error",
@@ -246,4 +246,59 @@ fn compare_lists_every_method_with_its_time_and_error() {
     }
     let chart = std::fs::read_to_string(out.join("compare.svg")).unwrap();
     assert_eq!(chart.matches("<circle").count(), 8, "one point per method but the reference");
+    // The noise of both images is measured and taken out of the net error:
+    // local's indirect light is zero on both its renders, a method's at two
+    // jittered rays per pixel is not; no net error exceeds the raw one by more than noise allows.
+    assert_eq!(methods[0]["indirect_noise_method"].as_f64(), Some(0.0));
+    assert!(methods[3]["indirect_noise_method"].as_f64().unwrap() > 0.0, "{}", methods[3]);
+    assert!(methods[3]["indirect_noise_reference"].as_f64().unwrap() > 0.0, "{}", methods[3]);
+    assert!(methods[3]["indirect_error_net"].as_f64().unwrap() <= methods[3]["indirect_relative_error"].as_f64().unwrap() * 1.2);
+
+    // A second run reuses the saved reference (no path tracing) and gives the same errors.
+    let again = ok(&[
+        "compare",
+        scene.to_str().unwrap(),
+        "--width",
+        "40",
+        "--height",
+        "24",
+        "--spp",
+        "2",
+        "--grids",
+        "8,12",
+        "--target-error",
+        "0.1",
+        "--out",
+        out.to_str().unwrap(),
+        "--reuse-reference",
+        "--hdr",
+        "--json",
+    ]);
+    let w: Value = serde_json::from_str(&again).unwrap();
+    assert_eq!(w["reference"]["reused"], true);
+    assert_eq!(w["reference"]["spp"], v["reference"]["spp"]);
+    assert_eq!(w["methods"][3]["indirect_relative_error"], v["methods"][3]["indirect_relative_error"]);
+    for f in ["reference.npy", "reference-local.npy", "reference-indirect-variance.npy", "reference-coverage.npy", "lb-12.npy"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    // Another image size does not reuse it.
+    let other = ok(&[
+        "compare",
+        scene.to_str().unwrap(),
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--spp",
+        "2",
+        "--grids",
+        "8,12",
+        "--target-error",
+        "0.1",
+        "--out",
+        out.to_str().unwrap(),
+        "--reuse-reference",
+        "--json",
+    ]);
+    assert_eq!(serde_json::from_str::<Value>(&other).unwrap()["reference"]["reused"], false);
 }

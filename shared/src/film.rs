@@ -3,11 +3,11 @@
 
 use crate::color::luminance;
 use anyhow::Context;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// A linear-RGB image, rows from the top.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HdrImage {
     /// Width in pixels.
     pub width: u32,

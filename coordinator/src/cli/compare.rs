@@ -20,7 +20,7 @@ use sylva_shared::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_
 use sylva_shared::scene::{ForestGridUse, LbModel, LightingMode, Scene};
 use sylva_worker::GpuContext;
 use sylva_worker::lighting::lb::auto::choose_lb_grids;
-use sylva_worker::lighting::reference::{ReferenceOptions, render_reference};
+use sylva_worker::lighting::reference::{ReferenceImage, ReferenceOptions, render_reference};
 use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
 
@@ -58,6 +58,16 @@ pub struct CompareArgs {
     /// The error-against-time chart (SVG); default OUT/compare.svg.
     #[arg(long)]
     pub chart: Option<PathBuf>,
+    /// Reuse OUT/reference.bin when it was made for the same scene file,
+    /// image size, reference budget and Sylva version (it is always saved):
+    /// re-running the fast methods then skips the path tracer.
+    #[arg(long)]
+    pub reuse_reference: bool,
+    /// Also write every image as linear float32 `.npy` (height × width × 3)
+    /// beside its PNG, and the reference's local light, indirect variance
+    /// and coverage, for analysis outside Sylva.
+    #[arg(long)]
+    pub hdr: bool,
     /// Print the table as JSON.
     #[arg(long)]
     pub json: bool,
@@ -86,6 +96,14 @@ struct MethodReport {
     /// RMS of the indirect component's error (method − local against
     /// reference − local) over the RMS of the reference's indirect light.
     indirect_relative_error: f64,
+    /// The same with both images' own sampling noise taken out: the
+    /// method's error in expectation (see `IndirectError`).
+    indirect_error_net: f64,
+    /// What the reference's noise adds to `indirect_relative_error`, as a
+    /// fraction of the reference's indirect RMS.
+    indirect_noise_reference: f64,
+    /// What the method's own pixel sampling (4 rays across leaf edges) adds.
+    indirect_noise_method: f64,
     /// Image file.
     image: String,
     /// What the method decided and why (grid choice, forest grid, warnings).
@@ -95,6 +113,9 @@ struct MethodReport {
 struct Rendered {
     report: MethodReport,
     image: HdrImage,
+    /// A second render with other seeds: beside `local`'s, the spread of
+    /// the two renders' indirect light is the method's sampling noise.
+    again: HdrImage,
 }
 
 fn ms(t: Instant) -> f64 {
@@ -127,15 +148,24 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
 
     // The reference first: every error is measured against it.
     say("reference: path tracing");
-    let t = Instant::now();
-    let prepared = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|m| say(m))?;
-    let opts = ReferenceOptions { target_error: a.target_error, max_seconds: a.max_seconds, ..Default::default() };
-    let build_ms = prepared.phases.ms("build");
-    let pre = ms(t) - build_ms - prepared.phases.ms("upload");
-    let r = render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
-        bar.set_message(format!("reference: {} spp, relative standard error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
-    })?;
-    drop(prepared);
+    let cache = a.out.join("reference.bin");
+    let key = reference_key(&a)?;
+    let cached = if a.reuse_reference { load_reference(&cache, &key, a.width, a.height) } else { None };
+    let (r, build_ms, pre, reused) = match cached {
+        Some(r) => (r, 0.0, 0.0, true),
+        None => {
+            let t = Instant::now();
+            let prepared = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|m| say(m))?;
+            let opts = ReferenceOptions { target_error: a.target_error, max_seconds: a.max_seconds, ..Default::default() };
+            let build_ms = prepared.phases.ms("build");
+            let pre = ms(t) - build_ms - prepared.phases.ms("upload");
+            let r = render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
+                bar.set_message(format!("reference: {} spp, relative standard error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
+            })?;
+            save_reference(&cache, &key, &r)?;
+            (r, build_ms, pre, false)
+        }
+    };
     let reference = r.image.clone();
     let lit: Vec<bool> = r.coverage.iter().zip(&reference.pixels).map(|(&c, &p)| c >= 0.5 && luminance(p) > 0.0).collect();
     anyhow::ensure!(lit.iter().any(|&l| l), "no pixel of the frame shows a lit model: nothing to compare");
@@ -157,7 +187,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     let mut rendered: Vec<Rendered> = Vec::new();
     for (name, lighting, s) in &methods {
         say(name);
-        rendered.push(render_method(&ctx, name, *lighting, s, &settings, &a.out, &exposure, &|m| say(m))?);
+        rendered.push(render_method(&ctx, name, *lighting, s, &settings, &a.out, &exposure, a.hdr, &|m| say(m))?);
     }
     // `--lb-grid auto`: the smallest grid per species that agrees with the next finer one.
     say("lb auto: choosing grids");
@@ -174,7 +204,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     for (m, c) in auto_scene.models.iter_mut().zip(&choices) {
         m.lb.grid = c.grid;
     }
-    let mut auto = render_method(&ctx, "lb auto", LightingMode::Lb, &auto_scene, &settings, &a.out, &exposure, &|m| say(m))?;
+    let mut auto = render_method(&ctx, "lb auto", LightingMode::Lb, &auto_scene, &settings, &a.out, &exposure, a.hdr, &|m| say(m))?;
     auto.report.preprocess_ms += choose_ms;
     auto.report.notes["grid_choice"] = serde_json::to_value(&choices)?;
     rendered.push(auto);
@@ -182,13 +212,25 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
 
     // Errors against the reference; the indirect part (method − local)
     // against the reference's own (its estimate minus local along its samples).
-    let local = rendered[0].image.clone();
+    let (local, local_again) = (rendered[0].image.clone(), rendered[0].again.clone());
     for m in &mut rendered {
         let e = errors(&m.image, &local, &reference, &r.local, &lit);
         (m.report.rmse, m.report.mean_relative_error, m.report.indirect_relative_error) = e;
+        let ind = IndirectError::measure([&m.image, &m.again], [&local, &local_again], &r, &lit);
+        m.report.indirect_error_net = ind.net;
+        m.report.indirect_noise_reference = ind.reference_noise;
+        m.report.indirect_noise_method = ind.method_noise;
     }
     let ref_png = a.out.join("reference.png");
     write_png(&ref_png, a.width, a.height, &reinhard_like(&reference, &exposure))?;
+    if a.hdr {
+        write_hdr(&a.out.join("reference.npy"), &reference)?;
+        write_hdr(&a.out.join("reference-local.npy"), &r.local)?;
+        let (h, w) = (a.height as u64, a.width as u64);
+        let var: Vec<f32> = r.indirect_variance.iter().flatten().copied().collect();
+        sylva_shared::npy::write_f32(&a.out.join("reference-indirect-variance.npy"), &[h, w, 3], &var)?;
+        sylva_shared::npy::write_f32(&a.out.join("reference-coverage.npy"), &[h, w], &r.coverage)?;
+    }
     let grid_svg = a.out.join("figure2.svg");
     write_figure(&grid_svg, &a, &rendered, &reference)?;
     let mut reports: Vec<MethodReport> = rendered.iter_mut().map(|m| std::mem::replace(&mut m.report, empty_report())).collect();
@@ -204,7 +246,10 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         mean_relative_error: 0.0,
         indirect_relative_error: 0.0,
         image: ref_png.display().to_string(),
-        notes: json!({ "spp": r.stats.spp, "batches": r.stats.batches, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "max_bounces": sylva_worker::trace::MAX_BOUNCES, "leaf_optics": scene.file.leaf_optics }),
+        indirect_error_net: 0.0,
+        indirect_noise_reference: 0.0,
+        indirect_noise_method: 0.0,
+        notes: json!({ "reused": reused, "spp": r.stats.spp, "batches": r.stats.batches, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "max_bounces": sylva_worker::trace::MAX_BOUNCES, "leaf_optics": scene.file.leaf_optics }),
     });
 
     let chart = a.chart.clone().unwrap_or_else(|| a.out.join("compare.svg"));
@@ -217,7 +262,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         "spp": a.spp,
         "adapter": ctx.summary(),
         "lit_pixels": lit.iter().filter(|&&l| l).count(),
-        "reference": { "spp": r.stats.spp, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "ms": r.stats.ms },
+        "reference": { "reused": reused, "spp": r.stats.spp, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "ms": r.stats.ms },
         "methods": reports,
         "summary": best,
         "figure": grid_svg,
@@ -228,16 +273,22 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&table)?);
     } else {
-        println!("{:<28} {:>12} {:>10} {:>9} {:>10} {:>10}", "method", "pre-process", "frame", "RMSE", "rel. err", "indirect");
+        println!(
+            "{:<28} {:>12} {:>10} {:>9} {:>10} {:>10} {:>10} {:>13}",
+            "method", "pre-process", "frame", "RMSE", "rel. err", "indirect", "net", "noise r / m"
+        );
         for m in &reports {
             println!(
-                "{:<28} {:>9.0} ms {:>7.0} ms {:>9.4} {:>9.1} % {:>9.1} %",
+                "{:<28} {:>9.0} ms {:>7.0} ms {:>9.4} {:>9.1} % {:>9.1} % {:>8.1} % {:>5.1} / {:>4.1} %",
                 m.name,
                 m.preprocess_ms,
                 m.frame_ms,
                 m.rmse,
                 100.0 * m.mean_relative_error,
-                100.0 * m.indirect_relative_error
+                100.0 * m.indirect_relative_error,
+                100.0 * m.indirect_error_net,
+                100.0 * m.indirect_noise_reference,
+                100.0 * m.indirect_noise_method
             );
         }
         println!("{}", best);
@@ -258,6 +309,9 @@ fn empty_report() -> MethodReport {
         rmse: 0.0,
         mean_relative_error: 0.0,
         indirect_relative_error: 0.0,
+        indirect_error_net: 0.0,
+        indirect_noise_reference: 0.0,
+        indirect_noise_method: 0.0,
         image: String::new(),
         notes: serde_json::Value::Null,
     }
@@ -287,6 +341,7 @@ fn render_method(
     f: &RenderSettings,
     out: &Path,
     exposure: &ToneMapStats,
+    hdr: bool,
     say: &dyn Fn(&str),
 ) -> anyhow::Result<Rendered> {
     let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
@@ -303,8 +358,16 @@ fn render_method(
     let t = Instant::now();
     let image = InProcess::new(ctx, &prepared.renderer, settings).render(&[(0, f.width)], &|_| {})?.image;
     let frame_ms = ms(t);
+    // The same frame with other seeds (untimed): with `local`'s second
+    // render, the spread of the two tells the method's own sampling noise.
+    let again = InProcess::new(ctx, &prepared.renderer, RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings })
+        .render(&[(0, f.width)], &|_| {})?
+        .image;
     let file = out.join(format!("{}.png", name.replace(['³', ' ', '+'], "").replace("lb", "lb-")));
     write_png(&file, f.width, f.height, &reinhard_like(&image, exposure))?;
+    if hdr {
+        write_hdr(&file.with_extension("npy"), &image)?;
+    }
     let paper = scene.file.lb_model == LbModel::Paper && lighting.needs_lb();
     let notes = json!({
         "lb_model": scene.file.lb_model.name(),
@@ -328,10 +391,14 @@ fn render_method(
             rmse: 0.0,
             mean_relative_error: 0.0,
             indirect_relative_error: 0.0,
+            indirect_error_net: 0.0,
+            indirect_noise_reference: 0.0,
+            indirect_noise_method: 0.0,
             image: file.display().to_string(),
             notes,
         },
         image,
+        again,
     })
 }
 
@@ -358,6 +425,98 @@ fn errors(m: &HdrImage, local: &HdrImage, r: &HdrImage, r_local: &HdrImage, lit:
     }
     let n = n.max(1) as f64;
     ((se / (3.0 * n)).sqrt(), rel / n, if ind_ref > 0.0 { (ind_se / ind_ref).sqrt() } else { 0.0 })
+}
+
+/// Writes a linear image as float32 `.npy`, height × width × 3.
+fn write_hdr(path: &Path, img: &HdrImage) -> anyhow::Result<()> {
+    let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
+    sylva_shared::npy::write_f32(path, &[img.height as u64, img.width as u64, 3], &flat)
+}
+
+/// The seed bits that give a method's second render other samples.
+const SECOND_SEED: u32 = 0x5EED_0002;
+
+/// The indirect error with each image's own sampling noise taken out.
+///
+/// A squared difference of two noisy estimates is, in expectation, the
+/// squared difference of their means plus both variances. The reference
+/// knows its variance per pixel (the spread of its batches); a method's
+/// comes from rendering it twice with other seeds: E[(a − b)²] = 2σ².
+/// Subtracting both leaves the error of the method's expected image
+/// against the reference's, which is what the lighting method controls:
+/// the 4-ray edge aliasing and the reference's finite samples are not.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct IndirectError {
+    /// √(max(0, Σ d² − Σ σ_m² − Σ σ_r²) / (Σ i_r² − Σ σ_r²)).
+    net: f64,
+    /// √(Σ σ_r²) over the reference's noise-free indirect RMS.
+    reference_noise: f64,
+    /// √(Σ σ_m²) over the same.
+    method_noise: f64,
+}
+
+impl IndirectError {
+    /// `m` and `l`: the method and `local`, each rendered with two seeds
+    /// (the first pair on the same samples, the second pair too).
+    fn measure(m: [&HdrImage; 2], l: [&HdrImage; 2], r: &ReferenceImage, lit: &[bool]) -> Self {
+        let (mut d2, mut r2, mut var_r, mut var_m) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for (i, _) in lit.iter().enumerate().filter(|(_, lit)| **lit) {
+            for c in 0..3 {
+                let ind = |k: usize| (m[k].pixels[i][c] - l[k].pixels[i][c]) as f64;
+                let ind_r = (r.image.pixels[i][c] - r.local.pixels[i][c]) as f64;
+                d2 += (ind(0) - ind_r).powi(2);
+                r2 += ind_r.powi(2);
+                var_r += r.indirect_variance[i][c] as f64;
+                var_m += (ind(0) - ind(1)).powi(2) / 2.0;
+            }
+        }
+        let signal = (r2 - var_r).max(f64::MIN_POSITIVE);
+        if r2 <= 0.0 {
+            return Self { net: 0.0, reference_noise: 0.0, method_noise: 0.0 };
+        }
+        Self { net: ((d2 - var_m - var_r).max(0.0) / signal).sqrt(), reference_noise: (var_r / signal).sqrt(), method_noise: (var_m / signal).sqrt() }
+    }
+}
+
+/// What a saved reference was made for: the scene file's bytes, the image,
+/// the reference's budget and this build.
+fn reference_key(a: &CompareArgs) -> anyhow::Result<String> {
+    let bytes = std::fs::read(&a.scene).with_context(|| format!("{}: cannot read", a.scene.display()))?;
+    let mut h = blake3::Hasher::new();
+    h.update(&bytes);
+    h.update(format!("{}x{} {} {} {}", a.width, a.height, a.target_error, a.max_seconds, env!("CARGO_PKG_VERSION")).as_bytes());
+    Ok(h.finalize().to_hex().to_string())
+}
+
+/// A saved reference and the key it was made for.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SavedReference {
+    key: String,
+    reference: ReferenceImage,
+}
+
+/// Writes the reference beside the images, for `--reuse-reference`.
+fn save_reference(path: &Path, key: &str, r: &ReferenceImage) -> anyhow::Result<()> {
+    let bytes = postcard::to_stdvec(&SavedReference { key: key.into(), reference: r.clone() })?;
+    std::fs::write(path, bytes).with_context(|| format!("{}: cannot write", path.display()))
+}
+
+/// The saved reference if it was made for `key` and has the image's size;
+/// otherwise `None` (and the reason, logged), so the reference is rendered.
+fn load_reference(path: &Path, key: &str, width: u32, height: u32) -> Option<ReferenceImage> {
+    let bytes = std::fs::read(path).map_err(|e| tracing::info!("{}: no saved reference ({e})", path.display())).ok()?;
+    let saved: SavedReference = postcard::from_bytes(&bytes).map_err(|e| tracing::warn!("{}: unreadable reference ({e})", path.display())).ok()?;
+    let n = (width * height) as usize;
+    let r = saved.reference;
+    let sized = [r.image.pixels.len(), r.local.pixels.len(), r.coverage.len(), r.std_error.len(), r.indirect_variance.len()].iter().all(|&l| l == n)
+        && r.image.width == width
+        && r.image.height == height;
+    if saved.key != key || !sized {
+        tracing::warn!("{}: made for another scene, size, budget or build; rendering a new reference", path.display());
+        return None;
+    }
+    tracing::info!("{}: reusing the saved reference ({} spp)", path.display(), r.stats.spp);
+    Some(r)
 }
 
 /// Which method wins where: the most accurate, the fastest that beats

@@ -8,7 +8,7 @@
 use super::{Kernel, Method, Needs};
 use crate::gpu::GpuContext;
 use crate::trace::{RenderSettings, StripRenderer};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use sylva_shared::color::luminance;
 use sylva_shared::film::HdrImage;
@@ -50,7 +50,7 @@ impl Default for ReferenceOptions {
 }
 
 /// A reference image and its own error estimate.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ReferenceImage {
     /// The mean of all samples, linear HDR.
     pub image: HdrImage,
@@ -62,12 +62,16 @@ pub struct ReferenceImage {
     pub local: HdrImage,
     /// Per pixel, the standard error of the mean's luminance.
     pub std_error: Vec<f32>,
+    /// Per pixel and channel, the variance of the mean of the indirect
+    /// light (`image − local`): what the reference's own noise adds, in
+    /// expectation, to a squared error measured against it.
+    pub indirect_variance: Vec<[f32; 3]>,
     /// What was rendered and how close it is.
     pub stats: ReferenceStats,
 }
 
 /// How a reference was made.
-#[derive(Clone, Copy, Debug, Serialize)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct ReferenceStats {
     /// Samples per pixel in all.
     pub spp: u32,
@@ -95,6 +99,9 @@ pub fn render_reference(
     let n = (f.width * f.height) as usize;
     let mut sum = vec![[0.0f64; 3]; n];
     let mut lum_sq = vec![0.0f64; n];
+    // Per batch, the batch mean's indirect light squared: its spread
+    // gives the indirect part's own standard error.
+    let mut ind_sq = vec![[0.0f64; 3]; n];
     let mut coverage = vec![0.0f64; n];
     let mut local = vec![[0.0f64; 3]; n];
     let mut stats = ReferenceStats { spp: 0, batches: 0, relative_error: f64::INFINITY, converged: false, ms: 0.0 };
@@ -118,6 +125,7 @@ pub fn render_reference(
                 for c in 0..3 {
                     sum[i][c] += p[c] as f64;
                     local[i][c] += s.first_light[k][c] as f64;
+                    ind_sq[i][c] += ((p[c] - s.first_light[k][c]) as f64).powi(2);
                 }
                 let l = luminance(*p) as f64;
                 lum_sq[i] += l * l;
@@ -151,6 +159,14 @@ pub fn render_reference(
             ((((lum_sq[i] / b) - mean_l * mean_l).max(0.0) / (b - 1.0).max(1.0)).sqrt()) as f32
         })
         .collect();
+    let indirect_variance = (0..n)
+        .map(|i| {
+            std::array::from_fn(|c| {
+                let mean = (sum[i][c] - local[i][c]) / b;
+                (((ind_sq[i][c] / b) - mean * mean).max(0.0) / (b - 1.0).max(1.0)) as f32
+            })
+        })
+        .collect();
     let local = HdrImage { width: f.width, height: f.height, pixels: local.iter().map(|s| s.map(|v| (v / b) as f32)).collect() };
-    Ok(ReferenceImage { image, coverage: coverage.iter().map(|c| (c / b) as f32).collect(), local, std_error, stats })
+    Ok(ReferenceImage { image, coverage: coverage.iter().map(|c| (c / b) as f32).collect(), local, std_error, indirect_variance, stats })
 }
