@@ -195,24 +195,29 @@ fn compare_lists_every_method_with_its_time_and_error() {
     )
     .unwrap();
     let out = dir.join("cmp");
-    let text = ok(&[
-        "compare",
-        scene.to_str().unwrap(),
-        "--width",
-        "40",
-        "--height",
-        "24",
-        "--spp",
-        "2",
-        "--grids",
-        "8,12",
-        "--target-error",
-        "0.1",
-        "--out",
-        out.to_str().unwrap(),
-        "--json",
-    ]);
-    let v: Value = serde_json::from_str(&text).unwrap();
+    let compare = |width: &str, extra: &[&str]| -> Value {
+        let (scene, out) = (scene.to_str().unwrap(), out.to_str().unwrap());
+        let mut args = vec![
+            "compare",
+            scene,
+            "--width",
+            width,
+            "--height",
+            "24",
+            "--spp",
+            "2",
+            "--grids",
+            "8,12",
+            "--target-error",
+            "0.1",
+            "--out",
+            out,
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        serde_json::from_str(&ok(&args)).unwrap()
+    };
+    let v = compare("40", &[]);
     let methods = v["methods"].as_array().unwrap();
     let names: Vec<&str> = methods.iter().map(|m| m["name"].as_str().unwrap()).collect();
     assert_eq!(
@@ -255,26 +260,7 @@ fn compare_lists_every_method_with_its_time_and_error() {
     assert!(methods[3]["indirect_error_net"].as_f64().unwrap() <= methods[3]["indirect_relative_error"].as_f64().unwrap() * 1.2);
 
     // A second run reuses the saved reference (no path tracing) and gives the same errors.
-    let again = ok(&[
-        "compare",
-        scene.to_str().unwrap(),
-        "--width",
-        "40",
-        "--height",
-        "24",
-        "--spp",
-        "2",
-        "--grids",
-        "8,12",
-        "--target-error",
-        "0.1",
-        "--out",
-        out.to_str().unwrap(),
-        "--reuse-reference",
-        "--hdr",
-        "--json",
-    ]);
-    let w: Value = serde_json::from_str(&again).unwrap();
+    let w = compare("40", &["--reuse-reference", "--hdr"]);
     assert_eq!(w["reference"]["reused"], true);
     assert_eq!(w["reference"]["spp"], v["reference"]["spp"]);
     assert_eq!(w["methods"][3]["indirect_relative_error"], v["methods"][3]["indirect_relative_error"]);
@@ -282,23 +268,5 @@ fn compare_lists_every_method_with_its_time_and_error() {
         assert!(out.join(f).exists(), "{f}");
     }
     // Another image size does not reuse it.
-    let other = ok(&[
-        "compare",
-        scene.to_str().unwrap(),
-        "--width",
-        "32",
-        "--height",
-        "24",
-        "--spp",
-        "2",
-        "--grids",
-        "8,12",
-        "--target-error",
-        "0.1",
-        "--out",
-        out.to_str().unwrap(),
-        "--reuse-reference",
-        "--json",
-    ]);
-    assert_eq!(serde_json::from_str::<Value>(&other).unwrap()["reference"]["reused"], false);
+    assert_eq!(compare("32", &["--reuse-reference"])["reference"]["reused"], false);
 }
