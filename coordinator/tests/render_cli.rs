@@ -164,6 +164,10 @@ fn bad_render_requests_get_clear_errors() {
     let missing = dir.join("missing.json");
     std::fs::write(&missing, text.replacen("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {", 1)).unwrap();
     assert!(fails(&["render", missing.to_str().unwrap()]).contains("give exactly one of"));
+    // Refused before the reference is traced, not after every method.
+    let err = fails(&["compare", s, "--grids", "32", "--out", dir.join("cmp").to_str().unwrap()]);
+    assert!(err.contains("--grids needs two sizes or more"), "{err}");
+    assert!(!dir.join("cmp").join("reference.bin").exists());
 }
 
 #[test]

@@ -126,6 +126,10 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     anyhow::ensure!(a.width >= 8 && a.height >= 8 && a.width <= 4096 && a.height <= 4096, "image sides in [8, 4096]");
     anyhow::ensure!((1..=256).contains(&a.spp), "--spp {}: valid range [1, 256]", a.spp);
     anyhow::ensure!(a.grids.iter().all(|g| (4..=256).contains(g)), "--grids: each in [4, 256]");
+    let mut distinct = a.grids.clone();
+    distinct.sort_unstable();
+    distinct.dedup();
+    anyhow::ensure!(distinct.len() >= 2, "--grids needs two sizes or more: `lb auto` chooses between them");
     anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error must be > 0");
     anyhow::ensure!(a.auto_tolerance.is_finite() && a.auto_tolerance > 0.0, "--auto-tolerance must be > 0");
     std::fs::create_dir_all(&a.out).with_context(|| format!("{}: cannot create folder", a.out.display()))?;
@@ -192,13 +196,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     // `--lb-grid auto`: the smallest grid per species that agrees with the next finer one.
     say("lb auto: choosing grids");
     let t = Instant::now();
-    let candidates: Vec<usize> = {
-        let mut c = a.grids.clone();
-        c.sort_unstable();
-        c.dedup();
-        c
-    };
-    let choices = choose_lb_grids(&ctx, &scene, &candidates, a.auto_tolerance, &|m| say(m))?;
+    let choices = choose_lb_grids(&ctx, &scene, &distinct, a.auto_tolerance, &|m| say(m))?;
     let choose_ms = ms(t);
     let mut auto_scene = scene.clone();
     for (m, c) in auto_scene.models.iter_mut().zip(&choices) {
