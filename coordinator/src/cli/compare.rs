@@ -58,8 +58,8 @@ pub struct CompareArgs {
     /// The error-against-time chart (SVG); default OUT/compare.svg.
     #[arg(long)]
     pub chart: Option<PathBuf>,
-    /// Reuse OUT/reference.bin when it was made for the same scene file,
-    /// image size, reference budget and Sylva version (it is always saved):
+    /// Reuse OUT/reference.bin when it was made for the same scene bundle,
+    /// image size, reference budget and `sylva` binary (it is always saved):
     /// re-running the fast methods then skips the path tracer.
     #[arg(long)]
     pub reuse_reference: bool,
@@ -212,9 +212,9 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     // against the reference's own (its estimate minus local along its samples).
     let (local, local_again) = (rendered[0].image.clone(), rendered[0].again.clone());
     for m in &mut rendered {
-        let e = errors(&m.image, &local, &reference, &r.local, &lit);
-        (m.report.rmse, m.report.mean_relative_error, m.report.indirect_relative_error) = e;
+        (m.report.rmse, m.report.mean_relative_error) = errors(&m.image, &reference, &lit);
         let ind = IndirectError::measure([&m.image, &m.again], [&local, &local_again], &r, &lit);
+        m.report.indirect_relative_error = ind.raw;
         m.report.indirect_error_net = ind.net;
         m.report.indirect_noise_reference = ind.reference_noise;
         m.report.indirect_noise_method = ind.method_noise;
@@ -400,29 +400,21 @@ fn render_method(
     })
 }
 
-/// (RMSE, mean relative error, indirect relative error) over lit pixels of
-/// method image `m` (with `local` rendered on the same samples) against the
-/// reference `r` (with `r_local`, its own samples' local light). Each
-/// indirect part is taken against its own sampling's local image, so the
-/// edges of leaves against the sky, sampled differently by the method and
-/// the reference, do not count as indirect light.
-fn errors(m: &HdrImage, local: &HdrImage, r: &HdrImage, r_local: &HdrImage, lit: &[bool]) -> (f64, f64, f64) {
+/// (RMSE, mean relative error) over lit pixels of method image `m` against
+/// the reference `r`: whole images ([`IndirectError`] takes the indirect part).
+fn errors(m: &HdrImage, r: &HdrImage, lit: &[bool]) -> (f64, f64) {
     let (mut se, mut rel, mut n) = (0.0f64, 0.0f64, 0usize);
-    let (mut ind_se, mut ind_ref) = (0.0f64, 0.0f64);
     for (i, _) in lit.iter().enumerate().filter(|(_, lit)| **lit) {
-        let (p, q, l, rl) = (m.pixels[i], r.pixels[i], local.pixels[i], r_local.pixels[i]);
+        let (p, q) = (m.pixels[i], r.pixels[i]);
         for c in 0..3 {
             se += ((p[c] - q[c]) as f64).powi(2);
-            let (ind_m, ind_r) = ((p[c] - l[c]) as f64, (q[c] - rl[c]) as f64);
-            ind_se += (ind_m - ind_r).powi(2);
-            ind_ref += ind_r.powi(2);
         }
         let lr = luminance(q) as f64;
         rel += ((luminance(p) as f64) - lr).abs() / lr;
         n += 1;
     }
     let n = n.max(1) as f64;
-    ((se / (3.0 * n)).sqrt(), rel / n, if ind_ref > 0.0 { (ind_se / ind_ref).sqrt() } else { 0.0 })
+    ((se / (3.0 * n)).sqrt(), rel / n)
 }
 
 /// Writes a linear image as float32 `.npy`, height × width × 3.
@@ -434,7 +426,11 @@ fn write_hdr(path: &Path, img: &HdrImage) -> anyhow::Result<()> {
 /// The seed bits that give a method's second render other samples.
 const SECOND_SEED: u32 = 0x5EED_0002;
 
-/// The indirect error with each image's own sampling noise taken out.
+/// The indirect error of a method: its indirect part (method − `local`
+/// on the same samples) against the reference's (its estimate minus
+/// `local` along its own samples), so leaf edges against the sky, sampled
+/// differently by the two, do not count as indirect light; raw, and with
+/// each image's own sampling noise taken out.
 ///
 /// A squared difference of two noisy estimates is, in expectation, the
 /// squared difference of their means plus both variances. The reference
@@ -445,6 +441,8 @@ const SECOND_SEED: u32 = 0x5EED_0002;
 /// the 4-ray edge aliasing and the reference's finite samples are not.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct IndirectError {
+    /// √(Σ d² / Σ i_r²) over lit pixels and channels.
+    raw: f64,
     /// √(max(0, Σ d² − Σ σ_m² − Σ σ_r²) / (Σ i_r² − Σ σ_r²)).
     net: f64,
     /// √(Σ σ_r²) over the reference's noise-free indirect RMS.
@@ -468,21 +466,30 @@ impl IndirectError {
                 var_m += (ind(0) - ind(1)).powi(2) / 2.0;
             }
         }
-        let signal = (r2 - var_r).max(f64::MIN_POSITIVE);
         if r2 <= 0.0 {
-            return Self { net: 0.0, reference_noise: 0.0, method_noise: 0.0 };
+            return Self { raw: 0.0, net: 0.0, reference_noise: 0.0, method_noise: 0.0 };
         }
-        Self { net: ((d2 - var_m - var_r).max(0.0) / signal).sqrt(), reference_noise: (var_r / signal).sqrt(), method_noise: (var_m / signal).sqrt() }
+        let signal = (r2 - var_r).max(f64::MIN_POSITIVE);
+        Self {
+            raw: (d2 / r2).sqrt(),
+            net: ((d2 - var_m - var_r).max(0.0) / signal).sqrt(),
+            reference_noise: (var_r / signal).sqrt(),
+            method_noise: (var_m / signal).sqrt(),
+        }
     }
 }
 
-/// What a saved reference was made for: the scene file's bytes, the image,
-/// the reference's budget and this build.
+/// What a saved reference was made for: the scene's bundle (the scene
+/// file and every model file it names, as `sylva submit` packs it), the
+/// image, the reference's budget and this very binary.
 fn reference_key(a: &CompareArgs) -> anyhow::Result<String> {
-    let bytes = std::fs::read(&a.scene).with_context(|| format!("{}: cannot read", a.scene.display()))?;
+    let bundle = sylva_shared::bundle::pack(&a.scene)?;
     let mut h = blake3::Hasher::new();
-    h.update(&bytes);
-    h.update(format!("{}x{} {} {} {}", a.width, a.height, a.target_error, a.max_seconds, env!("CARGO_PKG_VERSION")).as_bytes());
+    h.update(bundle.hash.as_bytes());
+    h.update(format!("{}x{} {} {}", a.width, a.height, a.target_error, a.max_seconds).as_bytes());
+    let exe = std::env::current_exe().context("this program's own file")?;
+    let mut file = std::fs::File::open(&exe).with_context(|| format!("{}: cannot read", exe.display()))?;
+    std::io::copy(&mut file, &mut h).with_context(|| format!("{}: cannot read", exe.display()))?;
     Ok(h.finalize().to_hex().to_string())
 }
 
