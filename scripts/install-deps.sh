@@ -22,12 +22,28 @@ if ((tests)); then
   command -v npm >/dev/null 2>&1 || missing+=(npm)
   command -v chromium >/dev/null 2>&1 || missing+=(chromium)
 fi
+sudo=""
+[ "$(id -u)" -eq 0 ] || sudo="sudo"
 if ((${#missing[@]})); then
-  sudo=""
-  [ "$(id -u)" -eq 0 ] || sudo="sudo"
   echo "installing: ${missing[*]}" >&2
   $sudo apt-get update -q
   DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
+
+# Lavapipe from Mesa 25 or later. Debian 12's own Mesa (22.3) runs the
+# traversal kernels about half as fast (docs/tracing.md, "Mesa 25"); on
+# Debian 12 Mesa 25 comes from Debian's bookworm-backports.
+mesa="$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)"
+codename="$(. /etc/os-release && echo "${VERSION_CODENAME:-}")"
+if [ "$codename" = bookworm ] && ! dpkg --compare-versions "$mesa" ge 25; then
+  echo "installing Mesa 25 (lavapipe) from bookworm-backports" >&2
+  if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
+    printf '%s\n' "Types: deb" "URIs: http://deb.debian.org/debian" "Suites: bookworm-backports" \
+      "Components: main" "Signed-By: /usr/share/keyrings/debian-archive-keyring.gpg" |
+      $sudo tee /etc/apt/sources.list.d/sylva-backports.sources >/dev/null
+  fi
+  $sudo apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -q --no-install-recommends -t bookworm-backports mesa-vulkan-drivers
 fi
 
 if ! command -v cargo >/dev/null 2>&1; then

@@ -248,10 +248,12 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     let covered = b.eval("[...document.querySelectorAll('#columns rect')].reduce((a, r) => a + Number(r.getAttribute('width')), 0)").await;
     assert_eq!(covered.as_f64(), Some(320.0), "the strips cover the frame once");
 
-    // A long job, and a cancel from the page while it runs.
+    // A long job, and a cancel from the page while it runs: long enough that
+    // its last strips are still to come after the page has raised it (64 spp
+    // took 4.7 s in all with Mesa 25's lavapipe, too quick for that).
     let bundle = sylva_shared::bundle::pack(&scene).unwrap();
     let mut s = spec(640, 480);
-    s.frame.as_mut().unwrap().spp = 64;
+    s.frame.as_mut().unwrap().spp = 512;
     let long = c.submit_job(tokio_stream::iter(submission(s, &bundle.hash, &bundle.bytes, bundle.bytes.len() as u64))).await.unwrap().into_inner().id;
     b.wait_for(&format!("{} === 'running'", state_of(&long)), "the long job running", Duration::from_secs(60)).await;
     b.eval(&format!("document.querySelector('tr[data-job=\"{long}\"]').click(), true")).await;
