@@ -37,7 +37,8 @@ mesa="$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)"
 codename="$(. /etc/os-release && echo "${VERSION_CODENAME:-}")"
 if [ "$codename" = bookworm ] && ! dpkg --compare-versions "$mesa" ge 25; then
   echo "installing Mesa 25 (lavapipe) from bookworm-backports" >&2
-  if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
+  # (a line that names it, not commented out)
+  if ! grep -rqsE "^[^#]*bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
     printf '%s\n' "Types: deb" "URIs: http://deb.debian.org/debian" "Suites: bookworm-backports" \
       "Components: main" "Signed-By: /usr/share/keyrings/debian-archive-keyring.gpg" |
       $sudo tee /etc/apt/sources.list.d/sylva-backports.sources >/dev/null
