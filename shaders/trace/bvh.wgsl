@@ -13,17 +13,30 @@ var<private> bvh_stack_ref: array<u32, BVH_STACK>;
 var<private> bvh_stack_count: array<u32, BVH_STACK>;
 var<private> bvh_stack_near: array<f32, BVH_STACK>;
 
-// Orders lanes a and b of the distances d (and their child slots i).
-fn sort_pair(d: ptr<function, vec4<f32>>, i: ptr<function, vec4<u32>>, a: u32, b: u32) {
+// Orders lanes a and b by the distances d, carrying the children's
+// references c and leaf counts n along: constant lanes only, since a
+// dynamically indexed vector costs a chain of selects on lavapipe.
+fn sort_pair(d: ptr<function, vec4<f32>>, c: ptr<function, vec4<u32>>, n: ptr<function, vec4<u32>>, a: u32, b: u32) {
     let da = (*d)[a];
     let db = (*d)[b];
     if db < da {
         (*d)[a] = db;
         (*d)[b] = da;
-        let ia = (*i)[a];
-        (*i)[a] = (*i)[b];
-        (*i)[b] = ia;
+        let ca = (*c)[a];
+        (*c)[a] = (*c)[b];
+        (*c)[b] = ca;
+        let na = (*n)[a];
+        (*n)[a] = (*n)[b];
+        (*n)[b] = na;
     }
+}
+
+// Pushes a child (its reference, leaf count and entry distance).
+fn push_entry(sp: ptr<function, u32>, reference: u32, count: u32, near: f32) {
+    bvh_stack_ref[*sp] = reference;
+    bvh_stack_count[*sp] = count;
+    bvh_stack_near[*sp] = near;
+    *sp += 1u;
 }
 
 // The four bytes of `w` as grid cells.
@@ -55,10 +68,7 @@ fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
             if inst == NO_HIT {
                 // A top-level leaf: enter its first part, keep the rest.
                 if count > 1u {
-                    bvh_stack_ref[sp] = BVH_LEAF | (first + 1u);
-                    bvh_stack_count[sp] = count - 1u;
-                    bvh_stack_near[sp] = near_cur;
-                    sp += 1u;
+                    push_entry(&sp, BVH_LEAF | (first + 1u), count - 1u, near_cur);
                 }
                 let part = nodes[first];
                 inst = part.x;
@@ -109,21 +119,26 @@ fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
             if n_hit > 0u {
                 // Misses sort last: their key is infinite, a hit's is finite.
                 var dist = select(vec4<f32>(inf), min(near, vec4<f32>(3.0e38)), hit);
-                var slot = vec4<u32>(0u, 1u, 2u, 3u);
-                sort_pair(&dist, &slot, 0u, 1u);
-                sort_pair(&dist, &slot, 2u, 3u);
-                sort_pair(&dist, &slot, 0u, 2u);
-                sort_pair(&dist, &slot, 1u, 3u);
-                sort_pair(&dist, &slot, 1u, 2u);
-                for (var k = n_hit - 1u; k > 0u; k--) {
-                    bvh_stack_ref[sp] = child[slot[k]];
-                    bvh_stack_count[sp] = counts[slot[k]];
-                    bvh_stack_near[sp] = dist[k];
-                    sp += 1u;
+                var kids = child;
+                var kid_counts = counts;
+                sort_pair(&dist, &kids, &kid_counts, 0u, 1u);
+                sort_pair(&dist, &kids, &kid_counts, 2u, 3u);
+                sort_pair(&dist, &kids, &kid_counts, 0u, 2u);
+                sort_pair(&dist, &kids, &kid_counts, 1u, 3u);
+                sort_pair(&dist, &kids, &kid_counts, 1u, 2u);
+                // The farther hit children wait on the stack, farthest first.
+                if n_hit > 3u {
+                    push_entry(&sp, kids.w, kid_counts.w, dist.w);
                 }
-                cur = child[slot[0]];
-                count = counts[slot[0]];
-                near_cur = dist[0];
+                if n_hit > 2u {
+                    push_entry(&sp, kids.z, kid_counts.z, dist.z);
+                }
+                if n_hit > 1u {
+                    push_entry(&sp, kids.y, kid_counts.y, dist.y);
+                }
+                cur = kids.x;
+                count = kid_counts.x;
+                near_cur = dist.x;
                 descended = true;
             }
         }
