@@ -6,8 +6,20 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# Lavapipe from Mesa 25 or later. Debian 12's own Mesa (22.3) runs the
+# traversal kernels about half as fast (docs/tracing.md, "Mesa 25"); on
+# Debian 12 Mesa 25 comes from Debian's bookworm-backports, installed below
+# (not first from Debian 12 and then again).
+mesa="$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)"
+codename="$(. /etc/os-release && echo "${VERSION_CODENAME:-}")"
+backports=0
+if [ "$codename" = bookworm ] && ! dpkg --compare-versions "$mesa" ge 25; then
+  backports=1
+fi
+
 # libc6-dev is only a recommendation of gcc, and rustc links through it (crt1.o, libc.so).
-packages=(mesa-vulkan-drivers libvulkan1 gcc libc6-dev pkg-config ca-certificates curl)
+packages=(libvulkan1 gcc libc6-dev pkg-config ca-certificates curl)
+((backports)) || packages+=(mesa-vulkan-drivers)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -30,12 +42,7 @@ if ((${#missing[@]})); then
   DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -q --no-install-recommends "${missing[@]}"
 fi
 
-# Lavapipe from Mesa 25 or later. Debian 12's own Mesa (22.3) runs the
-# traversal kernels about half as fast (docs/tracing.md, "Mesa 25"); on
-# Debian 12 Mesa 25 comes from Debian's bookworm-backports.
-mesa="$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)"
-codename="$(. /etc/os-release && echo "${VERSION_CODENAME:-}")"
-if [ "$codename" = bookworm ] && ! dpkg --compare-versions "$mesa" ge 25; then
+if ((backports)); then
   echo "installing Mesa 25 (lavapipe) from bookworm-backports" >&2
   # (a line that names it, not commented out)
   if ! grep -rqsE "^[^#]*bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
