@@ -44,56 +44,78 @@ fn cells(w: u32) -> vec4<f32> {
     return vec4<f32>(vec4<u32>(w, w >> 8u, w >> 16u, w >> 24u) & vec4<u32>(0xffu));
 }
 
+// Where a walk is: the ray in the current level's space, the instance
+// being walked (NO_HIT at the top level) and the stack depth when it was
+// entered (entries below it are the top level's), the entry to visit next
+// with its leaf count and entry distance. (The stack pointer is apart: a
+// pointer to a struct's member cannot be passed on.)
+struct Walk {
+    ray: Ray,
+    inst: u32,
+    inst_sp: u32,
+    cur: u32,
+    count: u32,
+    near: f32,
+}
+
+// Pops the next entry still in reach into the walk, back in world space
+// once below the instance's entries; false when none is left.
+fn pop_entry(w: ptr<function, Walk>, sp: ptr<function, u32>, world: Ray, closest: f32) -> bool {
+    loop {
+        if *sp == 0u {
+            return false;
+        }
+        *sp -= 1u;
+        if *sp < (*w).inst_sp {
+            (*w).inst = NO_HIT;
+            (*w).inst_sp = 0u;
+            (*w).ray = world;
+        }
+        let i = *sp;
+        if bvh_stack_near[i] <= closest {
+            (*w).cur = bvh_stack_ref[i];
+            (*w).count = bvh_stack_count[i];
+            (*w).near = bvh_stack_near[i];
+            return true;
+        }
+    }
+    return false;
+}
+
 // The closest opaque hit in (t_min, t_max); with `any`, the first found.
 // The top level's root is entry 0; its leaves hold instance parts
 // (instance, entry of a subtree of the model's BVH, leaf count).
+//
+// Each pass of the loop runs up to three steps in turn, each for the lanes
+// it concerns: entering an instance part, one node's four boxes, one
+// leaf's triangles. A lane that enters a part tests its root's boxes in
+// the same pass, and one that reaches a leaf tests it in the same pass,
+// so the lanes of a SIMD group share passes instead of taking turns.
 fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
     let inf = bitcast<f32>(0x7f800000u);
     var best = no_hit();
     var closest = t_max;
-    var ray = world;
-    // The instance being walked (NO_HIT at the top level) and the stack
-    // depth when it was entered: entries below it are the top level's.
-    var inst = NO_HIT;
-    var inst_sp = 0u;
+    var w = Walk(world, NO_HIT, 0u, 0u, 0u, t_min);
     var sp = 0u;
-    var cur = 0u;
-    var count = 0u;
-    // The entry distance of `cur`.
-    var near_cur = t_min;
     loop {
-        var descended = false;
-        if (cur & BVH_LEAF) != 0u {
-            let first = cur & ~BVH_LEAF;
-            if inst == NO_HIT {
-                // A top-level leaf: enter its first part, keep the rest.
-                if count > 1u {
-                    push_entry(&sp, BVH_LEAF | (first + 1u), count - 1u, near_cur);
-                }
-                let part = nodes[first];
-                inst = part.x;
-                inst_sp = sp;
-                let instance = instances[inst];
-                ray = make_ray(to_model_point(instance, world.origin), to_model_vector(instance, world.dir));
-                cur = part.y;
-                count = part.z;
-                descended = true;
-            } else {
-                for (var k = 0u; k < count; k++) {
-                    let h = test_record(ray, first, k, t_min, closest);
-                    if h.triangle != NO_HIT {
-                        best = h;
-                        best.instance = inst;
-                        closest = h.t;
-                        if any {
-                            return best;
-                        }
-                    }
-                }
+        if (w.cur & BVH_LEAF) != 0u && w.inst == NO_HIT {
+            // A top-level leaf: enter its first part, keep the rest.
+            let first = w.cur & ~BVH_LEAF;
+            if w.count > 1u {
+                push_entry(&sp, BVH_LEAF | (first + 1u), w.count - 1u, w.near);
             }
-        } else {
-            let o = ray.origin;
-            let inv = ray.inv_dir;
+            let part = nodes[first];
+            w.inst = part.x;
+            w.inst_sp = sp;
+            let instance = instances[w.inst];
+            w.ray = make_ray(to_model_point(instance, world.origin), to_model_vector(instance, world.dir));
+            w.cur = part.y;
+            w.count = part.z;
+        }
+        if (w.cur & BVH_LEAF) == 0u {
+            let o = w.ray.origin;
+            let inv = w.ray.inv_dir;
+            let cur = w.cur;
             // (grid origin, exponents), children, (lo x y z, hi x), (hi y z, counts).
             let e0 = nodes[cur];
             let child = nodes[cur + 1u];
@@ -136,38 +158,33 @@ fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
                 if n_hit > 1u {
                     push_entry(&sp, kids.y, kid_counts.y, dist.y);
                 }
-                cur = kids.x;
-                count = kid_counts.x;
-                near_cur = dist.x;
-                descended = true;
+                w.cur = kids.x;
+                w.count = kid_counts.x;
+                w.near = dist.x;
+            } else {
+                let more = pop_entry(&w, &sp, world, closest);
+                if !more {
+                    return best;
+                }
             }
         }
-        if descended {
-            continue;
-        }
-        // Pop the next entry still in reach, back in world space once below
-        // the instance's entries.
-        var found = false;
-        loop {
-            if sp == 0u {
-                break;
+        if (w.cur & BVH_LEAF) != 0u && w.inst != NO_HIT {
+            let first = w.cur & ~BVH_LEAF;
+            for (var k = 0u; k < w.count; k++) {
+                let h = test_record(w.ray, first, k, t_min, closest);
+                if h.triangle != NO_HIT {
+                    best = h;
+                    best.instance = w.inst;
+                    closest = h.t;
+                    if any {
+                        return best;
+                    }
+                }
             }
-            sp -= 1u;
-            if sp < inst_sp {
-                inst = NO_HIT;
-                inst_sp = 0u;
-                ray = world;
+            let more = pop_entry(&w, &sp, world, closest);
+            if !more {
+                return best;
             }
-            if bvh_stack_near[sp] <= closest {
-                cur = bvh_stack_ref[sp];
-                count = bvh_stack_count[sp];
-                near_cur = bvh_stack_near[sp];
-                found = true;
-                break;
-            }
-        }
-        if !found {
-            return best;
         }
     }
     return best;
