@@ -12,6 +12,7 @@ pub mod bvh;
 pub mod coverage;
 pub mod kdtree;
 pub mod scene;
+mod spatial;
 pub mod triangle;
 
 pub use aabb::Aabb;
@@ -78,6 +79,16 @@ impl Accel {
         match kind {
             AccelKind::Kd => Accel::Kd(KdTree::build(bounds)),
             AccelKind::Bvh => Accel::Bvh(Bvh::build(bounds)),
+        }
+    }
+
+    /// Builds a structure of `kind` over a model's triangles, with `bounds`
+    /// empty for those no ray can hit; the BVH splits triangles at planes
+    /// where their boxes overlap ([`Bvh::build_spatial`]).
+    pub fn build_triangles(kind: AccelKind, bounds: &[Aabb], triangles: &[[Vec3; 3]]) -> Self {
+        match kind {
+            AccelKind::Kd => Accel::Kd(KdTree::build(bounds)),
+            AccelKind::Bvh => Accel::Bvh(Bvh::build_spatial(bounds, triangles)),
         }
     }
 
@@ -184,7 +195,12 @@ mod tests {
 
     fn check(kind: AccelKind, tris: &[[Vec3; 3]], rays: &[Ray]) {
         let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
-        let accel = Accel::build(kind, &bounds);
+        check_accel(&Accel::build(kind, &bounds), tris, rays);
+        check_accel(&Accel::build_triangles(kind, &bounds, tris), tris, rays);
+    }
+
+    fn check_accel(accel: &Accel, tris: &[[Vec3; 3]], rays: &[Ray]) {
+        let kind = accel.kind();
         let mut hits = 0;
         for r in rays {
             let want = brute(tris, r);
@@ -204,6 +220,23 @@ mod tests {
         let rs = rays(20_000, 2);
         check(AccelKind::Bvh, &tris, &rs);
         check(AccelKind::Kd, &tris, &rs);
+    }
+
+    #[test]
+    fn spatial_splits_cut_long_crossing_triangles_and_find_the_same_hits() {
+        // A soup with long slivers across it, as branches cross a crown.
+        let mut tris = soup(2000, 6);
+        let mut rng = SplitMix64::new(7);
+        for _ in 0..300 {
+            let a = Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            let b = Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            tris.push([a, b, b + Vec3::splat(0.3)]);
+        }
+        let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
+        let Accel::Bvh(bvh) = Accel::build_triangles(AccelKind::Bvh, &bounds, &tris) else { unreachable!() };
+        assert!(bvh.prims.len() > tris.len(), "no triangle was split ({} references)", bvh.prims.len());
+        bvh.check(tris.len()).unwrap();
+        check(AccelKind::Bvh, &tris, &rays(20_000, 8));
     }
 
     #[test]

@@ -71,7 +71,8 @@ impl SceneAccel {
             .par_iter()
             .map(|m| {
                 let coverage = triangle_coverage(&m.model);
-                (Accel::build(kind, &triangle_bounds(&m.model, &coverage)), coverage)
+                let triangles: Vec<[Vec3; 3]> = (0..m.model.triangle_count()).map(|t| m.model.triangle(t)).collect();
+                (Accel::build_triangles(kind, &triangle_bounds(&m.model, &coverage), &triangles), coverage)
             })
             .unzip();
         Self::around(scene, kind, models, coverage)
