@@ -610,32 +610,53 @@ fn object_split(refs: &[Ref]) -> Option<ObjectSplit> {
             counts[b] += 1;
             boxes[b] = boxes[b].union(r.bounds);
         }
-        // Sweep: box and count left of each boundary, then right.
-        let mut left_box = [Aabb::EMPTY; BINS];
-        let mut left_count = [0usize; BINS];
-        let (mut acc, mut n) = (Aabb::EMPTY, 0);
-        for i in 0..BINS - 1 {
-            acc = acc.union(boxes[i]);
-            n += counts[i];
-            left_box[i] = acc;
-            left_count[i] = n;
+        if let Some(sweep) = sweep(&boxes, &counts, &counts)
+            && best.is_none_or(|b| sweep.cost < b.cost)
+        {
+            (split.cost, split.boundary, split.left, split.right) = (sweep.cost, sweep.boundary, sweep.left, sweep.right);
+            best = Some(split);
         }
-        let (mut acc, mut n) = (Aabb::EMPTY, 0);
-        for i in (1..BINS).rev() {
-            acc = acc.union(boxes[i]);
-            n += counts[i];
-            let l = left_count[i - 1];
-            if l == 0 || n == 0 {
-                continue;
-            }
-            let cost = left_box[i - 1].area() * l as f32 + acc.area() * n as f32;
-            if best.is_none_or(|b| cost < b.cost) {
-                split.cost = cost;
-                split.boundary = i;
-                split.left = left_box[i - 1];
-                split.right = acc;
-                best = Some(split);
-            }
+    }
+    best
+}
+
+/// The cheapest boundary between bins by the surface area heuristic.
+pub(super) struct Sweep {
+    /// Areas times counts of both sides (not yet divided by the node's area).
+    pub cost: f32,
+    /// Bins below it are the left side.
+    pub boundary: usize,
+    pub left: Aabb,
+    pub right: Aabb,
+}
+
+/// Sweeps the boundaries between `boxes`' bins: references counted left
+/// of a boundary by `entries` (the bins where they start), right of it by
+/// `exits` (where they end): the same counts for an object split, which
+/// puts each reference in one bin. `None` when every boundary leaves a
+/// side empty.
+pub(super) fn sweep<const N: usize>(boxes: &[Aabb; N], entries: &[usize; N], exits: &[usize; N]) -> Option<Sweep> {
+    let mut left_box = [Aabb::EMPTY; N];
+    let mut left_count = [0usize; N];
+    let (mut acc, mut n) = (Aabb::EMPTY, 0);
+    for i in 0..N - 1 {
+        acc = acc.union(boxes[i]);
+        n += entries[i];
+        left_box[i] = acc;
+        left_count[i] = n;
+    }
+    let mut best: Option<Sweep> = None;
+    let (mut acc, mut n) = (Aabb::EMPTY, 0);
+    for i in (1..N).rev() {
+        acc = acc.union(boxes[i]);
+        n += exits[i];
+        let l = left_count[i - 1];
+        if l == 0 || n == 0 {
+            continue;
+        }
+        let cost = left_box[i - 1].area() * l as f32 + acc.area() * n as f32;
+        if best.as_ref().is_none_or(|b| cost < b.cost) {
+            best = Some(Sweep { cost, boundary: i, left: left_box[i - 1], right: acc });
         }
     }
     best

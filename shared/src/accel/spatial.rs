@@ -8,6 +8,7 @@
 //! triangle referenced by two leaves.
 
 use super::Aabb;
+use super::bvh::sweep;
 use glam::Vec3;
 
 /// A primitive reference: the primitive, and the box of the piece of it
@@ -86,27 +87,10 @@ pub(super) fn find(refs: &[Ref], triangles: &[[Vec3; 3]], bb: &Aabb) -> Option<S
                 *bin = bin.union(clip(tri, axis, plane(b), plane(b + 1), r.bounds));
             }
         }
-        let mut left_area = [0.0f32; BINS];
-        let mut left_count = [0usize; BINS];
-        let (mut acc, mut n) = (Aabb::EMPTY, 0);
-        for i in 0..BINS - 1 {
-            acc = acc.union(boxes[i]);
-            n += entries[i];
-            left_area[i] = acc.area();
-            left_count[i] = n;
-        }
-        let (mut acc, mut n) = (Aabb::EMPTY, 0);
-        for i in (1..BINS).rev() {
-            acc = acc.union(boxes[i]);
-            n += exits[i];
-            let l = left_count[i - 1];
-            if l == 0 || n == 0 {
-                continue;
-            }
-            let cost = left_area[i - 1] * l as f32 + acc.area() * n as f32;
-            if best.is_none_or(|b| cost < b.cost) {
-                best = Some(SpatialSplit { cost, axis, pos: plane(i) });
-            }
+        if let Some(s) = sweep(&boxes, &entries, &exits)
+            && best.is_none_or(|b| s.cost < b.cost)
+        {
+            best = Some(SpatialSplit { cost: s.cost, axis, pos: plane(s.boundary) });
         }
     }
     best
