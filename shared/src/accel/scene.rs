@@ -72,7 +72,7 @@ impl SceneAccel {
             .map(|m| {
                 let coverage = triangle_coverage(&m.model);
                 let triangles: Vec<[Vec3; 3]> = (0..m.model.triangle_count()).map(|t| m.model.triangle(t)).collect();
-                (Accel::build_triangles(kind, &triangle_bounds(&m.model, &coverage), &triangles), coverage)
+                (Accel::build_triangles(kind, &triangle_bounds(&triangles, &coverage), &triangles), coverage)
             })
             .unzip();
         Self::around(scene, kind, models, coverage)
@@ -291,8 +291,8 @@ pub fn uv_at(model: &Model, tri: u32, u: f32, v: f32) -> Vec2 {
 }
 
 /// Bounds of each triangle; empty for triangles no ray can hit.
-pub fn triangle_bounds(model: &Model, coverage: &[Coverage]) -> Vec<Aabb> {
-    (0..model.triangle_count()).map(|t| if coverage[t] == Coverage::Cut { Aabb::EMPTY } else { Aabb::around(&model.triangle(t)) }).collect()
+pub fn triangle_bounds(triangles: &[[Vec3; 3]], coverage: &[Coverage]) -> Vec<Aabb> {
+    triangles.iter().zip(coverage).map(|(t, &c)| if c == Coverage::Cut { Aabb::EMPTY } else { Aabb::around(t) }).collect()
 }
 
 /// Bounds of a whole model.
