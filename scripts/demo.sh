@@ -9,7 +9,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh
 . scripts/env.sh
-cargo build --release --locked -p sylva-coordinator
+cargo build --release --locked -p sylva
 mkdir -p sylva-out
 ./target/release/sylva scene forest --scale "${SYLVA_SCALE:-0.05}" -o sylva-out/forest.json
 ./target/release/sylva render sylva-out/forest.json -o sylva-out/forest.png "$@"

@@ -4,7 +4,7 @@
 //! (and re-rendered elsewhere) rather than panicking or corrupting the image.
 
 use crate::schedule::Strip;
-use sylva_shared::film::HdrImage;
+use sylva_scene::film::HdrImage;
 
 /// A strip's pixels, decoded and checked.
 #[derive(Clone, Debug)]

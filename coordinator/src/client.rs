@@ -46,7 +46,7 @@ pub async fn submit_and_follow(
     token: Option<String>,
     tls: Option<&tonic::transport::ClientTlsConfig>,
     spec: pb::JobSpec,
-    bundle: &sylva_shared::bundle::SceneBundle,
+    bundle: &sylva_scene::bundle::SceneBundle,
     exr: bool,
 ) -> anyhow::Result<FinishedJob> {
     let views = spec.views.len();

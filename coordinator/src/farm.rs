@@ -16,8 +16,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use sylva_proto::pb;
 use sylva_proto::pb::worker_client::WorkerClient;
-use sylva_shared::bundle::SceneBundle;
-use sylva_shared::frame::FrameSettings;
+use sylva_scene::bundle::SceneBundle;
+use sylva_scene::frame::FrameSettings;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig};
 

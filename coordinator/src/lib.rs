@@ -4,7 +4,6 @@
 //! clients ([`client`]) and web page ([`dashboard`]); the worker's registration ([`registration`]); a sequence's outputs ([`sequence`]).
 
 pub mod assembly;
-pub mod chart;
 pub mod client;
 pub mod dashboard;
 pub mod executor;
@@ -16,4 +15,3 @@ pub mod schedule;
 pub mod sequence;
 pub mod service;
 pub mod shutdown;
-pub mod simulate;

@@ -21,12 +21,12 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::{Coordinator, CoordinatorServer};
-use sylva_shared::bundle::{self, SceneBundle};
-use sylva_shared::film::{reinhard, reinhard_like};
-use sylva_shared::frame::FrameSettings;
-use sylva_shared::scene::SceneLimits;
-use sylva_shared::scene::files::clip;
-use sylva_shared::sequence::{MAX_FRAMES, View};
+use sylva_scene::bundle::{self, SceneBundle};
+use sylva_scene::film::{reinhard, reinhard_like};
+use sylva_scene::frame::FrameSettings;
+use sylva_scene::SceneLimits;
+use sylva_scene::sandbox::clip;
+use sylva_scene::sequence::{MAX_FRAMES, View};
 use tokio::sync::{Semaphore, broadcast};
 use tokio_stream::{Stream, StreamExt};
 use tonic::{Request, Response, Status, Streaming};
@@ -507,7 +507,7 @@ impl State {
             Err(e) => return fail(format!("{e:#}")),
         };
         // Tone mapping and encoding are CPU work: off the async runtime.
-        let images: Vec<sylva_shared::film::HdrImage> = rendered.iter().map(|f| f.image.clone()).collect();
+        let images: Vec<sylva_scene::film::HdrImage> = rendered.iter().map(|f| f.image.clone()).collect();
         // A sequence keeps one exposure (its middle frame's), so a sun
         // sweep shows the light change rather than the tone mapper's.
         let encoded = tokio::task::spawn_blocking(move || {
@@ -536,7 +536,7 @@ impl State {
                 costs.insert(cost_key, crate::schedule::column_cost(frame.width, &rendered[0].strip_ms));
             }
         }
-        let per_frame = |f: &crate::executor::RenderedFrame, tone: &sylva_shared::film::ToneMapStats, ms: f64| {
+        let per_frame = |f: &crate::executor::RenderedFrame, tone: &sylva_scene::film::ToneMapStats, ms: f64| {
             serde_json::json!({
                 "strips": f.strip_ms.iter().map(|(s, ms, rpc)| serde_json::json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
                 "rays": { "primary": f.rays[0], "shadow": f.rays[1], "transparent_passed": f.rays[2], "mrays_per_second": (f.rays[0] + f.rays[1]) as f64 / (ms / 1e3) / 1e6 },
@@ -665,7 +665,7 @@ fn encode_png(w: u32, h: u32, px: &[[u8; 3]]) -> anyhow::Result<Vec<u8>> {
     Ok(out.into_inner())
 }
 
-fn encode_exr(img: &sylva_shared::film::HdrImage) -> anyhow::Result<Vec<u8>> {
+fn encode_exr(img: &sylva_scene::film::HdrImage) -> anyhow::Result<Vec<u8>> {
     let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
     let buf = image::Rgb32FImage::from_raw(img.width, img.height, flat).ok_or_else(|| anyhow::anyhow!("image size"))?;
     let mut out = std::io::Cursor::new(Vec::new());

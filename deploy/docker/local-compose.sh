@@ -36,7 +36,7 @@ if ((${#missing[@]})); then
 fi
 DOCKER=/usr/bin/docker
 export SYLVA=${SYLVA:-$PWD/target/release/sylva}
-[ -x "$SYLVA" ] || cargo build --release --locked -p sylva-coordinator
+[ -x "$SYLVA" ] || cargo build --release --locked -p sylva
 
 started_engine=0
 if ! $DOCKER info >/dev/null 2>&1; then

@@ -28,7 +28,7 @@ if ((${#missing[@]})); then
   DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends "${missing[@]}"
 fi
 export SYLVA=${SYLVA:-$PWD/target/release/sylva}
-[ -x "$SYLVA" ] || cargo build --release --locked -p sylva-coordinator
+[ -x "$SYLVA" ] || cargo build --release --locked -p sylva
 
 # munge: one key for the one node.
 if [ ! -s /etc/munge/munge.key ]; then

@@ -1,6 +1,6 @@
 //! `bundle::unpack` on arbitrary bytes: it may not panic, and it may not
 //! write outside the folder it is given. The in-suite version is
-//! `shared/tests/fuzz_inputs.rs`; see docs/fuzzing.md.
+//! `shared/scene/tests/fuzz_inputs.rs`; see docs/fuzzing.md.
 //!
 //! An input that starts with the bundle magic `SYLVABN1` is unpacked as it
 //! is. Any other input is `manifest JSON` + `\n--blobs--\n` + `blob bytes`
@@ -14,8 +14,8 @@ use std::collections::BTreeSet;
 use std::path::{Component, Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::SystemTime;
-use sylva_shared::bundle;
-use sylva_shared::scene::SceneFile;
+use sylva_scene::bundle;
+use sylva_scene::SceneFile;
 
 const MAGIC: &[u8; 8] = b"SYLVABN1";
 const SEPARATOR: &[u8] = b"\n--blobs--\n";

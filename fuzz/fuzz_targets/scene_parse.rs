@@ -1,5 +1,5 @@
 //! `scene::parse` then `Scene::build` on arbitrary text: neither may panic.
-//! The in-suite version is `shared/tests/fuzz_inputs.rs`; see
+//! The in-suite version is `shared/scene/tests/fuzz_inputs.rs`; see
 //! docs/fuzzing.md.
 
 #![no_main]
@@ -7,7 +7,7 @@
 use libfuzzer_sys::fuzz_target;
 use std::path::{Component, Path, PathBuf};
 use std::sync::OnceLock;
-use sylva_shared::scene::{self, Scene, SceneFile};
+use sylva_scene::{self as scene, Scene, SceneFile};
 
 /// Largest generated tree built: trees cost time in proportion.
 const MAX_TREE_TRIANGLES: u32 = 2000;

@@ -4,11 +4,11 @@
 //! frame that fails its checks is refused here, with INVALID_ARGUMENT.
 
 use crate::pb;
-use sylva_shared::accel::AccelKind;
-use sylva_shared::frame::FrameSettings;
-use sylva_shared::scene::LightingMode;
-use sylva_shared::scene::file::CameraSpec;
-use sylva_shared::sequence::View;
+use sylva_scene::frame::AccelKind;
+use sylva_scene::frame::FrameSettings;
+use sylva_scene::LightingMode;
+use sylva_scene::format::CameraSpec;
+use sylva_scene::sequence::View;
 use tonic::Status;
 
 /// The wire's lighting for a method (`None`: the scene's).

@@ -35,7 +35,7 @@ fn is_boundary(idx: u32) -> bool {
 // Boundary nodes hold the sun's and sky's densities, and flow into them
 // (or off the lattice) is dropped; over a reflecting ground the bottom
 // face's nodes off the other faces re-emit upward what arrives downward
-// (GroundReflection in shared/src/lb/boundary.rs). Interior nodes pull
+// (GroundReflection in shared/light/src/lb/boundary.rs). Interior nodes pull
 // f_m(r - c_m), which always lies on the lattice.
 @compute @workgroup_size(WORKGROUP)
 fn step(@builtin(global_invocation_id) gid: vec3<u32>) {

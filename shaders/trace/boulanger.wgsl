@@ -1,6 +1,6 @@
 // Boulanger, Bouatouch & Pattanaik 2008 (`--lighting boulanger`): each leaf
 // carries its envelope distances s_max along eight directions (precomputed
-// by shared/src/boulanger.rs, whose `shade` is the CPU reference of this
+// by shared/light/src/boulanger.rs, whose `shade` is the CPU reference of this
 // code); light reaching it is attenuated as e^(−τ s) by the foliage in
 // between. Direct sky (eq. 6) over the eight directions, direct sun with
 // the cosine-lobe s_max of eq. 7 (eq. 8), and one bounce of sun light off

@@ -5,7 +5,7 @@
 // node's four boxes, or a leaf), whichever level it is on; entering an
 // instance swaps in the ray carried into model space, and popping an entry
 // pushed before that swaps the world ray back. Visits are in the order of
-// the CPU reference (shared/src/accel/scene.rs), so ties resolve alike.
+// the CPU reference (shared/accel/src/two_level.rs), so ties resolve alike.
 
 // The stack lives at module scope: a function's arrays are zeroed on every
 // call (WGSL's rule), a private one once per invocation.

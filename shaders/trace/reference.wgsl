@@ -1,7 +1,7 @@
 // The reference integrator (`--lighting reference`): a path tracer on the
 // same triangles, traversal and textures as the direct methods. Leaves
 // reflect and transmit Lambertianly per side (Boulanger et al.'s ρ_rf, ρ_rb,
-// ρ_tf, ρ_tb as multipliers of the texture colour, shared/src/leaf.rs); wood
+// ρ_tf, ρ_tb as multipliers of the texture colour, shared/scene/src/leaf/mod.rs); wood
 // and the ground are Lambertian; the sky is the same gradient; clouds are a
 // heterogeneous medium sampled by delta tracking with the Henyey–Greenstein
 // phase function, their transmittance towards the sun by ratio tracking.

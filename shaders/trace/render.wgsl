@@ -36,7 +36,7 @@ struct Frame {
     epsilon: f32,
     // The reference integrator's path length cap (Russian roulette ends most paths sooner).
     max_bounces: u32,
-    // Leaf optics (shared/src/leaf.rs): multipliers of the texture colour.
+    // Leaf optics (shared/scene/src/leaf/mod.rs): multipliers of the texture colour.
     leaf_reflect_front: vec3<f32>,
     pad0: u32,
     leaf_reflect_back: vec3<f32>,
@@ -85,7 +85,7 @@ override LIGHTING_FAMILY: u32 = 0u;
 override HAS_CLOUDS: bool = false;
 const SPECULAR_EXPONENT: f32 = 24.0;
 
-// PCG hash (Jarzynski & Olano 2020); shared/src/sampler.rs mirrors it.
+// PCG hash (Jarzynski & Olano 2020); shared/scene/src/sampler.rs mirrors it.
 fn pcg(v: u32) -> u32 {
     let state = v * 747796405u + 2891336453u;
     let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;

@@ -5,7 +5,7 @@
 // point (rays.wgsl, render.wgsl); uploaded by worker/src/trace/gpu_scene.rs,
 // whose #[repr(C)] structs these mirror (a test checks the offsets).
 //
-// The CPU reference is shared/src/accel: the same node layouts, the same
+// The CPU reference is shared/accel/src: the same node layouts, the same
 // traversal order, the same arithmetic.
 
 // 0: BVH, 1: kd-tree. Set when the pipeline is built.
@@ -18,7 +18,7 @@ const BVH_STACK: u32 = 96u;
 // A wide BVH child reference: a leaf (its first record or prim slot), or empty.
 const BVH_LEAF: u32 = 0x80000000u;
 const BVH_EMPTY: u32 = 0xffffffffu;
-// A triangle record's coverage (shared/src/accel/coverage.rs): only mixed
+// A triangle record's coverage (shared/accel/src/coverage.rs): only mixed
 // triangles take the alpha test.
 const COVERAGE_MIXED: u32 = 1u;
 const SHORT_STACK: u32 = 5u;
@@ -79,7 +79,7 @@ struct Model {
 
 // Wide BVH nodes take four entries (the grid's origin and exponents, the
 // four children's references, their boxes in 8-bit grid cells and their
-// leaf counts: shared/src/accel/bvh.rs) and each model's triangle
+// leaf counts: shared/accel/src/bvh/mod.rs) and each model's triangle
 // records three (first vertex + triangle, edge 1 + coverage, edge 2 +
 // material), after its nodes; kd nodes take one (split, axis, first,
 // count). References are entry indices. The top level's root is entry 0.

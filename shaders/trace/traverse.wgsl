@@ -1,7 +1,7 @@
 // The kd-tree's traversal of one level of the two-level structure, a
 // template: worker/src/trace/shaders.rs instantiates it with LEVEL = top
 // (leaves hold instances) and LEVEL = model (leaves hold triangles), since
-// WGSL has no generics and forbids recursion. Mirrors shared/src/accel.
+// WGSL has no generics and forbids recursion. Mirrors shared/accel/src.
 
 // The closest hit of the kd-tree rooted at `root` in (t_min, t_max); with
 // `any`, the first hit found (shadow rays need no more). (The BVH walks

@@ -11,10 +11,10 @@ use crate::lighting::{
 };
 use crate::trace::{GpuScene, SceneLight, StripRenderer};
 use std::sync::Arc;
-use sylva_shared::accel::{AccelKind, SceneAccel};
-use sylva_shared::lb::coarse::ForestLight;
-use sylva_shared::lb::solver::PhaseTimer;
-use sylva_shared::scene::{LightingMode, Scene};
+use sylva_accel::{AccelKind, SceneAccel};
+use sylva_light::lb::coarse::ForestLight;
+use sylva_light::lb::solver::PhaseTimer;
+use sylva_scene::{LightingMode, Scene};
 
 /// A scene ready to trace, and what preparing it cost.
 pub struct PreparedScene {

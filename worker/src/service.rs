@@ -16,15 +16,15 @@ use std::time::Instant;
 use sylva_proto::pb;
 use sylva_proto::pb::worker_identity_server::{WorkerIdentity, WorkerIdentityServer};
 use sylva_proto::pb::worker_server::{Worker, WorkerServer};
-use sylva_shared::accel::AccelKind;
-use sylva_shared::bundle;
-use sylva_shared::frame::FrameSettings;
-use sylva_shared::scene::{LightingMode, Scene, SceneLimits};
-use sylva_shared::sequence::View;
+use sylva_accel::AccelKind;
+use sylva_scene::bundle;
+use sylva_scene::frame::FrameSettings;
+use sylva_scene::{LightingMode, Scene, SceneLimits};
+use sylva_scene::sequence::View;
 use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status, Streaming};
 
-pub use sylva_shared::frame::{MAX_SIDE, MAX_SPP};
+pub use sylva_scene::frame::{MAX_SIDE, MAX_SPP};
 
 /// Locks `m`, whether or not a thread panicked while holding it: every
 /// value behind these locks is whole between statements, so one panic in
@@ -124,7 +124,7 @@ struct State {
     /// prepared, sun).
     prepared: Mutex<HashMap<PreparedKey, Used<Arc<PreparedScene>>>>,
     /// Acceleration structures by (hash, structure): kept across views.
-    accels: Mutex<HashMap<(String, AccelKind), Arc<sylva_shared::accel::SceneAccel>>>,
+    accels: Mutex<HashMap<(String, AccelKind), Arc<sylva_accel::SceneAccel>>>,
     /// LB light by (hash, sun), least recently used dropped first.
     lbs: Mutex<HashMap<LbKey, Used<Arc<SceneLb>>>>,
     /// Use counter for the caches' recency.
@@ -284,7 +284,7 @@ impl State {
     }
 
     /// The structures and LB light held for `p`, if all it needs is held.
-    fn held(&self, p: &Preparation) -> Option<(Arc<sylva_shared::accel::SceneAccel>, Option<Arc<SceneLb>>)> {
+    fn held(&self, p: &Preparation) -> Option<(Arc<sylva_accel::SceneAccel>, Option<Arc<SceneLb>>)> {
         let accel = lock(&self.accels).get(&p.accel_key).cloned()?;
         if !p.needs_lb {
             return Some((accel, None));
@@ -380,7 +380,7 @@ impl Drop for CancelOnDrop {
 fn normalize_hash(h: &str) -> Result<String, Status> {
     let hash = h.to_ascii_lowercase();
     if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
-        return Err(Status::invalid_argument(format!("hash {:?} is not a 64-digit hex BLAKE3 hash", sylva_shared::scene::files::clip(h))));
+        return Err(Status::invalid_argument(format!("hash {:?} is not a 64-digit hex BLAKE3 hash", sylva_scene::sandbox::clip(h))));
     }
     Ok(hash)
 }

@@ -12,8 +12,8 @@
 
 use crate::lighting::lb::SceneLb;
 use serde::{Deserialize, Serialize};
-use sylva_shared::accel::{Accel, AccelKind, SceneAccel};
-use sylva_shared::scene::Scene;
+use sylva_accel::{Accel, AccelKind, SceneAccel};
+use sylva_scene::Scene;
 
 /// The layout's version: data of another version is refused, not misread.
 const FORMAT: u32 = 1;

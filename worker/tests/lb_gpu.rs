@@ -1,8 +1,10 @@
 //! The wgpu LB solver against the CPU reference, on the machine's real GPU
 //! adapter (lavapipe in CI).
 
-use sylva_shared::lb::verify::{compare_with_reference, random_medium};
-use sylva_shared::lb::{CpuSolver, GridDims, LightingSolver, Preset, SolveOptions, Sun};
+use sylva_light::studies::verify::{compare_with_reference, random_medium};
+use sylva_light::lb::LbParams;
+use sylva_light::lb::{CpuSolver, GridDims, LightingSolver, SolveOptions, Sun};
+use sylva_scene::format::Preset;
 use sylva_worker::GpuSolver;
 
 fn gpu() -> GpuSolver {
@@ -31,7 +33,7 @@ fn grid_larger_than_one_storage_binding_runs() {
 fn gpu_stops_on_the_same_convergence_rule_as_cpu() {
     let dims = GridDims::cube(24);
     let medium = random_medium(dims, 3);
-    let params = Preset::Leaf.params();
+    let params = LbParams::from_preset(Preset::Leaf);
     let sun = Sun::default();
     let opts = SolveOptions { tolerance: 1e-4, max_steps: Some(400), check_every: 8 };
     let mut gpu = gpu();
@@ -45,10 +47,10 @@ fn gpu_stops_on_the_same_convergence_rule_as_cpu() {
 #[test]
 fn vacuum_holds_exactly_the_boundary_light() {
     let dims = GridDims { nx: 10, ny: 13, nz: 7 };
-    let medium = sylva_shared::lb::MediumGrid::empty(dims);
+    let medium = sylva_light::lb::MediumGrid::empty(dims);
     let b = Sun::from_elevation_azimuth(35.0, 70.0, 2.0).unwrap().boundary();
     let opts = SolveOptions::fixed_steps(2 * dims.longest_edge());
-    let s = gpu().solve_channel(&medium, &Preset::Leaf.params().channels[0], &b, &opts, &|_, _| {}).unwrap();
+    let s = gpu().solve_channel(&medium, &LbParams::from_preset(Preset::Leaf).channels[0], &b, &opts, &|_, _| {}).unwrap();
     let want: f32 = b.values.iter().sum();
     for (i, t) in s.total.iter().enumerate() {
         assert!((t - want).abs() <= 1e-6 * want, "node {i}: {t} vs {want}");
@@ -56,8 +58,8 @@ fn vacuum_holds_exactly_the_boundary_light() {
 }
 
 /// Sun, a blue sky and a green-grey ground of albedo (0.3, 0.4, 0.2).
-fn over_ground() -> sylva_shared::lb::Illumination {
-    sylva_shared::lb::Illumination {
+fn over_ground() -> sylva_light::lb::Illumination {
+    sylva_light::lb::Illumination {
         sun: Sun::from_elevation_azimuth(40.0, 60.0, 1.0).unwrap(),
         sun_irradiance: [3.0, 2.8, 2.5],
         sky_zenith: [0.2, 0.3, 0.6],
@@ -71,14 +73,14 @@ fn over_ground() -> sylva_shared::lb::Illumination {
 fn a_reflecting_ground_matches_the_cpu_reference() {
     let dims = GridDims { nx: 18, ny: 14, nz: 16 };
     let medium = random_medium(dims, 7);
-    let params = Preset::Leaf.params();
+    let params = LbParams::from_preset(Preset::Leaf);
     let opts = SolveOptions::fixed_steps(40);
     let mut gpu = gpu();
     for (c, b) in over_ground().boundaries().iter().enumerate() {
         assert!(b.ground.is_some());
         let g = gpu.solve_channel(&medium, &params.channels[c], b, &opts, &|_, _| {}).unwrap();
         let want = CpuSolver.solve_channel(&medium, &params.channels[c], b, &opts, &|_, _| {}).unwrap();
-        let d = sylva_shared::lb::verify::max_relative_difference(&g.total, &want.total);
+        let d = sylva_light::studies::verify::max_relative_difference(&g.total, &want.total);
         assert!(d <= 1e-4, "channel {c}: max relative difference {d:e}");
     }
 }
@@ -88,13 +90,13 @@ fn vacuum_over_a_reflecting_ground_is_the_open_field() {
     // The ground under the lattice sends up exactly what the open ground
     // outside does, so an empty lattice holds the boundary's light everywhere.
     let dims = GridDims { nx: 9, ny: 11, nz: 8 };
-    let medium = sylva_shared::lb::MediumGrid::empty(dims);
+    let medium = sylva_light::lb::MediumGrid::empty(dims);
     let opts = SolveOptions::fixed_steps(2 * dims.longest_edge());
     for (c, b) in over_ground().boundaries().iter().enumerate() {
         let want: f32 = b.values.iter().sum();
         for s in [
-            gpu().solve_channel(&medium, &Preset::Leaf.params().channels[c], b, &opts, &|_, _| {}).unwrap(),
-            CpuSolver.solve_channel(&medium, &Preset::Leaf.params().channels[c], b, &opts, &|_, _| {}).unwrap(),
+            gpu().solve_channel(&medium, &LbParams::from_preset(Preset::Leaf).channels[c], b, &opts, &|_, _| {}).unwrap(),
+            CpuSolver.solve_channel(&medium, &LbParams::from_preset(Preset::Leaf).channels[c], b, &opts, &|_, _| {}).unwrap(),
         ] {
             for (i, t) in s.total.iter().enumerate() {
                 assert!((t - want).abs() <= 1e-5 * want, "channel {c}, node {i}: {t} vs {want}");

@@ -4,9 +4,9 @@
 //! Boulanger terms.
 
 use std::path::Path;
-use sylva_shared::accel::AccelKind;
-use sylva_shared::color::luminance;
-use sylva_shared::scene::{LightingMode, Scene, parse};
+use sylva_accel::AccelKind;
+use sylva_scene::color::luminance;
+use sylva_scene::{LightingMode, Scene, parse};
 use sylva_worker::GpuContext;
 use sylva_worker::lighting::reference::{ReferenceOptions, render_reference};
 use sylva_worker::prepare::prepare;
@@ -161,7 +161,7 @@ fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
     let got = s.pixels[8 * 17 + 8];
 
     use glam::Vec3;
-    use sylva_shared::boulanger::{precompute, shade, sky_radiance_per_direction, sun_terms};
+    use sylva_light::boulanger::{precompute, shade, sky_radiance_per_direction, sun_terms};
     let model = &scene.models[0].model;
     let env = precompute(model);
     let terms = sun_terms(&env, scene.sun.towards);
@@ -188,7 +188,7 @@ fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
 /// G = ½), `count` of them.
 fn random_leaves(count: usize, edge: f32, lo: glam::Vec3, hi: glam::Vec3, inside: impl Fn(glam::Vec3) -> bool, seed: u64) -> Vec<[glam::Vec3; 4]> {
     use glam::Vec3;
-    let mut rng = sylva_shared::rng::SplitMix64::new(seed);
+    let mut rng = sylva_scene::rng::SplitMix64::new(seed);
     let mut leaves = Vec::with_capacity(count);
     while leaves.len() < count {
         let c = Vec3::new(rng.range(lo.x, hi.x), rng.range(lo.y, hi.y), rng.range(lo.z, hi.z));
@@ -252,7 +252,7 @@ fn leaves_scene(dir: &Path, camera: &str) -> Scene {
 #[test]
 fn the_lb_leaf_radiance_agrees_with_the_reference_on_a_ball_and_a_slab_of_leaves() {
     use glam::Vec3;
-    // The leaf colour of the Monte Carlo comparison (shared/tests/lb_grounded.rs).
+    // The leaf colour of the Monte Carlo comparison (shared/light/tests/lb_grounded.rs).
     let green = [0.15, 0.35, 0.08];
     let frame = RenderSettings { spp: 16, ..frame(40, 40) };
     let run = |name: &str, leaves: &[[Vec3; 4]], camera: &str| {

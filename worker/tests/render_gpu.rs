@@ -2,8 +2,8 @@
 //! determinism across strip splits, and holes in alpha-masked leaves.
 
 use std::path::Path;
-use sylva_shared::accel::AccelKind;
-use sylva_shared::scene::{LightingMode, Scene, parse};
+use sylva_accel::AccelKind;
+use sylva_scene::{LightingMode, Scene, parse};
 use sylva_worker::GpuContext;
 use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
@@ -132,7 +132,7 @@ fn a_frame_is_bit_identical_however_it_is_split_and_repeated() {
     let whole = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
     let again = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
     assert_eq!(whole.pixels, again.pixels);
-    let mut frame = sylva_shared::film::HdrImage::new(70, 40);
+    let mut frame = sylva_scene::film::HdrImage::new(70, 40);
     for (x0, x1) in [(0, 23), (23, 24), (24, 70)] {
         let s = p.renderer.render_strip(&ctx, &f, x0, x1).unwrap();
         frame.paste_strip(x0, s.width, &s.pixels);

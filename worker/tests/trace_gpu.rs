@@ -2,9 +2,9 @@
 //! acceleration structures, on the machine's real adapter.
 
 use glam::Vec3;
-use sylva_shared::accel::{Accel, AccelKind, KdNode, Ray, SceneAccel};
-use sylva_shared::rng::SplitMix64;
-use sylva_shared::scene::{Scene, parse};
+use sylva_accel::{Accel, AccelKind, KdNode, Ray, SceneAccel};
+use sylva_scene::rng::SplitMix64;
+use sylva_scene::{Scene, parse};
 use sylva_worker::GpuContext;
 use sylva_worker::trace::{GpuRay, GpuScene, RayCaster};
 
@@ -87,7 +87,7 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
                     let mut first = None;
                     accel.models[m].closest(&local, 1e-4, f32::MAX, &mut |t, lim| {
                         let [a, b, cc] = scene.models[m].model.triangle(t as usize);
-                        let h = sylva_shared::accel::triangle::intersect(&local, a, b, cc, 1e-4, lim)?;
+                        let h = sylva_accel::triangle::intersect(&local, a, b, cc, 1e-4, lim)?;
                         first = Some(t);
                         Some(h.0)
                     });

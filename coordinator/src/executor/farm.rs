@@ -5,8 +5,8 @@ use crate::farm::{FarmEvent, Workers, render_frame};
 use crate::schedule::Strip;
 use std::sync::Arc;
 use std::time::Duration;
-use sylva_shared::bundle::SceneBundle;
-use sylva_shared::frame::FrameSettings;
+use sylva_scene::bundle::SceneBundle;
+use sylva_scene::frame::FrameSettings;
 
 /// Workers, the scene they are sent and the frame they render.
 pub struct Farm<'a> {

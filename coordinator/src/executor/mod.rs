@@ -1,17 +1,16 @@
 //! Where a frame's strips are rendered: one interface, two back-ends —
-//! this process's GPU ([`InProcess`]) and gRPC workers ([`Farm`]) — and one
+//! this process's GPU (`InProcess`, in the `sylva` binary, which links the
+//! worker) and gRPC workers ([`Farm`]) — and one
 //! assembly ([`crate::assembly::Assembly`]) behind both, so a frame is put
 //! together and checked the same way whoever rendered it.
 
 mod farm;
-mod in_process;
 
 pub use farm::Farm;
-pub use in_process::InProcess;
 
 use crate::farm::WorkerReport;
 use crate::schedule::Strip;
-use sylva_shared::film::HdrImage;
+use sylva_scene::film::HdrImage;
 
 /// A rendered, assembled frame.
 #[derive(Clone, Debug)]

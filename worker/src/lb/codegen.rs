@@ -2,9 +2,9 @@
 //! direction unrolled, every Ω entry a literal, zero entries dropped.
 
 use std::fmt::Write;
-use sylva_shared::lb::collision::{PAIRS, PairedOmega};
-use sylva_shared::lb::lattice::{DIRECTIONS, Q};
-use sylva_shared::lb::{Collision, GridDims, GroundReflection};
+use sylva_light::lb::collision::{PAIRS, PairedOmega};
+use sylva_light::lb::lattice::{DIRECTIONS, Q};
+use sylva_light::lb::{Collision, GridDims, GroundReflection};
 
 /// The kernel template.
 const TEMPLATE: &str = include_str!("../../../shaders/lb/step.wgsl");
@@ -214,7 +214,7 @@ fn literal(v: f32) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sylva_shared::lb::ChannelParams;
+    use sylva_light::lb::ChannelParams;
 
     fn validate(src: &str) {
         let module = naga::front::wgsl::parse_str(src).unwrap_or_else(|e| panic!("{}\n{src}", e.emit_to_string(src)));

@@ -4,9 +4,9 @@
 use super::codegen::{self, StateLayout};
 use crate::gpu::GpuContext;
 use anyhow::Context;
-use sylva_shared::lb::lattice::Q;
-use sylva_shared::lb::solver::{Convergence, PhaseTimer, initial_state};
-use sylva_shared::lb::{Boundary, ChannelParams, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions};
+use sylva_light::lb::lattice::Q;
+use sylva_light::lb::solver::{Convergence, PhaseTimer, initial_state};
+use sylva_light::lb::{Boundary, ChannelParams, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions};
 use wgpu::util::DeviceExt;
 
 /// Solves LB channels on a GPU.

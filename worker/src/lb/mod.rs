@@ -8,7 +8,7 @@ mod gpu_solver;
 pub use codegen::StateLayout;
 pub use gpu_solver::GpuSolver;
 
-use sylva_shared::lb::{CpuSolver, LightingSolver};
+use sylva_light::lb::{CpuSolver, LightingSolver};
 
 /// Which machine solves the LB light.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]

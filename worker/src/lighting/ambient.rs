@@ -5,7 +5,7 @@
 use super::{Kernel, Method, Needs};
 use crate::gpu::GpuContext;
 use crate::trace::{RenderSettings, StripRenderer};
-use sylva_shared::scene::LightingMode;
+use sylva_scene::LightingMode;
 
 /// The method.
 pub const METHOD: Method = Method {

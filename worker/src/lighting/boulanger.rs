@@ -1,13 +1,13 @@
 //! `boulanger`: Boulanger et al. 2008, per-leaf envelope distances and
 //! closed forms for the sky, the sun and one bounce of indirect light.
-//! Prepares each model's envelope (`sylva_shared::boulanger`); its render
+//! Prepares each model's envelope (`sylva_light::boulanger`); its render
 //! kernel is the direct one with the envelope terms compiled in.
 
 use super::{Kernel, Method, Needs};
 use serde::Serialize;
 use std::sync::Arc;
-use sylva_shared::boulanger::LeafEnvelope;
-use sylva_shared::scene::{LightingMode, Scene};
+use sylva_light::boulanger::LeafEnvelope;
+use sylva_scene::{LightingMode, Scene};
 
 /// The method.
 pub const METHOD: Method = Method {
@@ -41,7 +41,7 @@ pub fn prepare(scene: &Scene) -> (Vec<Option<Arc<LeafEnvelope>>>, Vec<ModelEnvel
         .models
         .iter()
         .map(|m| {
-            let e = sylva_shared::boulanger::precompute(&m.model);
+            let e = sylva_light::boulanger::precompute(&m.model);
             let report = ModelEnvelope {
                 model: m.name.clone(),
                 leaves: e.leaves,
@@ -62,5 +62,5 @@ pub fn sky_per_direction(scene: &Scene) -> [[f32; 4]; 8] {
     let (z, h) = (glam::Vec3::from(scene.sky.zenith), glam::Vec3::from(scene.sky.horizon));
     let sky = |d: glam::Vec3| h.lerp(z, d.y.max(0.0).sqrt()).to_array();
     let ground = scene.ground.as_ref().map_or([0.0; 3], |g| g.color);
-    sylva_shared::boulanger::sky_radiance_per_direction(sky, ground).map(|c| [c[0], c[1], c[2], 0.0])
+    sylva_light::boulanger::sky_radiance_per_direction(sky, ground).map(|c| [c[0], c[1], c[2], 0.0])
 }

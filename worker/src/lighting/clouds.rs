@@ -4,21 +4,23 @@
 //! path-traces the same density.
 
 use crate::gpu::GpuContext;
+use sylva_light::lb::LbParams;
 use crate::lb::GpuSolver;
 use crate::trace::CloudGrid;
-use sylva_shared::lb::{Preset, SolveOptions, Sun, solve};
-use sylva_shared::scene::Scene;
+use sylva_light::lb::{SolveOptions, Sun, solve};
+use sylva_scene::format::Preset;
+use sylva_scene::Scene;
 
 /// Every cloud of `scene`, solved.
 pub fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<CloudGrid>> {
     let sun = Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)?;
-    let params = Preset::Cloud.params();
+    let params = LbParams::from_preset(Preset::Cloud);
     let mut solver = GpuSolver::new(ctx.clone());
     scene
         .clouds
         .iter()
         .map(|c| {
-            let medium = sylva_shared::shapes::cloud(c.grid, c.seed);
+            let medium = sylva_light::shapes::cloud(c.grid, c.seed);
             let s = solve(&mut solver, &medium, &params, &sun, &SolveOptions::default(), &|_, _, _| {})?;
             let p = params.channels[0];
             Ok(CloudGrid {

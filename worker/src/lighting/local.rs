@@ -3,7 +3,7 @@
 //! leaves. Nothing to prepare beyond the geometry.
 
 use super::{Kernel, Method, Needs};
-use sylva_shared::scene::LightingMode;
+use sylva_scene::LightingMode;
 
 /// The method.
 pub const METHOD: Method = Method {

@@ -18,7 +18,7 @@ pub mod lb;
 pub mod local;
 pub mod reference;
 
-use sylva_shared::scene::LightingMode;
+use sylva_scene::LightingMode;
 
 /// The render kernel a method runs: one WGSL source, specialized per
 /// kernel by the `LIGHTING_FAMILY` override, so a pipeline compiles only

@@ -3,11 +3,11 @@
 
 use crate::gpu::GpuContext;
 use bytemuck::{Pod, Zeroable};
-use sylva_shared::accel::bvh::{self, BvhNode};
-use sylva_shared::accel::triangle::TriangleRecord;
-use sylva_shared::accel::{Accel, KdNode, SceneAccel};
-use sylva_shared::lb::LbGrid;
-use sylva_shared::scene::Scene;
+use sylva_accel::bvh::{self, BvhNode};
+use sylva_accel::triangle::TriangleRecord;
+use sylva_accel::{Accel, KdNode, SceneAccel};
+use sylva_light::lb::LbGrid;
+use sylva_scene::Scene;
 use wgpu::util::DeviceExt;
 
 /// Stack entries of the GPU's BVH traversal, both levels together
@@ -184,7 +184,7 @@ pub struct SceneLight {
     /// Clouds.
     pub clouds: Vec<CloudGrid>,
     /// Per model, its Boulanger leaf envelope if precomputed.
-    pub envelopes: Vec<Option<std::sync::Arc<sylva_shared::boulanger::LeafEnvelope>>>,
+    pub envelopes: Vec<Option<std::sync::Arc<sylva_light::boulanger::LeafEnvelope>>>,
     /// The indirect light under the stand, read by the ground (grounded LB).
     pub ground: Option<GroundLight>,
 }
@@ -312,7 +312,7 @@ impl GpuScene {
                 texture: mt.texture.map_or(u32::MAX, |t| t + tex0),
                 alpha_cutoff: mt.alpha_cutoff.unwrap_or(-1.0),
                 double_sided: mt.double_sided as u32,
-                surface: (mt.surface == sylva_shared::model::Surface::Wood) as u32,
+                surface: (mt.surface == sylva_scene::model::Surface::Wood) as u32,
             }));
             for t in &model.textures {
                 f.textures.push(GpuTexture { offset: f.texels.len() as u32, width: t.width, height: t.height, pad: 0 });

@@ -7,8 +7,8 @@ use crate::gpu::GpuContext;
 use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
-use sylva_shared::scene::{LightingMode, Scene};
-use sylva_shared::sequence::View;
+use sylva_scene::{LightingMode, Scene};
+use sylva_scene::sequence::View;
 use wgpu::util::DeviceExt;
 
 const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
@@ -65,7 +65,7 @@ pub struct FrameUniform {
 
 impl FrameUniform {
     /// Puts the camera in.
-    fn set_camera(&mut self, c: &sylva_shared::camera::Camera) {
+    fn set_camera(&mut self, c: &sylva_scene::camera::Camera) {
         (self.cam_position, self.cam_forward, self.cam_right, self.cam_up) =
             (c.position.to_array(), c.forward.to_array(), c.right.to_array(), c.up.to_array());
         self.tan_half_fov_y = c.tan_half_fov_y;
@@ -75,7 +75,7 @@ impl FrameUniform {
     /// total for it (`lb_free`, its boundary's sum at unit strength).
     fn set_sun(&mut self, towards: glam::Vec3) -> anyhow::Result<()> {
         self.sun_towards = towards.to_array();
-        self.lb_free = sylva_shared::lb::Sun::towards(towards.as_dvec3().to_array(), 1.0)?.boundary().values.iter().sum();
+        self.lb_free = sylva_light::lb::Sun::towards(towards.as_dvec3().to_array(), 1.0)?.boundary().values.iter().sum();
         Ok(())
     }
 }
@@ -221,8 +221,8 @@ impl StripRenderer {
             ground_grid: gpu_scene.ground.0,
             ground_dims: gpu_scene.ground.1,
             lb_model: match scene.file.lb_model {
-                sylva_shared::scene::LbModel::Grounded => 0,
-                sylva_shared::scene::LbModel::Paper => 1,
+                sylva_scene::LbModel::Grounded => 0,
+                sylva_scene::LbModel::Paper => 1,
             },
             ..FrameUniform::zeroed()
         };

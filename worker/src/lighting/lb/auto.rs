@@ -6,8 +6,8 @@ use super::solve_model;
 use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
 use serde::Serialize;
-use sylva_shared::lb::LbGrid;
-use sylva_shared::scene::Scene;
+use sylva_light::lb::LbGrid;
+use sylva_scene::Scene;
 
 /// What `--lb-grid auto` chose for one model, and why.
 #[derive(Clone, Debug, Serialize)]

@@ -3,18 +3,19 @@
 //! species grid, so a tree deep in the stand receives less light than one
 //! at its edge; in the grounded model it also lights the ground under the
 //! stand. What is CPU-only (leaf area per cell, the light reaching a
-//! crown, the decision) is in `sylva_shared::lb::coarse`.
+//! crown, the decision) is in `sylva_light::lb::coarse`.
 
 use super::sun_of;
 use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
 use crate::trace::GroundLight;
-use sylva_shared::accel::Aabb;
-use sylva_shared::accel::scene::model_bounds;
-use sylva_shared::lb::coarse::{ForestLight, ModelArea, Occupant, WorldGrid, crown_fill, crown_reach, forest_leaf_area, forest_medium};
-use sylva_shared::lb::{LbGrid, Preset, SolveOptions, solve, solve_indirect};
-use sylva_shared::scene::{ForestGridUse, Scene};
-use sylva_shared::voxel::medium_from_leaf_area;
+use sylva_accel::Aabb;
+use sylva_accel::two_level::model_bounds;
+use sylva_light::lb::coarse::{ForestLight, ModelArea, Occupant, WorldGrid, crown_fill, crown_reach, forest_leaf_area, forest_medium};
+use sylva_light::lb::{Illumination, LbGrid, LbParams, SolveOptions, solve, solve_indirect};
+use sylva_scene::format::Preset;
+use sylva_scene::{ForestGridUse, Scene};
+use sylva_light::voxel::medium_from_leaf_area;
 
 /// Each instance's world box.
 fn instance_boxes(scene: &Scene) -> Vec<Aabb> {
@@ -40,7 +41,7 @@ pub fn paper(ctx: &GpuContext, scene: &Scene, grids: &[Option<LbGrid>], scales: 
     let medium = forest_medium(&grid, &occupants);
     let sun = sun_of(scene)?;
     let mut solver = GpuSolver::new(ctx.clone());
-    let sol = solve(&mut solver, &medium, &Preset::Leaf.params(), &sun, &SolveOptions::default(), &|_, _, _| {})?;
+    let sol = solve(&mut solver, &medium, &LbParams::from_preset(Preset::Leaf), &sun, &SolveOptions::default(), &|_, _, _| {})?;
     let free: f32 = sun.boundary().values.iter().sum();
     let light: Vec<f32> = occupants
         .iter()
@@ -77,7 +78,7 @@ pub fn grounded(
     let d = grid.dims;
     let (area, leaves) = forest_leaf_area(scene, areas, &grid);
     let medium = medium_from_leaf_area(&area, d, grid.cell);
-    let light = scene.illumination();
+    let light = Illumination::of_scene(scene);
     let mut solver = GpuSolver::new(ctx.clone());
     let sol = solve_indirect(&mut solver, &medium, &leaves.params(), &light, &SolveOptions::default(), &|_| {})?;
     let sun_y = scene.sun.towards.y.max(0.0);
@@ -119,8 +120,8 @@ pub fn grounded(
 mod tests {
     use super::super::medium_of;
     use super::*;
-    use sylva_shared::lb::coarse::effective_area;
-    use sylva_shared::scene::parse;
+    use sylva_light::lb::coarse::effective_area;
+    use sylva_scene::parse;
 
     #[test]
     fn the_forest_grid_keeps_each_crowns_leaf_area_where_the_crown_is() {
@@ -157,7 +158,7 @@ mod tests {
         model_height /= model_total;
         // Clumps stop less than their leaves' area spread evenly would.
         assert!(model_total < area.area.total_area, "{model_total} of {}", area.area.total_area);
-        let boxes = scene.instances.iter().map(|i| sylva_shared::accel::scene::model_bounds(&m.model).transformed(&i.to_world));
+        let boxes = scene.instances.iter().map(|i| sylva_accel::two_level::model_bounds(&m.model).transformed(&i.to_world));
         let grid = WorldGrid::around(boxes.fold(Aabb::EMPTY, |b, o| b.union(o)), 16);
         let (cells, _) = forest_leaf_area(&scene, &[Some(area)], &grid);
         // All of it arrives: the first instance's area plus 1.5² the second's.
@@ -189,7 +190,7 @@ mod tests {
             .iter()
             .zip([1.0, 1.5 * 1.5])
             .map(|(i, w)| {
-                let b = sylva_shared::accel::scene::model_bounds(&m.model).transformed(&i.to_world);
+                let b = sylva_accel::two_level::model_bounds(&m.model).transformed(&i.to_world);
                 w * 0.5 * (b.min.y + b.max.y) as f64
             })
             .sum::<f64>()

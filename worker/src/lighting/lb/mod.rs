@@ -2,7 +2,7 @@
 //! solved on its own grid in the open, scaled per instance by the coarse
 //! grid over the whole forest, which also lights the ground under the
 //! stand. The model itself (lattice, collision, boundaries, radiometry)
-//! lives in `sylva_shared::lb`; this module runs it on the GPU for a scene.
+//! lives in `sylva_light::lb`; this module runs it on the GPU for a scene.
 //!
 //! - [`forest`]: the forest grid.
 //! - [`auto`]: `--lb-grid auto`, the smallest grid the image cannot tell from the next.
@@ -15,12 +15,12 @@ use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
 use crate::trace::GroundLight;
 use serde::Serialize;
-use sylva_shared::lb::coarse::{ForestLight, ModelArea};
-use sylva_shared::lb::solver::PhaseTimer;
-use sylva_shared::lb::{GridDims, Illumination, LbGrid, LbParams, MediumGrid, NodeClass, SolveOptions, Sun, solve, solve_indirect};
-use sylva_shared::model::Model;
-use sylva_shared::scene::{LbModel, LightingMode, Scene, SceneModel};
-use sylva_shared::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
+use sylva_light::lb::coarse::{ForestLight, ModelArea};
+use sylva_light::lb::solver::PhaseTimer;
+use sylva_light::lb::{GridDims, Illumination, LbGrid, LbParams, MediumGrid, NodeClass, SolveOptions, Sun, solve, solve_indirect};
+use sylva_scene::model::Model;
+use sylva_scene::{LbModel, LightingMode, Scene, SceneModel};
+use sylva_light::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
 
 /// `lb`: the direct sun plus the LB light.
 pub const METHOD: Method = Method {
@@ -135,9 +135,9 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
             }
             if m.lb.solid {
                 let class = if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
-                sylva_shared::voxel::fill_interior(&mut v, class);
+                sylva_light::voxel::fill_interior(&mut v, class);
             }
-            Ok(ModelMedium { frame, medium: v.medium, params: m.lb.preset.params(), area: None, on_ground })
+            Ok(ModelMedium { frame, medium: v.medium, params: LbParams::from_preset(m.lb.preset), area: None, on_ground })
         }
     }
 }
@@ -149,7 +149,7 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
     let opts = SolveOptions::default();
     let (rgb, steps, converged, uncollided_steps): (Vec<f32>, [usize; 3], [bool; 3], Option<usize>) = match scene.file.lb_model {
         LbModel::Grounded => {
-            let light = Illumination { floor_reflects: mm.on_ground, ..scene.illumination() };
+            let light = Illumination { floor_reflects: mm.on_ground, ..Illumination::of_scene(scene) };
             let s = solve_indirect(solver, &mm.medium, &mm.params, &light, &opts, &|_| {})?;
             let r = &s.reports;
             let mut rgb = s.indirect.concat();
@@ -168,7 +168,7 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
         }
     };
     let warnings =
-        sylva_shared::lb::lb_warnings(&mm.params, &mm.medium, &sun_of(scene)?).into_iter().map(|w| format!("{}: {}", w.kind, w.message)).collect();
+        sylva_light::studies::limits::lb_warnings(&mm.params, &mm.medium, &sun_of(scene)?).into_iter().map(|w| format!("{}: {}", w.kind, w.message)).collect();
     let p = &mm.params.channels;
     let report = ModelLight {
         model: m.name.clone(),

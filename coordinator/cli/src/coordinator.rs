@@ -1,0 +1,180 @@
+//! `sylva coordinator --listen ADDR` and `sylva submit SCENE --coordinator ADDR`.
+
+use anyhow::Context;
+use clap::Args;
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Duration;
+use sylva_coordinator::client::submit_and_follow;
+use sylva_coordinator::results::Retention;
+use sylva_coordinator::service::{self, CoordinatorConfig};
+
+#[derive(Debug, Args)]
+pub struct CoordinatorArgs {
+    /// Address to listen on (port 0 picks one; the bound address is printed).
+    #[arg(long, default_value = "127.0.0.1:50150")]
+    pub listen: String,
+    /// Workers to use from the start (`host:port,…`); others register themselves.
+    #[arg(long, value_delimiter = ',')]
+    pub workers: Vec<String>,
+    /// Jobs rendered at the same time.
+    #[arg(long, default_value_t = 2)]
+    pub max_running: usize,
+    /// Largest scene bundle accepted, MiB.
+    #[arg(long, default_value_t = 1024)]
+    pub max_bundle_mib: u64,
+    /// Seconds one strip may take before it goes to another worker.
+    #[arg(long, default_value_t = 600)]
+    pub strip_deadline_s: u64,
+    /// The token clients must send, and workers are sent.
+    #[command(flatten)]
+    pub auth: super::security::TokenArgs,
+    #[command(flatten)]
+    pub tls: super::security::ServeTlsArgs,
+    /// How to reach the workers over TLS.
+    #[command(flatten)]
+    pub worker_tls: super::security::ConnectTlsArgs,
+    /// Serve Prometheus metrics on this address (`GET /metrics`).
+    #[arg(long)]
+    pub metrics: Option<String>,
+    /// Serve the web dashboard on this address (`http://ADDR/`).
+    #[arg(long)]
+    pub http: Option<String>,
+    #[command(flatten)]
+    pub limits: super::caps::LimitArgs,
+    /// Seconds a finished job (and its image) is kept for FetchResult.
+    #[arg(long, default_value_t = 3600)]
+    pub keep_results_s: u64,
+    /// Most finished jobs kept; the oldest are forgotten first.
+    #[arg(long, default_value_t = 1000)]
+    pub keep_jobs: usize,
+    /// Images kept in memory, MiB over all jobs; the rest go to disk.
+    #[arg(long, default_value_t = 256)]
+    pub results_memory_mib: u64,
+    /// Seconds after which a worker that registered itself and stopped
+    /// answering is forgotten.
+    #[arg(long, default_value_t = 30)]
+    pub registration_ttl_s: u64,
+}
+
+/// glibc gives each thread that allocates its own heap arena, and the scene
+/// checks run on the runtime's blocking threads, each leaving its arena at
+/// its peak: 100 submissions of a 3.4 MB bundle left the coordinator at
+/// 172 MB resident with the default arenas and 44 MB with one. Two keep a
+/// long-running coordinator near what it actually holds.
+fn limit_malloc_arenas() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes allocator tuning; called before any thread starts.
+    unsafe {
+        libc::mallopt(libc::M_ARENA_MAX, 2);
+    }
+}
+
+pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
+    limit_malloc_arenas();
+    let token = a.auth.load()?;
+    let rt = tokio::runtime::Runtime::new()?;
+    rt.block_on(async {
+        let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("cannot listen on {}", a.listen))?;
+        let addr = listener.local_addr()?;
+        let metrics = match &a.metrics {
+            Some(m) => Some(tokio::net::TcpListener::bind(m).await.with_context(|| format!("cannot listen on {m}"))?),
+            None => None,
+        };
+        let metrics_addr = metrics.as_ref().map(|l| l.local_addr()).transpose()?;
+        let http = match &a.http {
+            Some(h) => Some(tokio::net::TcpListener::bind(h).await.with_context(|| format!("cannot listen on {h}"))?),
+            None => None,
+        };
+        let http_addr = http.as_ref().map(|l| l.local_addr()).transpose()?;
+        let config = CoordinatorConfig {
+            metrics,
+            http,
+            max_running: a.max_running,
+            max_bundle_bytes: a.max_bundle_mib << 20,
+            token,
+            workers: a.workers.clone(),
+            strip_deadline: Duration::from_secs(a.strip_deadline_s.max(1)),
+            limits: a.limits.limits(),
+            retention: Retention {
+                keep: Duration::from_secs(a.keep_results_s),
+                max_jobs: a.keep_jobs,
+                memory_bytes: a.results_memory_mib << 20,
+                ..Retention::default()
+            },
+            registration_ttl: Duration::from_secs(a.registration_ttl_s.max(1)),
+            tls: a.tls.load()?,
+            worker_tls: a.worker_tls.load()?,
+            ..Default::default()
+        };
+        if let Some(m) = metrics_addr {
+            eprintln!("sylva coordinator metrics on http://{m}/metrics");
+        }
+        if let Some(h) = http_addr {
+            eprintln!("sylva coordinator dashboard on http://{h}/");
+        }
+        println!("sylva coordinator listening on {addr}");
+        std::io::stdout().flush()?;
+        service::run(listener, config, sylva_coordinator::shutdown::signal()).await
+    })
+}
+
+#[derive(Debug, Args)]
+pub struct SubmitArgs {
+    /// Scene file.
+    pub scene: PathBuf,
+    /// The coordinator, `host:port`.
+    #[arg(long)]
+    pub coordinator: String,
+    /// Output PNG (an EXR beside it with --exr).
+    #[arg(short, long, default_value = "sylva-out/render.png")]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub frame: super::render::FrameArgs,
+    /// How the frame is cut into strips.
+    #[arg(long, value_enum, default_value = "dynamic")]
+    pub schedule: super::render::ScheduleArg,
+    /// Higher runs first.
+    #[arg(long, default_value_t = 0)]
+    pub priority: i32,
+    /// Also fetch the linear HDR frame as OpenEXR.
+    #[arg(long)]
+    pub exr: bool,
+    #[command(flatten)]
+    pub auth: super::security::TokenArgs,
+    #[command(flatten)]
+    pub tls: super::security::ConnectTlsArgs,
+}
+
+pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
+    let token = a.auth.load()?;
+    let tls = a.tls.load()?;
+    let bundle = sylva_scene::bundle::pack(&a.scene)?;
+    let frame = a.frame.settings();
+    frame.check()?;
+    let text = std::fs::read_to_string(&a.scene).with_context(|| format!("{}: cannot read", a.scene.display()))?;
+    let views = a.frame.views(&sylva_scene::parse(&text, &a.scene.display().to_string())?)?;
+    let spec = super::render::job_spec(&frame, &views, a.schedule, a.priority, &a.scene.display().to_string());
+    let rt = tokio::runtime::Runtime::new()?;
+    let done = rt.block_on(submit_and_follow(&a.coordinator, token, tls.as_ref(), spec, &bundle, a.exr))?;
+    if !views.is_empty() {
+        let written = sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
+        println!(
+            "{} done: wrote {} frames, {} and {}",
+            done.id,
+            views.len(),
+            written[written.len() - 2].display(),
+            written[written.len() - 1].display()
+        );
+        return Ok(());
+    }
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    if let Some(exr) = done.exrs.as_ref().map(|e| &e[0]) {
+        std::fs::write(a.out.with_extension("exr"), exr)?;
+    }
+    println!("{} done: wrote {}", done.id, a.out.display());
+    Ok(())
+}

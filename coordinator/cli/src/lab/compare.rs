@@ -1,0 +1,701 @@
+//! `sylva compare SCENE`: renders a scene with every lighting method,
+//! measures each one's pre-process and frame time and its error against
+//! the path-traced reference, and writes a table (JSON), an image grid in
+//! the style of the forest paper's Figure 2 and a chart of error against
+//! time. Optionally adds the LB failure-mode sweeps (LB against a Monte
+//! Carlo reference of the same medium), each as a chart.
+
+use anyhow::Context;
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use crate::lab::chart::{Series, line_chart};
+use crate::in_process::InProcess;
+use sylva_coordinator::executor::StripExecutor;
+use sylva_accel::AccelKind;
+use sylva_scene::color::luminance;
+use sylva_scene::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
+use sylva_scene::{ForestGridUse, LbModel, LightingMode, Scene};
+use sylva_worker::GpuContext;
+use sylva_worker::lighting::lb::auto::choose_lb_grids;
+use sylva_worker::lighting::reference::{ReferenceImage, ReferenceOptions, render_reference};
+use sylva_worker::prepare::prepare;
+use sylva_worker::trace::RenderSettings;
+
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// Scene file (JSON).
+    pub scene: PathBuf,
+    /// Image width.
+    #[arg(long, default_value_t = 448)]
+    pub width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 224)]
+    pub height: u32,
+    /// Rays per pixel of the direct methods (the reference takes as many as it needs).
+    #[arg(long, default_value_t = 4)]
+    pub spp: u32,
+    /// LB grid sizes to compare.
+    #[arg(long, value_delimiter = ',', default_value = "16,32,64,128")]
+    pub grids: Vec<usize>,
+    /// `lb auto`: the largest relative difference from the next finer grid it accepts.
+    #[arg(long, default_value_t = 0.2)]
+    pub auto_tolerance: f64,
+    /// The reference stops once its own relative standard error is below this.
+    #[arg(long, default_value_t = 0.02)]
+    pub target_error: f64,
+    /// The reference stops after this many seconds, converged or not.
+    #[arg(long, default_value_t = 600.0)]
+    pub max_seconds: f64,
+    /// Also run the LB failure-mode sweeps (LB against Monte Carlo on small media).
+    #[arg(long)]
+    pub sweeps: bool,
+    /// Folder for the images, grid and sweep charts.
+    #[arg(long, default_value = "sylva-out/compare")]
+    pub out: PathBuf,
+    /// The error-against-time chart (SVG); default OUT/compare.svg.
+    #[arg(long)]
+    pub chart: Option<PathBuf>,
+    /// Reuse OUT/reference.bin when it was made for the same scene bundle,
+    /// image size, reference budget and `sylva` binary (it is always saved):
+    /// re-running the fast methods then skips the path tracer.
+    #[arg(long)]
+    pub reuse_reference: bool,
+    /// Also write every image as linear float32 `.npy` (height × width × 3)
+    /// beside its PNG, and the reference's local light, indirect variance
+    /// and coverage, for analysis outside Sylva.
+    #[arg(long)]
+    pub hdr: bool,
+    /// Print the table as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One method's figures.
+#[derive(Debug, Serialize)]
+struct MethodReport {
+    name: String,
+    lighting: LightingMode,
+    /// LB grid per model (empty: none).
+    lb_grids: Vec<usize>,
+    /// Whether the coarse forest grid scaled the instances' LB light.
+    forest_grid: Option<bool>,
+    /// Time to build the acceleration structures (the same work for every method).
+    build_ms: f64,
+    /// Time of the lighting's own pre-process (voxelize, LB, forest LB,
+    /// clouds, Boulanger precompute, ambient match, grid choice).
+    preprocess_ms: f64,
+    /// Time to render the frame.
+    frame_ms: f64,
+    /// RMSE of the linear RGB image against the reference, over lit pixels.
+    rmse: f64,
+    /// Mean of |method − reference| / reference luminance over lit pixels.
+    mean_relative_error: f64,
+    /// RMS of the indirect component's error (method − local against
+    /// reference − local) over the RMS of the reference's indirect light.
+    indirect_relative_error: f64,
+    /// The same with both images' own sampling noise taken out: the
+    /// method's error in expectation (see `IndirectError`).
+    indirect_error_net: f64,
+    /// What the reference's noise adds to `indirect_relative_error`, as a
+    /// fraction of the reference's indirect RMS.
+    indirect_noise_reference: f64,
+    /// What the method's own pixel sampling (4 rays across leaf edges) adds.
+    indirect_noise_method: f64,
+    /// Image file.
+    image: String,
+    /// What the method decided and why (grid choice, forest grid, warnings).
+    notes: serde_json::Value,
+}
+
+struct Rendered {
+    report: MethodReport,
+    image: HdrImage,
+    /// A second render with other seeds: beside `local`'s, the spread of
+    /// the two renders' indirect light is the method's sampling noise.
+    again: HdrImage,
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+pub fn run(a: CompareArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(a.width >= 8 && a.height >= 8 && a.width <= 4096 && a.height <= 4096, "image sides in [8, 4096]");
+    anyhow::ensure!((1..=256).contains(&a.spp), "--spp {}: valid range [1, 256]", a.spp);
+    anyhow::ensure!(a.grids.iter().all(|g| (4..=256).contains(g)), "--grids: each in [4, 256]");
+    let mut distinct = a.grids.clone();
+    distinct.sort_unstable();
+    distinct.dedup();
+    anyhow::ensure!(distinct.len() >= 2, "--grids needs two sizes or more: `lb auto` chooses between them");
+    anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error must be > 0");
+    anyhow::ensure!(a.auto_tolerance.is_finite() && a.auto_tolerance > 0.0, "--auto-tolerance must be > 0");
+    std::fs::create_dir_all(&a.out).with_context(|| format!("{}: cannot create folder", a.out.display()))?;
+    let scene = Scene::load(&a.scene)?;
+    let ctx = GpuContext::new()?;
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let say = |m: &str| bar.set_message(m.to_string());
+    let settings = RenderSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        seed: 1,
+        lighting: LightingMode::Local,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+        view: Default::default(),
+    };
+
+    // The reference first: every error is measured against it.
+    say("reference: path tracing");
+    let cache = a.out.join("reference.bin");
+    let key = reference_key(&a)?;
+    let cached = if a.reuse_reference { load_reference(&cache, &key, a.width, a.height) } else { None };
+    let (r, build_ms, pre, reused) = match cached {
+        Some(r) => (r, 0.0, 0.0, true),
+        None => {
+            let t = Instant::now();
+            let prepared = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|m| say(m))?;
+            let opts = ReferenceOptions { target_error: a.target_error, max_seconds: a.max_seconds, ..Default::default() };
+            let build_ms = prepared.phases.ms("build");
+            let pre = ms(t) - build_ms - prepared.phases.ms("upload");
+            let r = render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
+                bar.set_message(format!("reference: {} spp, relative standard error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
+            })?;
+            save_reference(&cache, &key, &r)?;
+            (r, build_ms, pre, false)
+        }
+    };
+    let reference = r.image.clone();
+    let lit: Vec<bool> = r.coverage.iter().zip(&reference.pixels).map(|(&c, &p)| c >= 0.5 && luminance(p) > 0.0).collect();
+    anyhow::ensure!(lit.iter().any(|&l| l), "no pixel of the frame shows a lit model: nothing to compare");
+    let (_, exposure) = reinhard(&reference, 0.18);
+
+    let mut methods: Vec<(String, LightingMode, Scene)> =
+        vec![("local".into(), LightingMode::Local, scene.clone()), ("ambient".into(), LightingMode::Ambient, scene.clone())];
+    for &g in &a.grids {
+        methods.push((format!("lb {g}³"), LightingMode::Lb, with_lb(&scene, Some(g), Some(ForestGridUse::Never))));
+    }
+    let forest_grid = scene.models.first().map_or(32, |m| m.lb.grid);
+    methods.push((format!("lb {forest_grid}³ + forest grid"), LightingMode::Lb, with_lb(&scene, None, Some(ForestGridUse::Always))));
+    // The papers' model as written, beside the grounded one.
+    let mut paper = with_lb(&scene, None, Some(ForestGridUse::Always));
+    paper.file.lb_model = LbModel::Paper;
+    methods.push((format!("lb paper {forest_grid}³ + forest grid"), LightingMode::Lb, paper));
+    methods.push(("boulanger".into(), LightingMode::Boulanger, scene.clone()));
+
+    let mut rendered: Vec<Rendered> = Vec::new();
+    for (name, lighting, s) in &methods {
+        say(name);
+        rendered.push(render_method(&ctx, name, *lighting, s, &settings, &a.out, &exposure, a.hdr, &|m| say(m))?);
+    }
+    // `--lb-grid auto`: the smallest grid per species that agrees with the next finer one.
+    say("lb auto: choosing grids");
+    let t = Instant::now();
+    let choices = choose_lb_grids(&ctx, &scene, &distinct, a.auto_tolerance, &|m| say(m))?;
+    let choose_ms = ms(t);
+    let mut auto_scene = scene.clone();
+    for (m, c) in auto_scene.models.iter_mut().zip(&choices) {
+        m.lb.grid = c.grid;
+    }
+    let mut auto = render_method(&ctx, "lb auto", LightingMode::Lb, &auto_scene, &settings, &a.out, &exposure, a.hdr, &|m| say(m))?;
+    auto.report.preprocess_ms += choose_ms;
+    auto.report.notes["grid_choice"] = serde_json::to_value(&choices)?;
+    rendered.push(auto);
+    bar.finish_and_clear();
+
+    // Errors against the reference; the indirect part (method − local)
+    // against the reference's own (its estimate minus local along its samples).
+    let (local, local_again) = (rendered[0].image.clone(), rendered[0].again.clone());
+    for m in &mut rendered {
+        (m.report.rmse, m.report.mean_relative_error) = errors(&m.image, &reference, &lit);
+        let ind = IndirectError::measure([&m.image, &m.again], [&local, &local_again], &r, &lit);
+        m.report.indirect_relative_error = ind.raw;
+        m.report.indirect_error_net = ind.net;
+        m.report.indirect_noise_reference = ind.reference_noise;
+        m.report.indirect_noise_method = ind.method_noise;
+    }
+    let ref_png = a.out.join("reference.png");
+    write_png(&ref_png, a.width, a.height, &reinhard_like(&reference, &exposure))?;
+    if a.hdr {
+        write_hdr(&a.out.join("reference.npy"), &reference)?;
+        write_hdr(&a.out.join("reference-local.npy"), &r.local)?;
+        let (h, w) = (a.height as u64, a.width as u64);
+        let var: Vec<f32> = r.indirect_variance.iter().flatten().copied().collect();
+        sylva_light::npy::write_f32(&a.out.join("reference-indirect-variance.npy"), &[h, w, 3], &var)?;
+        sylva_light::npy::write_f32(&a.out.join("reference-coverage.npy"), &[h, w], &r.coverage)?;
+    }
+    let grid_svg = a.out.join("figure2.svg");
+    write_figure(&grid_svg, &a, &rendered, &reference)?;
+    let mut reports: Vec<MethodReport> = rendered.iter_mut().map(|m| std::mem::replace(&mut m.report, empty_report())).collect();
+    reports.push(MethodReport {
+        name: "reference".into(),
+        lighting: LightingMode::Reference,
+        lb_grids: vec![],
+        forest_grid: None,
+        build_ms,
+        preprocess_ms: pre,
+        frame_ms: r.stats.ms,
+        rmse: 0.0,
+        mean_relative_error: 0.0,
+        indirect_relative_error: 0.0,
+        image: ref_png.display().to_string(),
+        indirect_error_net: 0.0,
+        indirect_noise_reference: 0.0,
+        indirect_noise_method: 0.0,
+        notes: json!({ "reused": reused, "spp": r.stats.spp, "batches": r.stats.batches, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "max_bounces": sylva_worker::trace::MAX_BOUNCES, "leaf_optics": scene.file.leaf_optics }),
+    });
+
+    let chart = a.chart.clone().unwrap_or_else(|| a.out.join("compare.svg"));
+    std::fs::write(&chart, error_chart(&reports)).with_context(|| format!("{}: cannot write", chart.display()))?;
+    let sweeps = if a.sweeps { Some(write_sweeps(&a.out)?) } else { None };
+    let best = winner(&reports);
+    let table = json!({
+        "scene": a.scene,
+        "image": [a.width, a.height],
+        "spp": a.spp,
+        "adapter": ctx.summary(),
+        "lit_pixels": lit.iter().filter(|&&l| l).count(),
+        "reference": { "reused": reused, "spp": r.stats.spp, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "ms": r.stats.ms },
+        "methods": reports,
+        "summary": best,
+        "figure": grid_svg,
+        "chart": chart,
+        "sweeps": sweeps,
+    });
+    std::fs::write(a.out.join("compare.json"), serde_json::to_string_pretty(&table)? + "\n")?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&table)?);
+    } else {
+        println!(
+            "{:<28} {:>12} {:>10} {:>9} {:>10} {:>10} {:>10} {:>13}",
+            "method", "pre-process", "frame", "RMSE", "rel. err", "indirect", "net", "noise r / m"
+        );
+        for m in &reports {
+            println!(
+                "{:<28} {:>9.0} ms {:>7.0} ms {:>9.4} {:>9.1} % {:>9.1} % {:>8.1} % {:>5.1} / {:>4.1} %",
+                m.name,
+                m.preprocess_ms,
+                m.frame_ms,
+                m.rmse,
+                100.0 * m.mean_relative_error,
+                100.0 * m.indirect_relative_error,
+                100.0 * m.indirect_error_net,
+                100.0 * m.indirect_noise_reference,
+                100.0 * m.indirect_noise_method
+            );
+        }
+        println!("{}", best);
+        println!("wrote {}, {} and {}", a.out.join("compare.json").display(), grid_svg.display(), chart.display());
+    }
+    Ok(())
+}
+
+fn empty_report() -> MethodReport {
+    MethodReport {
+        name: String::new(),
+        lighting: LightingMode::Local,
+        lb_grids: vec![],
+        forest_grid: None,
+        build_ms: 0.0,
+        preprocess_ms: 0.0,
+        frame_ms: 0.0,
+        rmse: 0.0,
+        mean_relative_error: 0.0,
+        indirect_relative_error: 0.0,
+        indirect_error_net: 0.0,
+        indirect_noise_reference: 0.0,
+        indirect_noise_method: 0.0,
+        image: String::new(),
+        notes: serde_json::Value::Null,
+    }
+}
+
+/// The scene with every model's LB grid set to `grid` and the forest grid's use set.
+fn with_lb(scene: &Scene, grid: Option<usize>, forest: Option<ForestGridUse>) -> Scene {
+    let mut s = scene.clone();
+    if let Some(g) = grid {
+        for m in &mut s.models {
+            m.lb.grid = g;
+        }
+    }
+    if let Some(f) = forest {
+        s.file.forest_grid.use_grid = f;
+    }
+    s
+}
+
+/// Prepares and renders one method, writes its image with the reference's exposure.
+#[allow(clippy::too_many_arguments)]
+fn render_method(
+    ctx: &GpuContext,
+    name: &str,
+    lighting: LightingMode,
+    scene: &Scene,
+    f: &RenderSettings,
+    out: &Path,
+    exposure: &ToneMapStats,
+    hdr: bool,
+    say: &dyn Fn(&str),
+) -> anyhow::Result<Rendered> {
+    let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
+    let mut pre: f64 = prepared.phases.0.iter().filter(|p| !matches!(p.name, "build" | "upload")).map(|p| p.ms).sum::<f64>() + 0.0;
+    let mut settings = RenderSettings { lighting, ..*f };
+    if lighting == LightingMode::Ambient {
+        let t = Instant::now();
+        settings.ambient = sylva_worker::lighting::ambient::matched(&prepared.renderer, ctx, &settings)?;
+        pre += ms(t);
+    }
+    say(&format!("{name}: rendering"));
+    // One untimed strip first: the pipeline's first dispatch compiles it.
+    prepared.renderer.render_strip(ctx, &RenderSettings { width: 8, height: 8, spp: 1, ..settings }, 0, 8)?;
+    let t = Instant::now();
+    let image = InProcess::new(ctx, &prepared.renderer, settings).render(&[(0, f.width)], &|_| {})?.image;
+    let frame_ms = ms(t);
+    // The same frame with other seeds (untimed): with `local`'s second
+    // render, the spread of the two tells the method's own sampling noise.
+    let again = InProcess::new(ctx, &prepared.renderer, RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings })
+        .render(&[(0, f.width)], &|_| {})?
+        .image;
+    let file = out.join(format!("{}.png", name.replace(['³', ' ', '+'], "").replace("lb", "lb-")));
+    write_png(&file, f.width, f.height, &reinhard_like(&image, exposure))?;
+    if hdr {
+        write_hdr(&file.with_extension("npy"), &image)?;
+    }
+    let paper = scene.file.lb_model == LbModel::Paper && lighting.needs_lb();
+    let notes = json!({
+        "lb_model": scene.file.lb_model.name(),
+        // The paper model's strength is a knob, not physics: say so where it is used.
+        "non_physical": if paper { json!({ "lb_strength": f.lb_strength }) } else { serde_json::Value::Null },
+        "lb": prepared.light,
+        "forest_grid": prepared.forest,
+        "boulanger": prepared.boulanger,
+        "ambient": settings.ambient,
+        "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
+    });
+    Ok(Rendered {
+        report: MethodReport {
+            name: name.into(),
+            lighting,
+            lb_grids: prepared.light.iter().map(|l| l.grid).collect(),
+            forest_grid: prepared.forest.as_ref().map(|f| f.used),
+            build_ms: prepared.phases.ms("build"),
+            preprocess_ms: pre,
+            frame_ms,
+            rmse: 0.0,
+            mean_relative_error: 0.0,
+            indirect_relative_error: 0.0,
+            indirect_error_net: 0.0,
+            indirect_noise_reference: 0.0,
+            indirect_noise_method: 0.0,
+            image: file.display().to_string(),
+            notes,
+        },
+        image,
+        again,
+    })
+}
+
+/// (RMSE, mean relative error) over lit pixels of method image `m` against
+/// the reference `r`: whole images ([`IndirectError`] takes the indirect part).
+fn errors(m: &HdrImage, r: &HdrImage, lit: &[bool]) -> (f64, f64) {
+    let (mut se, mut rel, mut n) = (0.0f64, 0.0f64, 0usize);
+    for (i, _) in lit.iter().enumerate().filter(|(_, lit)| **lit) {
+        let (p, q) = (m.pixels[i], r.pixels[i]);
+        for c in 0..3 {
+            se += ((p[c] - q[c]) as f64).powi(2);
+        }
+        let lr = luminance(q) as f64;
+        rel += ((luminance(p) as f64) - lr).abs() / lr;
+        n += 1;
+    }
+    let n = n.max(1) as f64;
+    ((se / (3.0 * n)).sqrt(), rel / n)
+}
+
+/// Writes a linear image as float32 `.npy`, height × width × 3.
+fn write_hdr(path: &Path, img: &HdrImage) -> anyhow::Result<()> {
+    let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
+    sylva_light::npy::write_f32(path, &[img.height as u64, img.width as u64, 3], &flat)
+}
+
+/// The seed bits that give a method's second render other samples.
+const SECOND_SEED: u32 = 0x5EED_0002;
+
+/// The indirect error of a method: its indirect part (method − `local`
+/// on the same samples) against the reference's (its estimate minus
+/// `local` along its own samples), so leaf edges against the sky, sampled
+/// differently by the two, do not count as indirect light; raw, and with
+/// each image's own sampling noise taken out.
+///
+/// A squared difference of two noisy estimates is, in expectation, the
+/// squared difference of their means plus both variances. The reference
+/// knows its variance per pixel (the spread of its batches); a method's
+/// comes from rendering it twice with other seeds: E[(a − b)²] = 2σ².
+/// Subtracting both leaves the error of the method's expected image
+/// against the reference's, which is what the lighting method controls:
+/// the 4-ray edge aliasing and the reference's finite samples are not.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct IndirectError {
+    /// √(Σ d² / Σ i_r²) over lit pixels and channels.
+    raw: f64,
+    /// √(max(0, Σ d² − Σ σ_m² − Σ σ_r²) / (Σ i_r² − Σ σ_r²)).
+    net: f64,
+    /// √(Σ σ_r²) over the reference's noise-free indirect RMS.
+    reference_noise: f64,
+    /// √(Σ σ_m²) over the same.
+    method_noise: f64,
+}
+
+impl IndirectError {
+    /// `m` and `l`: the method and `local`, each rendered with two seeds
+    /// (the first pair on the same samples, the second pair too).
+    fn measure(m: [&HdrImage; 2], l: [&HdrImage; 2], r: &ReferenceImage, lit: &[bool]) -> Self {
+        let (mut d2, mut r2, mut var_r, mut var_m) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for (i, _) in lit.iter().enumerate().filter(|(_, lit)| **lit) {
+            for c in 0..3 {
+                let ind = |k: usize| (m[k].pixels[i][c] - l[k].pixels[i][c]) as f64;
+                let ind_r = (r.image.pixels[i][c] - r.local.pixels[i][c]) as f64;
+                d2 += (ind(0) - ind_r).powi(2);
+                r2 += ind_r.powi(2);
+                var_r += r.indirect_variance[i][c] as f64;
+                var_m += (ind(0) - ind(1)).powi(2) / 2.0;
+            }
+        }
+        if r2 <= 0.0 {
+            return Self { raw: 0.0, net: 0.0, reference_noise: 0.0, method_noise: 0.0 };
+        }
+        let signal = (r2 - var_r).max(f64::MIN_POSITIVE);
+        Self {
+            raw: (d2 / r2).sqrt(),
+            net: ((d2 - var_m - var_r).max(0.0) / signal).sqrt(),
+            reference_noise: (var_r / signal).sqrt(),
+            method_noise: (var_m / signal).sqrt(),
+        }
+    }
+}
+
+/// What a saved reference was made for: the scene's bundle (the scene
+/// file and every model file it names, as `sylva submit` packs it), the
+/// image, the reference's budget and this very binary.
+fn reference_key(a: &CompareArgs) -> anyhow::Result<String> {
+    let bundle = sylva_scene::bundle::pack(&a.scene)?;
+    let mut h = blake3::Hasher::new();
+    h.update(bundle.hash.as_bytes());
+    h.update(format!("{}x{} {} {}", a.width, a.height, a.target_error, a.max_seconds).as_bytes());
+    let exe = std::env::current_exe().context("this program's own file")?;
+    let mut file = std::fs::File::open(&exe).with_context(|| format!("{}: cannot read", exe.display()))?;
+    std::io::copy(&mut file, &mut h).with_context(|| format!("{}: cannot read", exe.display()))?;
+    Ok(h.finalize().to_hex().to_string())
+}
+
+/// A saved reference and the key it was made for.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SavedReference {
+    key: String,
+    reference: ReferenceImage,
+}
+
+/// Writes the reference beside the images, for `--reuse-reference`.
+fn save_reference(path: &Path, key: &str, r: &ReferenceImage) -> anyhow::Result<()> {
+    let bytes = postcard::to_stdvec(&SavedReference { key: key.into(), reference: r.clone() })?;
+    std::fs::write(path, bytes).with_context(|| format!("{}: cannot write", path.display()))
+}
+
+/// The saved reference if it was made for `key` and has the image's size;
+/// otherwise `None` (and the reason, logged), so the reference is rendered.
+fn load_reference(path: &Path, key: &str, width: u32, height: u32) -> Option<ReferenceImage> {
+    let bytes = std::fs::read(path).map_err(|e| tracing::info!("{}: no saved reference ({e})", path.display())).ok()?;
+    let saved: SavedReference = postcard::from_bytes(&bytes).map_err(|e| tracing::warn!("{}: unreadable reference ({e})", path.display())).ok()?;
+    let n = (width * height) as usize;
+    let r = saved.reference;
+    let sized = [r.image.pixels.len(), r.local.pixels.len(), r.coverage.len(), r.std_error.len(), r.indirect_variance.len()].iter().all(|&l| l == n)
+        && r.image.width == width
+        && r.image.height == height;
+    if saved.key != key || !sized {
+        tracing::warn!("{}: made for another scene, size, budget or build; rendering a new reference", path.display());
+        return None;
+    }
+    tracing::info!("{}: reusing the saved reference ({} spp)", path.display(), r.stats.spp);
+    Some(r)
+}
+
+/// Which method wins where: the most accurate, the fastest that beats
+/// constant ambient, and the best error per unit time.
+fn winner(reports: &[MethodReport]) -> String {
+    let methods: Vec<&MethodReport> = reports.iter().filter(|m| m.lighting != LightingMode::Reference).collect();
+    let Some(best) = methods.iter().min_by(|a, b| a.mean_relative_error.total_cmp(&b.mean_relative_error)) else { return String::new() };
+    let ambient = methods.iter().find(|m| m.lighting == LightingMode::Ambient).map_or(f64::INFINITY, |m| m.mean_relative_error);
+    let cheapest_better = methods
+        .iter()
+        .filter(|m| m.mean_relative_error < ambient)
+        .min_by(|a, b| (a.preprocess_ms + a.frame_ms).total_cmp(&(b.preprocess_ms + b.frame_ms)));
+    let lowest_rmse = methods.iter().min_by(|a, b| a.rmse.total_cmp(&b.rmse)).expect("not empty");
+    // The relative error weighs dark pixels most, RMSE bright ones: say both.
+    let mut s = format!(
+        "most accurate: {} ({:.1} % mean relative error); lowest RMSE: {} ({:.4})",
+        best.name,
+        100.0 * best.mean_relative_error,
+        lowest_rmse.name,
+        lowest_rmse.rmse
+    );
+    match cheapest_better {
+        Some(c) => {
+            s += &format!(
+                "; cheapest to beat constant ambient ({:.1} %): {} ({:.1} %, {:.0} ms in all)",
+                100.0 * ambient,
+                c.name,
+                100.0 * c.mean_relative_error,
+                c.preprocess_ms + c.frame_ms
+            )
+        }
+        None => s += &format!("; no method beats constant ambient ({:.1} %) here", 100.0 * ambient),
+    }
+    s
+}
+
+const COLORS: [&str; 12] =
+    ["#444444", "#999999", "#1f77b4", "#2ca02c", "#17becf", "#9467bd", "#8c564b", "#d62728", "#ff7f0e", "#e377c2", "#bcbd22", "#000000"];
+
+/// Mean relative error against log10 of pre-process + frame time, every method a point.
+fn error_chart(reports: &[MethodReport]) -> String {
+    let series: Vec<Series> = reports
+        .iter()
+        .filter(|m| m.lighting != LightingMode::Reference)
+        .enumerate()
+        .map(|(i, m)| Series {
+            name: m.name.clone(),
+            color: COLORS[i % COLORS.len()],
+            dashed: false,
+            points: vec![((m.preprocess_ms + m.frame_ms).max(1.0).log10(), 100.0 * m.mean_relative_error)],
+        })
+        .collect();
+    let hi = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0f64, f64::max).ceil() as i32;
+    let ticks: Vec<f64> = (0..=hi).map(f64::from).collect();
+    line_chart(
+        "Error against time (reference = path tracer)",
+        "log10 of pre-process + frame time, ms",
+        "mean relative error over lit pixels, %",
+        &ticks,
+        &series,
+    )
+}
+
+/// Figure 2 of the forest paper as an SVG of PNG tiles: full (LB), local,
+/// ambient matched, LB visualization, reference, and error heat maps.
+fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: &HdrImage) -> anyhow::Result<()> {
+    let find = |pred: &dyn Fn(&MethodReport) -> bool| rendered.iter().find(|m| pred(&m.report));
+    let lb = find(&|m| m.name == "lb auto").or_else(|| find(&|m| m.lighting == LightingMode::Lb));
+    let mut tiles: Vec<(String, PathBuf)> = Vec::new();
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let name_of = |p: &str| PathBuf::from(p).file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_default();
+    if let Some(m) = lb {
+        tiles.push((format!("(a) full: {}", m.report.name), name_of(&m.report.image).into()));
+    }
+    for (label, l) in [("(b) local", LightingMode::Local), ("(c) ambient matched", LightingMode::Ambient)] {
+        if let Some(m) = find(&|m| m.lighting == l) {
+            tiles.push((label.into(), name_of(&m.report.image).into()));
+        }
+    }
+    // The LB light alone is a separate render of the auto scene's grids: the
+    // (a) − (b) difference shows it without another LB solve.
+    if let (Some(m), Some(l)) = (lb, find(&|m| m.lighting == LightingMode::Local)) {
+        let diff = HdrImage {
+            width: a.width,
+            height: a.height,
+            pixels: m.image.pixels.iter().zip(&l.image.pixels).map(|(p, q)| std::array::from_fn(|c| (p[c] - q[c]).max(0.0))).collect(),
+        };
+        let (ldr, _) = reinhard(&diff, 0.18);
+        write_png(&dir.join("lb-visualize.png"), a.width, a.height, &ldr)?;
+        tiles.push(("(d) LB light alone".into(), "lb-visualize.png".into()));
+    }
+    tiles.push(("(e) reference (path traced)".into(), "reference.png".into()));
+    if let Some(m) = find(&|m| m.lighting == LightingMode::Boulanger) {
+        tiles.push(("(f) Boulanger et al.".into(), name_of(&m.report.image).into()));
+    }
+    for (label, m) in [
+        ("error: full", lb),
+        ("error: ambient", find(&|m| m.lighting == LightingMode::Ambient)),
+        ("error: Boulanger", find(&|m| m.lighting == LightingMode::Boulanger)),
+    ] {
+        if let Some(m) = m {
+            let file = format!("error-{}.png", m.report.name.replace(['³', ' ', '+'], ""));
+            write_png(&dir.join(&file), a.width, a.height, &heat_map(&m.image, reference))?;
+            tiles.push((format!("{label} (black 0, red 50 %, yellow ≥ 100 %)"), file.into()));
+        }
+    }
+    let (tw, th) = (a.width as f64, a.height as f64 + 22.0);
+    let cols = 3usize;
+    let rows = tiles.len().div_ceil(cols);
+    let mut s = format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:xlink="http://www.w3.org/1999/xlink" width="{}" height="{}" font-family="sans-serif" font-size="13"><rect width="100%" height="100%" fill="white"/>"#,
+        tw * cols as f64,
+        th * rows as f64
+    );
+    for (i, (label, file)) in tiles.iter().enumerate() {
+        let (x, y) = ((i % cols) as f64 * tw, (i / cols) as f64 * th);
+        // `href` for SVG 2 readers, `xlink:href` for older ones: both the file.
+        s += &format!(
+            r#"<text x="{}" y="{}">{}</text><image x="{x}" y="{}" width="{}" height="{}" href="{file}" xlink:href="{file}"/>"#,
+            x + 4.0,
+            y + 15.0,
+            label,
+            y + 20.0,
+            a.width,
+            a.height,
+            file = file.display()
+        );
+    }
+    s += "</svg>\n";
+    std::fs::write(path, s).with_context(|| format!("{}: cannot write", path.display()))
+}
+
+/// Per-pixel relative luminance error as colour: black 0, red 0.5, yellow ≥ 1.
+fn heat_map(m: &HdrImage, r: &HdrImage) -> Vec<[u8; 3]> {
+    m.pixels
+        .iter()
+        .zip(&r.pixels)
+        .map(|(&p, &q)| {
+            let lr = luminance(q).max(1e-4);
+            let e = ((luminance(p) - lr).abs() / lr).clamp(0.0, 1.0);
+            let red = (2.0 * e).min(1.0);
+            let green = (2.0 * e - 1.0).max(0.0);
+            [(red * 255.0) as u8, (green * 255.0) as u8, 0]
+        })
+        .collect()
+}
+
+/// Runs the LB failure-mode sweeps and charts each: LB's error against
+/// the Monte Carlo reference beside the best constant's.
+fn write_sweeps(out: &Path) -> anyhow::Result<serde_json::Value> {
+    let mut all = Vec::new();
+    for sweep in sylva_light::studies::limits::failure_sweeps(true) {
+        let lb: Vec<(f64, f64)> = sweep.points.iter().map(|p| (p.x, 100.0 * p.lb_error)).collect();
+        let amb: Vec<(f64, f64)> = sweep.points.iter().map(|p| (p.x, 100.0 * p.ambient_error)).collect();
+        let warned: Vec<(f64, f64)> = sweep.points.iter().filter(|p| p.warned).map(|p| (p.x, 100.0 * p.lb_error)).collect();
+        let mut xs: Vec<f64> = sweep.points.iter().map(|p| p.x).collect();
+        xs.sort_by(f64::total_cmp);
+        let series = [
+            Series { name: "LB".into(), color: "#2ca02c", dashed: false, points: sorted(lb) },
+            Series { name: "constant ambient".into(), color: "#999999", dashed: true, points: sorted(amb) },
+            Series { name: "LB, warned".into(), color: "#d62728", dashed: false, points: sorted(warned) },
+        ];
+        let file = out.join(format!("failure-{}.svg", sweep.name.replace(' ', "-")));
+        std::fs::write(
+            &file,
+            line_chart(&format!("LB against Monte Carlo: {}", sweep.name), sweep.x_label, "relative RMS error of fluence, %", &xs, &series),
+        )?;
+        all.push(json!({ "name": sweep.name, "x_label": sweep.x_label, "chart": file, "points": sweep.points.iter().map(|p| json!({ "x": p.x, "lb_error": p.lb_error, "ambient_error": p.ambient_error, "warned": p.warned, "lb_ms": p.lb_ms, "mc_ms": p.mc_ms })).collect::<Vec<_>>() }));
+    }
+    Ok(serde_json::Value::Array(all))
+}
+
+fn sorted(mut v: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    v
+}

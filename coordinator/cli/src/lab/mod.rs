@@ -1,0 +1,9 @@
+//! Studies rather than services: lighting methods against the reference
+//! ([`compare`]), speed ([`bench`], [`bench_sequence`]), the strip schedule
+//! in simulation ([`simulate`]) and the charts they draw ([`chart`]).
+
+pub mod bench;
+pub mod bench_sequence;
+pub mod chart;
+pub mod compare;
+pub mod simulate;

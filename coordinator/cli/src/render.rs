@@ -1,0 +1,662 @@
+//! `sylva render SCENE -o out.png`: by default starts a coordinator and
+//! `--local-workers` worker processes on loopback and renders through them
+//! (the farm's own gRPC path); `--local-workers 0` loads, prepares and
+//! traces the scene in this process. Either way the whole frame is
+//! tone-mapped once and written with its stats.
+
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use crate::in_process::InProcess;
+use sylva_coordinator::executor::{StripExecutor, even_strips};
+use sylva_accel::AccelKind;
+use sylva_scene::film::{HdrImage, reinhard, write_png};
+use sylva_scene::{LightingMode, Scene};
+use sylva_worker::GpuContext;
+use sylva_worker::prepare::prepare;
+use sylva_worker::trace::RenderSettings;
+
+use sylva_coordinator::schedule::ScheduleKind;
+use sylva_coordinator::service::MAX_NAME;
+use sylva_scene::frame::{FrameSettings, MAX_SPP};
+use sylva_scene::format::SceneFile;
+use sylva_scene::{FileAccess, SceneLimits};
+use sylva_scene::sequence::{SequenceSpec, SunAngles, SunSweep, View};
+use sylva_worker::lighting::reference::MIN_BATCH_SPP;
+/// Columns per strip, for the progress bar.
+const STRIP: u32 = 64;
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum AccelArg {
+    /// kd-tree, short-stack traversal.
+    Kd,
+    /// Bounding-volume hierarchy.
+    Bvh,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum LightingArg {
+    /// Direct sun light only.
+    Local,
+    /// Direct light plus a constant ambient matched to the LB image.
+    Ambient,
+    /// Direct light plus LB indirect light.
+    Lb,
+    /// The LB light alone.
+    LbVisualize,
+    /// The reference: path tracing with the leaf BSDF, sky, sun and clouds;
+    /// in this process it renders progressively until its own error
+    /// estimate is below --target-error.
+    Reference,
+    /// Boulanger et al. 2008: envelope distances per leaf, sky, sun and
+    /// one-bounce indirect light in closed form.
+    Boulanger,
+}
+
+/// What a frame asks for, as `render` and `submit` take it.
+#[derive(Debug, Args)]
+pub struct FrameArgs {
+    /// Image width.
+    #[arg(long, default_value_t = 896)]
+    pub width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 448)]
+    pub height: u32,
+    /// Rays per pixel.
+    #[arg(long, default_value_t = 1)]
+    pub spp: u32,
+    /// Acceleration structure.
+    #[arg(long, value_enum, default_value = "bvh")]
+    pub accel: AccelArg,
+    /// Lighting method; default the scene's.
+    #[arg(long, value_enum)]
+    pub lighting: Option<LightingArg>,
+    /// Seed of the per-pixel sample positions.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u32,
+    /// Weight of the LB light relative to the sun's.
+    #[arg(long, default_value_t = 0.35)]
+    pub lb_strength: f32,
+    /// Render a sequence of this many frames (with --sun-from/--sun-to, a
+    /// --camera-path, or the scene's own `sequence`).
+    #[arg(long)]
+    pub frames: Option<u32>,
+    /// A sun sweep's first position: ELEVATION,AZIMUTH in degrees.
+    #[arg(long, value_parser = sun_angles, requires = "sun_to")]
+    pub sun_from: Option<SunAngles>,
+    /// A sun sweep's last position: ELEVATION,AZIMUTH in degrees.
+    #[arg(long, value_parser = sun_angles, requires = "sun_from")]
+    pub sun_to: Option<SunAngles>,
+    /// Camera keyframes: a JSON file holding an array of
+    /// `{"frame", "position", "look_at", "up", "fov_y_deg"}`.
+    #[arg(long)]
+    pub camera_path: Option<PathBuf>,
+}
+
+/// `ELEVATION,AZIMUTH` in degrees.
+fn sun_angles(s: &str) -> Result<SunAngles, String> {
+    let v: Vec<f32> = s.split(',').map(|x| x.trim().parse::<f32>().map_err(|e| format!("{x:?}: {e}"))).collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [e, a] => Ok(SunAngles { elevation_deg: *e, azimuth_deg: *a }),
+        _ => Err(format!("{s:?}: ELEVATION,AZIMUTH in degrees")),
+    }
+}
+
+impl FrameArgs {
+    /// The frame these flags ask for (checked by its user).
+    pub fn settings(&self) -> FrameSettings {
+        FrameSettings {
+            width: self.width,
+            height: self.height,
+            spp: self.spp,
+            seed: self.seed,
+            lighting: self.lighting.map(Into::into),
+            accel: self.accel.into(),
+            lb_strength: self.lb_strength,
+            ambient: None,
+            view: Default::default(),
+        }
+    }
+
+    /// The views of the sequence these flags (over the scene's own
+    /// `sequence`) ask for, one per frame; empty for a single frame.
+    pub fn views(&self, scene: &SceneFile) -> anyhow::Result<Vec<View>> {
+        let flags = self.frames.is_some() || self.sun_from.is_some() || self.camera_path.is_some();
+        let mut seq = match (&scene.sequence, flags) {
+            (None, false) => return Ok(Vec::new()),
+            (Some(s), _) => s.clone(),
+            (None, true) => SequenceSpec { frames: 0, sun: None, camera: Vec::new() },
+        };
+        if let Some(n) = self.frames {
+            seq.frames = n;
+        }
+        if let (Some(from), Some(to)) = (self.sun_from, self.sun_to) {
+            seq.sun = Some(SunSweep { from, to });
+        }
+        if let Some(p) = &self.camera_path {
+            let text = std::fs::read_to_string(p).with_context(|| format!("{}: cannot read", p.display()))?;
+            seq.camera = serde_json::from_str(&text).with_context(|| format!("{}: not a JSON array of camera keyframes", p.display()))?;
+        }
+        if seq.frames == 0 {
+            bail!("a sequence needs --frames N (or the scene's sequence.frames)");
+        }
+        seq.views().map_err(anyhow::Error::msg)
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Scene file (JSON); see `sylva scene forest` and docs/scene-format.md.
+    pub scene: PathBuf,
+    /// Output PNG; stats go beside it as NAME.stats.json.
+    #[arg(short, long, default_value = "sylva-out/render.png")]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub frame: FrameArgs,
+    /// `--lighting reference` in this process: stop once the image's own
+    /// relative standard error is below this (each batch has --spp samples, at least 16).
+    #[arg(long, default_value_t = 0.02)]
+    pub target_error: f64,
+    /// `--lighting reference` in this process: stop after this many seconds.
+    #[arg(long, default_value_t = 600.0)]
+    pub max_seconds: f64,
+    /// LB grid of every model: a size, or `auto` (the smallest of 16, 32, 64,
+    /// 128 whose light differs from the next finer grid's by less than
+    /// --lb-auto-tolerance; the stats say what it chose and why). In this
+    /// process only (--local-workers 0).
+    #[arg(long)]
+    pub lb_grid: Option<String>,
+    /// `--lb-grid auto`: the largest relative difference accepted.
+    #[arg(long, default_value_t = 0.2)]
+    pub lb_auto_tolerance: f64,
+    /// Also write the linear HDR frame as OpenEXR beside the PNG.
+    #[arg(long)]
+    pub exr: bool,
+    /// Print the stats JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Worker processes to start on loopback for this render (0: render in
+    /// this process, without gRPC).
+    #[arg(long, default_value_t = 2)]
+    pub local_workers: usize,
+    /// Render on these running workers (`host:port,…`) instead of starting any.
+    #[arg(long, value_delimiter = ',')]
+    pub workers: Vec<String>,
+    /// How the frame is cut into strips for the workers.
+    #[arg(long, value_enum, default_value = "dynamic")]
+    pub schedule: ScheduleArg,
+    /// Seconds a worker may take over one strip before it is handed to another.
+    #[arg(long, default_value_t = 600)]
+    pub strip_deadline_s: u64,
+    /// The token the `--workers` require; local workers get a fresh random one.
+    #[command(flatten)]
+    pub auth: super::security::TokenArgs,
+    /// How to reach the `--workers` over TLS.
+    #[command(flatten)]
+    pub tls: super::security::ConnectTlsArgs,
+    /// Let the scene read model files outside its own folder (in this
+    /// process only: a bundle for workers always holds just the scene
+    /// folder's files).
+    #[arg(long)]
+    pub allow_files_outside_scene: bool,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ScheduleArg {
+    /// One equal strip per worker.
+    Static,
+    /// More strips than workers, pulled by idle workers.
+    Dynamic,
+}
+
+impl From<AccelArg> for AccelKind {
+    fn from(a: AccelArg) -> Self {
+        match a {
+            AccelArg::Kd => AccelKind::Kd,
+            AccelArg::Bvh => AccelKind::Bvh,
+        }
+    }
+}
+
+impl From<LightingArg> for LightingMode {
+    fn from(l: LightingArg) -> Self {
+        match l {
+            LightingArg::Local => LightingMode::Local,
+            LightingArg::Ambient => LightingMode::Ambient,
+            LightingArg::Lb => LightingMode::Lb,
+            LightingArg::LbVisualize => LightingMode::LbVisualize,
+            LightingArg::Reference => LightingMode::Reference,
+            LightingArg::Boulanger => LightingMode::Boulanger,
+        }
+    }
+}
+
+impl From<ScheduleArg> for ScheduleKind {
+    fn from(s: ScheduleArg) -> Self {
+        match s {
+            ScheduleArg::Static => ScheduleKind::Static,
+            ScheduleArg::Dynamic => ScheduleKind::Dynamic,
+        }
+    }
+}
+
+/// A job for the coordinator: the frame (and a sequence's views), how to
+/// cut it, its priority and label.
+pub fn job_spec(frame: &FrameSettings, views: &[View], schedule: ScheduleArg, priority: i32, name: &str) -> sylva_proto::pb::JobSpec {
+    use sylva_proto::pb;
+    sylva_proto::pb::JobSpec {
+        views: views.iter().map(pb::FrameView::from).collect(),
+        frame: Some(pb::FrameSettings::from(frame)),
+        schedule: match ScheduleKind::from(schedule) {
+            ScheduleKind::Static => pb::Schedule::Static,
+            ScheduleKind::Dynamic => pb::Schedule::Dynamic,
+        }
+        .into(),
+        priority,
+        // The coordinator refuses names over MAX_NAME bytes: cut at a character.
+        name: cut(name, MAX_NAME),
+        submitter: cut(&submitter_name(), sylva_coordinator::service::MAX_SUBMITTER),
+    }
+}
+
+/// `s` cut at a character so it holds at most `max` bytes, without control characters.
+fn cut(s: &str, max: usize) -> String {
+    s.chars()
+        .filter(|c| !c.is_control())
+        .scan(0, |n, c| {
+            (*n + c.len_utf8() <= max).then(|| {
+                *n += c.len_utf8();
+                c
+            })
+        })
+        .collect()
+}
+
+/// Who submits, for listings: `$SYLVA_USER`, else the login name.
+fn submitter_name() -> String {
+    ["SYLVA_USER", "USER", "LOGNAME"].iter().find_map(|v| std::env::var(v).ok().filter(|u| !u.is_empty())).unwrap_or_default()
+}
+
+pub fn run(a: RenderArgs) -> anyhow::Result<()> {
+    let request = a.frame.settings();
+    request.check()?;
+    let mut phases: Vec<(&str, f64)> = Vec::new();
+    let t = Instant::now();
+    let folder = a.scene.parent().map(Path::to_path_buf).unwrap_or_default();
+    let remote = a.local_workers > 0 || !a.workers.is_empty();
+    if a.allow_files_outside_scene && remote {
+        bail!("--allow-files-outside-scene works in this process only (add --local-workers 0): a bundle holds just the scene folder's files");
+    }
+    let access = if a.allow_files_outside_scene { FileAccess::Anywhere(folder) } else { FileAccess::Inside(folder) };
+    let mut scene = Scene::load_with(&a.scene, &access, &SceneLimits::UNLIMITED)?;
+    phases.push(("load", ms(t)));
+    let grid_choice = match a.lb_grid.as_deref() {
+        None => None,
+        Some(_) if a.local_workers > 0 || !a.workers.is_empty() => {
+            bail!("--lb-grid works in this process only: add --local-workers 0, or set \"lb\": {{ \"grid\": N }} in the scene")
+        }
+        Some("auto") => Some(()),
+        Some(n) => {
+            let n: usize =
+                n.parse().ok().filter(|n| (4..=256).contains(n)).with_context(|| format!("--lb-grid {n:?}: a size in [4, 256] or auto"))?;
+            for m in &mut scene.models {
+                m.lb.grid = n;
+            }
+            None
+        }
+    };
+    let lighting = request.lighting_or(scene.lighting);
+    let accel = request.accel;
+    let views = a.frame.views(&scene.file)?;
+    if remote {
+        return render_through_coordinator(&a, &request, &views, &scene, lighting, accel, phases);
+    }
+    if !views.is_empty() {
+        bail!("a sequence renders on workers, frames and strips scheduled over them: leave out --local-workers 0");
+    }
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let ctx = GpuContext::new()?;
+    let mut choices = None;
+    if grid_choice.is_some() && lighting.needs_lb() {
+        let t = Instant::now();
+        let c = sylva_worker::lighting::lb::auto::choose_lb_grids(&ctx, &scene, &[16, 32, 64, 128], a.lb_auto_tolerance, &|m| {
+            bar.set_message(m.to_string())
+        })?;
+        for (m, c) in scene.models.iter_mut().zip(&c) {
+            m.lb.grid = c.grid;
+        }
+        phases.push(("lb grid choice", ms(t)));
+        choices = Some(c);
+    }
+    let prepared = prepare(&ctx, &scene, accel, lighting, &|m| bar.set_message(m.to_string()))?;
+    for p in &prepared.phases.0 {
+        phases.push((p.name, p.ms));
+    }
+    let mut settings = RenderSettings {
+        width: a.frame.width,
+        height: a.frame.height,
+        spp: a.frame.spp,
+        seed: a.frame.seed,
+        lighting,
+        ambient: [0.0; 3],
+        lb_strength: a.frame.lb_strength,
+        view: Default::default(),
+    };
+    if lighting == LightingMode::Ambient {
+        bar.set_message("matching the ambient constant to the LB image");
+        let t = Instant::now();
+        settings.ambient = sylva_worker::lighting::ambient::matched(&prepared.renderer, &ctx, &settings)?;
+        phases.push(("ambient match", ms(t)));
+    }
+    bar.finish_and_clear();
+
+    if lighting == LightingMode::Reference {
+        anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error {}: must be a finite number > 0", a.target_error);
+        anyhow::ensure!(a.max_seconds.is_finite() && a.max_seconds > 0.0, "--max-seconds {}: must be a finite number > 0", a.max_seconds);
+        let opts = sylva_worker::lighting::reference::ReferenceOptions {
+            batch_spp: a.frame.spp.max(MIN_BATCH_SPP),
+            target_error: a.target_error,
+            max_seconds: a.max_seconds,
+            max_batches: (MAX_SPP / a.frame.spp.max(MIN_BATCH_SPP)).max(4),
+            ..Default::default()
+        };
+        let bar = ProgressBar::new_spinner();
+        bar.set_style(ProgressStyle::with_template("{spinner} reference: {msg} {elapsed}").expect("valid template"));
+        bar.enable_steady_tick(std::time::Duration::from_millis(200));
+        let t = Instant::now();
+        let r = sylva_worker::lighting::reference::render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
+            bar.set_message(format!("{} spp, relative error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
+        })?;
+        phases.push(("trace", ms(t)));
+        bar.finish_and_clear();
+        let (tone, exr) = write_image(&a, &r.image, &mut phases)?;
+        // Beside the reference, what `local` shows along its own samples:
+        // the difference is its indirect light, without edge aliasing.
+        let local_exr = match &exr {
+            Some(p) => {
+                let l = p.with_extension("local.exr");
+                r.local.write_exr(&l)?;
+                Some(l.display().to_string())
+            }
+            None => None,
+        };
+        let stats = with_head(
+            &a,
+            exr,
+            accel,
+            lighting,
+            &phases,
+            json!({
+                "adapter": ctx.summary(),
+                "reference": r.stats,
+                "local_exr": local_exr,
+                "leaf_optics": scene.file.leaf_optics,
+                "max_bounces": sylva_worker::trace::MAX_BOUNCES,
+                "tone_map": tone,
+                "coverage": r.coverage.iter().map(|&c| c as f64).sum::<f64>() / r.coverage.len() as f64,
+            }),
+        );
+        let how = format!(
+            "{} spp in {:.0} ms, relative standard error {:.4}{}",
+            r.stats.spp,
+            r.stats.ms,
+            r.stats.relative_error,
+            if r.stats.converged { "" } else { " (not converged)" }
+        );
+        return report(&a, &stats, accel, lighting, &how);
+    }
+    let plan = even_strips(a.frame.width, STRIP);
+    let bar = ProgressBar::new(plan.len() as u64);
+    bar.set_style(ProgressStyle::with_template("tracing [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
+    let t = Instant::now();
+    let rendered = InProcess::new(&ctx, &prepared.renderer, settings).render(&plan, &|_| bar.inc(1))?;
+    let [primary, shadow, transparent] = rendered.rays;
+    let (frame, coverage) = (rendered.image, rendered.coverage);
+    let trace_ms = ms(t);
+    phases.push(("trace", trace_ms));
+    bar.finish_and_clear();
+
+    let (tone, exr) = write_image(&a, &frame, &mut phases)?;
+    let stats = with_head(
+        &a,
+        exr,
+        accel,
+        lighting,
+        &phases,
+        json!({
+            "adapter": ctx.summary(),
+            "rays": {
+                "primary": primary,
+                "shadow": shadow,
+                "transparent_passed": transparent,
+                "mrays_per_second": (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6,
+            },
+            "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
+            "instances": scene.instances.len(),
+            "models": scene.models.len(),
+            "gpu_memory_bytes": { "scene": prepared.renderer.scene_bytes(), "acceleration_structures": prepared.accel_bytes },
+            "lb": prepared.light,
+            "lb_grid_choice": choices,
+            "boulanger": prepared.boulanger,
+            "forest_grid": prepared.forest,
+            "ambient": settings.ambient,
+            "tone_map": tone,
+            "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
+        }),
+    );
+    let how = format!("in {:.0} ms of tracing, {:.2} Mrays/s", trace_ms, (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6);
+    report(&a, &stats, accel, lighting, &how)
+}
+
+/// Tone-maps the whole frame once and writes the PNG (and the EXR when asked).
+fn write_image(
+    a: &RenderArgs,
+    frame: &HdrImage,
+    phases: &mut Vec<(&'static str, f64)>,
+) -> anyhow::Result<(sylva_scene::film::ToneMapStats, Option<PathBuf>)> {
+    let t = Instant::now();
+    let (ldr, tone) = reinhard(frame, 0.18);
+    create_parent(&a.out)?;
+    write_png(&a.out, a.frame.width, a.frame.height, &ldr)?;
+    phases.push(("tone map", ms(t)));
+    let exr = if a.exr {
+        let p = a.out.with_extension("exr");
+        frame.write_exr(&p)?;
+        Some(p)
+    } else {
+        None
+    };
+    Ok((tone, exr))
+}
+
+/// Stats every render path starts with (what was rendered, where it went,
+/// time per phase), followed by the path's own fields in `rest`.
+fn with_head(
+    a: &RenderArgs,
+    exr: Option<PathBuf>,
+    accel: AccelKind,
+    lighting: LightingMode,
+    phases: &[(&str, f64)],
+    rest: serde_json::Value,
+) -> serde_json::Value {
+    let mut head = json!({
+        "scene": a.scene,
+        "image": a.out,
+        "exr": exr,
+        "width": a.frame.width,
+        "height": a.frame.height,
+        "spp": a.frame.spp,
+        "accel": accel,
+        "lighting": lighting,
+        "phases_ms": phases.iter().map(|(k, v)| json!({ "phase": k, "ms": v })).collect::<Vec<_>>(),
+    });
+    if let (Some(h), serde_json::Value::Object(r)) = (head.as_object_mut(), rest) {
+        h.extend(r);
+    }
+    head
+}
+
+/// Creates the folder `path` goes in, if any.
+pub(super) fn create_parent(path: &Path) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+    }
+    Ok(())
+}
+
+/// Writes the stats beside the image and tells the user.
+fn report(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting: LightingMode, how: &str) -> anyhow::Result<()> {
+    report_wrote(a, stats, accel, lighting, how, &a.out.display().to_string())
+}
+
+/// [`report`], naming what was written as `wrote`.
+fn report_wrote(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting: LightingMode, how: &str, wrote: &str) -> anyhow::Result<()> {
+    let path = stats_path(&a.out);
+    std::fs::write(&path, serde_json::to_string_pretty(stats)? + "\n").with_context(|| format!("{}: cannot write", path.display()))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(stats)?);
+    } else {
+        println!(
+            "rendered {} ({}×{}, {} spp, {accel:?}, {lighting:?}) {how}; wrote {} and {}",
+            a.scene.display(),
+            a.frame.width,
+            a.frame.height,
+            a.frame.spp,
+            wrote,
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// `NAME.stats.json` beside `NAME.png`.
+pub fn stats_path(image: &Path) -> PathBuf {
+    let stem = image.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_else(|| "render".into());
+    image.with_file_name(format!("{stem}.stats.json"))
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Renders through a coordinator process started here, over worker
+/// processes started here or the running ones named by `--workers`: the
+/// same gRPC path a farm's jobs take.
+fn render_through_coordinator(
+    a: &RenderArgs,
+    request: &FrameSettings,
+    views: &[View],
+    scene: &Scene,
+    lighting: LightingMode,
+    accel: AccelKind,
+    mut phases: Vec<(&'static str, f64)>,
+) -> anyhow::Result<()> {
+    use super::local::LocalProcesses;
+    use sylva_proto::auth::random_token;
+    let t = Instant::now();
+    let bundle = sylva_scene::bundle::pack(&a.scene)?;
+    phases.push(("bundle", ms(t)));
+    let t = Instant::now();
+    let mut processes = LocalProcesses::default();
+    let mut flags = vec!["--strip-deadline-s".to_string(), a.strip_deadline_s.max(1).to_string()];
+    let (workers, token) = if a.workers.is_empty() {
+        // Other users of this machine must not be able to use our processes.
+        let token = random_token();
+        (processes.start_workers(a.local_workers, &token)?, token)
+    } else {
+        // The coordinator sends its own token to the workers, so it is theirs.
+        flags.extend(a.tls.to_args());
+        (a.workers.clone(), a.auth.load()?.unwrap_or_else(random_token))
+    };
+    let coordinator = processes.start_coordinator(&workers, &token, &flags)?;
+    phases.push(("start processes", ms(t)));
+    let spec = job_spec(request, views, a.schedule, 0, &a.scene.display().to_string());
+    let rt = tokio::runtime::Runtime::new()?;
+    let t = Instant::now();
+    let done = rt.block_on(sylva_coordinator::client::submit_and_follow(&coordinator, Some(token), None, spec, &bundle, a.exr))?;
+    let frame_ms = ms(t);
+    phases.push((if views.is_empty() { "frame" } else { "sequence" }, frame_ms));
+    drop(processes);
+
+    create_parent(&a.out)?;
+    let mut body = json!({
+        "coordinator": coordinator,
+        "job": done.id,
+        "bundle": { "hash": bundle.hash, "bytes": bundle.bytes.len() },
+        "triangles": { "unique": scene.unique_triangles(), "instanced": scene.instanced_triangles() },
+        "instances": scene.instances.len(),
+        "models": scene.models.len(),
+    });
+    // A sequence's numbered frames, sheet and preview; or the one image.
+    let (exr, wrote, how) = if views.is_empty() {
+        std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
+        let exr = match done.exrs.as_ref().map(|e| &e[0]) {
+            Some(bytes) => {
+                let p = a.out.with_extension("exr");
+                std::fs::write(&p, bytes).with_context(|| format!("{}: cannot write", p.display()))?;
+                Some(p)
+            }
+            None => None,
+        };
+        (exr, a.out.display().to_string(), format!("through a coordinator and {} workers in {:.0} ms", workers.len(), frame_ms))
+    } else {
+        let written = sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
+        let names = |i: usize| written.get(i).map(|p| p.display().to_string()).unwrap_or_default();
+        let wrote = format!("{} … {}, {}, {}", names(0), names(views.len() - 1), names(written.len() - 2), names(written.len() - 1));
+        body["views"] = json!(views);
+        body["written"] = json!(written);
+        let n = views.len();
+        (
+            None,
+            wrote,
+            format!("{n} frames through a coordinator and {} workers in {frame_ms:.0} ms ({:.0} ms a frame)", workers.len(), frame_ms / n as f64),
+        )
+    };
+    let mut stats = with_head(a, exr, accel, lighting, &phases, body);
+    // The coordinator's own figures: schedule, strips, workers, rays, tone map.
+    if let (Some(s), serde_json::Value::Object(c)) = (stats.as_object_mut(), done.stats) {
+        s.extend(c);
+    }
+    report_wrote(a, &stats, accel, lighting, &how, &wrote)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Flags {
+        #[command(flatten)]
+        frame: FrameArgs,
+    }
+
+    fn views(flags: &[&str], scene: &str) -> anyhow::Result<Vec<View>> {
+        let f = Flags::try_parse_from(std::iter::once("sylva").chain(flags.iter().copied()))?;
+        f.frame.views(&sylva_scene::parse(scene, "s.json")?)
+    }
+
+    #[test]
+    fn the_scene_files_sequence_is_rendered_and_flags_override_it() {
+        let plain = include_str!("../../../shared/scene/tests/data/small_scene.json");
+        assert!(views(&[], plain).unwrap().is_empty(), "no sequence: one frame");
+        let with = plain.trim_end().trim_end_matches('}').to_string()
+            + r#", "sequence": { "frames": 6, "sun": { "from": { "elevation_deg": 10, "azimuth_deg": 0 }, "to": { "elevation_deg": 50, "azimuth_deg": 0 } } } }"#;
+        let v = views(&[], &with).unwrap();
+        assert_eq!(v.len(), 6);
+        assert!(v.iter().all(|v| v.camera.is_none() && v.sun_towards.is_some()));
+        // Flags: more frames, and the sun sweep replaced.
+        let v = views(&["--frames", "3", "--sun-from", "60,0", "--sun-to", "60,90"], &with).unwrap();
+        assert_eq!(v.len(), 3);
+        assert!((v[0].sun_towards.unwrap()[1] - 60f32.to_radians().sin()).abs() < 1e-6);
+        // A sweep without a frame count is refused, and so is half a sweep.
+        assert!(views(&["--sun-from", "10,0", "--sun-to", "20,0"], plain).unwrap_err().to_string().contains("--frames"));
+        assert!(views(&["--frames", "2", "--sun-from", "10,0"], plain).is_err());
+        assert!(views(&["--frames", "2", "--sun-from", "10", "--sun-to", "20,0"], plain).is_err());
+    }
+}

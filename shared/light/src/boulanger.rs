@@ -1,0 +1,783 @@
+//! CPU side of the Boulanger, Bouatouch & Pattanaik (2008) tree-lighting
+//! model, "Rendering Trees with Indirect Lighting in Real Time": per-leaf
+//! envelope distances `s_max(P, ω_j)` for eight directions, per-sun
+//! constants (G1 split in two geometric factors, G2, G3), and a plain CPU
+//! evaluation of the three lighting terms (sky, sun, one-bounce indirect
+//! sun) that a GPU shader is tested against.
+//!
+//! # How `s_max` is computed
+//!
+//! This follows the paper's own precomputation (§6): around each leaf P,
+//! every other leaf is put into the bin of the direction ω_j nearest to
+//! PP' (for the cube diagonals, the bin is the octant). Each neighbour
+//! occludes the fraction o = Ω_leaf / Ω_bin of its bin, Ω_bin = 4π/8, and
+//! the bin's transmittance is Π(1 − o) (order-independent, so the paper's
+//! sort by distance is not needed). With Ω_leaf ≈ A |N'·d̂| / (d² + A),
+//! softened by the leaf area so a touching neighbour blocks about a
+//! steradian instead of diverging, −ln Π(1 − o) ≈ ρ (A/2) × (mean foliage
+//! thickness over the bin) in a uniform cloud, so `s_max = −ln T / τ` is
+//! the foliage thickness between P and the outside, and e^{−τ s_max}
+//! reproduces the binned attenuation exactly, as the paper uses it.
+//! Why this and not a ray march through a grid: the paper describes it
+//! clearly, it needs no envelope surface, and it averages over the whole
+//! bin's solid angle (what eqs. 6 and 23 integrate over) rather than one ray.
+//!
+//! The paper finds τ by averaging −ln T / (distance to the farthest leaf of
+//! the bin); that estimate is biased low near the envelope (the farthest
+//! leaf is farther than the mean thickness), so τ here is ρ A / 2 with ρ =
+//! leaves / envelope volume, the volume being the occupied cells of a
+//! coarse grid of leaf centres (24 cells on the longest side, made coarser
+//! until cells hold ≥ 8 leaves on average, so the volume does not collapse
+//! to "one cell per leaf" on sparse trees). The paper's estimate is kept in
+//! [`LeafEnvelope::tau_fit`] for comparison. Only the product τ s_max and
+//! the ratio ρ/τ = 2/A enter the lighting, so the choice mostly matters for
+//! reading `s_max` as a distance.
+//!
+//! Cost: exact pairs for leaves within two grid cells, and far cells
+//! aggregated at their centroid with the uniform-orientation projected
+//! area A/2 (the model's own assumption), so large trees stay tractable.
+//!
+//! Leaves are "cards": two consecutive leaf triangles that share an edge
+//! (the generator's quads) count as one leaf, with the summed area and the
+//! area-weighted centre and normal; both triangles get the same `s_max`.
+//!
+//! Directions: the paper's eq. 26 lists ω_0..ω_3 (all with y = −1/√3) and
+//! ω_j = −ω_{7−j}; here ω_{j+4} = −ω_j instead, so a shader recovers the
+//! upper four by negating the lower four in order. y is up.
+
+use sylva_scene::model::{Model, Surface};
+use glam::Vec3;
+use rayon::prelude::*;
+use std::f32::consts::PI;
+use std::time::Instant;
+
+/// Number of sample directions ω_j.
+pub const N_DIR: usize = 8;
+
+/// 1/√3: the cube diagonals' coordinates.
+const XI: f32 = 0.577_350_26;
+/// Solid angle of one direction's bin (an octant).
+const BIN_SOLID_ANGLE: f32 = 4.0 * PI / N_DIR as f32;
+/// Grid cells on the longest side of the leaf-centre bounds, at most.
+const GRID_CELLS: usize = 24;
+/// Coarsen the grid until occupied cells hold this many leaves on average.
+const MIN_LEAVES_PER_CELL: f32 = 8.0;
+/// Neighbours within this many cells (Chebyshev) are summed leaf by leaf.
+const NEAR_CELLS: i32 = 2;
+/// Largest fraction of a bin one leaf may occlude, so T never reaches 0.
+const MAX_OCCLUSION: f32 = 0.99;
+
+/// The eight sample directions: cube diagonals, ω_0..ω_3 below the horizon
+/// (y < 0), and ω_{j+4} = −ω_j.
+pub fn directions() -> [Vec3; N_DIR] {
+    let low = [Vec3::new(-XI, -XI, -XI), Vec3::new(XI, -XI, -XI), Vec3::new(-XI, -XI, XI), Vec3::new(XI, -XI, XI)];
+    [low[0], low[1], low[2], low[3], -low[0], -low[1], -low[2], -low[3]]
+}
+
+/// The index of the direction nearest to `d` (its octant), by signs only.
+pub fn bin_of(d: Vec3) -> usize {
+    if d.y < 0.0 { (d.x > 0.0) as usize + 2 * (d.z > 0.0) as usize } else { 4 + (d.x < 0.0) as usize + 2 * (d.z < 0.0) as usize }
+}
+
+/// M(x) = max(x, 0).
+#[inline]
+fn m(x: f32) -> f32 {
+    x.max(0.0)
+}
+
+/// Per-leaf envelope distances and the per-model medium constants.
+#[derive(Clone, Debug, Default)]
+pub struct LeafEnvelope {
+    /// s_max(P, ω_j) per model triangle (both triangles of a leaf card get
+    /// the card's values); 0 for wood.
+    pub s_max: Vec<[f32; N_DIR]>,
+    /// Optical thickness per unit length, τ = ρ A / 2.
+    pub tau: f32,
+    /// Leaf density ρ: leaves per unit volume of the envelope.
+    pub leaf_density: f32,
+    /// Mean leaf (card) area A.
+    pub leaf_area: f32,
+    /// The paper's τ estimate (mean of −ln T / farthest-leaf distance), for comparison only.
+    pub tau_fit: f32,
+    /// Number of leaves (cards) found.
+    pub leaves: usize,
+    /// Wall time of [`precompute`], milliseconds.
+    pub precompute_ms: f64,
+}
+
+/// One leaf: one triangle or two sharing an edge.
+#[derive(Clone, Copy, Debug)]
+struct Card {
+    centre: Vec3,
+    normal: Vec3,
+    area: f32,
+    tris: [usize; 2],
+    n_tris: usize,
+}
+
+/// Leaf cards of a model: consecutive leaf triangles sharing two vertex
+/// indices (a quad) are merged, others stand alone.
+fn leaf_cards(model: &Model) -> Vec<Card> {
+    let tri = |t: usize| {
+        let [a, b, c] = model.triangle(t);
+        let n2 = (b - a).cross(c - a); // twice the area, along the normal
+        (n2, (a + b + c) / 3.0)
+    };
+    let mut cards = Vec::new();
+    let mut t = 0;
+    while t < model.triangle_count() {
+        if model.surface(t) != Surface::Leaf {
+            t += 1;
+            continue;
+        }
+        let paired = t + 1 < model.triangle_count()
+            && model.surface(t + 1) == Surface::Leaf
+            && model.triangles[t].iter().filter(|i| model.triangles[t + 1].contains(i)).count() == 2;
+        let (n0, c0) = tri(t);
+        let (n_sum, centre, area, tris, n_tris) = if paired {
+            let (n1, c1) = tri(t + 1);
+            let (a0, a1) = (0.5 * n0.length(), 0.5 * n1.length());
+            let centre = if a0 + a1 > 0.0 { (c0 * a0 + c1 * a1) / (a0 + a1) } else { 0.5 * (c0 + c1) };
+            (n0 + n1, centre, a0 + a1, [t, t + 1], 2)
+        } else {
+            (n0, c0, 0.5 * n0.length(), [t, t], 1)
+        };
+        cards.push(Card { centre, normal: n_sum.normalize_or_zero(), area, tris, n_tris });
+        t += n_tris;
+    }
+    cards
+}
+
+/// A uniform grid of leaf centres, with the leaves of each cell and the
+/// occupied cells' aggregates.
+struct Grid {
+    lo: Vec3,
+    cell: f32,
+    dims: [usize; 3],
+    /// Leaves of cell `c` are `order[start[c]..start[c + 1]]`.
+    start: Vec<usize>,
+    order: Vec<usize>,
+    occupied: Vec<Occupied>,
+}
+
+/// An occupied cell: its integer position, index, leaf centroid and leaf area.
+struct Occupied {
+    idx: [i32; 3],
+    flat: usize,
+    centroid: Vec3,
+    area: f32,
+}
+
+impl Grid {
+    fn new(cards: &[Card]) -> Self {
+        let (lo, hi) = cards.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| (lo.min(c.centre), hi.max(c.centre)));
+        let ext = (hi - lo).max_element();
+        let mean_area = cards.iter().map(|c| c.area).sum::<f32>() / cards.len() as f32;
+        let mut res = GRID_CELLS;
+        loop {
+            let cell = if ext > 0.0 { ext / res as f32 } else { mean_area.sqrt().max(1e-6) };
+            let g = Self::build(cards, lo, hi, cell);
+            if res <= 4 || cards.len() as f32 >= MIN_LEAVES_PER_CELL * g.occupied.len() as f32 {
+                return g;
+            }
+            res -= 2;
+        }
+    }
+
+    fn build(cards: &[Card], lo: Vec3, hi: Vec3, cell: f32) -> Self {
+        let dims = ((hi - lo) / cell).to_array().map(|e| (e.ceil() as usize).max(1));
+        let mut g = Grid { lo, cell, dims, start: vec![0; dims[0] * dims[1] * dims[2] + 1], order: vec![0; cards.len()], occupied: Vec::new() };
+        let flat: Vec<usize> = cards.iter().map(|c| g.flat(g.index(c.centre))).collect();
+        // Counting sort of leaves by cell.
+        for &f in &flat {
+            g.start[f + 1] += 1;
+        }
+        for c in 0..g.start.len() - 1 {
+            g.start[c + 1] += g.start[c];
+        }
+        let mut fill = g.start.clone();
+        for (k, &f) in flat.iter().enumerate() {
+            g.order[fill[f]] = k;
+            fill[f] += 1;
+        }
+        for z in 0..dims[2] {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    let idx = [x as i32, y as i32, z as i32];
+                    let f = g.flat(idx);
+                    let leaves = &g.order[g.start[f]..g.start[f + 1]];
+                    if leaves.is_empty() {
+                        continue;
+                    }
+                    let area: f32 = leaves.iter().map(|&k| cards[k].area).sum();
+                    let centroid = leaves.iter().map(|&k| cards[k].centre).sum::<Vec3>() / leaves.len() as f32;
+                    g.occupied.push(Occupied { idx, flat: f, centroid, area });
+                }
+            }
+        }
+        g
+    }
+
+    fn index(&self, p: Vec3) -> [i32; 3] {
+        let q = ((p - self.lo) / self.cell).to_array();
+        [0, 1, 2].map(|a| (q[a].floor().max(0.0) as usize).min(self.dims[a] - 1) as i32)
+    }
+
+    fn flat(&self, i: [i32; 3]) -> usize {
+        (i[2] as usize * self.dims[1] + i[1] as usize) * self.dims[0] + i[0] as usize
+    }
+}
+
+/// Binned optical depth −ln T_j around leaf `i`, and the distance of the
+/// farthest leaf in each bin (for the paper's τ estimate).
+fn optical_depths(i: usize, cards: &[Card], grid: &Grid) -> ([f32; N_DIR], [f32; N_DIR]) {
+    let p = cards[i].centre;
+    let ci = grid.index(p);
+    let (mut depth, mut far) = ([0.0f32; N_DIR], [0.0f32; N_DIR]);
+    for occ in &grid.occupied {
+        let near = (0..3).all(|a| (occ.idx[a] - ci[a]).abs() <= NEAR_CELLS);
+        if near {
+            for &k in &grid.order[grid.start[occ.flat]..grid.start[occ.flat + 1]] {
+                let c = &cards[k];
+                let d = c.centre - p;
+                let d2 = d.length_squared();
+                if k == i || d2 <= 0.0 {
+                    continue;
+                }
+                let dist = d2.sqrt();
+                let solid = c.area * c.normal.dot(d).abs() / dist / (d2 + c.area);
+                let o = (solid / BIN_SOLID_ANGLE).min(MAX_OCCLUSION);
+                let j = bin_of(d);
+                depth[j] -= (-o).ln_1p();
+                far[j] = far[j].max(dist);
+            }
+        } else {
+            // Many small occlusions: Σ −ln(1 − o) ≈ Σ o, with the mean
+            // projected area A/2 of uniformly oriented leaves.
+            let d = occ.centroid - p;
+            let d2 = d.length_squared();
+            let j = bin_of(d);
+            depth[j] += 0.5 * occ.area / d2 / BIN_SOLID_ANGLE;
+            far[j] = far[j].max(d2.sqrt());
+        }
+    }
+    (depth, far)
+}
+
+/// Computes the leaf envelope of `model` (see the module doc), in parallel.
+pub fn precompute(model: &Model) -> LeafEnvelope {
+    let t0 = Instant::now();
+    let cards = leaf_cards(model);
+    let mut env = LeafEnvelope { s_max: vec![[0.0; N_DIR]; model.triangle_count()], leaves: cards.len(), ..Default::default() };
+    if cards.is_empty() {
+        env.precompute_ms = t0.elapsed().as_secs_f64() * 1e3;
+        return env;
+    }
+    let grid = Grid::new(&cards);
+    let n = cards.len() as f32;
+    env.leaf_area = cards.iter().map(|c| c.area).sum::<f32>() / n;
+    env.leaf_density = n / (grid.occupied.len() as f32 * grid.cell.powi(3));
+    env.tau = 0.5 * env.leaf_density * env.leaf_area;
+    let depths: Vec<([f32; N_DIR], [f32; N_DIR])> = (0..cards.len()).into_par_iter().map(|i| optical_depths(i, &cards, &grid)).collect();
+    let (mut fit_sum, mut fit_n) = (0.0f64, 0usize);
+    for (depth, far) in &depths {
+        for j in 0..N_DIR {
+            if far[j] > 0.0 {
+                fit_sum += (depth[j] / far[j]) as f64;
+                fit_n += 1;
+            }
+        }
+    }
+    env.tau_fit = if fit_n > 0 { (fit_sum / fit_n as f64) as f32 } else { 0.0 };
+    if env.tau > 0.0 && env.tau.is_finite() {
+        for (card, (depth, _)) in cards.iter().zip(&depths) {
+            let s = depth.map(|x| x / env.tau);
+            for &t in &card.tris[..card.n_tris] {
+                env.s_max[t] = s;
+            }
+        }
+    }
+    env.precompute_ms = t0.elapsed().as_secs_f64() * 1e3;
+    env
+}
+
+/// Average of M(N·a) M(N·b) over uniformly distributed unit normals N, for
+/// unit vectors at angle γ (paper eq. 31; the Appendix's A_vt).
+pub fn normal_average(gamma: f32) -> f32 {
+    ((PI - gamma) * gamma.cos() + gamma.sin()) / (6.0 * PI)
+}
+
+/// Per-model, per-sun constants of the indirect and sun terms.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SunTerms {
+    /// ω_l, the unit direction towards the sun.
+    pub sun: Vec3,
+    /// M(ω_l·ω_j).
+    pub m: [f32; N_DIR],
+    /// M(ω_l·ω_j) / Σ_j' M(ω_l·ω_j'): the weights of eq. 7.
+    pub weights: [f32; N_DIR],
+    /// a_j = 2ρ(sin α_j − α_j cos α_j) / (3π N_dir): G1's factor of ρ̄.
+    pub a: [f32; N_DIR],
+    /// b_j = 2ρ π cos α_j / (3π N_dir): G1's factor of ρ_tf + ρ_tb.
+    pub b: [f32; N_DIR],
+    /// G2 = τ / Σ_j M(ω_l·ω_j) (eq. 24).
+    pub g2: f32,
+    /// G3_j = τ (1 − Σ_j' M(ω_l·ω_j')(ω_j·ω_j') / Σ_j' M(ω_l·ω_j')) (eq. 25).
+    pub g3: [f32; N_DIR],
+}
+
+impl SunTerms {
+    /// G1(j, ω_l) (eq. 18) for one channel's coefficients [ρ_rf, ρ_rb, ρ_tf, ρ_tb].
+    pub fn g1(&self, j: usize, coeffs: [f32; 4]) -> f32 {
+        let [rf, rb, tf, tb] = coeffs;
+        (rf + rb + tf + tb) * self.a[j] + (tf + tb) * self.b[j]
+    }
+}
+
+/// The per-sun constants for a model's envelope and the direction
+/// `sun_towards` (from the leaves towards the sun; normalised here).
+pub fn sun_terms(env: &LeafEnvelope, sun_towards: Vec3) -> SunTerms {
+    let sun = sun_towards.normalize();
+    let dirs = directions();
+    let m = dirs.map(|w| m(sun.dot(w)));
+    // Some diagonal is within 55° of any direction, so the sum is ≥ 1/√3.
+    let sum: f32 = m.iter().sum();
+    let weights = m.map(|x| x / sum);
+    let scale = 2.0 * env.leaf_density / (3.0 * PI * N_DIR as f32);
+    let alpha = dirs.map(|w| sun.dot(w).clamp(-1.0, 1.0).acos());
+    let a = alpha.map(|al| scale * (al.sin() - al * al.cos()));
+    let b = alpha.map(|al| scale * PI * al.cos());
+    let g3 = dirs.map(|wj| {
+        let c: f32 = (0..N_DIR).map(|k| weights[k] * wj.dot(dirs[k])).sum();
+        // c ≤ 1 exactly; rounding may overshoot.
+        (env.tau * (1.0 - c)).max(0.0)
+    });
+    SunTerms { sun, m, weights, a, b, g2: env.tau / sum, g3 }
+}
+
+/// The leaf's cosine-weighted BSDF F(P, ω_o, ω) (eq. 4) for a front normal,
+/// the direction to the viewer and coefficients [ρ_rf, ρ_rb, ρ_tf, ρ_tb].
+pub fn bsdf(normal: Vec3, to_eye: Vec3, coeffs: [f32; 4], w: Vec3) -> f32 {
+    let [rf, rb, tf, tb] = coeffs;
+    let c = normal.dot(w);
+    if normal.dot(to_eye) >= 0.0 { (rf * m(c) + tb * m(-c)) / PI } else { (tf * m(c) + rb * m(-c)) / PI }
+}
+
+/// s_max(P, ω_l) for the terms' sun (eq. 7).
+pub fn sun_distance(terms: &SunTerms, s: &[f32; N_DIR]) -> f32 {
+    (0..N_DIR).map(|j| terms.weights[j] * s[j]).sum()
+}
+
+/// Lo_sample(P, j) (eq. 23): radiance scattered towards P by the leaves in
+/// direction ω_j, before P's own BSDF and the leaf area A.
+pub fn lo_sample(terms: &SunTerms, s: &[f32; N_DIR], j: usize, coeffs: [f32; 4], e_sun: f32) -> f32 {
+    lo_sample_from(terms, s, j, coeffs, e_sun, 0.0)
+}
+
+/// Lo_sample with the slices starting at distance `s0` instead of 0 (the
+/// tests leave out a small ball around P).
+fn lo_sample_from(terms: &SunTerms, s: &[f32; N_DIR], j: usize, coeffs: [f32; 4], e_sun: f32, s0: f32) -> f32 {
+    let len = s[j] - s0;
+    if len <= 0.0 {
+        return 0.0;
+    }
+    // G2 Σ M s_max = τ s_max(P, ω_l).
+    let sun_depth = terms.g2 * (0..N_DIR).map(|k| terms.m[k] * s[k]).sum::<f32>();
+    let g3 = terms.g3[j];
+    // ∫_{s0}^{s_max} e^{−G3 s} ds, with the G3 → 0 limit.
+    let integral = if g3 > 0.0 { (-g3 * s0).exp() * -(-g3 * len).exp_m1() / g3 } else { len };
+    terms.g1(j, coeffs) * e_sun * (-sun_depth).exp() * integral
+}
+
+/// The three terms (sky, sun, indirect sun) of outgoing radiance from leaf
+/// triangle `tri` towards the viewer, for one colour channel: `normal` is
+/// the leaf's front normal, `to_eye` the unit direction to the viewer,
+/// `coeffs` [ρ_rf, ρ_rb, ρ_tf, ρ_tb], `e_sun` the sun's irradiance and `sky`
+/// the per-direction sky radiance (see [`sky_radiance_per_direction`]).
+#[allow(clippy::too_many_arguments)] // mirrors the shader's inputs one to one
+pub fn shade(
+    env: &LeafEnvelope,
+    terms: &SunTerms,
+    tri: usize,
+    normal: Vec3,
+    to_eye: Vec3,
+    coeffs: [f32; 4],
+    e_sun: f32,
+    sky: &[f32; N_DIR],
+) -> (f32, f32, f32) {
+    let s = &env.s_max[tri];
+    let dirs = directions();
+    let (mut lo_sky, mut lo_ind) = (0.0, 0.0);
+    for j in 0..N_DIR {
+        let f = bsdf(normal, to_eye, coeffs, dirs[j]);
+        lo_sky += f * (-env.tau * s[j]).exp() * sky[j]; // eq. 6
+        lo_ind += f * lo_sample(terms, s, j, coeffs, e_sun); // eq. 11
+    }
+    let lo_sun = bsdf(normal, to_eye, coeffs, terms.sun) * (-env.tau * sun_distance(terms, s)).exp() * e_sun; // eq. 8
+    (lo_sky * 4.0 * PI / N_DIR as f32, lo_sun, lo_ind * env.leaf_area)
+}
+
+/// Mean sky radiance over each direction's octant, for eq. 6. `sky` gives
+/// the radiance arriving from a unit direction (y up). The four octants
+/// below the horizon see the ground: a Lambertian ground of albedo
+/// `ground_albedo` lit by the sky, i.e. albedo × the cosine-weighted mean
+/// of the upper-hemisphere radiance (equal to its plain mean for a uniform
+/// sky). Each octant is sampled on a 32 × 32 grid of equal solid angle.
+pub fn sky_radiance_per_direction(sky: impl Fn(Vec3) -> [f32; 3], ground_albedo: [f32; 3]) -> [[f32; 3]; N_DIR] {
+    const K: usize = 32;
+    let dirs = directions();
+    let mut out = [[0.0f32; 3]; N_DIR];
+    let mut cos_weighted = [0.0f64; 3];
+    for (j, w) in dirs.iter().enumerate().filter(|(_, w)| w.y > 0.0) {
+        let mut sum = [0.0f64; 3];
+        for a in 0..K {
+            // Uniform in y is uniform in solid angle (Archimedes).
+            let y = (a as f32 + 0.5) / K as f32;
+            let r = (1.0 - y * y).sqrt();
+            for b in 0..K {
+                let phi = (b as f32 + 0.5) / K as f32 * 0.5 * PI;
+                let d = Vec3::new(w.x.signum() * r * phi.cos(), y, w.z.signum() * r * phi.sin());
+                let l = sky(d);
+                for c in 0..3 {
+                    sum[c] += l[c] as f64;
+                    cos_weighted[c] += (l[c] * y) as f64;
+                }
+            }
+        }
+        out[j] = sum.map(|x| (x / (K * K) as f64) as f32);
+    }
+    // (1/π)∫ L cos dω over the hemisphere = 2 × mean of L·cos over uniform samples.
+    let ground = [0, 1, 2].map(|c| ground_albedo[c] * (2.0 * cos_weighted[c] / (4 * K * K) as f64) as f32);
+    for (j, w) in dirs.iter().enumerate() {
+        if w.y < 0.0 {
+            out[j] = ground;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sylva_scene::model::Material;
+    use sylva_scene::rng::SplitMix64;
+    use sylva_scene::trees::{Species, TreeParams, generate};
+
+    const COEFFS: [f32; 4] = [0.30, 0.40, 0.20, 0.25];
+
+    fn unit(rng: &mut SplitMix64) -> Vec3 {
+        let z = 2.0 * rng.next_f64() - 1.0;
+        let phi = std::f64::consts::TAU * rng.next_f64();
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        Vec3::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32)
+    }
+
+    /// Distance from `q` (inside) to the sphere of radius `r` at the origin along unit `d`.
+    fn chord(q: Vec3, d: Vec3, r: f32) -> f32 {
+        let b = q.dot(d);
+        -b + (b * b - (q.length_squared() - r * r)).max(0.0).sqrt()
+    }
+
+    fn sphere_env(p: Vec3, r: f32, tau: f32, area: f32) -> LeafEnvelope {
+        LeafEnvelope { s_max: vec![directions().map(|w| chord(p, w, r))], tau, leaf_density: 2.0 * tau / area, leaf_area: area, ..Default::default() }
+    }
+
+    #[test]
+    fn directions_are_diagonals_in_opposite_pairs_and_bins_are_nearest() {
+        let d = directions();
+        for j in 0..4 {
+            assert!((d[j + 4] + d[j]).length() < 1e-6);
+            assert!(d[j].y < 0.0);
+        }
+        assert!(d.iter().all(|w| (w.length() - 1.0).abs() < 1e-6));
+        let mut rng = SplitMix64::new(5);
+        for _ in 0..10_000 {
+            let v = unit(&mut rng);
+            let best = (0..N_DIR).max_by(|&a, &b| v.dot(d[a]).total_cmp(&v.dot(d[b]))).unwrap();
+            assert_eq!(bin_of(v), best, "{v}");
+        }
+    }
+
+    #[test]
+    fn normal_average_matches_a_numerical_sum_and_g1_assembles_it() {
+        let n = 4_000_000;
+        for alpha in [0.1f32, 0.7, 1.5, 2.3, 3.0] {
+            let (wj, wl) = (Vec3::X, Vec3::new(alpha.cos(), 0.0, alpha.sin()));
+            let mut rng = SplitMix64::new(42);
+            let (mut refl, mut trans) = (0.0f64, 0.0f64);
+            for _ in 0..n {
+                let nn = unit(&mut rng);
+                refl += (m(nn.dot(wl)) * m(nn.dot(-wj))) as f64;
+                trans += (m(nn.dot(wl)) * m(nn.dot(wj))) as f64;
+            }
+            let (refl, trans) = ((refl / n as f64) as f32, (trans / n as f64) as f32);
+            let (er, et) = (normal_average(PI - alpha), normal_average(alpha));
+            let (rel_r, rel_t) = ((refl / er - 1.0).abs(), (trans / et - 1.0).abs());
+            eprintln!(
+                "alpha {alpha}: reflection {refl:.6e} vs {er:.6e} ({:.3} %), transmission {trans:.6e} vs {et:.6e} ({:.3} %)",
+                100.0 * rel_r,
+                100.0 * rel_t
+            );
+            assert!(rel_r < 0.02 && rel_t < 0.02, "alpha {alpha}: {rel_r} {rel_t}");
+            // Paper's A_vr(α) = (sin α − α cos α)/(6π).
+            assert!((er - (alpha.sin() - alpha * alpha.cos()) / (6.0 * PI)).abs() < 1e-6);
+        }
+        // G1 = ρ 4π/N_dir × [(ρ_rf+ρ_rb) A_vr + (ρ_tf+ρ_tb) A_vt] / π (eqs. 10, 15, 16).
+        let env = LeafEnvelope { tau: 1.3, leaf_density: 7.0, leaf_area: 0.37, ..Default::default() };
+        let t = sun_terms(&env, Vec3::new(0.3, 1.0, -0.4));
+        for j in 0..N_DIR {
+            let al = t.sun.dot(directions()[j]).clamp(-1.0, 1.0).acos();
+            let [rf, rb, tf, tb] = COEFFS;
+            let want = 7.0 * 4.0 * PI / 8.0 * ((rf + rb) * normal_average(PI - al) + (tf + tb) * normal_average(al)) / PI;
+            assert!((t.g1(j, COEFFS) - want).abs() < 1e-5 * want.abs().max(1e-3), "j {j}: {} vs {want}", t.g1(j, COEFFS));
+        }
+    }
+
+    fn test_points() -> [Vec3; 3] {
+        [Vec3::ZERO, Vec3::new(0.4, -0.3, 0.2), Vec3::new(0.85, 0.3, -0.1)]
+    }
+
+    fn test_suns() -> [Vec3; 4] {
+        [Vec3::new(0.3, 1.0, 0.2), Vec3::new(-1.0, 0.2, 0.5), directions()[4], Vec3::new(0.1, -0.2, 1.0)]
+    }
+
+    #[test]
+    fn closed_form_lo_sample_matches_the_slice_sum() {
+        let (r, tau, area, e_sun) = (1.0, 2.0, 1e-4, 3.0);
+        let dirs = directions();
+        let mut worst = 0.0f32;
+        let mut worst_true = 0.0f32;
+        for p in test_points() {
+            let env = sphere_env(p, r, tau, area);
+            let s = env.s_max[0];
+            for sun in test_suns() {
+                let t = sun_terms(&env, sun);
+                for j in 0..N_DIR {
+                    let closed = lo_sample(&t, &s, j, COEFFS, e_sun);
+                    let ns = 20_000;
+                    let ds = s[j] / ns as f32;
+                    let (mut sum, mut sum_true) = (0.0f64, 0.0f64);
+                    for i in 1..=ns {
+                        let si = i as f32 * ds;
+                        // Eq. 22: the model's sun distance from P + s ω_j.
+                        let s22: f32 = (0..N_DIR).map(|k| t.weights[k] * (s[k] - dirs[j].dot(dirs[k]) * si)).sum();
+                        sum += ((-tau * si).exp() * (-tau * s22).exp() * e_sun * ds) as f64;
+                        // The sphere's exact sun distance, for information.
+                        let exact = chord(p + dirs[j] * si, t.sun, r);
+                        sum_true += ((-tau * si).exp() * (-tau * exact).exp() * e_sun * ds) as f64;
+                    }
+                    let slice = t.g1(j, COEFFS) * sum as f32;
+                    let rel = (closed / slice - 1.0).abs();
+                    worst = worst.max(rel);
+                    worst_true = worst_true.max((closed / (t.g1(j, COEFFS) * sum_true as f32) - 1.0).abs());
+                    assert!(rel < 0.02, "P {p} sun {sun} j {j}: closed {closed} slices {slice}");
+                    assert!(closed.is_finite() && closed >= 0.0);
+                }
+            }
+        }
+        eprintln!(
+            "Lo_sample closed form vs eq. 17 slice sum: worst {:.4} %; vs exact sphere irradiance: worst {:.1} %",
+            100.0 * worst,
+            100.0 * worst_true
+        );
+    }
+
+    /// Lo_ind as an explicit sum over random leaves around `p`, and the
+    /// closed form, both leaving out the ball of radius `r0` around P.
+    /// `model_geometry`: leaves fill the model's envelope (octant sectors
+    /// of radius s_max(P, ω_j)), directions snap to ω_j and the neighbours'
+    /// sun distance is eq. 22: this isolates the normal averaging, leaf
+    /// counting and integration. Otherwise: leaves fill the true sphere,
+    /// with exact directions and exact sun distances.
+    fn lo_ind_explicit(p: Vec3, sun: Vec3, model_geometry: bool, seed: u64) -> (f32, f32) {
+        let (r, tau, density, e_sun, r0) = (1.0f32, 2.0f32, 2.0e5f32, 1.0f32, 0.08f32);
+        let area = 2.0 * tau / density;
+        let env = sphere_env(p, r, tau, area);
+        let s = env.s_max[0];
+        let t = sun_terms(&env, sun);
+        let dirs = directions();
+        let (normal, to_eye) = (Vec3::new(0.2, 0.9, -0.3).normalize(), Vec3::new(0.5, 0.4, 0.7).normalize());
+        let closed: f32 =
+            area * (0..N_DIR).map(|j| bsdf(normal, to_eye, COEFFS, dirs[j]) * lo_sample_from(&t, &s, j, COEFFS, e_sun, r0)).sum::<f32>();
+        // Leaves uniform in a ball around `centre` of radius `radius`.
+        let (centre, radius) = if model_geometry { (p, s.iter().cloned().fold(0.0, f32::max)) } else { (Vec3::ZERO, r) };
+        let count = (density * 4.0 / 3.0 * PI * radius.powi(3)).round() as usize;
+        let mut rng = SplitMix64::new(seed);
+        let mut sum = 0.0f64;
+        for _ in 0..count {
+            let q = centre + unit(&mut rng) * radius * (rng.next_f64() as f32).cbrt();
+            let n_leaf = unit(&mut rng);
+            let d = q - p;
+            let dist = d.length();
+            if dist < r0 {
+                continue;
+            }
+            let j = bin_of(d);
+            let (w, sun_dist) = if model_geometry {
+                if dist > s[j] {
+                    continue;
+                }
+                (dirs[j], (0..N_DIR).map(|k| t.weights[k] * (s[k] - dirs[j].dot(dirs[k]) * dist)).sum::<f32>())
+            } else {
+                (d / dist, chord(q, t.sun, r))
+            };
+            // Eq. 9: F(P, ω_o, PP') Lo_sun(P', −PP') V |N'·PP'| / |PP'|².
+            let lo_sun = bsdf(n_leaf, -w, COEFFS, t.sun) * (-tau * sun_dist).exp() * e_sun;
+            sum += (bsdf(normal, to_eye, COEFFS, w) * lo_sun * (-tau * dist).exp() * n_leaf.dot(w).abs() / (dist * dist)) as f64;
+        }
+        (closed, area * sum as f32)
+    }
+
+    #[test]
+    fn closed_form_lo_ind_matches_a_sum_over_random_leaves() {
+        let mut worst = 0.0f32;
+        for (k, (p, sun)) in [
+            (Vec3::ZERO, Vec3::new(0.3, 1.0, 0.2)),
+            (Vec3::new(0.4, -0.3, 0.2), Vec3::new(-1.0, 0.2, 0.5)),
+            (Vec3::new(0.1, 0.5, 0.3), Vec3::new(0.2, 1.0, -0.6)),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let (closed, explicit) = lo_ind_explicit(p, sun, true, 100 + k as u64);
+            let rel = (closed / explicit - 1.0).abs();
+            worst = worst.max(rel);
+            let (closed_t, explicit_t) = lo_ind_explicit(p, sun, false, 200 + k as u64);
+            eprintln!(
+                "P {p} sun {sun}: model geometry closed {closed:.5e} explicit {explicit:.5e} ({:.2} %); true sphere closed {closed_t:.5e} explicit {explicit_t:.5e} ({:+.1} %)",
+                100.0 * rel,
+                100.0 * (closed_t / explicit_t - 1.0)
+            );
+            assert!(rel < 0.02, "P {p} sun {sun}: closed {closed} explicit {explicit}");
+        }
+        eprintln!("worst model-geometry error {:.2} %", 100.0 * worst);
+    }
+
+    #[test]
+    fn precompute_on_a_generated_tree() {
+        let model = generate(&TreeParams { species: Species::RedMaple, triangles: Some(20_000), seed: 1 }).unwrap();
+        let env = precompute(&model);
+        eprintln!(
+            "tree: {} leaves, tau {} (paper fit {}), density {}, area {}, {:.1} ms",
+            env.leaves, env.tau, env.tau_fit, env.leaf_density, env.leaf_area, env.precompute_ms
+        );
+        assert!(env.tau > 0.0 && env.tau.is_finite() && env.tau_fit > 0.0 && env.tau_fit.is_finite());
+        assert_eq!(env.s_max.len(), model.triangle_count());
+        assert!(env.s_max.iter().flatten().all(|s| s.is_finite() && *s >= 0.0));
+        let leaf_tris: Vec<usize> = (0..model.triangle_count()).filter(|&t| model.surface(t) == Surface::Leaf).collect();
+        assert!((0..model.triangle_count()).filter(|&t| model.surface(t) == Surface::Wood).all(|t| env.s_max[t] == [0.0; N_DIR]));
+        // Quads are cards: both halves share their values.
+        assert!(env.leaves * 2 <= leaf_tris.len() + 1);
+        assert_eq!(env.s_max[leaf_tris[0]], env.s_max[leaf_tris[1]]);
+        let centre_of = |t: usize| model.triangle(t).iter().sum::<Vec3>() / 3.0;
+        // Each leaf sees more foliage towards the octant holding the most
+        // leaves within 4 m than towards the one holding the fewest.
+        let cards: Vec<(usize, Vec3)> = leaf_tris.iter().step_by(2).map(|&t| (t, centre_of(t))).collect();
+        let (mut more, mut ratio_in, mut ratio_out) = (0usize, 0.0f64, 0.0f64);
+        for &(t, p) in &cards {
+            let mut count = [0usize; N_DIR];
+            for &(u, q) in &cards {
+                let d = q - p;
+                if u != t && d.length_squared() < 16.0 {
+                    count[bin_of(d)] += 1;
+                }
+            }
+            let most = (0..N_DIR).max_by_key(|&j| count[j]).unwrap();
+            let fewest = (0..N_DIR).min_by_key(|&j| count[j]).unwrap();
+            more += (env.s_max[t][most] > env.s_max[t][fewest]) as usize;
+            ratio_in += env.s_max[t][most] as f64;
+            ratio_out += env.s_max[t][fewest] as f64;
+        }
+        let frac = more as f32 / cards.len() as f32;
+        eprintln!(
+            "tree: s_max towards the fullest octant > towards the emptiest for {:.1} % of leaves; means {:.3} vs {:.3}",
+            100.0 * frac,
+            ratio_in / cards.len() as f64,
+            ratio_out / cards.len() as f64
+        );
+        assert!(frac > 0.8 && ratio_in > 2.0 * ratio_out, "{frac} {ratio_in} {ratio_out}");
+        // The shading terms are finite on a real tree.
+        let t = sun_terms(&env, Vec3::Y);
+        let sky = [0.0; N_DIR];
+        let (_, sun_in, ind_in) = shade(&env, &t, leaf_tris[0], Vec3::Y, Vec3::Y, COEFFS, 1.0, &sky);
+        assert!(sun_in.is_finite() && ind_in.is_finite() && ind_in >= 0.0);
+    }
+
+    #[test]
+    fn precompute_on_a_sphere_of_cards_recovers_density_and_thickness() {
+        // 20,000 random square cards uniformly in a unit sphere.
+        let mut model = Model::default();
+        let leaf = model.add_material(Material::plain("leaf", Surface::Leaf, [0.2, 0.6, 0.1]));
+        let mut rng = SplitMix64::new(7);
+        let (n, side) = (20_000usize, 0.02f32);
+        for _ in 0..n {
+            let c = unit(&mut rng) * (rng.next_f64() as f32).cbrt();
+            let nn = unit(&mut rng);
+            let u = nn.any_orthonormal_vector() * side * 0.5;
+            let v = nn.cross(u);
+            model.push_quad([c - u - v, c + u - v, c + u + v, c - u + v], leaf);
+        }
+        let env = precompute(&model);
+        let true_tau = 0.5 * n as f32 / (4.0 / 3.0 * PI) * side * side;
+        eprintln!("sphere: tau {} (paper fit {}, true {true_tau}), {:.1} ms", env.tau, env.tau_fit, env.precompute_ms);
+        assert_eq!(env.leaves, n);
+        assert!((env.tau / true_tau - 1.0).abs() < 0.35, "tau {} true {true_tau}", env.tau);
+        // Near the centre, τ s_max ≈ τ R in every direction.
+        let mut depth = Vec::new();
+        for t in (0..model.triangle_count()).step_by(2) {
+            let c = model.triangle(t).iter().sum::<Vec3>() / 3.0;
+            if c.length() < 0.25 {
+                depth.extend(env.s_max[t].iter().map(|s| s * env.tau));
+            }
+        }
+        let mean = depth.iter().sum::<f32>() / depth.len() as f32;
+        eprintln!("centre leaves: mean optical depth {mean}, true about {true_tau}");
+        assert!((mean / true_tau - 1.0).abs() < 0.3, "mean depth {mean} true {true_tau}");
+        // Leaves at the surface near a diagonal see (almost) nothing outwards:
+        // every direction of that octant leaves the sphere at once.
+        let mut out = Vec::new();
+        for t in (0..model.triangle_count()).step_by(2) {
+            let c = model.triangle(t).iter().sum::<Vec3>() / 3.0;
+            let j = bin_of(c);
+            if c.length() > 0.93 && c.normalize().dot(directions()[j]) > 25f32.to_radians().cos() {
+                out.push(env.s_max[t][j] * env.tau);
+            }
+        }
+        let out_mean = out.iter().sum::<f32>() / out.len() as f32;
+        eprintln!("{} surface leaves: mean optical depth outwards {out_mean}", out.len());
+        assert!(out.len() > 20 && out_mean < 0.3 * mean, "{out_mean} vs {mean}");
+    }
+
+    #[test]
+    fn sky_average_and_ground_reflection() {
+        let sky = |d: Vec3| [1.0 + d.y, 2.0, 0.5 * d.x.max(0.0)];
+        let l = sky_radiance_per_direction(sky, [0.5, 0.25, 0.1]);
+        let d = directions();
+        for j in 4..8 {
+            // Mean of y over an upper octant is 1/2.
+            assert!((l[j][0] - 1.5).abs() < 1e-3 && (l[j][1] - 2.0).abs() < 1e-5, "{:?}", l[j]);
+            if d[j].x < 0.0 {
+                assert_eq!(l[j][2], 0.0);
+            }
+        }
+        // Ground: albedo × (1/π)∫(1 + cos θ) cos θ dω = albedo × (1 + 2/3).
+        for lj in &l[..4] {
+            assert!((lj[0] - 0.5 * (1.0 + 2.0 / 3.0)).abs() < 2e-3 && (lj[1] - 0.25 * 2.0).abs() < 1e-4, "{lj:?}");
+        }
+    }
+
+    #[test]
+    fn shade_terms_match_the_equations_for_a_single_direction() {
+        let env = sphere_env(Vec3::ZERO, 1.0, 1.5, 1e-3);
+        let t = sun_terms(&env, Vec3::Y);
+        let mut sky = [0.0; N_DIR];
+        sky[4] = 2.0;
+        let n = directions()[4];
+        let (lo_sky, lo_sun, lo_ind) = shade(&env, &t, 0, n, n, COEFFS, 3.0, &sky);
+        let want_sky = 4.0 * PI / 8.0 * COEFFS[0] / PI * (-1.5f32).exp() * 2.0;
+        assert!((lo_sky - want_sky).abs() < 1e-5, "{lo_sky} {want_sky}");
+        let want_sun = COEFFS[0] / PI * XI * (-1.5f32).exp() * 3.0;
+        assert!((lo_sun - want_sun).abs() < 1e-5, "{lo_sun} {want_sun}");
+        assert!(lo_ind > 0.0 && lo_ind.is_finite());
+    }
+}

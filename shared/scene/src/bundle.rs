@@ -1,0 +1,165 @@
+//! Scene bundles: a scene file and the model files it names, packed into
+//! one content-addressed blob that workers cache by hash.
+//!
+//! Layout: the magic `SYLVABN1`, the manifest's length (u64, little
+//! endian), the manifest (JSON: the scene with model paths rewritten to
+//! blob names, and each blob's name and length), then the blobs in order.
+//! The hash is BLAKE3 of the whole bundle, in hex.
+
+use crate::{FileAccess, Scene, SceneError, SceneFile, SceneLimits};
+use anyhow::{Context, bail};
+use serde::{Deserialize, Serialize};
+use std::path::{Component, Path, PathBuf};
+
+const MAGIC: &[u8; 8] = b"SYLVABN1";
+
+/// A packed scene.
+#[derive(Clone, Debug)]
+pub struct SceneBundle {
+    /// The bundle's bytes.
+    pub bytes: Vec<u8>,
+    /// BLAKE3 of the bytes, hex.
+    pub hash: String,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Manifest {
+    scene: SceneFile,
+    blobs: Vec<BlobEntry>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BlobEntry {
+    name: String,
+    len: u64,
+}
+
+/// The hash a bundle of `bytes` is known by.
+pub fn hash_of(bytes: &[u8]) -> String {
+    blake3::hash(bytes).to_hex().to_string()
+}
+
+/// Packs the scene file at `path` and the glTF files it names (with the
+/// buffers and images a `.gltf` refers to by relative path), all of which
+/// must lie inside the scene file's folder.
+pub fn pack(path: &Path) -> anyhow::Result<SceneBundle> {
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    pack_with(path, &FileAccess::Inside(base))
+}
+
+/// Packs the scene file at `path`, reading its models as `access` allows.
+pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle> {
+    let label = path.display().to_string();
+    let text = std::fs::read_to_string(path).with_context(|| format!("{label}: cannot read"))?;
+    let mut scene = crate::parse(&text, &label)?;
+    let mut blobs: Vec<(String, Vec<u8>)> = Vec::new();
+    for (i, (name, spec)) in scene.models.iter_mut().enumerate() {
+        let Some(rel) = spec.gltf.clone() else { continue };
+        let full = access.resolve(access.base(), &rel).map_err(|e| anyhow::anyhow!("{label}: models.{name}.gltf: {e}"))?;
+        let bytes = std::fs::read(&full).with_context(|| format!("{label}: models.{name}.gltf: cannot read {}", rel.display()))?;
+        let dir = format!("m{i}");
+        let file = full.file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_else(|| "model.glb".into());
+        if file.to_ascii_lowercase().ends_with(".gltf") {
+            let folder = full.parent().unwrap_or(Path::new("."));
+            for uri in external_uris(&bytes).with_context(|| format!("{}: not glTF JSON", rel.display()))? {
+                let dep = access.resolve_uri(folder, &uri).map_err(|e| anyhow::anyhow!("{}: {e}", rel.display()))?.expect("not a data: URI");
+                let data = std::fs::read(&dep).with_context(|| format!("{}: cannot read {uri}", rel.display()))?;
+                blobs.push((format!("{dir}/{uri}"), data));
+            }
+        }
+        blobs.push((format!("{dir}/{file}"), bytes));
+        spec.gltf = Some(PathBuf::from(format!("{dir}/{file}")));
+    }
+    let manifest = Manifest { scene, blobs: blobs.iter().map(|(n, b)| BlobEntry { name: n.clone(), len: b.len() as u64 }).collect() };
+    let json = serde_json::to_vec(&manifest)?;
+    let mut bytes = Vec::with_capacity(16 + json.len() + blobs.iter().map(|b| b.1.len()).sum::<usize>());
+    bytes.extend_from_slice(MAGIC);
+    bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&json);
+    for (_, b) in &blobs {
+        bytes.extend_from_slice(b);
+    }
+    let hash = hash_of(&bytes);
+    Ok(SceneBundle { bytes, hash })
+}
+
+/// Relative URIs of a `.gltf` file's buffers and images.
+fn external_uris(gltf_json: &[u8]) -> anyhow::Result<Vec<String>> {
+    let v: serde_json::Value = serde_json::from_slice(gltf_json)?;
+    let mut out = Vec::new();
+    for key in ["buffers", "images"] {
+        for item in v[key].as_array().into_iter().flatten() {
+            if let Some(uri) = item["uri"].as_str()
+                && !uri.starts_with("data:")
+            {
+                out.push(uri.to_string());
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Unpacks a bundle into `dir` (blobs as files) and builds its scene with
+/// the default limits.
+pub fn unpack(bytes: &[u8], dir: &Path) -> anyhow::Result<Scene> {
+    unpack_with(bytes, dir, &SceneLimits::default())
+}
+
+/// Unpacks a bundle into `dir` (blobs as files) and builds its scene, which
+/// reads files inside `dir` alone, within `limits`. Refuses malformed
+/// bundles and blob names that would leave `dir`; the scene is checked
+/// before any blob is written.
+pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> anyhow::Result<Scene> {
+    if bytes.len() < 16 || &bytes[..8] != MAGIC {
+        bail!("not a Sylva scene bundle (bad magic)");
+    }
+    let len = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes")) as usize;
+    let body = &bytes[16..];
+    if len > body.len() {
+        bail!("truncated scene bundle: manifest of {len} bytes, {} present", body.len());
+    }
+    let manifest: Manifest = serde_json::from_slice(&body[..len]).context("malformed bundle manifest")?;
+    // The cheap checks first: a scene that would be refused costs no disk.
+    Scene::check(&manifest.scene, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))?;
+    let mut at = len;
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    for b in &manifest.blobs {
+        let rel = Path::new(&b.name);
+        if rel.is_absolute() || rel.components().any(|c| !matches!(c, Component::Normal(_))) {
+            bail!("bundle blob name {:?} is not a plain relative path", b.name);
+        }
+        let end = at.checked_add(b.len as usize).filter(|&e| e <= body.len());
+        let Some(end) = end else { bail!("truncated scene bundle: blob {:?} runs past the end", b.name) };
+        let target = dir.join(rel);
+        if let Some(parent) = target.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        std::fs::write(&target, &body[at..end]).with_context(|| format!("{}: cannot write", target.display()))?;
+        at = end;
+    }
+    if at != body.len() {
+        bail!("scene bundle has {} stray bytes after its blobs", body.len() - at);
+    }
+    Scene::build_with(manifest.scene, &FileAccess::Inside(dir.to_path_buf()), "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_scene_with_a_gltf_model_round_trips_and_tampering_is_refused() {
+        let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/ferns.json");
+        let b = pack(&examples).unwrap();
+        assert_eq!(b.hash, hash_of(&b.bytes));
+        assert_eq!(pack(&examples).unwrap().hash, b.hash, "packing is deterministic");
+        let dir = std::env::temp_dir().join(format!("sylva-bundle-{}", std::process::id()));
+        let s = unpack(&b.bytes, &dir).unwrap();
+        assert_eq!(s.unique_triangles(), 6232);
+        assert!(unpack(&b.bytes[..b.bytes.len() - 10], &dir).unwrap_err().to_string().contains("truncated"));
+        assert!(unpack(b"nonsense-bytes-here", &dir).unwrap_err().to_string().contains("bad magic"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

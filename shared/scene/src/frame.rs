@@ -1,0 +1,120 @@
+//! What one frame asks for: size, samples, lighting method and structure.
+//! The one type the command line, the coordinator and the workers share;
+//! `sylva-proto` converts it to and from the wire, and every side runs
+//! [`FrameSettings::check`] before using one.
+
+use crate::LightingMode;
+use serde::{Deserialize, Serialize};
+
+/// Largest image side a frame may have.
+pub const MAX_SIDE: u32 = 16_384;
+/// Most rays per pixel a frame may ask for.
+pub const MAX_SPP: u32 = 4_096;
+
+/// Which structure accelerates a render.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AccelKind {
+    /// kd-tree with short-stack traversal (the paper's).
+    Kd,
+    /// Four-wide bounding-volume hierarchy.
+    #[default]
+    Bvh,
+}
+
+/// A frame to render.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameSettings {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Rays per pixel.
+    pub spp: u32,
+    /// Seed of the per-pixel sample hash.
+    pub seed: u32,
+    /// Lighting method; `None`: the scene file's.
+    pub lighting: Option<LightingMode>,
+    /// Acceleration structure.
+    pub accel: AccelKind,
+    /// Weight of the LB light relative to the sun's.
+    pub lb_strength: f32,
+    /// The `ambient` method's constant, linear RGB; `None`: matched to the
+    /// LB image by the worker.
+    pub ambient: Option<[f32; 3]>,
+    /// The frame's camera and sun, where they differ from the scene's (a
+    /// frame of a sequence).
+    #[serde(default)]
+    pub view: crate::sequence::View,
+}
+
+impl Default for FrameSettings {
+    fn default() -> Self {
+        Self {
+            width: 896,
+            height: 448,
+            spp: 1,
+            seed: 1,
+            lighting: None,
+            accel: AccelKind::Bvh,
+            lb_strength: 0.35,
+            ambient: None,
+            view: Default::default(),
+        }
+    }
+}
+
+/// A frame that cannot be rendered, and why.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct FrameError(pub String);
+
+impl FrameSettings {
+    /// Checks every field against the limits every renderer obeys.
+    pub fn check(&self) -> Result<(), FrameError> {
+        let bad = |m: String| Err(FrameError(m));
+        if self.width == 0 || self.height == 0 || self.width > MAX_SIDE || self.height > MAX_SIDE {
+            return bad(format!("image {}×{}: each side must be in [1, {MAX_SIDE}]", self.width, self.height));
+        }
+        if self.spp == 0 || self.spp > MAX_SPP {
+            return bad(format!("spp {}: valid range [1, {MAX_SPP}]", self.spp));
+        }
+        if !(self.lb_strength.is_finite() && self.lb_strength >= 0.0) {
+            return bad(format!("lb_strength {}: must be a finite number ≥ 0", self.lb_strength));
+        }
+        if let Some(a) = self.ambient
+            && !a.iter().all(|v| v.is_finite() && *v >= 0.0)
+        {
+            return bad(format!("ambient {a:?}: three finite values ≥ 0"));
+        }
+        self.view.check().map_err(FrameError)
+    }
+
+    /// The lighting method, given the scene's own.
+    pub fn lighting_or(&self, scene: LightingMode) -> LightingMode {
+        self.lighting.unwrap_or(scene)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_limit_is_checked_and_named() {
+        assert!(FrameSettings::default().check().is_ok());
+        let cases = [
+            (FrameSettings { width: 0, ..Default::default() }, "each side"),
+            (FrameSettings { height: MAX_SIDE + 1, ..Default::default() }, "each side"),
+            (FrameSettings { spp: 0, ..Default::default() }, "spp 0"),
+            (FrameSettings { spp: MAX_SPP + 1, ..Default::default() }, "spp"),
+            (FrameSettings { lb_strength: f32::NAN, ..Default::default() }, "lb_strength NaN"),
+            (FrameSettings { ambient: Some([0.1, f32::INFINITY, 0.0]), ..Default::default() }, "ambient"),
+            (FrameSettings { ambient: Some([0.1, -1.0, 0.0]), ..Default::default() }, "ambient"),
+        ];
+        for (f, want) in cases {
+            let e = f.check().unwrap_err().to_string();
+            assert!(e.contains(want), "{want}: {e}");
+        }
+    }
+}

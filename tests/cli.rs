@@ -1,0 +1,177 @@
+//! The `sylva` program as a user runs it: real processes, real files, the
+//! real GPU adapter (lavapipe in CI).
+
+mod common;
+
+use common::{fails, ok, scratch};
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+fn fern() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/models/fern_02.glb")
+}
+
+/// The shape in a `.npy` header.
+fn npy_shape(path: &Path) -> String {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..6], b"\x93NUMPY");
+    let header = String::from_utf8_lossy(&bytes[10..128]).to_string();
+    assert!(header.contains("'descr': '<f4'"), "{header}");
+    let start = header.find("'shape': (").unwrap() + 10;
+    header[start..start + header[start..].find(')').unwrap()].trim_end_matches([',', ' ']).to_string()
+}
+
+#[test]
+fn verify_reports_every_check_passing_as_json() {
+    let v: Value = serde_json::from_str(&ok(&["lb", "verify", "--json"])).unwrap();
+    assert_eq!(v["pass"], true, "{v:#}");
+    let checks = v["checks"].as_array().unwrap();
+    let ids: Vec<&str> = checks.iter().map(|c| c["id"].as_str().unwrap()).collect();
+    assert_eq!(ids, ["a", "b", "c", "d", "e", "f", "g"]);
+    for c in checks {
+        assert!(c["measured"].as_f64().unwrap() <= c["bound"].as_f64().unwrap(), "{c:#}");
+        assert_eq!(c["pass"], true);
+    }
+}
+
+#[test]
+fn solving_the_builtin_plant_writes_grid_picture_and_summary() {
+    let dir = scratch("plant");
+    let out = dir.to_str().unwrap();
+    let summary: Value = serde_json::from_str(&ok(&["lb", "solve", "plant", "--grid", "20", "--backend", "cpu", "-o", out, "--json"])).unwrap();
+    assert_eq!(npy_shape(&dir.join("density.npy")), "3, 20, 20, 20");
+    let png = image_size(&dir.join("density.png"));
+    assert!(png.0 > 200 && png.1 > 100, "{png:?}");
+    let on_disk: Value = serde_json::from_slice(&std::fs::read(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(on_disk, summary);
+    assert_eq!(summary["preset"], "leaf");
+    assert_eq!(summary["triangles"], 8016);
+    for c in summary["channels"].as_array().unwrap() {
+        let r = &c["report"];
+        assert_eq!(r["max_steps"], 40, "the default cap is 2 × the longest edge");
+        assert!(r["steps"].as_u64().unwrap() <= 40);
+        assert!(r["final_change"].as_f64().is_some());
+    }
+    let phases: Vec<&str> = summary["phases_ms"].as_array().unwrap().iter().map(|p| p["phase"].as_str().unwrap()).collect();
+    assert_eq!(phases, ["load", "voxelize", "open solver", "solve", "write"]);
+}
+
+fn image_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    assert_eq!(&b[1..4], b"PNG");
+    (u32::from_be_bytes(b[16..20].try_into().unwrap()), u32::from_be_bytes(b[20..24].try_into().unwrap()))
+}
+
+#[test]
+fn gpu_and_cpu_solve_a_gltf_model_alike() {
+    let dir = scratch("fern");
+    let model = fern();
+    let (cpu, gpu) = (dir.join("cpu"), dir.join("gpu"));
+    let run = |backend: &str, out: &Path| -> Value {
+        serde_json::from_str(&ok(&[
+            "lb",
+            "solve",
+            model.to_str().unwrap(),
+            "--grid",
+            "24",
+            "--backend",
+            backend,
+            "--max-steps",
+            "30",
+            "--tolerance",
+            "0",
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
+        ]))
+        .unwrap()
+    };
+    let (c, g) = (run("cpu", &cpu), run("gpu", &gpu));
+    assert_eq!(c["triangles"], 6232);
+    assert!(c["grid"]["occupancy"].as_f64().unwrap() > 0.0);
+    for (a, b) in c["channels"].as_array().unwrap().iter().zip(g["channels"].as_array().unwrap()) {
+        assert_eq!(a["report"]["steps"], 30);
+        let (x, y) = (a["report"]["total_density"].as_f64().unwrap(), b["report"]["total_density"].as_f64().unwrap());
+        assert!((x - y).abs() / x < 1e-5, "cpu {x} gpu {y}");
+    }
+}
+
+#[test]
+fn a_density_grid_from_npy_is_solved_with_its_own_shape() {
+    let dir = scratch("npy");
+    let grid = dir.join("grid.npy");
+    // (Z, Y, X) = (6, 7, 8), a dense block in the middle.
+    let dims = sylva_light::lb::GridDims { nx: 8, ny: 7, nz: 6 };
+    let mut m = sylva_light::lb::MediumGrid::empty(dims);
+    for z in 2..4 {
+        for y in 2..5 {
+            for x in 2..6 {
+                m.density[dims.index(x, y, z)] = 0.8;
+            }
+        }
+    }
+    sylva_light::npy::write_density(&grid, &m).unwrap();
+    let out = dir.join("out");
+    let s: Value =
+        serde_json::from_str(&ok(&["lb", "solve", grid.to_str().unwrap(), "--preset", "cloud", "-o", out.to_str().unwrap(), "--json"])).unwrap();
+    assert_eq!(npy_shape(&out.join("density.npy")), "3, 6, 7, 8");
+    assert_eq!(s["preset"], "cloud");
+    assert_eq!(s["channels"][0]["report"]["max_steps"], 16);
+    let err = fails(&["lb", "solve", grid.to_str().unwrap(), "--grid", "32"]);
+    assert!(err.contains("--grid does not apply to a .npy"), "{err}");
+}
+
+#[test]
+fn bad_input_gets_a_clear_error() {
+    let dir = scratch("bad");
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (vec!["nope.glb".into()], "nope.glb: no such file"),
+        (vec!["plant".into(), "--sun".into(), "NaN,10".into()], "sun elevation NaN"),
+        (vec!["plant".into(), "--sun".into(), "0,0,0".into()], "must be a finite, non-zero vector"),
+        (vec!["plant".into(), "--sun".into(), "north".into()], "expected ELEVATION,AZIMUTH or X,Y,Z"),
+        (vec!["plant".into(), "--sun-intensity".into(), "-1".into()], "sun intensity -1"),
+        (vec!["plant".into(), "--preset".into(), "oak".into()], "unknown preset \"oak\""),
+        (vec!["plant".into(), "--grid".into(), "2".into()], "use at least 4"),
+        (vec!["plant".into(), "--tolerance".into(), "NaN".into()], "--tolerance NaN"),
+        (vec!["plant".into(), "--class".into(), "green".into()], "--class applies to .npy grids only"),
+    ];
+    for (args, want) in cases {
+        let mut full = vec!["lb".to_string(), "solve".to_string()];
+        full.extend(args);
+        full.extend(["-o".to_string(), dir.to_str().unwrap().to_string()]);
+        let refs: Vec<&str> = full.iter().map(|s| s.as_str()).collect();
+        let err = fails(&refs);
+        assert!(err.contains(want), "{refs:?}: {err}");
+    }
+    // Files that are not what they claim.
+    let junk = dir.join("junk.npy");
+    std::fs::write(&junk, b"not numpy at all").unwrap();
+    assert!(fails(&["lb", "solve", junk.to_str().unwrap()]).contains("not a .npy file"));
+    let bad_glb = dir.join("broken.glb");
+    std::fs::write(&bad_glb, b"glTF\x02\x00\x00\x00garbage").unwrap();
+    assert!(fails(&["lb", "solve", bad_glb.to_str().unwrap()]).contains("cannot load glTF"));
+    let out_of_range = dir.join("range.npy");
+    let dims = sylva_light::lb::GridDims::cube(5);
+    let mut m = sylva_light::lb::MediumGrid::empty(dims);
+    m.density[dims.index(2, 2, 2)] = f32::NAN;
+    sylva_light::npy::write_density(&out_of_range, &m).unwrap();
+    let err = fails(&["lb", "solve", out_of_range.to_str().unwrap()]);
+    assert!(err.contains("density at node (x=2, y=2, z=2) is NaN; valid range: [0, 1]"), "{err}");
+}
+
+#[test]
+fn lb_benchmark_prints_both_backends_as_json() {
+    let v: Value = serde_json::from_str(&ok(&["bench", "lb", "--grid", "16", "--json"])).unwrap();
+    assert_eq!(v["grid"], 16);
+    let results = v["results"].as_array().unwrap();
+    assert_eq!(results.len(), 2);
+    for r in results {
+        for key in ["mlups", "step_mlups", "ms_per_step", "bytes_per_second", "wall_ms"] {
+            assert!(r[key].as_f64().unwrap() > 0.0, "{key} in {r:#}");
+        }
+        assert!(!r["device"].as_str().unwrap().is_empty());
+        assert_eq!(r["steps_per_channel"].as_array().unwrap().len(), 3);
+    }
+    assert!(v["gpu_over_cpu"].as_f64().unwrap() > 0.0);
+}

@@ -1,0 +1,276 @@
+//! `sylva scene` and `sylva render` as a user runs them: real processes,
+//! real files, the real GPU adapter (lavapipe in CI).
+
+mod common;
+
+use common::{fails, ok, scratch};
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+fn png_size(path: &Path) -> (u32, u32) {
+    let b = std::fs::read(path).unwrap();
+    assert_eq!(&b[1..4], b"PNG");
+    (u32::from_be_bytes(b[16..20].try_into().unwrap()), u32::from_be_bytes(b[20..24].try_into().unwrap()))
+}
+
+fn small_forest(dir: &Path) -> PathBuf {
+    let scene = dir.join("forest.json");
+    let v: Value =
+        serde_json::from_str(&ok(&["scene", "forest", "--scale", "0.01", "--triangle-scale", "0.01", "-o", scene.to_str().unwrap(), "--json"]))
+            .unwrap();
+    assert_eq!(v["instances"], 11);
+    scene
+}
+
+#[test]
+fn the_forest_scene_has_the_papers_counts_at_scale_one() {
+    let dir = scratch("table2");
+    let scene = dir.join("forest.json");
+    let v: Value = serde_json::from_str(&ok(&["scene", "forest", "--scale", "1", "-o", scene.to_str().unwrap(), "--json"])).unwrap();
+    assert_eq!(v["instances"], 962);
+    assert_eq!(v["triangles_instanced"], 273_376_528u64);
+    let species: Vec<(String, u64, u64)> = v["species"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["species"].as_str().unwrap().to_string(), s["instances"].as_u64().unwrap(), s["triangles_per_instance"].as_u64().unwrap()))
+        .collect();
+    assert_eq!(species[0], ("red_maple".into(), 12, 115_529));
+    assert_eq!(species[4], ("american_beech".into(), 168, 496_719));
+}
+
+#[test]
+fn render_writes_image_and_stats() {
+    let dir = scratch("render");
+    let scene = small_forest(&dir);
+    let out = dir.join("frame.png");
+    let stats: Value = serde_json::from_str(&ok(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "96",
+        "--height",
+        "48",
+        "--spp",
+        "2",
+        "--exr",
+        "--local-workers",
+        "0",
+        "--json",
+    ]))
+    .unwrap();
+    assert_eq!(png_size(&out), (96, 48));
+    assert!(dir.join("frame.exr").exists());
+    let on_disk: Value = serde_json::from_slice(&std::fs::read(dir.join("frame.stats.json")).unwrap()).unwrap();
+    assert_eq!(on_disk, stats);
+    assert_eq!(stats["rays"]["primary"], 96 * 48 * 2);
+    assert!(stats["rays"]["shadow"].as_u64().unwrap() > 0);
+    assert!(stats["rays"]["mrays_per_second"].as_f64().unwrap() > 0.0);
+    assert_eq!(stats["instances"], 11);
+    assert!(stats["triangles"]["instanced"].as_u64().unwrap() > stats["triangles"]["unique"].as_u64().unwrap());
+    let phases: Vec<&str> = stats["phases_ms"].as_array().unwrap().iter().map(|p| p["phase"].as_str().unwrap()).collect();
+    assert_eq!(phases, ["load", "build", "voxelize", "lb", "forest lb", "upload", "trace", "tone map"]);
+    assert_eq!(stats["lb"].as_array().unwrap().len(), 5);
+    assert!(stats["gpu_memory_bytes"]["scene"].as_u64().unwrap() > 0);
+    let fg = &stats["forest_grid"];
+    assert!(!fg["reason"].as_str().unwrap().is_empty());
+    let (lo, hi) = (fg["scale_min"].as_f64().unwrap(), fg["scale_max"].as_f64().unwrap());
+    assert!(0.0 < lo && lo <= hi && hi <= 1.0, "{fg}");
+}
+
+#[test]
+fn the_forest_grid_can_be_switched_off() {
+    let dir = scratch("nogrid");
+    let scene = small_forest(&dir);
+    let mut v: Value = serde_json::from_slice(&std::fs::read(&scene).unwrap()).unwrap();
+    v["forest_grid"] = serde_json::json!({ "use": "never" });
+    std::fs::write(&scene, serde_json::to_string(&v).unwrap()).unwrap();
+    let out = dir.join("f.png");
+    let stats: Value = serde_json::from_str(&ok(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "32",
+        "--height",
+        "16",
+        "--local-workers",
+        "0",
+        "--json",
+    ]))
+    .unwrap();
+    assert_eq!(stats["forest_grid"]["used"], false);
+    assert!(stats["forest_grid"]["reason"].as_str().unwrap().contains("never"));
+}
+
+#[test]
+fn every_lighting_method_and_structure_renders() {
+    let dir = scratch("methods");
+    let scene = small_forest(&dir);
+    let mut means = Vec::new();
+    for (lighting, accel) in [("local", "kd"), ("ambient", "bvh"), ("lb", "kd"), ("lb-visualize", "bvh")] {
+        let out = dir.join(format!("{lighting}.png"));
+        let stats: Value = serde_json::from_str(&ok(&[
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--width",
+            "64",
+            "--height",
+            "32",
+            "--lighting",
+            lighting,
+            "--accel",
+            accel,
+            "--local-workers",
+            "0",
+            "--json",
+        ]))
+        .unwrap();
+        assert_eq!(stats["lighting"], lighting);
+        assert_eq!(stats["accel"], accel);
+        if lighting == "local" {
+            assert!(stats["lb"].as_array().unwrap().is_empty(), "local lighting needs no LB solve");
+        }
+        if lighting == "ambient" {
+            assert!(stats["ambient"].as_array().unwrap().iter().all(|c| c.as_f64().unwrap() > 0.0), "{}", stats["ambient"]);
+        }
+        means.push(stats["tone_map"]["log_average"].as_f64().unwrap());
+    }
+    // Indirect light brightens the frame compared with direct light alone.
+    assert!(means[2] > means[0], "lb {} vs local {}", means[2], means[0]);
+}
+
+#[test]
+fn bad_render_requests_get_clear_errors() {
+    let dir = scratch("bad");
+    let scene = small_forest(&dir);
+    let s = scene.to_str().unwrap();
+    assert!(fails(&["render", s, "--spp", "5000"]).contains("spp 5000: valid range [1, 4096]"));
+    assert!(fails(&["render", s, "--width", "20000"]).contains("each side must be in [1, 16384]"));
+    assert!(fails(&["render", "/nonexistent/scene.json"]).contains("/nonexistent/scene.json: (file): cannot read"));
+    let text = std::fs::read_to_string(&scene).unwrap();
+    let broken = dir.join("broken.json");
+    std::fs::write(&broken, text.replacen("\"camera\"", "\"kamera\"", 1)).unwrap();
+    let err = fails(&["render", broken.to_str().unwrap()]);
+    assert!(err.contains("broken.json: kamera: unknown field `kamera`"), "{err}");
+    std::fs::write(&broken, text.replacen("\"scale\":", "\"scale\": -1, \"x\":", 1)).unwrap();
+    assert!(fails(&["render", broken.to_str().unwrap()]).contains("broken.json"));
+    let missing = dir.join("missing.json");
+    std::fs::write(&missing, text.replacen("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {", 1)).unwrap();
+    assert!(fails(&["render", missing.to_str().unwrap()]).contains("give exactly one of"));
+    // Refused before the reference is traced, not after every method.
+    let err = fails(&["compare", s, "--grids", "32", "--out", dir.join("cmp").to_str().unwrap()]);
+    assert!(err.contains("--grids needs two sizes or more"), "{err}");
+    assert!(!dir.join("cmp").join("reference.bin").exists());
+}
+
+#[test]
+fn the_fern_example_renders() {
+    let dir = scratch("fern");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/ferns.json");
+    let out = dir.join("ferns.png");
+    let stats: Value =
+        serde_json::from_str(&ok(&["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "64", "--height", "48", "--json"]))
+            .unwrap();
+    assert_eq!(stats["triangles"]["unique"], 6232);
+    assert!(stats["coverage"].as_f64().unwrap() > 0.1, "the ferns fill {} of the frame", stats["coverage"]);
+}
+
+#[test]
+fn compare_lists_every_method_with_its_time_and_error() {
+    let dir = scratch("compare");
+    let scene = dir.join("one-tree.json");
+    std::fs::write(
+        &scene,
+        r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 6000, "seed": 3 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 0] }, { "model": "maple", "position": [5, 0, 3], "rotate_y_deg": 50 } ],
+        "camera": { "position": [2, 6, -16], "look_at": [2, 5, 0], "fov_y_deg": 45 },
+        "sun": { "elevation_deg": 45, "azimuth_deg": 120 },
+        "ground": { "color": [0.1, 0.08, 0.05] },
+        "lb": { "grid": 12, "preset": "leaf" }
+    }"#,
+    )
+    .unwrap();
+    let out = dir.join("cmp");
+    let compare = |width: &str, extra: &[&str]| -> Value {
+        let (scene, out) = (scene.to_str().unwrap(), out.to_str().unwrap());
+        let mut args = vec![
+            "compare",
+            scene,
+            "--width",
+            width,
+            "--height",
+            "24",
+            "--spp",
+            "2",
+            "--grids",
+            "8,12",
+            "--target-error",
+            "0.1",
+            "--out",
+            out,
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        serde_json::from_str(&ok(&args)).unwrap()
+    };
+    let v = compare("40", &[]);
+    let methods = v["methods"].as_array().unwrap();
+    let names: Vec<&str> = methods.iter().map(|m| m["name"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        ["local", "ambient", "lb 8³", "lb 12³", "lb 12³ + forest grid", "lb paper 12³ + forest grid", "boulanger", "lb auto", "reference"]
+    );
+    for m in methods {
+        let f = |k: &str| m[k].as_f64().unwrap_or_else(|| panic!("{k} of {m}"));
+        assert!(f("frame_ms") > 0.0 && f("preprocess_ms") >= 0.0, "{m}");
+        for k in ["rmse", "mean_relative_error", "indirect_relative_error"] {
+            assert!(f(k).is_finite() && f(k) >= 0.0, "{k} of {m}");
+        }
+        if m["name"] != "reference" {
+            assert!(f("mean_relative_error") > 0.0, "a method that is not the reference differs from it: {m}");
+        }
+        assert!(Path::new(m["image"].as_str().unwrap()).exists(), "{m}");
+    }
+    assert!(v["reference"]["converged"].as_bool().unwrap(), "{}", v["reference"]);
+    // The grid choice says what it chose and why.
+    let choice = &methods[7]["notes"]["grid_choice"][0];
+    assert!([8, 12].contains(&choice["grid"].as_u64().unwrap()) && !choice["reason"].as_str().unwrap().is_empty(), "{choice}");
+    assert!(methods[6]["notes"]["boulanger"][0]["tau"].as_f64().unwrap() > 0.0);
+    // The paper model is there, and its non-physical strength is named.
+    assert_eq!(methods[5]["notes"]["lb_model"], "paper");
+    assert!(methods[5]["notes"]["non_physical"]["lb_strength"].as_f64().is_some(), "{}", methods[5]["notes"]);
+    assert_eq!(methods[3]["notes"]["lb_model"], "grounded");
+    assert!(methods[3]["notes"]["non_physical"].is_null());
+    assert!(v["summary"].as_str().unwrap().starts_with("most accurate: "));
+    for f in ["figure2.svg", "compare.svg", "compare.json", "reference.png"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    let chart = std::fs::read_to_string(out.join("compare.svg")).unwrap();
+    assert_eq!(chart.matches("<circle").count(), 8, "one point per method but the reference");
+    // The noise of both images is measured and taken out of the net error:
+    // local's indirect light is zero on both its renders, a method's at two
+    // jittered rays per pixel is not; no net error exceeds the raw one by more than noise allows.
+    assert_eq!(methods[0]["indirect_noise_method"].as_f64(), Some(0.0));
+    assert!(methods[3]["indirect_noise_method"].as_f64().unwrap() > 0.0, "{}", methods[3]);
+    assert!(methods[3]["indirect_noise_reference"].as_f64().unwrap() > 0.0, "{}", methods[3]);
+    assert!(methods[3]["indirect_error_net"].as_f64().unwrap() <= methods[3]["indirect_relative_error"].as_f64().unwrap() * 1.2);
+
+    // A second run reuses the saved reference (no path tracing) and gives the same errors.
+    let w = compare("40", &["--reuse-reference", "--hdr"]);
+    assert_eq!(w["reference"]["reused"], true);
+    assert_eq!(w["reference"]["spp"], v["reference"]["spp"]);
+    assert_eq!(w["methods"][3]["indirect_relative_error"], v["methods"][3]["indirect_relative_error"]);
+    for f in ["reference.npy", "reference-local.npy", "reference-indirect-variance.npy", "reference-coverage.npy", "lb-12.npy"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    // Another image size does not reuse it.
+    assert_eq!(compare("32", &["--reuse-reference"])["reference"]["reused"], false);
+}
