@@ -47,8 +47,7 @@ fn frame(seed: u32) -> FrameSettings {
 fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
     let scene = bundle::unpack(&b.bytes, dir).unwrap();
     let ctx = sylva_worker::GpuContext::new().unwrap();
-    let p =
-        sylva_worker::prepare::prepare(&ctx, &scene, sylva_accel::AccelKind::Bvh, sylva_scene::LightingMode::Lb, &|_| {}).unwrap();
+    let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_accel::AccelKind::Bvh, sylva_scene::LightingMode::Lb, &|_| {}).unwrap();
     let f = sylva_worker::trace::RenderSettings {
         width: 96,
         height: 48,

@@ -95,8 +95,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
     // The same frame rendered here, in this process.
     let scene = bundle::unpack(&b.bytes, &dir.join("local")).unwrap();
     let ctx = sylva_worker::GpuContext::new().unwrap();
-    let p =
-        sylva_worker::prepare::prepare(&ctx, &scene, sylva_accel::AccelKind::Bvh, sylva_scene::LightingMode::Lb, &|_| {}).unwrap();
+    let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_accel::AccelKind::Bvh, sylva_scene::LightingMode::Lb, &|_| {}).unwrap();
     let f = sylva_worker::trace::RenderSettings {
         width: 48,
         height: 24,

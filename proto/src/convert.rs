@@ -4,10 +4,10 @@
 //! frame that fails its checks is refused here, with INVALID_ARGUMENT.
 
 use crate::pb;
-use sylva_scene::frame::AccelKind;
-use sylva_scene::frame::FrameSettings;
 use sylva_scene::LightingMode;
 use sylva_scene::format::CameraSpec;
+use sylva_scene::frame::AccelKind;
+use sylva_scene::frame::FrameSettings;
 use sylva_scene::sequence::View;
 use tonic::Status;
 

@@ -13,14 +13,14 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
+use sylva_accel::AccelKind;
 use sylva_proto::pb;
 use sylva_proto::pb::worker_identity_server::{WorkerIdentity, WorkerIdentityServer};
 use sylva_proto::pb::worker_server::{Worker, WorkerServer};
-use sylva_accel::AccelKind;
 use sylva_scene::bundle;
 use sylva_scene::frame::FrameSettings;
-use sylva_scene::{LightingMode, Scene, SceneLimits};
 use sylva_scene::sequence::View;
+use sylva_scene::{LightingMode, Scene, SceneLimits};
 use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status, Streaming};
 

@@ -1,9 +1,9 @@
 //! The wgpu LB solver against the CPU reference, on the machine's real GPU
 //! adapter (lavapipe in CI).
 
-use sylva_light::studies::verify::{compare_with_reference, random_medium};
 use sylva_light::lb::LbParams;
 use sylva_light::lb::{CpuSolver, GridDims, LightingSolver, SolveOptions, Sun};
+use sylva_light::studies::verify::{compare_with_reference, random_medium};
 use sylva_scene::format::Preset;
 use sylva_worker::GpuSolver;
 

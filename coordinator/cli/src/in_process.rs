@@ -1,9 +1,9 @@
 //! Strips rendered on this process's GPU, one after another.
 
-use sylva_coordinator::executor::{RenderedFrame, StripExecutor};
-use sylva_coordinator::assembly::{Assembly, StripPixels};
-use sylva_coordinator::schedule::Strip;
 use std::time::Instant;
+use sylva_coordinator::assembly::{Assembly, StripPixels};
+use sylva_coordinator::executor::{RenderedFrame, StripExecutor};
+use sylva_coordinator::schedule::Strip;
 use sylva_worker::GpuContext;
 use sylva_worker::trace::{RenderSettings, StripRenderer};
 

@@ -7,11 +7,11 @@ use serde::Serialize;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use sylva_light::studies::verify::{self, Check};
 use sylva_light::lb::{GridDims, LbParams, LightingSolver, MediumGrid, NodeClass, Solution, SolveOptions, Sun, solve};
-use sylva_scene::format::Preset;
+use sylva_light::studies::verify::{self, Check};
 use sylva_light::voxel::{self, GridFrame};
 use sylva_light::{npy, shapes, visualize};
+use sylva_scene::format::Preset;
 use sylva_scene::model;
 use sylva_worker::GpuSolver;
 

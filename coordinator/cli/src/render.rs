@@ -4,15 +4,15 @@
 //! traces the scene in this process. Either way the whole frame is
 //! tone-mapped once and written with its stats.
 
+use crate::in_process::InProcess;
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use crate::in_process::InProcess;
-use sylva_coordinator::executor::{StripExecutor, even_strips};
 use sylva_accel::AccelKind;
+use sylva_coordinator::executor::{StripExecutor, even_strips};
 use sylva_scene::film::{HdrImage, reinhard, write_png};
 use sylva_scene::{LightingMode, Scene};
 use sylva_worker::GpuContext;
@@ -21,10 +21,10 @@ use sylva_worker::trace::RenderSettings;
 
 use sylva_coordinator::schedule::ScheduleKind;
 use sylva_coordinator::service::MAX_NAME;
-use sylva_scene::frame::{FrameSettings, MAX_SPP};
 use sylva_scene::format::SceneFile;
-use sylva_scene::{FileAccess, SceneLimits};
+use sylva_scene::frame::{FrameSettings, MAX_SPP};
 use sylva_scene::sequence::{SequenceSpec, SunAngles, SunSweep, View};
+use sylva_scene::{FileAccess, SceneLimits};
 use sylva_worker::lighting::reference::MIN_BATCH_SPP;
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;

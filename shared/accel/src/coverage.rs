@@ -5,8 +5,8 @@
 //! Counts come from a summed-area table per material, so classifying a
 //! triangle costs four lookups however many texels it spans.
 
-use sylva_scene::model::Model;
 use glam::Vec2;
+use sylva_scene::model::Model;
 
 /// How the alpha test can end on a triangle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -11,8 +11,8 @@ mod aabb;
 pub mod bvh;
 pub mod coverage;
 pub mod kdtree;
-pub mod two_level;
 pub mod triangle;
+pub mod two_level;
 
 pub use aabb::Aabb;
 pub use bvh::{Bvh, BvhNode};

@@ -5,10 +5,10 @@
 use super::coverage::{Coverage, triangle_coverage};
 use super::triangle::{TriangleRecord, intersect};
 use super::{Aabb, Accel, AccelKind, Ray};
-use sylva_scene::model::Model;
-use sylva_scene::Scene;
 use glam::{Affine3A, Vec2, Vec3};
 use rayon::prelude::*;
+use sylva_scene::Scene;
+use sylva_scene::model::Model;
 
 /// Where a ray hit the scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -303,8 +303,8 @@ pub fn model_bounds(model: &Model) -> Aabb {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sylva_scene::rng::SplitMix64;
     use sylva_scene::parse;
+    use sylva_scene::rng::SplitMix64;
 
     fn scene() -> Scene {
         let text = r#"{

@@ -45,11 +45,11 @@
 //! ω_j = −ω_{7−j}; here ω_{j+4} = −ω_j instead, so a shader recovers the
 //! upper four by negating the lower four in order. y is up.
 
-use sylva_scene::model::{Model, Surface};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::f32::consts::PI;
 use std::time::Instant;
+use sylva_scene::model::{Model, Surface};
 
 /// Number of sample directions ω_j.
 pub const N_DIR: usize = 8;

@@ -80,9 +80,9 @@ use crate::lb::boundary::Sun;
 use crate::lb::lattice::{DIRECTIONS, Q};
 use crate::lb::medium::{MediumGrid, NodeClass};
 use crate::lb::params::ChannelParams;
-use sylva_scene::rng::SplitMix64;
 use rayon::prelude::*;
 use std::time::Instant;
+use sylva_scene::rng::SplitMix64;
 
 /// Number of independent batches the photons are split into (the standard
 /// error comes from their spread).

@@ -2,9 +2,9 @@
 //! plant (a wooden trunk under a sphere of leaves) and a procedural cloud.
 
 use crate::lb::{GridDims, MediumGrid, NodeClass};
+use glam::Vec3;
 use sylva_scene::model::{Material, Model, Surface};
 use sylva_scene::rng::SplitMix64;
-use glam::Vec3;
 
 /// Leaves in the built-in plant's crown.
 pub const PLANT_LEAVES: usize = 4000;

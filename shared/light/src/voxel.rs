@@ -3,15 +3,15 @@
 //! marked when a triangle overlaps it, and the cell's density is the marked
 //! fraction. Cells whose marks come mostly from wood are brown, others green.
 
-use sylva_scene::color::srgb8_to_linear;
 use crate::lb::radiometry::{ClumpedCell, LeafScattering, clumped_cell};
 use crate::lb::{GridDims, MediumGrid, NodeClass};
-use sylva_scene::leaf::LeafOptics;
-use sylva_scene::model::{Model, Surface};
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::sync::atomic::{AtomicU64, Ordering};
+use sylva_scene::color::srgb8_to_linear;
+use sylva_scene::leaf::LeafOptics;
+use sylva_scene::model::{Model, Surface};
 
 /// Sub-cells per cell edge.
 pub const SUB: usize = 3;

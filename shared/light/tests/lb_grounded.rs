@@ -6,10 +6,10 @@
 //! diagonals crossing √2 per step, are the error; the slab (a canopy layer)
 //! is where it is smallest, the ball where it is largest.
 
-use sylva_light::studies::limits::{converged_options, slab, sphere};
-use sylva_light::montecarlo::{fluence, scattered_fluence};
 use sylva_light::lb::radiometry::{LeafScattering, density_from_leaf_area};
 use sylva_light::lb::{CpuSolver, GridDims, Illumination, MediumGrid, NodeClass, Sun, solve_indirect};
+use sylva_light::montecarlo::{fluence, scattered_fluence};
+use sylva_light::studies::limits::{converged_options, slab, sphere};
 
 /// A green leaf of texture colour (0.15, 0.35, 0.08) under the default
 /// leaf optics (reflect ×1, transmit × f/b).

@@ -1,10 +1,10 @@
 //! The LB model against its Monte Carlo reference, and the warnings that
 //! say where it stops being trustworthy (`montecarlo`, `studies::limits`).
 
-use sylva_light::studies::limits::{self, Comparison, LB_ERROR_BOUND, Sweep, SweepKind, failure_sweep, lb_warnings, medium_mask, slab, sphere};
-use sylva_light::montecarlo::{self, McFluence, fluence};
-use sylva_scene::format::Preset;
 use sylva_light::lb::*;
+use sylva_light::montecarlo::{self, McFluence, fluence};
+use sylva_light::studies::limits::{self, Comparison, LB_ERROR_BOUND, Sweep, SweepKind, failure_sweep, lb_warnings, medium_mask, slab, sphere};
+use sylva_scene::format::Preset;
 
 fn interior(dims: GridDims) -> Vec<bool> {
     (0..dims.len()).map(|i| !dims.is_boundary(i % dims.nx, (i / dims.nx) % dims.ny, i / (dims.nx * dims.ny))).collect()

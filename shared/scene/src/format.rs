@@ -380,5 +380,4 @@ impl Preset {
     pub fn is_plant(self) -> bool {
         matches!(self, Preset::Leaf | Preset::Dogrose)
     }
-
 }

@@ -8,9 +8,9 @@ pub use crate::format::{
 };
 
 use crate::camera::Camera;
+pub use crate::caps::SceneLimits;
 use crate::color::black_body_rgb;
 pub use crate::sandbox::FileAccess;
-pub use crate::caps::SceneLimits;
 
 use crate::model::{GltfBudget, Model, load_gltf_with};
 use crate::trees;

@@ -4,12 +4,12 @@
 //! path-traces the same density.
 
 use crate::gpu::GpuContext;
-use sylva_light::lb::LbParams;
 use crate::lb::GpuSolver;
 use crate::trace::CloudGrid;
+use sylva_light::lb::LbParams;
 use sylva_light::lb::{SolveOptions, Sun, solve};
-use sylva_scene::format::Preset;
 use sylva_scene::Scene;
+use sylva_scene::format::Preset;
 
 /// Every cloud of `scene`, solved.
 pub fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<CloudGrid>> {

@@ -10,9 +10,9 @@ use crate::gpu::GpuContext;
 use crate::trace::{RenderSettings, StripRenderer};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
+use sylva_scene::LightingMode;
 use sylva_scene::color::luminance;
 use sylva_scene::film::HdrImage;
-use sylva_scene::LightingMode;
 
 /// The method: it path-traces the clouds' density, so it prepares them.
 pub const METHOD: Method = Method {

@@ -7,8 +7,8 @@ use crate::gpu::GpuContext;
 use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
-use sylva_scene::{LightingMode, Scene};
 use sylva_scene::sequence::View;
+use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
 
 const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");

@@ -2,20 +2,20 @@
 //! baseline measured in the same run (GPU against the CPU reference), since
 //! the machines are shared and noisy.
 
+use crate::in_process::InProcess;
 use crate::lb::{Backend, open_solver};
-use sylva_light::lb::LbParams;
 use crate::progress;
 use anyhow::bail;
 use clap::{Args, Subcommand, ValueEnum};
 use serde_json::json;
 use std::time::Instant;
-use crate::in_process::InProcess;
 use sylva_coordinator::executor::StripExecutor;
+use sylva_light::lb::LbParams;
 use sylva_light::lb::solver::BYTES_PER_NODE_UPDATE;
 use sylva_light::lb::{GridDims, MediumGrid, NodeClass, SolveOptions, Sun, solve};
+use sylva_light::{shapes, voxel};
 use sylva_scene::format::Preset;
 use sylva_scene::rng::SplitMix64;
-use sylva_light::{shapes, voxel};
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
@@ -491,12 +491,12 @@ pub struct ScalingBenchArgs {
 const PAPER_TABLE_4: [(usize, f64); 4] = [(2, 1.162), (4, 0.666), (8, 0.351), (16, 0.170)];
 
 fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
-    use crate::local::LocalProcesses;
     use crate::lab::chart::{Series, line_chart};
+    use crate::lab::simulate::FrameCost;
+    use crate::local::LocalProcesses;
     use sylva_coordinator::executor::Farm;
     use sylva_coordinator::farm::Workers;
     use sylva_coordinator::schedule::{ScheduleKind, column_cost, scheduler};
-    use crate::lab::simulate::FrameCost;
     use sylva_scene::film::reinhard;
 
     let kinds: Vec<ScheduleKind> = a

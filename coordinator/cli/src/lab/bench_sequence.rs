@@ -17,9 +17,9 @@ use serde_json::json;
 use std::time::Instant;
 use sylva_coordinator::client::submit_and_follow;
 use sylva_proto::pb;
+use sylva_scene::LightingMode;
 use sylva_scene::bundle::SceneBundle;
 use sylva_scene::frame::FrameSettings;
-use sylva_scene::LightingMode;
 use sylva_scene::sequence::{CameraKey, SequenceSpec, SunAngles, SunSweep, View};
 
 #[derive(Debug, Args)]

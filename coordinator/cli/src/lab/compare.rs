@@ -5,6 +5,8 @@
 //! time. Optionally adds the LB failure-mode sweeps (LB against a Monte
 //! Carlo reference of the same medium), each as a chart.
 
+use crate::in_process::InProcess;
+use crate::lab::chart::{Series, line_chart};
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -12,10 +14,8 @@ use serde::Serialize;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use crate::lab::chart::{Series, line_chart};
-use crate::in_process::InProcess;
-use sylva_coordinator::executor::StripExecutor;
 use sylva_accel::AccelKind;
+use sylva_coordinator::executor::StripExecutor;
 use sylva_scene::color::luminance;
 use sylva_scene::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
 use sylva_scene::{ForestGridUse, LbModel, LightingMode, Scene};

@@ -11,10 +11,10 @@
 
 mod spatial;
 
-use spatial::Ref;
 use crate::{Aabb, Ray};
 use bytemuck::{Pod, Zeroable};
 use glam::Vec4;
+use spatial::Ref;
 use std::mem::MaybeUninit;
 
 /// Children per node.

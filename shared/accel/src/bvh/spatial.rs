@@ -7,8 +7,8 @@
 //! per side: the children's boxes no longer overlap, at the price of a
 //! triangle referenced by two leaves.
 
-use crate::Aabb;
 use super::sweep;
+use crate::Aabb;
 use glam::Vec3;
 
 /// A primitive reference: the primitive, and the box of the piece of it

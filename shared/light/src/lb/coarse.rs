@@ -6,12 +6,12 @@
 use super::light::LbGrid;
 use super::medium::{GridDims, MediumGrid, NodeClass};
 use super::radiometry::LeafScattering;
-use sylva_accel::Aabb;
-use sylva_scene::model::Model;
-use sylva_scene::{ForestGridSpec, ForestGridUse, Scene};
 use crate::voxel::{GridFrame, LeafArea};
 use glam::Vec3;
 use serde::Serialize;
+use sylva_accel::Aabb;
+use sylva_scene::model::Model;
+use sylva_scene::{ForestGridSpec, ForestGridUse, Scene};
 
 /// A tree as the coarse grid sees it: its world bounds and how much of
 /// that box its crown fills.

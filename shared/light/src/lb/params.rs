@@ -105,7 +105,6 @@ impl LbParams {
     }
 }
 
-
 /// g from forward and backward scattering fractions, forest paper eq. (10).
 pub fn g_from_scattering_fractions(forward: f32, backward: f32) -> f32 {
     (forward - backward) / (forward + backward)

@@ -9,9 +9,9 @@
 use crate::lb::boundary::Sun;
 use crate::lb::cpu::CpuSolver;
 use crate::lb::medium::{GridDims, MediumGrid, NodeClass};
-use crate::montecarlo::{self, McFluence};
 use crate::lb::params::{CHANNELS, ChannelParams, LbParams};
 use crate::lb::solver::{SolveOptions, solve};
+use crate::montecarlo::{self, McFluence};
 use serde::Serialize;
 use std::time::Instant;
 

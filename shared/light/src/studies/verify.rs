@@ -9,9 +9,9 @@ use crate::lb::cpu::{CpuLattice, CpuSolver};
 use crate::lb::lattice::{DIRECTIONS, Q};
 use crate::lb::medium::{GridDims, MediumGrid, NodeClass};
 use crate::lb::params::{ChannelParams, LbParams};
-use sylva_scene::format::Preset;
 use crate::lb::solver::{LightingSolver, SolveOptions, solve};
 use serde::Serialize;
+use sylva_scene::format::Preset;
 
 /// One check's outcome.
 #[derive(Clone, Debug, Serialize)]

@@ -5,8 +5,8 @@
 //! for (the sky's colours, the sun's strength in Sylva's units) rides in
 //! the scene's `extras.sylva`, which [`super::import`] reads back.
 
-use crate::model::{Model, Surface, classify_material};
 use crate::Scene;
+use crate::model::{Model, Surface, classify_material};
 use anyhow::{Context, bail};
 use glam::{Affine3A, Mat4, Quat, Vec3};
 use serde_json::{Value, json};

@@ -7,9 +7,9 @@
 //! irradiance π × its radiance scale (docs/lighting.md), and the sky as an
 //! `infinite` light from an equal-area image of the same gradient.
 
+use crate::Scene;
 use crate::color::srgb8_to_linear;
 use crate::model::{Material, Model, Surface};
-use crate::Scene;
 use anyhow::Context;
 use glam::{Mat4, Vec3};
 use std::fmt::Write as _;

@@ -1,7 +1,7 @@
 //! Builds a tree model from a species preset, a triangle count and a seed.
 
-use crate::leaf::leaf_texture;
 use super::species::Species;
+use crate::leaf::leaf_texture;
 use crate::model::{Material, Model, Surface};
 use crate::rng::SplitMix64;
 use glam::{Quat, Vec3};

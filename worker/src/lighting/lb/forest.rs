@@ -13,9 +13,9 @@ use sylva_accel::Aabb;
 use sylva_accel::two_level::model_bounds;
 use sylva_light::lb::coarse::{ForestLight, ModelArea, Occupant, WorldGrid, crown_fill, crown_reach, forest_leaf_area, forest_medium};
 use sylva_light::lb::{Illumination, LbGrid, LbParams, SolveOptions, solve, solve_indirect};
+use sylva_light::voxel::medium_from_leaf_area;
 use sylva_scene::format::Preset;
 use sylva_scene::{ForestGridUse, Scene};
-use sylva_light::voxel::medium_from_leaf_area;
 
 /// Each instance's world box.
 fn instance_boxes(scene: &Scene) -> Vec<Aabb> {

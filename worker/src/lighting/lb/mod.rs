@@ -18,9 +18,9 @@ use serde::Serialize;
 use sylva_light::lb::coarse::{ForestLight, ModelArea};
 use sylva_light::lb::solver::PhaseTimer;
 use sylva_light::lb::{GridDims, Illumination, LbGrid, LbParams, MediumGrid, NodeClass, SolveOptions, Sun, solve, solve_indirect};
+use sylva_light::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
 use sylva_scene::model::Model;
 use sylva_scene::{LbModel, LightingMode, Scene, SceneModel};
-use sylva_light::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
 
 /// `lb`: the direct sun plus the LB light.
 pub const METHOD: Method = Method {
@@ -167,8 +167,10 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
             (rgb, std::array::from_fn(|c| r(c).steps), std::array::from_fn(|c| r(c).converged), None)
         }
     };
-    let warnings =
-        sylva_light::studies::limits::lb_warnings(&mm.params, &mm.medium, &sun_of(scene)?).into_iter().map(|w| format!("{}: {}", w.kind, w.message)).collect();
+    let warnings = sylva_light::studies::limits::lb_warnings(&mm.params, &mm.medium, &sun_of(scene)?)
+        .into_iter()
+        .map(|w| format!("{}: {}", w.kind, w.message))
+        .collect();
     let p = &mm.params.channels;
     let report = ModelLight {
         model: m.name.clone(),
