@@ -19,7 +19,9 @@ fn npy_shape(path: &Path) -> String {
     let header = String::from_utf8_lossy(&bytes[10..128]).to_string();
     assert!(header.contains("'descr': '<f4'"), "{header}");
     let start = header.find("'shape': (").unwrap() + 10;
-    header[start..start + header[start..].find(')').unwrap()].trim_end_matches([',', ' ']).to_string()
+    header[start..start + header[start..].find(')').unwrap()]
+        .trim_end_matches([',', ' '])
+        .to_string()
 }
 
 #[test]
@@ -39,11 +41,24 @@ fn verify_reports_every_check_passing_as_json() {
 fn solving_the_builtin_plant_writes_grid_picture_and_summary() {
     let dir = scratch("plant");
     let out = dir.to_str().unwrap();
-    let summary: Value = serde_json::from_str(&ok(&["lb", "solve", "plant", "--grid", "20", "--backend", "cpu", "-o", out, "--json"])).unwrap();
+    let summary: Value = serde_json::from_str(&ok(&[
+        "lb",
+        "solve",
+        "plant",
+        "--grid",
+        "20",
+        "--backend",
+        "cpu",
+        "-o",
+        out,
+        "--json",
+    ]))
+    .unwrap();
     assert_eq!(npy_shape(&dir.join("density.npy")), "3, 20, 20, 20");
     let png = image_size(&dir.join("density.png"));
     assert!(png.0 > 200 && png.1 > 100, "{png:?}");
-    let on_disk: Value = serde_json::from_slice(&std::fs::read(dir.join("summary.json")).unwrap()).unwrap();
+    let on_disk: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(on_disk, summary);
     assert_eq!(summary["preset"], "leaf");
     assert_eq!(summary["triangles"], 8016);
@@ -53,14 +68,22 @@ fn solving_the_builtin_plant_writes_grid_picture_and_summary() {
         assert!(r["steps"].as_u64().unwrap() <= 40);
         assert!(r["final_change"].as_f64().is_some());
     }
-    let phases: Vec<&str> = summary["phases_ms"].as_array().unwrap().iter().map(|p| p["phase"].as_str().unwrap()).collect();
+    let phases: Vec<&str> = summary["phases_ms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["phase"].as_str().unwrap())
+        .collect();
     assert_eq!(phases, ["load", "voxelize", "open solver", "solve", "write"]);
 }
 
 fn image_size(path: &Path) -> (u32, u32) {
     let b = std::fs::read(path).unwrap();
     assert_eq!(&b[1..4], b"PNG");
-    (u32::from_be_bytes(b[16..20].try_into().unwrap()), u32::from_be_bytes(b[20..24].try_into().unwrap()))
+    (
+        u32::from_be_bytes(b[16..20].try_into().unwrap()),
+        u32::from_be_bytes(b[20..24].try_into().unwrap()),
+    )
 }
 
 #[test]
@@ -92,7 +115,10 @@ fn gpu_and_cpu_solve_a_gltf_model_alike() {
     assert!(c["grid"]["occupancy"].as_f64().unwrap() > 0.0);
     for (a, b) in c["channels"].as_array().unwrap().iter().zip(g["channels"].as_array().unwrap()) {
         assert_eq!(a["report"]["steps"], 30);
-        let (x, y) = (a["report"]["total_density"].as_f64().unwrap(), b["report"]["total_density"].as_f64().unwrap());
+        let (x, y) = (
+            a["report"]["total_density"].as_f64().unwrap(),
+            b["report"]["total_density"].as_f64().unwrap(),
+        );
         assert!((x - y).abs() / x < 1e-5, "cpu {x} gpu {y}");
     }
 }
@@ -113,8 +139,17 @@ fn a_density_grid_from_npy_is_solved_with_its_own_shape() {
     }
     sylva_light::npy::write_density(&grid, &m).unwrap();
     let out = dir.join("out");
-    let s: Value =
-        serde_json::from_str(&ok(&["lb", "solve", grid.to_str().unwrap(), "--preset", "cloud", "-o", out.to_str().unwrap(), "--json"])).unwrap();
+    let s: Value = serde_json::from_str(&ok(&[
+        "lb",
+        "solve",
+        grid.to_str().unwrap(),
+        "--preset",
+        "cloud",
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ]))
+    .unwrap();
     assert_eq!(npy_shape(&out.join("density.npy")), "3, 6, 7, 8");
     assert_eq!(s["preset"], "cloud");
     assert_eq!(s["channels"][0]["report"]["max_steps"], 16);
@@ -129,12 +164,18 @@ fn bad_input_gets_a_clear_error() {
         (vec!["nope.glb".into()], "nope.glb: no such file"),
         (vec!["plant".into(), "--sun".into(), "NaN,10".into()], "sun elevation NaN"),
         (vec!["plant".into(), "--sun".into(), "0,0,0".into()], "must be a finite, non-zero vector"),
-        (vec!["plant".into(), "--sun".into(), "north".into()], "expected ELEVATION,AZIMUTH or X,Y,Z"),
+        (
+            vec!["plant".into(), "--sun".into(), "north".into()],
+            "expected ELEVATION,AZIMUTH or X,Y,Z",
+        ),
         (vec!["plant".into(), "--sun-intensity".into(), "-1".into()], "sun intensity -1"),
         (vec!["plant".into(), "--preset".into(), "oak".into()], "unknown preset \"oak\""),
         (vec!["plant".into(), "--grid".into(), "2".into()], "use at least 4"),
         (vec!["plant".into(), "--tolerance".into(), "NaN".into()], "--tolerance NaN"),
-        (vec!["plant".into(), "--class".into(), "green".into()], "--class applies to .npy grids only"),
+        (
+            vec!["plant".into(), "--class".into(), "green".into()],
+            "--class applies to .npy grids only",
+        ),
     ];
     for (args, want) in cases {
         let mut full = vec!["lb".to_string(), "solve".to_string()];

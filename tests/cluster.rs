@@ -40,14 +40,28 @@ fn scene(dir: &Path) -> PathBuf {
 }
 
 fn frame(seed: u32) -> FrameSettings {
-    FrameSettings { width: 96, height: 48, spp: 2, seed, lighting: Some(sylva_scene::LightingMode::Lb), ..Default::default() }
+    FrameSettings {
+        width: 96,
+        height: 48,
+        spp: 2,
+        seed,
+        lighting: Some(sylva_scene::LightingMode::Lb),
+        ..Default::default()
+    }
 }
 
 /// The same frame, rendered in this process without gRPC.
 fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
     let scene = bundle::unpack(&b.bytes, dir).unwrap();
     let ctx = sylva_worker::GpuContext::new().unwrap();
-    let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_accel::AccelKind::Bvh, sylva_scene::LightingMode::Lb, &|_| {}).unwrap();
+    let p = sylva_worker::prepare::prepare(
+        &ctx,
+        &scene,
+        sylva_accel::AccelKind::Bvh,
+        sylva_scene::LightingMode::Lb,
+        &|_| {},
+    )
+    .unwrap();
     let f = sylva_worker::trace::RenderSettings {
         width: 96,
         height: 48,
@@ -58,7 +72,14 @@ fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
         lb_strength: 0.35,
         view: Default::default(),
     };
-    p.renderer.render_strip(&ctx, &f, 0, 96).unwrap().pixels.iter().flatten().map(|v| v.to_bits()).collect()
+    p.renderer
+        .render_strip(&ctx, &f, 0, 96)
+        .unwrap()
+        .pixels
+        .iter()
+        .flatten()
+        .map(|v| v.to_bits())
+        .collect()
 }
 
 fn bits(img: &sylva_scene::film::HdrImage) -> Vec<u32> {
@@ -82,7 +103,10 @@ async fn three_workers_render_the_frame_a_single_process_renders() {
                 seen.lock().unwrap().push((p.from, p.to.len(), p.bytes));
             }
         };
-        let f = farm::render_frame(&farm::Workers::open(&addrs), &b, frame(5), plan, DEADLINE, events).await.unwrap();
+        let f =
+            farm::render_frame(&farm::Workers::open(&addrs), &b, frame(5), plan, DEADLINE, events)
+                .await
+                .unwrap();
         assert_eq!(bits(&f.image), want);
         assert!(f.workers.iter().all(|w| w.strips > 0 && !w.dropped), "{:?}", f.workers);
     }
@@ -92,9 +116,12 @@ async fn three_workers_render_the_frame_a_single_process_renders() {
     assert!(shared.len() == 1 && shared[0].1 == 2 && shared[0].2 > 0, "{shared:?}");
     let mut totals = [0u64; 3];
     for a in &addrs {
-        let mut w = sylva_proto::pb::worker_client::WorkerClient::connect(format!("http://{a}")).await.unwrap();
+        let mut w = sylva_proto::pb::worker_client::WorkerClient::connect(format!("http://{a}"))
+            .await
+            .unwrap();
         let s = w.status(sylva_proto::pb::StatusRequest {}).await.unwrap().into_inner();
-        totals = [totals[0] + s.accel_builds, totals[1] + s.lb_solves, totals[2] + s.prepared_imports];
+        totals =
+            [totals[0] + s.accel_builds, totals[1] + s.lb_solves, totals[2] + s.prepared_imports];
     }
     assert_eq!(totals, [1, 1, 2], "structure builds, LB solves and imports over the farm");
 }
@@ -112,18 +139,19 @@ async fn a_worker_killed_mid_frame_loses_nothing() {
     assert!(plan.len() > 12);
     let killed = Arc::new(Mutex::new(false));
     let (w2, k2) = (workers.clone(), killed.clone());
-    let f = farm::render_frame(&farm::Workers::open(&addrs), &b, frame(9), plan, DEADLINE, move |e| {
-        if let FarmEvent::StripDone { .. } = e {
-            let mut k = k2.lock().unwrap();
-            if !*k {
-                // SIGKILL: the worker dies with whatever strip it holds.
-                let _ = w2.lock().unwrap()[1].child.kill();
-                *k = true;
+    let f =
+        farm::render_frame(&farm::Workers::open(&addrs), &b, frame(9), plan, DEADLINE, move |e| {
+            if let FarmEvent::StripDone { .. } = e {
+                let mut k = k2.lock().unwrap();
+                if !*k {
+                    // SIGKILL: the worker dies with whatever strip it holds.
+                    let _ = w2.lock().unwrap()[1].child.kill();
+                    *k = true;
+                }
             }
-        }
-    })
-    .await
-    .unwrap();
+        })
+        .await
+        .unwrap();
     assert!(*killed.lock().unwrap());
     assert_eq!(bits(&f.image), want, "the frame must be bit-identical to a clean run");
     let v = f.workers.iter().find(|w| w.worker == victim).unwrap();
@@ -136,13 +164,22 @@ async fn a_worker_killed_mid_frame_loses_nothing() {
 async fn three_jobs_at_once_all_complete_correctly() {
     let dir = std::env::temp_dir().join(format!("sylva-cluster-c-{}", std::process::id()));
     let b = bundle::pack(&scene(&dir)).unwrap();
-    let want: Vec<Vec<u32>> = (0..3).map(|s| reference(&b, &dir.join(format!("ref{s}")), 20 + s)).collect();
+    let want: Vec<Vec<u32>> =
+        (0..3).map(|s| reference(&b, &dir.join(format!("ref{s}")), 20 + s)).collect();
     let workers: Vec<Worker> = (0..3).map(|_| start_worker()).collect();
     let addrs: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
     let jobs = (0..3u32).map(|s| {
         let (addrs, b) = (addrs.clone(), b.clone());
         tokio::spawn(async move {
-            farm::render_frame(&farm::Workers::open(&addrs), &b, frame(20 + s), Dynamic::default().plan(96, 3, &[]), DEADLINE, |_| {}).await
+            farm::render_frame(
+                &farm::Workers::open(&addrs),
+                &b,
+                frame(20 + s),
+                Dynamic::default().plan(96, 3, &[]),
+                DEADLINE,
+                |_| {},
+            )
+            .await
         })
     });
     for (job, want) in jobs.collect::<Vec<_>>().into_iter().zip(&want) {
@@ -157,7 +194,16 @@ async fn a_frame_fails_with_a_reason_when_no_worker_can_finish_it() {
     let b = bundle::pack(&scene(&dir)).unwrap();
     // Nobody listens there.
     let gone = vec!["127.0.0.1:9".to_string()];
-    let err = farm::render_frame(&farm::Workers::open(&gone), &b, frame(1), Static.plan(96, 1, &[]), DEADLINE, |_| {}).await.unwrap_err();
+    let err = farm::render_frame(
+        &farm::Workers::open(&gone),
+        &b,
+        frame(1),
+        Static.plan(96, 1, &[]),
+        DEADLINE,
+        |_| {},
+    )
+    .await
+    .unwrap_err();
     assert!(err.to_string().contains("no worker left"), "{err}");
 }
 
@@ -199,5 +245,10 @@ fn the_scaling_benchmark_reports_measured_and_simulated_figures_and_a_chart() {
     }
     assert!(v["figures"]["simulated"].as_str().unwrap().contains("virtual workers"));
     let svg = std::fs::read_to_string(&chart).unwrap();
-    assert!(svg.starts_with("<svg") && svg.contains("ideal") && svg.contains("static") && svg.contains("dynamic"));
+    assert!(
+        svg.starts_with("<svg")
+            && svg.contains("ideal")
+            && svg.contains("static")
+            && svg.contains("dynamic")
+    );
 }

@@ -26,18 +26,30 @@ fn free_port() -> u16 {
 /// since Chromium's DevTools server keeps the connection open).
 async fn get(addr: &str, path: &str, headers: &str) -> (u16, String) {
     let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n{headers}\r\n").as_bytes()).await.unwrap();
+    s.write_all(
+        format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n{headers}\r\n")
+            .as_bytes(),
+    )
+    .await
+    .unwrap();
     let mut out = Vec::new();
     let mut buf = [0u8; 65536];
     loop {
-        let n = tokio::time::timeout(Duration::from_secs(10), s.read(&mut buf)).await.expect("an answer").unwrap();
+        let n = tokio::time::timeout(Duration::from_secs(10), s.read(&mut buf))
+            .await
+            .expect("an answer")
+            .unwrap();
         out.extend_from_slice(&buf[..n]);
         let text = String::from_utf8_lossy(&out).to_string();
         if let Some((head, body)) = text.split_once("\r\n\r\n") {
-            let length =
-                head.lines().find_map(|l| l.to_ascii_lowercase().strip_prefix("content-length:").map(|v| v.trim().parse::<usize>().unwrap_or(0)));
+            let length = head.lines().find_map(|l| {
+                l.to_ascii_lowercase()
+                    .strip_prefix("content-length:")
+                    .map(|v| v.trim().parse::<usize>().unwrap_or(0))
+            });
             if n == 0 || length.is_some_and(|len| body.len() >= len) {
-                let status = head.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
+                let status =
+                    head.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
                 return (status, body.to_string());
             }
         }
@@ -52,7 +64,10 @@ async fn post(addr: &str, path: &str, headers: &str) -> (u16, String) {
     let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
     s.write_all(format!("POST {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: 0\r\n{headers}\r\n").as_bytes()).await.unwrap();
     let mut out = Vec::new();
-    tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out)).await.expect("an answer").unwrap();
+    tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out))
+        .await
+        .expect("an answer")
+        .unwrap();
     let text = String::from_utf8_lossy(&out).to_string();
     (text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0), text)
 }
@@ -60,7 +75,9 @@ async fn post(addr: &str, path: &str, headers: &str) -> (u16, String) {
 /// A headless Chromium and one DevTools connection to its page.
 struct Browser {
     child: Child,
-    ws: tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>,
+    ws: tokio_tungstenite::WebSocketStream<
+        tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
+    >,
     next: u64,
 }
 
@@ -92,16 +109,23 @@ impl Browser {
         let addr = format!("127.0.0.1:{port}");
         let t = Instant::now();
         let page = loop {
-            if let Ok(Ok(s)) = tokio::time::timeout(Duration::from_secs(2), tokio::net::TcpStream::connect(&addr)).await {
+            if let Ok(Ok(s)) =
+                tokio::time::timeout(Duration::from_secs(2), tokio::net::TcpStream::connect(&addr))
+                    .await
+            {
                 drop(s);
                 let (_, body) = get(&addr, "/json/list", "").await;
                 if let Ok(list) = serde_json::from_str::<Value>(&body)
-                    && let Some(p) = list.as_array().and_then(|l| l.iter().find(|t| t["type"] == "page"))
+                    && let Some(p) =
+                        list.as_array().and_then(|l| l.iter().find(|t| t["type"] == "page"))
                 {
                     break p["webSocketDebuggerUrl"].as_str().unwrap().to_string();
                 }
             }
-            assert!(t.elapsed() < Duration::from_secs(60), "chromium did not open its DevTools port");
+            assert!(
+                t.elapsed() < Duration::from_secs(60),
+                "chromium did not open its DevTools port"
+            );
             tokio::time::sleep(Duration::from_millis(200)).await;
         };
         let (ws, _) = tokio_tungstenite::connect_async(page).await.unwrap();
@@ -112,9 +136,18 @@ impl Browser {
     async fn call(&mut self, method: &str, params: Value) -> Value {
         let id = self.next;
         self.next += 1;
-        self.ws.send(Message::Text(json!({ "id": id, "method": method, "params": params }).to_string().into())).await.unwrap();
+        self.ws
+            .send(Message::Text(
+                json!({ "id": id, "method": method, "params": params }).to_string().into(),
+            ))
+            .await
+            .unwrap();
         loop {
-            let msg = tokio::time::timeout(Duration::from_secs(30), self.ws.next()).await.expect("DevTools answers").unwrap().unwrap();
+            let msg = tokio::time::timeout(Duration::from_secs(30), self.ws.next())
+                .await
+                .expect("DevTools answers")
+                .unwrap()
+                .unwrap();
             if let Message::Text(t) = msg {
                 let v: Value = serde_json::from_str(&t).unwrap();
                 if v["id"] == id {
@@ -127,7 +160,12 @@ impl Browser {
 
     /// Evaluates `js` in the page; its value.
     async fn eval(&mut self, js: &str) -> Value {
-        let r = self.call("Runtime.evaluate", json!({ "expression": js, "returnByValue": true, "awaitPromise": true })).await;
+        let r = self
+            .call(
+                "Runtime.evaluate",
+                json!({ "expression": js, "returnByValue": true, "awaitPromise": true }),
+            )
+            .await;
         r["result"]["value"].clone()
     }
 
@@ -152,28 +190,58 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     let scene = small_scene(&dir);
     let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[("SYLVA_TOKEN", TOKEN)]);
     let http = format!("127.0.0.1:{}", free_port());
-    let coord =
-        spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--max-running", "1", "--http", &http], &[("SYLVA_TOKEN", TOKEN)]);
+    let coord = spawn(
+        &[
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--workers",
+            &w.addr,
+            "--max-running",
+            "1",
+            "--http",
+            &http,
+        ],
+        &[("SYLVA_TOKEN", TOKEN)],
+    );
     let mut c = coordinator(&coord.addr, Some(TOKEN)).await;
     common::wait_for_workers(&mut c, 1).await;
 
     // Without the token the API tells nothing; the page itself loads.
     assert_eq!(get(&http, "/api/snapshot", "").await.0, 401);
-    assert_eq!(get(&http, "/api/snapshot", &format!("Authorization: Bearer {TOKEN}\r\n")).await.0, 200);
+    assert_eq!(
+        get(&http, "/api/snapshot", &format!("Authorization: Bearer {TOKEN}\r\n")).await.0,
+        200
+    );
     let (status, page) = get(&http, "/", "").await;
     assert!(status == 200 && page.contains("Sylva farm"), "{status}");
 
     let mut b = Browser::start(&dir.join("chromium")).await;
     b.call("Page.enable", json!({})).await;
     b.call("Page.navigate", json!({ "url": format!("http://{http}/") })).await;
-    b.wait_for("document.readyState === 'complete' && !!document.querySelector('#token')", "itself", Duration::from_secs(30)).await;
+    b.wait_for(
+        "document.readyState === 'complete' && !!document.querySelector('#token')",
+        "itself",
+        Duration::from_secs(30),
+    )
+    .await;
     // The token, entered as a user does.
     b.eval(&format!(
         "(() => {{ const t = document.querySelector('#token'); t.value = '{TOKEN}'; t.dispatchEvent(new Event('change')); return true; }})()"
     ))
     .await;
-    b.wait_for("document.querySelector('#connection').textContent === 'live'", "a live connection", Duration::from_secs(30)).await;
-    b.wait_for(&format!("!!document.querySelector('tr[data-worker=\"{}\"]')", w.addr), "the worker", Duration::from_secs(30)).await;
+    b.wait_for(
+        "document.querySelector('#connection').textContent === 'live'",
+        "a live connection",
+        Duration::from_secs(30),
+    )
+    .await;
+    b.wait_for(
+        &format!("!!document.querySelector('tr[data-worker=\"{}\"]')", w.addr),
+        "the worker",
+        Duration::from_secs(30),
+    )
+    .await;
 
     // A job submitted from the command line: it appears, progresses, finishes.
     let (cli_addr, cli_scene) = (coord.addr.clone(), scene.clone());
@@ -200,7 +268,9 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     });
     let t = Instant::now();
     let first = loop {
-        let ids = b.eval("[...document.querySelectorAll('#jobs tbody tr')].map(r => r.dataset.job)").await;
+        let ids = b
+            .eval("[...document.querySelectorAll('#jobs tbody tr')].map(r => r.dataset.job)")
+            .await;
         if let Some(id) = ids.as_array().and_then(|a| a.first()).and_then(Value::as_str) {
             break id.to_string();
         }
@@ -222,8 +292,12 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     }
     let said = submit.join().unwrap();
     assert!(said.status.success(), "{}", String::from_utf8_lossy(&said.stderr));
-    assert!(seen.iter().any(|s| s == "running" || s == "queued"), "the page showed the job before it ended: {seen:?}");
-    let row = b.eval(&format!("document.querySelector('tr[data-job=\"{first}\"]').innerText")).await;
+    assert!(
+        seen.iter().any(|s| s == "running" || s == "queued"),
+        "the page showed the job before it ended: {seen:?}"
+    );
+    let row =
+        b.eval(&format!("document.querySelector('tr[data-job=\"{first}\"]').innerText")).await;
     let row = row.as_str().unwrap();
     assert!(row.contains("alice@127.0.0.1"), "{row}");
     let (done, total) = (
@@ -254,8 +328,23 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     let bundle = sylva_scene::bundle::pack(&scene).unwrap();
     let mut s = spec(640, 480);
     s.frame.as_mut().unwrap().spp = 512;
-    let long = c.submit_job(tokio_stream::iter(submission(s, &bundle.hash, &bundle.bytes, bundle.bytes.len() as u64))).await.unwrap().into_inner().id;
-    b.wait_for(&format!("{} === 'running'", state_of(&long)), "the long job running", Duration::from_secs(60)).await;
+    let long = c
+        .submit_job(tokio_stream::iter(submission(
+            s,
+            &bundle.hash,
+            &bundle.bytes,
+            bundle.bytes.len() as u64,
+        )))
+        .await
+        .unwrap()
+        .into_inner()
+        .id;
+    b.wait_for(
+        &format!("{} === 'running'", state_of(&long)),
+        "the long job running",
+        Duration::from_secs(60),
+    )
+    .await;
     b.eval(&format!("document.querySelector('tr[data-job=\"{long}\"]').click(), true")).await;
     // Its preview fills in strip by strip.
     b.wait_for(
@@ -266,7 +355,10 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     .await;
     tokio::time::sleep(Duration::from_millis(800)).await;
     // Raised from the page: the + button sends the token in its header.
-    b.eval(&format!("document.querySelector('button[data-priority=\"{long}\"][data-delta=\"1\"]').click(), true")).await;
+    b.eval(&format!(
+        "document.querySelector('button[data-priority=\"{long}\"][data-delta=\"1\"]').click(), true"
+    ))
+    .await;
     b.wait_for(
         &format!("(document.querySelector('tr[data-job=\"{long}\"] .priority') || {{}}).textContent === '1 '"),
         "the raised priority",
@@ -276,20 +368,40 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     let listed = c.list_jobs(sylva_proto::pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     assert_eq!(listed.iter().find(|j| j.id == long).unwrap().priority, 1);
     // A change without the header (the cookie alone, as a form elsewhere would send it) is refused.
-    let (status, _) = post(&http, &format!("/api/jobs/{long}/cancel"), &format!("Cookie: sylva_token={TOKEN}\r\n")).await;
+    let (status, _) = post(
+        &http,
+        &format!("/api/jobs/{long}/cancel"),
+        &format!("Cookie: sylva_token={TOKEN}\r\n"),
+    )
+    .await;
     assert_eq!(status, 401);
-    let shot = b.call("Page.captureScreenshot", json!({ "format": "png", "captureBeyondViewport": true })).await;
-    b.eval(&format!("document.querySelector('button[data-cancel=\"{long}\"]').click(), true")).await;
-    b.wait_for(&format!("{} === 'cancelled'", state_of(&long)), "the long job cancelled", Duration::from_secs(30)).await;
+    let shot = b
+        .call("Page.captureScreenshot", json!({ "format": "png", "captureBeyondViewport": true }))
+        .await;
+    b.eval(&format!("document.querySelector('button[data-cancel=\"{long}\"]').click(), true"))
+        .await;
+    b.wait_for(
+        &format!("{} === 'cancelled'", state_of(&long)),
+        "the long job cancelled",
+        Duration::from_secs(30),
+    )
+    .await;
     let listed = c.list_jobs(sylva_proto::pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     let j = listed.iter().find(|j| j.id == long).unwrap();
     assert_eq!(j.state, "cancelled", "the coordinator cancelled it, not just the page");
-    assert_eq!(b.eval("document.querySelector('#message').textContent").await, "", "no error shown");
+    assert_eq!(
+        b.eval("document.querySelector('#message').textContent").await,
+        "",
+        "no error shown"
+    );
 
-    let png = base64::engine::general_purpose::STANDARD.decode(shot["data"].as_str().unwrap()).unwrap();
+    let png =
+        base64::engine::general_purpose::STANDARD.decode(shot["data"].as_str().unwrap()).unwrap();
     let path = std::env::var_os("SYLVA_DASHBOARD_SCREENSHOT")
         .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../sylva-out/dashboard.png"));
+        .unwrap_or_else(|| {
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../sylva-out/dashboard.png")
+        });
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
     std::fs::write(&path, png).unwrap();
 }

@@ -11,12 +11,17 @@ use std::time::Duration;
 /// Runs `sylva ARGS` as the user `alice`; it must succeed. Its stdout.
 fn ok_as_alice(args: &[&str]) -> String {
     let out = sylva(args, &[("SYLVA_USER", "alice")]);
-    assert!(out.status.success(), "sylva {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "sylva {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     String::from_utf8(out.stdout).unwrap()
 }
 
 fn jobs(addr: &str) -> Vec<Value> {
-    let v: Value = serde_json::from_str(&ok_as_alice(&["jobs", "--coordinator", addr, "--json"])).unwrap();
+    let v: Value =
+        serde_json::from_str(&ok_as_alice(&["jobs", "--coordinator", addr, "--json"])).unwrap();
     v.as_array().unwrap().clone()
 }
 
@@ -30,29 +35,57 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     let scene = small_scene(&dir);
     let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[]);
     // One job at a time, so the others wait in the queue.
-    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--max-running", "1"], &[]);
+    let coord = spawn(
+        &["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--max-running", "1"],
+        &[],
+    );
     let addr = coord.addr.clone();
     let mut c = coordinator(&addr, None).await;
     wait_for_workers(&mut c, 1).await;
 
     // A job submitted and followed by `sylva submit`, as alice.
     let png = dir.join("first.png");
-    let said =
-        ok_as_alice(&["submit", scene.to_str().unwrap(), "--coordinator", &addr, "-o", png.to_str().unwrap(), "--width", "64", "--height", "32"]);
+    let said = ok_as_alice(&[
+        "submit",
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &addr,
+        "-o",
+        png.to_str().unwrap(),
+        "--width",
+        "64",
+        "--height",
+        "32",
+    ]);
     let first = said.split_whitespace().next().unwrap().to_string();
     let listed = jobs(&addr);
     let j = job(&listed, &first);
     assert_eq!(j["state"], "done", "{j}");
     assert_eq!(j["submitter"], "alice@127.0.0.1", "{j}");
-    assert!(j["strips_total"].as_u64().unwrap() > 0 && j["strips_done"] == j["strips_total"], "{j}");
-    let (s, r, f) = (j["submitted_unix_ms"].as_u64().unwrap(), j["started_unix_ms"].as_u64().unwrap(), j["finished_unix_ms"].as_u64().unwrap());
+    assert!(
+        j["strips_total"].as_u64().unwrap() > 0 && j["strips_done"] == j["strips_total"],
+        "{j}"
+    );
+    let (s, r, f) = (
+        j["submitted_unix_ms"].as_u64().unwrap(),
+        j["started_unix_ms"].as_u64().unwrap(),
+        j["finished_unix_ms"].as_u64().unwrap(),
+    );
     assert!(s > 0 && s <= r && r <= f, "{j}");
 
     // The worker did the strips, failed none, and holds the scene.
-    let workers: Value = serde_json::from_str(&ok_as_alice(&["workers", "--coordinator", &addr, "--json"])).unwrap();
+    let workers: Value =
+        serde_json::from_str(&ok_as_alice(&["workers", "--coordinator", &addr, "--json"])).unwrap();
     let wk = &workers[0];
-    assert_eq!((wk["addr"].as_str().unwrap(), wk["alive"].as_bool().unwrap()), (w.addr.as_str(), true), "{workers}");
-    assert!(wk["strips_done"].as_u64().unwrap() >= j["strips_total"].as_u64().unwrap(), "{workers}");
+    assert_eq!(
+        (wk["addr"].as_str().unwrap(), wk["alive"].as_bool().unwrap()),
+        (w.addr.as_str(), true),
+        "{workers}"
+    );
+    assert!(
+        wk["strips_done"].as_u64().unwrap() >= j["strips_total"].as_u64().unwrap(),
+        "{workers}"
+    );
     assert_eq!(wk["strips_failed"], 0);
     // The table for people names the same worker.
     assert!(ok_as_alice(&["workers", "--coordinator", &addr]).contains(&w.addr));
@@ -70,7 +103,11 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     let mut submit = async |width: u32, height: u32, spp: u32| {
         let mut s = spec(width, height);
         s.frame.as_mut().unwrap().spp = spp;
-        c.submit_job(tokio_stream::iter(submission(s, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap().into_inner().id
+        c.submit_job(tokio_stream::iter(submission(s, &b.hash, &b.bytes, b.bytes.len() as u64)))
+            .await
+            .unwrap()
+            .into_inner()
+            .id
     };
     let long = submit(640, 480, 64).await;
     let (q1, q2, q3) = (submit(64, 32, 1).await, submit(64, 32, 1).await, submit(64, 32, 1).await);
@@ -85,9 +122,19 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
         assert_eq!(job(&listed, q)["state"], "queued", "{listed:?}");
     }
     // The last is raised above the others; the first is cancelled while it waits.
-    let raised: Value = serde_json::from_str(&ok_as_alice(&["priority", &q3, "5", "--coordinator", &addr, "--json"])).unwrap();
+    let raised: Value = serde_json::from_str(&ok_as_alice(&[
+        "priority",
+        &q3,
+        "5",
+        "--coordinator",
+        &addr,
+        "--json",
+    ]))
+    .unwrap();
     assert_eq!(raised["priority"], 5);
-    let cancelled: Value = serde_json::from_str(&ok_as_alice(&["cancel", &q1, "--coordinator", &addr, "--json"])).unwrap();
+    let cancelled: Value =
+        serde_json::from_str(&ok_as_alice(&["cancel", &q1, "--coordinator", &addr, "--json"]))
+            .unwrap();
     assert_eq!(cancelled[0]["state"], "cancelled", "{cancelled}");
     // And the long one, while it runs: the slot frees for the queue.
     let out = ok_as_alice(&["cancel", &long, "--coordinator", &addr]);
@@ -100,24 +147,48 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    let started = |id: &str| job(&listed, id)["started_unix_ms"].as_u64().unwrap_or_else(|| panic!("{id} did not start: {listed:?}"));
+    let started = |id: &str| {
+        job(&listed, id)["started_unix_ms"]
+            .as_u64()
+            .unwrap_or_else(|| panic!("{id} did not start: {listed:?}"))
+    };
     assert!(started(&q3) <= started(&q2), "the raised job runs first: {listed:?}");
     assert_eq!(job(&listed, &q1)["state"], "cancelled");
     assert_eq!(job(&listed, &long)["state"], "cancelled");
-    assert!(job(&listed, &q1)["started_unix_ms"].is_null(), "a job cancelled in the queue never started");
+    assert!(
+        job(&listed, &q1)["started_unix_ms"].is_null(),
+        "a job cancelled in the queue never started"
+    );
 
     // Filters and errors a user meets.
-    let done: Vec<Value> = serde_json::from_str::<Value>(&ok_as_alice(&["jobs", "--coordinator", &addr, "--state", "done", "--json"]))
-        .unwrap()
-        .as_array()
-        .unwrap()
-        .clone();
+    let done: Vec<Value> = serde_json::from_str::<Value>(&ok_as_alice(&[
+        "jobs",
+        "--coordinator",
+        &addr,
+        "--state",
+        "done",
+        "--json",
+    ]))
+    .unwrap()
+    .as_array()
+    .unwrap()
+    .clone();
     assert_eq!(done.len(), 3, "{done:?}");
     let table = ok_as_alice(&["jobs", "--coordinator", &addr]);
-    assert!(table.starts_with("ID ") && table.contains(&long) && table.contains("alice@127.0.0.1"), "{table}");
+    assert!(
+        table.starts_with("ID ") && table.contains(&long) && table.contains("alice@127.0.0.1"),
+        "{table}"
+    );
     let out = sylva(&["cancel", "job-nope", "--coordinator", &addr], &[]);
     assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("NotFound"), "{}", String::from_utf8_lossy(&out.stderr));
-    let out = sylva(&["fetch", &q1, "--coordinator", &addr, "-o", dir.join("x.png").to_str().unwrap()], &[]);
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("NotFound"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = sylva(
+        &["fetch", &q1, "--coordinator", &addr, "-o", dir.join("x.png").to_str().unwrap()],
+        &[],
+    );
     assert!(!out.status.success(), "a cancelled job has no image");
 }

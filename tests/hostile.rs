@@ -45,7 +45,14 @@ fn fern() -> std::path::PathBuf {
 }
 
 async fn submit_error(c: &mut Client, b: &SceneBundle) -> tonic::Status {
-    c.submit_job(tokio_stream::iter(submission(spec(16, 8), &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap_err()
+    c.submit_job(tokio_stream::iter(submission(
+        spec(16, 8),
+        &b.hash,
+        &b.bytes,
+        b.bytes.len() as u64,
+    )))
+    .await
+    .unwrap_err()
 }
 
 async fn load_error(addr: &str, b: &SceneBundle, declared: u64) -> tonic::Status {
@@ -84,11 +91,25 @@ async fn scenes_read_no_file_outside_their_bundle() {
     let mut messages = Vec::new();
     let cases: Vec<SceneBundle> = vec![
         raw_bundle(scene_with_model(serde_json::json!({ "gltf": secret })), &[]),
-        raw_bundle(scene_with_model(serde_json::json!({ "gltf": "../../../../../../".to_string() + secret.to_str().unwrap() })), &[]),
+        raw_bundle(
+            scene_with_model(
+                serde_json::json!({ "gltf": "../../../../../../".to_string() + secret.to_str().unwrap() }),
+            ),
+            &[],
+        ),
         raw_bundle(scene_with_model(serde_json::json!({ "gltf": "/etc/shadow" })), &[]),
-        raw_bundle(scene_with_model(serde_json::json!({ "gltf": "m0/x.gltf" })), &[("m0/x.gltf", &gltf("../../../../../../etc/passwd"))]),
-        raw_bundle(scene_with_model(serde_json::json!({ "gltf": "m0/x.gltf" })), &[("m0/x.gltf", &gltf("file:///etc/passwd"))]),
-        raw_bundle(scene_with_model(serde_json::json!({ "gltf": "m0/x.gltf" })), &[("m0/x.gltf", &gltf(&format!("file://{}", secret.display())))]),
+        raw_bundle(
+            scene_with_model(serde_json::json!({ "gltf": "m0/x.gltf" })),
+            &[("m0/x.gltf", &gltf("../../../../../../etc/passwd"))],
+        ),
+        raw_bundle(
+            scene_with_model(serde_json::json!({ "gltf": "m0/x.gltf" })),
+            &[("m0/x.gltf", &gltf("file:///etc/passwd"))],
+        ),
+        raw_bundle(
+            scene_with_model(serde_json::json!({ "gltf": "m0/x.gltf" })),
+            &[("m0/x.gltf", &gltf(&format!("file://{}", secret.display())))],
+        ),
     ];
     for b in &cases {
         let e = submit_error(&mut c, b).await;
@@ -96,24 +117,60 @@ async fn scenes_read_no_file_outside_their_bundle() {
         let w = load_error(&worker.addr, b, b.bytes.len() as u64).await;
         assert_eq!(w.code(), Code::InvalidArgument, "{w:?}");
         for m in [e.message(), w.message()] {
-            assert!(!m.contains("bytes but") && !m.contains("No such file") && !m.contains("expected 1048576"), "{m}");
+            assert!(
+                !m.contains("bytes but")
+                    && !m.contains("No such file")
+                    && !m.contains("expected 1048576"),
+                "{m}"
+            );
             messages.push(m.to_string());
         }
     }
     // A file outside that exists and one that does not get the same answer.
-    let missing = raw_bundle(scene_with_model(serde_json::json!({ "gltf": dir.join("nothing.glb") })), &[]);
+    let missing =
+        raw_bundle(scene_with_model(serde_json::json!({ "gltf": dir.join("nothing.glb") })), &[]);
     let e = submit_error(&mut c, &missing).await;
     assert_eq!(e.message().replace("nothing.glb", "X"), messages[0].replace("secret.glb", "X"));
     // The client-side packer refuses the same paths before sending anything.
     let scene_dir = dir.join("scene");
     std::fs::create_dir_all(&scene_dir).unwrap();
     let outside = scene_dir.join("outside.json");
-    std::fs::write(&outside, serde_json::to_vec(&scene_with_model(serde_json::json!({ "gltf": "../secret.glb" }))).unwrap()).unwrap();
-    let out = sylva(&["submit", outside.to_str().unwrap(), "--coordinator", &coord.addr, "-o", dir.join("o.png").to_str().unwrap()], &[]);
-    assert!(String::from_utf8_lossy(&out.stderr).contains("is not a file inside the scene's folder"), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::write(
+        &outside,
+        serde_json::to_vec(&scene_with_model(serde_json::json!({ "gltf": "../secret.glb" })))
+            .unwrap(),
+    )
+    .unwrap();
+    let out = sylva(
+        &[
+            "submit",
+            outside.to_str().unwrap(),
+            "--coordinator",
+            &coord.addr,
+            "-o",
+            dir.join("o.png").to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("is not a file inside the scene's folder"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     // A local render may, when the user says so.
     let out = sylva(
-        &["render", outside.to_str().unwrap(), "-o", dir.join("o.png").to_str().unwrap(), "--local-workers", "0", "--width", "16", "--height", "8"],
+        &[
+            "render",
+            outside.to_str().unwrap(),
+            "-o",
+            dir.join("o.png").to_str().unwrap(),
+            "--local-workers",
+            "0",
+            "--width",
+            "16",
+            "--height",
+            "8",
+        ],
         &[],
     );
     assert!(!out.status.success());
@@ -144,7 +201,10 @@ async fn scenes_read_no_file_outside_their_bundle() {
 /// neither bypasses its limits nor reserves memory.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_worker_counts_bundle_bytes_as_they_arrive() {
-    let worker = spawn(&["worker", "--listen", "127.0.0.1:0", "--max-bundle-mib", "1", "--cache-mib", "2"], &[]);
+    let worker = spawn(
+        &["worker", "--listen", "127.0.0.1:0", "--max-bundle-mib", "1", "--cache-mib", "2"],
+        &[],
+    );
     for i in 0..3u8 {
         // 3.4 MB of bytes, declared as 0 and as the truth.
         let mut junk = vec![i; 3_400_000];
@@ -157,11 +217,18 @@ async fn a_worker_counts_bundle_bytes_as_they_arrive() {
         assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
     }
     let mut w = sylva_coordinator::farm::connect(&worker.addr, None, None).await.unwrap();
-    assert!(w.status(pb::StatusRequest {}).await.unwrap().into_inner().cached_scenes.is_empty(), "nothing was cached");
+    assert!(
+        w.status(pb::StatusRequest {}).await.unwrap().into_inner().cached_scenes.is_empty(),
+        "nothing was cached"
+    );
     // A real bundle still loads, and its hash may come in capitals.
     let good = bundle::pack(&small_scene(&scratch("count"))).unwrap();
     sylva_coordinator::farm::upload(&mut w, &good).await.unwrap();
-    let upper = pb::SceneChunk { hash: good.hash.to_uppercase(), total_size: good.bytes.len() as u64, data: vec![] };
+    let upper = pb::SceneChunk {
+        hash: good.hash.to_uppercase(),
+        total_size: good.bytes.len() as u64,
+        data: vec![],
+    };
     assert!(w.load_scene(tokio_stream::iter(vec![upper])).await.unwrap().into_inner().was_cached);
 }
 
@@ -183,7 +250,10 @@ impl BadWorker {
 
 #[tonic::async_trait]
 impl pb::worker_server::Worker for BadWorker {
-    async fn load_scene(&self, r: tonic::Request<tonic::Streaming<pb::SceneChunk>>) -> Result<tonic::Response<pb::LoadSceneReply>, tonic::Status> {
+    async fn load_scene(
+        &self,
+        r: tonic::Request<tonic::Streaming<pb::SceneChunk>>,
+    ) -> Result<tonic::Response<pb::LoadSceneReply>, tonic::Status> {
         self.note(&r);
         let mut s = r.into_inner();
         let mut hash = String::new();
@@ -196,7 +266,10 @@ impl pb::worker_server::Worker for BadWorker {
         Ok(tonic::Response::new(pb::LoadSceneReply { hash, was_cached: false }))
     }
 
-    async fn render_strip(&self, r: tonic::Request<pb::RenderStripRequest>) -> Result<tonic::Response<pb::RenderStripReply>, tonic::Status> {
+    async fn render_strip(
+        &self,
+        r: tonic::Request<pb::RenderStripRequest>,
+    ) -> Result<tonic::Response<pb::RenderStripReply>, tonic::Status> {
         self.note(&r);
         let r = r.into_inner();
         let h = r.frame.unwrap().height;
@@ -217,21 +290,32 @@ impl pb::worker_server::Worker for BadWorker {
         }))
     }
 
-    async fn status(&self, r: tonic::Request<pb::StatusRequest>) -> Result<tonic::Response<pb::WorkerStatus>, tonic::Status> {
+    async fn status(
+        &self,
+        r: tonic::Request<pb::StatusRequest>,
+    ) -> Result<tonic::Response<pb::WorkerStatus>, tonic::Status> {
         self.note(&r);
         Ok(tonic::Response::new(pb::WorkerStatus { adapter: "bad".into(), ..Default::default() }))
     }
 
     /// Claims to hold every scene's prepared data...
-    async fn prepare(&self, r: tonic::Request<pb::PrepareRequest>) -> Result<tonic::Response<pb::PrepareReply>, tonic::Status> {
+    async fn prepare(
+        &self,
+        r: tonic::Request<pb::PrepareRequest>,
+    ) -> Result<tonic::Response<pb::PrepareReply>, tonic::Status> {
         self.note(&r);
         Ok(tonic::Response::new(pb::PrepareReply { held: true, prepare_ms: 0.0 }))
     }
 
-    type ExportPreparedStream = std::pin::Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::PreparedChunk, tonic::Status>> + Send>>;
+    type ExportPreparedStream = std::pin::Pin<
+        Box<dyn tokio_stream::Stream<Item = Result<pb::PreparedChunk, tonic::Status>> + Send>,
+    >;
 
     /// ...and exports bytes that match their hash but are no prepared data.
-    async fn export_prepared(&self, r: tonic::Request<pb::PrepareRequest>) -> Result<tonic::Response<Self::ExportPreparedStream>, tonic::Status> {
+    async fn export_prepared(
+        &self,
+        r: tonic::Request<pb::PrepareRequest>,
+    ) -> Result<tonic::Response<Self::ExportPreparedStream>, tonic::Status> {
         self.note(&r);
         let r = r.into_inner();
         let junk = vec![0xA5u8; 4096];
@@ -256,7 +340,10 @@ impl pb::worker_server::Worker for BadWorker {
 
 #[tonic::async_trait]
 impl pb::worker_identity_server::WorkerIdentity for BadWorker {
-    async fn prove(&self, r: tonic::Request<pb::ProveRequest>) -> Result<tonic::Response<pb::ProveReply>, tonic::Status> {
+    async fn prove(
+        &self,
+        r: tonic::Request<pb::ProveRequest>,
+    ) -> Result<tonic::Response<pb::ProveReply>, tonic::Status> {
         // It does not hold the farm's token: it guesses.
         let proof = sylva_proto::auth::prove(Some("guess"), &r.into_inner().nonce).to_vec();
         Ok(tonic::Response::new(pb::ProveReply { proof }))
@@ -285,7 +372,8 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
     let want = reference_png(&scene, &dir.join("ref.png"), 96, 32);
     let bad = BadWorker::default();
     let bad_addr = serve_bad_worker(bad.clone()).await;
-    let good: Vec<Proc> = (0..2).map(|_| spawn(&["worker", "--listen", "127.0.0.1:0"], &[])).collect();
+    let good: Vec<Proc> =
+        (0..2).map(|_| spawn(&["worker", "--listen", "127.0.0.1:0"], &[])).collect();
     let names = [bad_addr.clone(), good[0].addr.clone(), good[1].addr.clone()].join(",");
     let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &names], &[]);
     let mut c = coordinator(&coord.addr, None).await;
@@ -298,12 +386,30 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
     })
     .await;
     assert_eq!(end.state, "done", "{end:?}");
-    let png = c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into(), ..Default::default() }).await.unwrap().into_inner().data;
+    let png = c
+        .fetch_result(pb::FetchRequest {
+            id: end.id.clone(),
+            format: "png".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner()
+        .data;
     assert_eq!(png, want, "the frame is the one a single process renders");
     let stats: serde_json::Value = serde_json::from_str(&end.stats_json).unwrap();
-    let w = stats["workers"].as_array().unwrap().iter().find(|w| w["worker"] == bad_addr.as_str()).unwrap().clone();
+    let w = stats["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|w| w["worker"] == bad_addr.as_str())
+        .unwrap()
+        .clone();
     assert!(w["dropped"].as_bool().unwrap() && w["failures"] == 3 && w["strips"] == 0, "{w}");
-    assert!(!retries.is_empty() && retries.iter().all(|r| r.1 > 0), "retry events keep the progress: {retries:?}");
+    assert!(
+        !retries.is_empty() && retries.iter().all(|r| r.1 > 0),
+        "retry events keep the progress: {retries:?}"
+    );
     // It also claimed to hold the scene's prepared data and exported junk
     // under a matching hash: the good workers refused it, then one of them
     // prepared the scene and the other took its data.
@@ -319,26 +425,47 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn registration_needs_proof_and_expires() {
-    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--token", "s3cret", "--registration-ttl-s", "1", "--metrics", "127.0.0.1:0"], &[]);
+    let coord = spawn(
+        &[
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--token",
+            "s3cret",
+            "--registration-ttl-s",
+            "1",
+            "--metrics",
+            "127.0.0.1:0",
+        ],
+        &[],
+    );
     let mut c = coordinator(&coord.addr, Some("s3cret")).await;
     // Anyone holding a client token can call RegisterWorker, but an address
     // that cannot prove it holds the token is refused and sent nothing.
     let bad = BadWorker::default();
     let bad_addr = serve_bad_worker(bad.clone()).await;
-    let e = c.register_worker(pb::RegisterWorkerRequest { addr: bad_addr.clone() }).await.unwrap_err();
+    let e =
+        c.register_worker(pb::RegisterWorkerRequest { addr: bad_addr.clone() }).await.unwrap_err();
     assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
     assert!(e.message().contains("could not prove"), "{}", e.message());
     tokio::time::sleep(Duration::from_millis(2500)).await;
     assert!(!*bad.saw_token.lock().unwrap(), "the token went to an unproven address");
-    assert!(c.list_workers(pb::ListWorkersRequest {}).await.unwrap().into_inner().workers.is_empty());
+    assert!(
+        c.list_workers(pb::ListWorkersRequest {}).await.unwrap().into_inner().workers.is_empty()
+    );
     // A real worker proves itself and registers; once it dies, it expires.
     let log = scratch("register").join("worker.log");
-    let w = spawn_logging(&["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr, "-v"], &[("SYLVA_TOKEN", "s3cret")], Some(&log));
+    let w = spawn_logging(
+        &["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr, "-v"],
+        &[("SYLVA_TOKEN", "s3cret")],
+        Some(&log),
+    );
     wait_for_workers(&mut c, 1).await;
     drop(w);
     let mut gone = false;
     for _ in 0..100 {
-        if c.list_workers(pb::ListWorkersRequest {}).await.unwrap().into_inner().workers.is_empty() {
+        if c.list_workers(pb::ListWorkersRequest {}).await.unwrap().into_inner().workers.is_empty()
+        {
             gone = true;
             break;
         }
@@ -347,7 +474,11 @@ async fn registration_needs_proof_and_expires() {
     assert!(gone, "a dead registration is forgotten");
     // A worker without the token says why it cannot register.
     let log = scratch("register-no-token").join("worker.log");
-    let _w = spawn_logging(&["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr], &[], Some(&log));
+    let _w = spawn_logging(
+        &["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr],
+        &[],
+        Some(&log),
+    );
     let mut said = String::new();
     for _ in 0..100 {
         said = std::fs::read_to_string(&log).unwrap_or_default();
@@ -373,7 +504,14 @@ async fn job_ids_do_not_repeat_after_a_restart() {
     let mut c = coordinator(&second.addr, None).await;
     let b2 = submit_and_wait(&mut c, spec(16, 8), &b, |_| {}).await;
     assert_ne!(a.id, b2.id);
-    let e = c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: "png".into(), ..Default::default() }).await.unwrap_err();
+    let e = c
+        .fetch_result(pb::FetchRequest {
+            id: a.id.clone(),
+            format: "png".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
     assert_eq!(e.code(), Code::NotFound);
 }
 
@@ -389,38 +527,80 @@ async fn finished_jobs_and_folders_are_freed() {
     let dir = scratch("freed");
     let b = bundle::pack(&small_scene(&dir)).unwrap();
     let cache = dir.join("cache");
-    let w = spawn(&["worker", "--listen", "127.0.0.1:0", "--cache-dir", cache.to_str().unwrap()], &[]);
-    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--keep-results-s", "1", "--results-memory-mib", "0"], &[]);
+    let w =
+        spawn(&["worker", "--listen", "127.0.0.1:0", "--cache-dir", cache.to_str().unwrap()], &[]);
+    let coord = spawn(
+        &[
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--workers",
+            &w.addr,
+            "--keep-results-s",
+            "1",
+            "--results-memory-mib",
+            "0",
+        ],
+        &[],
+    );
     let work = folder_of(coord.child.id(), "sylva-coordinator");
     let mut c = coordinator(&coord.addr, None).await;
     let end = submit_and_wait(&mut c, spec(32, 16), &b, |_| {}).await;
     assert_eq!(end.state, "done");
     // With no memory budget, the result went to disk; it is still served.
-    let png = c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into(), ..Default::default() }).await.unwrap().into_inner().data;
+    let png = c
+        .fetch_result(pb::FetchRequest {
+            id: end.id.clone(),
+            format: "png".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner()
+        .data;
     assert_eq!(&png[1..4], b"PNG");
     assert!(work.join("results").read_dir().unwrap().count() >= 1);
     // A refused scene leaves nothing behind either.
     let broken = raw_bundle(
-        scene_with_model(serde_json::json!({ "tree": { "species": "red_maple", "triangles": 2000 } }))
-            .as_object()
-            .cloned()
-            .map(|mut o| {
-                o.insert("camera".into(), serde_json::json!({ "position": [0, 0, 0], "look_at": [0, 0, 0] }));
-                serde_json::Value::Object(o)
-            })
-            .unwrap(),
+        scene_with_model(
+            serde_json::json!({ "tree": { "species": "red_maple", "triangles": 2000 } }),
+        )
+        .as_object()
+        .cloned()
+        .map(|mut o| {
+            o.insert(
+                "camera".into(),
+                serde_json::json!({ "position": [0, 0, 0], "look_at": [0, 0, 0] }),
+            );
+            serde_json::Value::Object(o)
+        })
+        .unwrap(),
         &[],
     );
     assert_eq!(submit_error(&mut c, &broken).await.code(), Code::InvalidArgument);
     let checks = work.join("check");
-    assert!(!checks.exists() || checks.read_dir().unwrap().count() == 0, "scene checks are cleaned up");
+    assert!(
+        !checks.exists() || checks.read_dir().unwrap().count() == 0,
+        "scene checks are cleaned up"
+    );
     tokio::time::sleep(Duration::from_millis(3500)).await;
     assert_eq!(
-        c.fetch_result(pb::FetchRequest { id: end.id.clone(), format: "png".into(), ..Default::default() }).await.unwrap_err().code(),
+        c.fetch_result(pb::FetchRequest {
+            id: end.id.clone(),
+            format: "png".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err()
+        .code(),
         Code::NotFound
     );
     assert!(c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs.is_empty());
-    assert_eq!(work.join("results").read_dir().unwrap().count(), 0, "spilled results are removed with their job");
+    assert_eq!(
+        work.join("results").read_dir().unwrap().count(),
+        0,
+        "spilled results are removed with their job"
+    );
     assert!(cache.exists());
     w.terminate();
     assert!(!cache.exists(), "the worker removes its cache on SIGTERM");
@@ -432,7 +612,8 @@ async fn finished_jobs_and_folders_are_freed() {
 /// anything is generated, and a broken camera before the trees are grown.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn oversized_scenes_are_refused_before_any_work() {
-    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--max-triangles", "1000000"], &[]);
+    let coord =
+        spawn(&["coordinator", "--listen", "127.0.0.1:0", "--max-triangles", "1000000"], &[]);
     let mut c = coordinator(&coord.addr, None).await;
     let huge = |camera: serde_json::Value| {
         raw_bundle(
@@ -450,10 +631,22 @@ async fn oversized_scenes_are_refused_before_any_work() {
         )
     };
     let t = std::time::Instant::now();
-    let e = submit_error(&mut c, &huge(serde_json::json!({ "position": [0, 1, 0], "look_at": [0, 1, 0] }))).await;
+    let e = submit_error(
+        &mut c,
+        &huge(serde_json::json!({ "position": [0, 1, 0], "look_at": [0, 1, 0] })),
+    )
+    .await;
     assert!(e.code() == Code::InvalidArgument && e.message().contains("camera"), "{e:?}");
-    let e = submit_error(&mut c, &huge(serde_json::json!({ "position": [0, 1, -9], "look_at": [0, 1, 0] }))).await;
-    assert!(e.code() == Code::InvalidArgument && e.message().contains("15000000 triangles: at most 1000000"), "{e:?}");
+    let e = submit_error(
+        &mut c,
+        &huge(serde_json::json!({ "position": [0, 1, -9], "look_at": [0, 1, 0] })),
+    )
+    .await;
+    assert!(
+        e.code() == Code::InvalidArgument
+            && e.message().contains("15000000 triangles: at most 1000000"),
+        "{e:?}"
+    );
     let many = raw_bundle(
         serde_json::json!({
             "models": { "a": { "tree": { "species": "red_maple", "triangles": 2000 }, "lb": { "grid": 512 } } },
@@ -479,21 +672,58 @@ async fn bad_specs_and_strings_are_refused_at_submit() {
     let mut c = coordinator(&coord.addr, None).await;
     let mut unknown = spec(16, 8);
     unknown.frame.as_mut().unwrap().lighting = 42;
-    let e = c.submit_job(tokio_stream::iter(submission(unknown, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap_err();
+    let e = c
+        .submit_job(tokio_stream::iter(submission(
+            unknown,
+            &b.hash,
+            &b.bytes,
+            b.bytes.len() as u64,
+        )))
+        .await
+        .unwrap_err();
     assert!(e.code() == Code::InvalidArgument && e.message().contains("lighting 42"), "{e:?}");
     let mut unknown = spec(16, 8);
     unknown.frame.as_mut().unwrap().accel = 3;
-    let e = c.submit_job(tokio_stream::iter(submission(unknown, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap_err();
+    let e = c
+        .submit_job(tokio_stream::iter(submission(
+            unknown,
+            &b.hash,
+            &b.bytes,
+            b.bytes.len() as u64,
+        )))
+        .await
+        .unwrap_err();
     assert!(e.message().contains("accel 3"), "{e:?}");
     let mut unknown = spec(16, 8);
     unknown.schedule = 9;
-    let e = c.submit_job(tokio_stream::iter(submission(unknown, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap_err();
+    let e = c
+        .submit_job(tokio_stream::iter(submission(
+            unknown,
+            &b.hash,
+            &b.bytes,
+            b.bytes.len() as u64,
+        )))
+        .await
+        .unwrap_err();
     assert!(e.message().contains("schedule 9"), "{e:?}");
     let mut named = spec(16, 8);
     named.name = "n".repeat(4 << 20);
-    let e = c.submit_job(tokio_stream::iter(submission(named, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap_err();
-    assert!(e.code() == Code::InvalidArgument && e.message().contains("job name of 4194304 bytes"), "{e:?}");
-    let e = c.fetch_result(pb::FetchRequest { id: "x".repeat(1 << 20), format: "png".into(), ..Default::default() }).await.unwrap_err();
+    let e = c
+        .submit_job(tokio_stream::iter(submission(named, &b.hash, &b.bytes, b.bytes.len() as u64)))
+        .await
+        .unwrap_err();
+    assert!(
+        e.code() == Code::InvalidArgument && e.message().contains("job name of 4194304 bytes"),
+        "{e:?}"
+    );
+    let e = c
+        .fetch_result(pb::FetchRequest {
+            id: "x".repeat(1 << 20),
+            format: "png".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err();
     assert_eq!(e.code(), Code::NotFound);
     assert!(e.message().len() < 200);
     assert!(c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs.is_empty());
@@ -509,7 +739,11 @@ async fn a_failed_job_names_its_cause() {
     let mut c = coordinator(&coord.addr, None).await;
     let end = submit_and_wait(&mut c, spec(16, 8), &b, |_| {}).await;
     assert_eq!(end.state, "failed");
-    assert!(end.message.contains(&bad_addr) && end.message.contains("replied with"), "{}", end.message);
+    assert!(
+        end.message.contains(&bad_addr) && end.message.contains("replied with"),
+        "{}",
+        end.message
+    );
     let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     assert!(jobs[0].error.contains("replied with"), "{:?}", jobs[0]);
 }
@@ -517,7 +751,9 @@ async fn a_failed_job_names_its_cause() {
 async fn http_get(addr: &str, path: &str) -> String {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes()).await.unwrap();
+    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
     let mut out = String::new();
     s.read_to_string(&mut out).await.unwrap();
     out
@@ -528,7 +764,11 @@ async fn http_get(addr: &str, path: &str) -> String {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn metrics_and_reflection_answer_as_standard_clients_expect() {
     let log = scratch("metrics").join("coordinator.log");
-    let coord = spawn_logging(&["coordinator", "--listen", "127.0.0.1:0", "--metrics", "127.0.0.1:0"], &[], Some(&log));
+    let coord = spawn_logging(
+        &["coordinator", "--listen", "127.0.0.1:0", "--metrics", "127.0.0.1:0"],
+        &[],
+        Some(&log),
+    );
     let mut metrics = String::new();
     for _ in 0..50 {
         let said = std::fs::read_to_string(&log).unwrap_or_default();
@@ -545,16 +785,27 @@ async fn metrics_and_reflection_answer_as_standard_clients_expect() {
         (&coord.addr, vec!["grpc.health.v1.Health", "sylva.v1.Coordinator"]),
         (&worker.addr, vec!["grpc.health.v1.Health", "sylva.v1.Worker", "sylva.v1.WorkerIdentity"]),
     ] {
-        let ch = tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap().connect().await.unwrap();
+        let ch = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+            .unwrap()
+            .connect()
+            .await
+            .unwrap();
         use tonic_reflection::pb::v1alpha as alpha;
         let mut c = alpha::server_reflection_client::ServerReflectionClient::new(ch.clone());
         let req = alpha::ServerReflectionRequest {
             host: String::new(),
-            message_request: Some(alpha::server_reflection_request::MessageRequest::ListServices(String::new())),
+            message_request: Some(alpha::server_reflection_request::MessageRequest::ListServices(
+                String::new(),
+            )),
         };
-        let mut replies = c.server_reflection_info(tokio_stream::iter(vec![req])).await.unwrap().into_inner();
+        let mut replies =
+            c.server_reflection_info(tokio_stream::iter(vec![req])).await.unwrap().into_inner();
         let reply = tokio_stream::StreamExt::next(&mut replies).await.unwrap().unwrap();
-        let Some(alpha::server_reflection_response::MessageResponse::ListServicesResponse(l)) = reply.message_response else { panic!("{reply:?}") };
+        let Some(alpha::server_reflection_response::MessageResponse::ListServicesResponse(l)) =
+            reply.message_response
+        else {
+            panic!("{reply:?}")
+        };
         let mut names: Vec<String> = l.service.into_iter().map(|s| s.name).collect();
         names.sort();
         assert_eq!(names, want, "v1alpha on {addr}");
@@ -562,9 +813,12 @@ async fn metrics_and_reflection_answer_as_standard_clients_expect() {
         let mut c = v1::server_reflection_client::ServerReflectionClient::new(ch);
         let req = v1::ServerReflectionRequest {
             host: String::new(),
-            message_request: Some(v1::server_reflection_request::MessageRequest::ListServices(String::new())),
+            message_request: Some(v1::server_reflection_request::MessageRequest::ListServices(
+                String::new(),
+            )),
         };
-        let mut replies = c.server_reflection_info(tokio_stream::iter(vec![req])).await.unwrap().into_inner();
+        let mut replies =
+            c.server_reflection_info(tokio_stream::iter(vec![req])).await.unwrap().into_inner();
         assert!(tokio_stream::StreamExt::next(&mut replies).await.unwrap().is_ok(), "v1 on {addr}");
     }
 }

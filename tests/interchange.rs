@@ -34,9 +34,16 @@ fn grove(dir: &Path) -> PathBuf {
 
 fn validate(glb: &Path) -> Value {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/gltf-validate.cjs");
-    let out = Command::new("node").arg(&script).arg(glb).output().expect("node runs (scripts/install-deps.sh installs it)");
+    let out = Command::new("node")
+        .arg(&script)
+        .arg(glb)
+        .output()
+        .expect("node runs (scripts/install-deps.sh installs it)");
     let report: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|_| {
-        panic!("no validator report (scripts/install-deps.sh installs gltf-validator): {}", String::from_utf8_lossy(&out.stderr))
+        panic!(
+            "no validator report (scripts/install-deps.sh installs gltf-validator): {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
     });
     assert!(out.status.success(), "the validator found errors: {report:#}");
     report
@@ -47,11 +54,23 @@ fn an_exported_gltf_passes_the_validator_and_comes_back_the_same() {
     let dir = scratch("gltf-export");
     let scene_path = grove(&dir);
     let glb = dir.join("grove.glb");
-    let said: Value =
-        serde_json::from_str(&ok(&["scene", "export", scene_path.to_str().unwrap(), "--format", "gltf", "-o", glb.to_str().unwrap(), "--json"]))
-            .unwrap();
+    let said: Value = serde_json::from_str(&ok(&[
+        "scene",
+        "export",
+        scene_path.to_str().unwrap(),
+        "--format",
+        "gltf",
+        "-o",
+        glb.to_str().unwrap(),
+        "--json",
+    ]))
+    .unwrap();
     let s = &said["summary"];
-    assert_eq!((s["meshes"].as_u64(), s["instances"].as_u64(), s["matrix_nodes"].as_u64()), (Some(3), Some(3), Some(0)), "{said:#}");
+    assert_eq!(
+        (s["meshes"].as_u64(), s["instances"].as_u64(), s["matrix_nodes"].as_u64()),
+        (Some(3), Some(3), Some(0)),
+        "{said:#}"
+    );
 
     let report = validate(&glb);
     let issues = &report["issues"];
@@ -59,7 +78,10 @@ fn an_exported_gltf_passes_the_validator_and_comes_back_the_same() {
     let info = &report["info"];
     assert_eq!(info["animationCount"].as_u64().unwrap_or(0), 0);
     assert_eq!(info["materialCount"], 5, "two materials per tree, and the ground: {info:#}");
-    assert!(info["extensionsUsed"].as_array().unwrap().iter().any(|e| e == "EXT_mesh_gpu_instancing"), "{info:#}");
+    assert!(
+        info["extensionsUsed"].as_array().unwrap().iter().any(|e| e == "EXT_mesh_gpu_instancing"),
+        "{info:#}"
+    );
 
     // Back through `sylva scene import` and the loader.
     let back_path = dir.join("back.json");
@@ -67,20 +89,34 @@ fn an_exported_gltf_passes_the_validator_and_comes_back_the_same() {
     let (a, b) = (Scene::load(&scene_path).unwrap(), Scene::load(&back_path).unwrap());
     assert_eq!(a.models.len(), b.models.len());
     for ma in &a.models {
-        let mb = b.models.iter().find(|m| m.name == ma.name).unwrap_or_else(|| panic!("{} not imported", ma.name));
+        let mb = b
+            .models
+            .iter()
+            .find(|m| m.name == ma.name)
+            .unwrap_or_else(|| panic!("{} not imported", ma.name));
         let (x, y) = (&ma.model, &mb.model);
         assert_eq!(x.triangle_count(), y.triangle_count(), "{}", ma.name);
         // The same triangles, material by material (glTF groups them per material).
         let key = |m: &sylva_scene::model::Model| {
             let mut t: Vec<(String, [[u32; 3]; 3])> = (0..m.triangle_count())
-                .map(|i| (m.materials[m.material[i] as usize].name.clone(), m.triangle(i).map(|p| p.to_array().map(f32::to_bits))))
+                .map(|i| {
+                    (
+                        m.materials[m.material[i] as usize].name.clone(),
+                        m.triangle(i).map(|p| p.to_array().map(f32::to_bits)),
+                    )
+                })
                 .collect();
             t.sort();
             t
         };
         assert!(key(x) == key(y), "{}: the triangles differ", ma.name);
         for (i, t) in x.triangles.iter().enumerate() {
-            assert_eq!(x.uvs[t[0] as usize], y.uvs[y.triangles[find(y, x.triangle(i))][0] as usize], "{}: uv", ma.name);
+            assert_eq!(
+                x.uvs[t[0] as usize],
+                y.uvs[y.triangles[find(y, x.triangle(i))][0] as usize],
+                "{}: uv",
+                ma.name
+            );
             if i > 50 {
                 break;
             }
@@ -90,9 +126,21 @@ fn an_exported_gltf_passes_the_validator_and_comes_back_the_same() {
         assert_eq!(x.materials.len(), y.materials.len(), "{}", ma.name);
         assert_eq!(x.textures.len(), y.textures.len(), "{}", ma.name);
         for mx in &x.materials {
-            let my = y.materials.iter().find(|m| m.name == mx.name).unwrap_or_else(|| panic!("material {} lost", mx.name));
-            assert_eq!((mx.surface, mx.base_color, mx.alpha_cutoff, mx.double_sided), (my.surface, my.base_color, my.alpha_cutoff, my.double_sided));
-            assert_eq!(mx.texture.map(|t| &x.textures[t as usize]), my.texture.map(|t| &y.textures[t as usize]), "{}: texture", mx.name);
+            let my = y
+                .materials
+                .iter()
+                .find(|m| m.name == mx.name)
+                .unwrap_or_else(|| panic!("material {} lost", mx.name));
+            assert_eq!(
+                (mx.surface, mx.base_color, mx.alpha_cutoff, mx.double_sided),
+                (my.surface, my.base_color, my.alpha_cutoff, my.double_sided)
+            );
+            assert_eq!(
+                mx.texture.map(|t| &x.textures[t as usize]),
+                my.texture.map(|t| &y.textures[t as usize]),
+                "{}: texture",
+                mx.name
+            );
         }
     }
     // Instances: the same placements of the same models.
@@ -101,7 +149,14 @@ fn an_exported_gltf_passes_the_validator_and_comes_back_the_same() {
             .instances
             .iter()
             .map(|i| {
-                (s.models[i.model as usize].name.clone(), Mat4::from(i.to_world).to_cols_array().iter().map(|v| (v * 1e4).round() as i64).collect())
+                (
+                    s.models[i.model as usize].name.clone(),
+                    Mat4::from(i.to_world)
+                        .to_cols_array()
+                        .iter()
+                        .map(|v| (v * 1e4).round() as i64)
+                        .collect(),
+                )
             })
             .collect();
         v.sort();
@@ -109,11 +164,20 @@ fn an_exported_gltf_passes_the_validator_and_comes_back_the_same() {
     };
     assert_eq!(placements(&a), placements(&b));
     // The view, the sun, the sky and the ground.
-    assert!((a.camera.position - b.camera.position).length() < 1e-4 && (a.camera.forward - b.camera.forward).length() < 1e-4);
+    assert!(
+        (a.camera.position - b.camera.position).length() < 1e-4
+            && (a.camera.forward - b.camera.forward).length() < 1e-4
+    );
     assert!((a.camera.tan_half_fov_y - b.camera.tan_half_fov_y).abs() < 1e-5);
     assert!((a.sun.towards - b.sun.towards).length() < 1e-5, "{:?} {:?}", a.sun, b.sun);
-    assert_eq!(a.sun.radiance.map(|v| (v * 1e4).round()), b.sun.radiance.map(|v| (v * 1e4).round()));
-    assert_eq!((a.sky.zenith, a.sky.horizon, a.ground.clone()), (b.sky.zenith, b.sky.horizon, b.ground.clone()));
+    assert_eq!(
+        a.sun.radiance.map(|v| (v * 1e4).round()),
+        b.sun.radiance.map(|v| (v * 1e4).round())
+    );
+    assert_eq!(
+        (a.sky.zenith, a.sky.horizon, a.ground.clone()),
+        (b.sky.zenith, b.sky.horizon, b.ground.clone())
+    );
 }
 
 /// The index in `m` of the triangle with corners `t`.
@@ -126,19 +190,34 @@ fn a_gltf_with_an_unsupported_instancing_accessor_is_refused_with_a_reason() {
     let dir = scratch("gltf-bad");
     let scene_path = grove(&dir);
     let glb = dir.join("grove.glb");
-    ok(&["scene", "export", scene_path.to_str().unwrap(), "--format", "gltf", "-o", glb.to_str().unwrap()]);
+    ok(&[
+        "scene",
+        "export",
+        scene_path.to_str().unwrap(),
+        "--format",
+        "gltf",
+        "-o",
+        glb.to_str().unwrap(),
+    ]);
     // Point the first node's TRANSLATION at the positions' accessor of a
     // different count: the counts disagree.
     let mut bytes = std::fs::read(&glb).unwrap();
     let len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
     let mut doc: Value = serde_json::from_slice(&bytes[20..20 + len]).unwrap();
-    doc["nodes"][0]["extensions"]["EXT_mesh_gpu_instancing"]["attributes"]["TRANSLATION"] = 0.into();
+    doc["nodes"][0]["extensions"]["EXT_mesh_gpu_instancing"]["attributes"]["TRANSLATION"] =
+        0.into();
     let mut text = serde_json::to_vec(&doc).unwrap();
     text.resize(len, b' ');
     assert!(text.len() == len, "the edited JSON must fit its chunk");
     bytes[20..20 + len].copy_from_slice(&text);
     std::fs::write(&glb, &bytes).unwrap();
-    let err = common::fails(&["scene", "import", glb.to_str().unwrap(), "-o", dir.join("x.json").to_str().unwrap()]);
+    let err = common::fails(&[
+        "scene",
+        "import",
+        glb.to_str().unwrap(),
+        "-o",
+        dir.join("x.json").to_str().unwrap(),
+    ]);
     assert!(err.contains("EXT_mesh_gpu_instancing") && err.contains("counts differ"), "{err}");
 }
 
@@ -147,25 +226,49 @@ fn a_pbrt_export_instances_each_model_and_writes_its_meshes() {
     let dir = scratch("pbrt-export");
     let scene_path = grove(&dir);
     let out = dir.join("grove.pbrt");
-    let said: Value =
-        serde_json::from_str(&ok(&["scene", "export", scene_path.to_str().unwrap(), "--format", "pbrt", "-o", out.to_str().unwrap(), "--json"]))
-            .unwrap();
+    let said: Value = serde_json::from_str(&ok(&[
+        "scene",
+        "export",
+        scene_path.to_str().unwrap(),
+        "--format",
+        "pbrt",
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ]))
+    .unwrap();
     let text = std::fs::read_to_string(&out).unwrap();
     assert_eq!(text.matches("ObjectBegin").count(), 2);
     assert_eq!(text.matches("ObjectInstance").count(), 3);
     assert_eq!(text.matches("AttributeBegin").count(), text.matches("AttributeEnd").count());
     assert_eq!(text.matches("ObjectBegin").count(), text.matches("ObjectEnd").count());
-    assert!(text.contains("Material \"diffusetransmission\" \"texture reflectance\""), "leaves transmit");
+    assert!(
+        text.contains("Material \"diffusetransmission\" \"texture reflectance\""),
+        "leaves transmit"
+    );
     assert!(text.contains("\"texture alpha\""), "leaves are cut by their masks");
     assert!(text.contains("LightSource \"distant\"") && text.contains("LightSource \"infinite\""));
     // Every PLY it names exists, and they hold each model's triangles once.
     let scene = Scene::load(&scene_path).unwrap();
     let want: u64 = scene.models.iter().map(|m| m.model.triangle_count() as u64).sum();
     let mut faces = 0u64;
-    for name in text.split("\"string filename\" [ \"").skip(1).map(|r| &r[..r.find('"').unwrap()]).filter(|f| f.ends_with(".ply")) {
+    for name in text
+        .split("\"string filename\" [ \"")
+        .skip(1)
+        .map(|r| &r[..r.find('"').unwrap()])
+        .filter(|f| f.ends_with(".ply"))
+    {
         let bytes = std::fs::read(dir.join(name)).unwrap_or_else(|_| panic!("{name} missing"));
-        let header = String::from_utf8_lossy(&bytes[..bytes.windows(10).position(|w| w == b"end_header").unwrap()]).to_string();
-        faces += header.lines().find_map(|l| l.strip_prefix("element face ")).unwrap().parse::<u64>().unwrap();
+        let header = String::from_utf8_lossy(
+            &bytes[..bytes.windows(10).position(|w| w == b"end_header").unwrap()],
+        )
+        .to_string();
+        faces += header
+            .lines()
+            .find_map(|l| l.strip_prefix("element face "))
+            .unwrap()
+            .parse::<u64>()
+            .unwrap();
     }
     assert_eq!(faces, want);
     assert_eq!(said["summary"]["triangles"].as_u64(), Some(want));

@@ -11,14 +11,26 @@ use std::path::{Path, PathBuf};
 fn png_size(path: &Path) -> (u32, u32) {
     let b = std::fs::read(path).unwrap();
     assert_eq!(&b[1..4], b"PNG");
-    (u32::from_be_bytes(b[16..20].try_into().unwrap()), u32::from_be_bytes(b[20..24].try_into().unwrap()))
+    (
+        u32::from_be_bytes(b[16..20].try_into().unwrap()),
+        u32::from_be_bytes(b[20..24].try_into().unwrap()),
+    )
 }
 
 fn small_forest(dir: &Path) -> PathBuf {
     let scene = dir.join("forest.json");
-    let v: Value =
-        serde_json::from_str(&ok(&["scene", "forest", "--scale", "0.01", "--triangle-scale", "0.01", "-o", scene.to_str().unwrap(), "--json"]))
-            .unwrap();
+    let v: Value = serde_json::from_str(&ok(&[
+        "scene",
+        "forest",
+        "--scale",
+        "0.01",
+        "--triangle-scale",
+        "0.01",
+        "-o",
+        scene.to_str().unwrap(),
+        "--json",
+    ]))
+    .unwrap();
     assert_eq!(v["instances"], 11);
     scene
 }
@@ -27,14 +39,29 @@ fn small_forest(dir: &Path) -> PathBuf {
 fn the_forest_scene_has_the_papers_counts_at_scale_one() {
     let dir = scratch("table2");
     let scene = dir.join("forest.json");
-    let v: Value = serde_json::from_str(&ok(&["scene", "forest", "--scale", "1", "-o", scene.to_str().unwrap(), "--json"])).unwrap();
+    let v: Value = serde_json::from_str(&ok(&[
+        "scene",
+        "forest",
+        "--scale",
+        "1",
+        "-o",
+        scene.to_str().unwrap(),
+        "--json",
+    ]))
+    .unwrap();
     assert_eq!(v["instances"], 962);
     assert_eq!(v["triangles_instanced"], 273_376_528u64);
     let species: Vec<(String, u64, u64)> = v["species"]
         .as_array()
         .unwrap()
         .iter()
-        .map(|s| (s["species"].as_str().unwrap().to_string(), s["instances"].as_u64().unwrap(), s["triangles_per_instance"].as_u64().unwrap()))
+        .map(|s| {
+            (
+                s["species"].as_str().unwrap().to_string(),
+                s["instances"].as_u64().unwrap(),
+                s["triangles_per_instance"].as_u64().unwrap(),
+            )
+        })
         .collect();
     assert_eq!(species[0], ("red_maple".into(), 12, 115_529));
     assert_eq!(species[4], ("american_beech".into(), 168, 496_719));
@@ -64,15 +91,27 @@ fn render_writes_image_and_stats() {
     .unwrap();
     assert_eq!(png_size(&out), (96, 48));
     assert!(dir.join("frame.exr").exists());
-    let on_disk: Value = serde_json::from_slice(&std::fs::read(dir.join("frame.stats.json")).unwrap()).unwrap();
+    let on_disk: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("frame.stats.json")).unwrap()).unwrap();
     assert_eq!(on_disk, stats);
     assert_eq!(stats["rays"]["primary"], 96 * 48 * 2);
     assert!(stats["rays"]["shadow"].as_u64().unwrap() > 0);
     assert!(stats["rays"]["mrays_per_second"].as_f64().unwrap() > 0.0);
     assert_eq!(stats["instances"], 11);
-    assert!(stats["triangles"]["instanced"].as_u64().unwrap() > stats["triangles"]["unique"].as_u64().unwrap());
-    let phases: Vec<&str> = stats["phases_ms"].as_array().unwrap().iter().map(|p| p["phase"].as_str().unwrap()).collect();
-    assert_eq!(phases, ["load", "build", "voxelize", "lb", "forest lb", "upload", "trace", "tone map"]);
+    assert!(
+        stats["triangles"]["instanced"].as_u64().unwrap()
+            > stats["triangles"]["unique"].as_u64().unwrap()
+    );
+    let phases: Vec<&str> = stats["phases_ms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["phase"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        phases,
+        ["load", "build", "voxelize", "lb", "forest lb", "upload", "trace", "tone map"]
+    );
     assert_eq!(stats["lb"].as_array().unwrap().len(), 5);
     assert!(stats["gpu_memory_bytes"]["scene"].as_u64().unwrap() > 0);
     let fg = &stats["forest_grid"];
@@ -112,7 +151,9 @@ fn every_lighting_method_and_structure_renders() {
     let dir = scratch("methods");
     let scene = small_forest(&dir);
     let mut means = Vec::new();
-    for (lighting, accel) in [("local", "kd"), ("ambient", "bvh"), ("lb", "kd"), ("lb-visualize", "bvh")] {
+    for (lighting, accel) in
+        [("local", "kd"), ("ambient", "bvh"), ("lb", "kd"), ("lb-visualize", "bvh")]
+    {
         let out = dir.join(format!("{lighting}.png"));
         let stats: Value = serde_json::from_str(&ok(&[
             "render",
@@ -138,7 +179,11 @@ fn every_lighting_method_and_structure_renders() {
             assert!(stats["lb"].as_array().unwrap().is_empty(), "local lighting needs no LB solve");
         }
         if lighting == "ambient" {
-            assert!(stats["ambient"].as_array().unwrap().iter().all(|c| c.as_f64().unwrap() > 0.0), "{}", stats["ambient"]);
+            assert!(
+                stats["ambient"].as_array().unwrap().iter().all(|c| c.as_f64().unwrap() > 0.0),
+                "{}",
+                stats["ambient"]
+            );
         }
         means.push(stats["tone_map"]["log_average"].as_f64().unwrap());
     }
@@ -153,7 +198,10 @@ fn bad_render_requests_get_clear_errors() {
     let s = scene.to_str().unwrap();
     assert!(fails(&["render", s, "--spp", "5000"]).contains("spp 5000: valid range [1, 4096]"));
     assert!(fails(&["render", s, "--width", "20000"]).contains("each side must be in [1, 16384]"));
-    assert!(fails(&["render", "/nonexistent/scene.json"]).contains("/nonexistent/scene.json: (file): cannot read"));
+    assert!(
+        fails(&["render", "/nonexistent/scene.json"])
+            .contains("/nonexistent/scene.json: (file): cannot read")
+    );
     let text = std::fs::read_to_string(&scene).unwrap();
     let broken = dir.join("broken.json");
     std::fs::write(&broken, text.replacen("\"camera\"", "\"kamera\"", 1)).unwrap();
@@ -162,7 +210,11 @@ fn bad_render_requests_get_clear_errors() {
     std::fs::write(&broken, text.replacen("\"scale\":", "\"scale\": -1, \"x\":", 1)).unwrap();
     assert!(fails(&["render", broken.to_str().unwrap()]).contains("broken.json"));
     let missing = dir.join("missing.json");
-    std::fs::write(&missing, text.replacen("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {", 1)).unwrap();
+    std::fs::write(
+        &missing,
+        text.replacen("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {", 1),
+    )
+    .unwrap();
     assert!(fails(&["render", missing.to_str().unwrap()]).contains("give exactly one of"));
     // Refused before the reference is traced, not after every method.
     let err = fails(&["compare", s, "--grids", "32", "--out", dir.join("cmp").to_str().unwrap()]);
@@ -175,11 +227,24 @@ fn the_fern_example_renders() {
     let dir = scratch("fern");
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/ferns.json");
     let out = dir.join("ferns.png");
-    let stats: Value =
-        serde_json::from_str(&ok(&["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--width", "64", "--height", "48", "--json"]))
-            .unwrap();
+    let stats: Value = serde_json::from_str(&ok(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--json",
+    ]))
+    .unwrap();
     assert_eq!(stats["triangles"]["unique"], 6232);
-    assert!(stats["coverage"].as_f64().unwrap() > 0.1, "the ferns fill {} of the frame", stats["coverage"]);
+    assert!(
+        stats["coverage"].as_f64().unwrap() > 0.1,
+        "the ferns fill {} of the frame",
+        stats["coverage"]
+    );
 }
 
 #[test]
@@ -226,7 +291,17 @@ fn compare_lists_every_method_with_its_time_and_error() {
     let names: Vec<&str> = methods.iter().map(|m| m["name"].as_str().unwrap()).collect();
     assert_eq!(
         names,
-        ["local", "ambient", "lb 8³", "lb 12³", "lb 12³ + forest grid", "lb paper 12³ + forest grid", "boulanger", "lb auto", "reference"]
+        [
+            "local",
+            "ambient",
+            "lb 8³",
+            "lb 12³",
+            "lb 12³ + forest grid",
+            "lb paper 12³ + forest grid",
+            "boulanger",
+            "lb auto",
+            "reference"
+        ]
     );
     for m in methods {
         let f = |k: &str| m[k].as_f64().unwrap_or_else(|| panic!("{k} of {m}"));
@@ -235,18 +310,29 @@ fn compare_lists_every_method_with_its_time_and_error() {
             assert!(f(k).is_finite() && f(k) >= 0.0, "{k} of {m}");
         }
         if m["name"] != "reference" {
-            assert!(f("mean_relative_error") > 0.0, "a method that is not the reference differs from it: {m}");
+            assert!(
+                f("mean_relative_error") > 0.0,
+                "a method that is not the reference differs from it: {m}"
+            );
         }
         assert!(Path::new(m["image"].as_str().unwrap()).exists(), "{m}");
     }
     assert!(v["reference"]["converged"].as_bool().unwrap(), "{}", v["reference"]);
     // The grid choice says what it chose and why.
     let choice = &methods[7]["notes"]["grid_choice"][0];
-    assert!([8, 12].contains(&choice["grid"].as_u64().unwrap()) && !choice["reason"].as_str().unwrap().is_empty(), "{choice}");
+    assert!(
+        [8, 12].contains(&choice["grid"].as_u64().unwrap())
+            && !choice["reason"].as_str().unwrap().is_empty(),
+        "{choice}"
+    );
     assert!(methods[6]["notes"]["boulanger"][0]["tau"].as_f64().unwrap() > 0.0);
     // The paper model is there, and its non-physical strength is named.
     assert_eq!(methods[5]["notes"]["lb_model"], "paper");
-    assert!(methods[5]["notes"]["non_physical"]["lb_strength"].as_f64().is_some(), "{}", methods[5]["notes"]);
+    assert!(
+        methods[5]["notes"]["non_physical"]["lb_strength"].as_f64().is_some(),
+        "{}",
+        methods[5]["notes"]
+    );
     assert_eq!(methods[3]["notes"]["lb_model"], "grounded");
     assert!(methods[3]["notes"]["non_physical"].is_null());
     assert!(v["summary"].as_str().unwrap().starts_with("most accurate: "));
@@ -261,14 +347,26 @@ fn compare_lists_every_method_with_its_time_and_error() {
     assert_eq!(methods[0]["indirect_noise_method"].as_f64(), Some(0.0));
     assert!(methods[3]["indirect_noise_method"].as_f64().unwrap() > 0.0, "{}", methods[3]);
     assert!(methods[3]["indirect_noise_reference"].as_f64().unwrap() > 0.0, "{}", methods[3]);
-    assert!(methods[3]["indirect_error_net"].as_f64().unwrap() <= methods[3]["indirect_relative_error"].as_f64().unwrap() * 1.2);
+    assert!(
+        methods[3]["indirect_error_net"].as_f64().unwrap()
+            <= methods[3]["indirect_relative_error"].as_f64().unwrap() * 1.2
+    );
 
     // A second run reuses the saved reference (no path tracing) and gives the same errors.
     let w = compare("40", &["--reuse-reference", "--hdr"]);
     assert_eq!(w["reference"]["reused"], true);
     assert_eq!(w["reference"]["spp"], v["reference"]["spp"]);
-    assert_eq!(w["methods"][3]["indirect_relative_error"], v["methods"][3]["indirect_relative_error"]);
-    for f in ["reference.npy", "reference-local.npy", "reference-indirect-variance.npy", "reference-coverage.npy", "lb-12.npy"] {
+    assert_eq!(
+        w["methods"][3]["indirect_relative_error"],
+        v["methods"][3]["indirect_relative_error"]
+    );
+    for f in [
+        "reference.npy",
+        "reference-local.npy",
+        "reference-indirect-variance.npy",
+        "reference-coverage.npy",
+        "lb-12.npy",
+    ] {
         assert!(out.join(f).exists(), "{f}");
     }
     // Another image size does not reuse it.

@@ -12,7 +12,11 @@ use tonic::Code;
 
 fn ok(args: &[&str]) -> String {
     let out = sylva(args, &[]);
-    assert!(out.status.success(), "sylva {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "sylva {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     String::from_utf8(out.stdout).unwrap()
 }
 
@@ -31,7 +35,10 @@ fn exr(path: &std::path::Path) -> Vec<f32> {
 async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_once_per_sun() {
     let dir = scratch("sequence");
     let scene = small_scene(&dir);
-    let (w1, w2) = (spawn(&["worker", "--listen", "127.0.0.1:0"], &[]), spawn(&["worker", "--listen", "127.0.0.1:0"], &[]));
+    let (w1, w2) = (
+        spawn(&["worker", "--listen", "127.0.0.1:0"], &[]),
+        spawn(&["worker", "--listen", "127.0.0.1:0"], &[]),
+    );
     let workers = format!("{},{}", w1.addr, w2.addr);
     let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &workers], &[]);
     let addr = coord.addr.clone();
@@ -49,8 +56,24 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
     .unwrap();
     let out = dir.join("shot.png");
     let frame_flags = ["--width", "64", "--height", "32", "--lighting", "lb"];
-    let sequence_flags = ["--frames", "4", "--sun-from", "50,120", "--sun-to", "15,200", "--camera-path", path.to_str().unwrap()];
-    let mut args = vec!["submit", scene.to_str().unwrap(), "--coordinator", &addr, "-o", out.to_str().unwrap()];
+    let sequence_flags = [
+        "--frames",
+        "4",
+        "--sun-from",
+        "50,120",
+        "--sun-to",
+        "15,200",
+        "--camera-path",
+        path.to_str().unwrap(),
+    ];
+    let mut args = vec![
+        "submit",
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &addr,
+        "-o",
+        out.to_str().unwrap(),
+    ];
     args.extend(frame_flags);
     args.extend(sequence_flags);
     let said = ok(&args);
@@ -64,7 +87,11 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
     }
     assert!(!dir.join("shot-0004.png").exists());
     assert!(image::open(dir.join("shot-contact.png")).unwrap().width() > 2 * 64);
-    let anim = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(dir.join("shot-preview.png")).unwrap())).read_info().unwrap();
+    let anim = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(dir.join("shot-preview.png")).unwrap(),
+    ))
+    .read_info()
+    .unwrap();
     assert_eq!(anim.info().animation_control().map(|a| a.num_frames), Some(4));
 
     // The listing counts the frames; each frame's HDR image can be fetched.
@@ -74,10 +101,22 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
     let mut frames = Vec::new();
     for i in 0..4 {
         let p = dir.join(format!("fetched-{i}.exr"));
-        ok(&["fetch", &id, "--coordinator", &addr, "--frame", &i.to_string(), "-o", p.to_str().unwrap()]);
+        ok(&[
+            "fetch",
+            &id,
+            "--coordinator",
+            &addr,
+            "--frame",
+            &i.to_string(),
+            "-o",
+            p.to_str().unwrap(),
+        ]);
         frames.push(exr(&p));
     }
-    let e = c.fetch_result(pb::FetchRequest { id: id.clone(), format: "png".into(), frame: 4 }).await.unwrap_err();
+    let e = c
+        .fetch_result(pb::FetchRequest { id: id.clone(), format: "png".into(), frame: 4 })
+        .await
+        .unwrap_err();
     assert_eq!(e.code(), Code::OutOfRange, "{e:?}");
 
     // Whole frames side by side (four frames, two workers): each sun was
@@ -86,7 +125,15 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
 
     // Frame 0's view is the scene's own: it is the frame a plain job renders.
     let single = dir.join("single.png");
-    let mut args = vec!["submit", scene.to_str().unwrap(), "--coordinator", &addr, "-o", single.to_str().unwrap(), "--exr"];
+    let mut args = vec![
+        "submit",
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &addr,
+        "-o",
+        single.to_str().unwrap(),
+        "--exr",
+    ];
     args.extend(frame_flags);
     ok(&args);
     let plain = exr(&dir.join("single.exr"));
@@ -94,7 +141,11 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
         let diff: f64 = a.iter().zip(b).map(|(x, y)| (x - y).abs() as f64).sum();
         diff / b.iter().map(|y| y.abs() as f64).sum::<f64>().max(1e-9)
     };
-    assert!(rel(&frames[0], &plain) < 1e-3, "frame 0 against the plain frame: {}", rel(&frames[0], &plain));
+    assert!(
+        rel(&frames[0], &plain) < 1e-3,
+        "frame 0 against the plain frame: {}",
+        rel(&frames[0], &plain)
+    );
     // The camera moved and the sun sank: the last frame is another picture.
     assert!(rel(&frames[3], &plain) > 0.1, "frame 3 against frame 0: {}", rel(&frames[3], &plain));
 
@@ -104,7 +155,16 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
     let solo = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w1.addr], &[]);
     let pass = |name: &str| {
         let out = dir.join(name);
-        let mut args = vec!["submit", scene.to_str().unwrap(), "--coordinator", &solo.addr, "-o", out.to_str().unwrap(), "--spp", "2"];
+        let mut args = vec![
+            "submit",
+            scene.to_str().unwrap(),
+            "--coordinator",
+            &solo.addr,
+            "-o",
+            out.to_str().unwrap(),
+            "--spp",
+            "2",
+        ];
         args.extend(frame_flags);
         args.extend(sequence_flags);
         ok(&args);
@@ -120,16 +180,44 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
     let b = sylva_scene::bundle::pack(&scene).unwrap();
     let mut bad = spec(64, 32);
     bad.views = vec![pb::FrameView { camera: None, sun_towards: vec![f32::NAN, 1.0, 0.0] }];
-    let e = c.submit_job(tokio_stream::iter(submission(bad, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap_err();
+    let e = c
+        .submit_job(tokio_stream::iter(submission(bad, &b.hash, &b.bytes, b.bytes.len() as u64)))
+        .await
+        .unwrap_err();
     assert_eq!(e.code(), Code::InvalidArgument);
-    assert!(e.message().contains("frame 0") && e.message().contains("sun_towards"), "{}", e.message());
+    assert!(
+        e.message().contains("frame 0") && e.message().contains("sun_towards"),
+        "{}",
+        e.message()
+    );
     let mut long = spec(64, 32);
     long.views = vec![pb::FrameView::default(); 10_001];
-    let e = c.submit_job(tokio_stream::iter(submission(long, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap_err();
+    let e = c
+        .submit_job(tokio_stream::iter(submission(long, &b.hash, &b.bytes, b.bytes.len() as u64)))
+        .await
+        .unwrap_err();
     assert!(e.message().contains("at most 10000"), "{}", e.message());
-    let fails = sylva(&["submit", scene.to_str().unwrap(), "--coordinator", &addr, "--frames", "3", "--sun-from", "95,0", "--sun-to", "10,0"], &[]);
+    let fails = sylva(
+        &[
+            "submit",
+            scene.to_str().unwrap(),
+            "--coordinator",
+            &addr,
+            "--frames",
+            "3",
+            "--sun-from",
+            "95,0",
+            "--sun-to",
+            "10,0",
+        ],
+        &[],
+    );
     assert!(!fails.status.success());
-    assert!(String::from_utf8_lossy(&fails.stderr).contains("sequence.sun.from.elevation_deg 95"), "{}", String::from_utf8_lossy(&fails.stderr));
+    assert!(
+        String::from_utf8_lossy(&fails.stderr).contains("sequence.sun.from.elevation_deg 95"),
+        "{}",
+        String::from_utf8_lossy(&fails.stderr)
+    );
 
     drop((w1, w2, coord, solo));
     std::fs::remove_dir_all(&dir).ok();

@@ -33,7 +33,11 @@ async fn wait_for_workers(addr: &str, n: usize) -> CoordinatorClient<tonic::tran
 
 /// Waits (up to a minute: workers start their GPU first) until `n` workers
 /// are registered and alive, asking with `token` where the coordinator needs one.
-async fn wait_for_workers_with(addr: &str, n: usize, token: Option<&str>) -> CoordinatorClient<tonic::transport::Channel> {
+async fn wait_for_workers_with(
+    addr: &str,
+    n: usize,
+    token: Option<&str>,
+) -> CoordinatorClient<tonic::transport::Channel> {
     let mut c = CoordinatorClient::connect(format!("http://{addr}")).await.unwrap();
     for _ in 0..1200 {
         let mut req = tonic::Request::new(pb::ListWorkersRequest {});
@@ -53,38 +57,94 @@ async fn wait_for_workers_with(addr: &str, n: usize, token: Option<&str>) -> Coo
 async fn three_clients_at_once_get_the_single_process_image() {
     let dir = std::env::temp_dir().join(format!("sylva-service-a-{}", std::process::id()));
     let s = scene(&dir);
-    let metrics = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().to_string();
+    let metrics =
+        std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().to_string();
     let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--metrics", &metrics], &[]);
-    let _workers: Vec<Proc> = (0..3).map(|_| spawn(&["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr], &[])).collect();
+    let _workers: Vec<Proc> = (0..3)
+        .map(|_| spawn(&["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr], &[]))
+        .collect();
     let mut c = wait_for_workers(&coord.addr, 3).await;
     let reference = dir.join("reference.png");
     let size = ["--width", "80", "--height", "40", "--spp", "2"];
-    let out = sylva(&[&["render", s.to_str().unwrap(), "-o", reference.to_str().unwrap(), "--local-workers", "0"][..], &size[..]].concat(), &[]);
+    let out = sylva(
+        &[
+            &[
+                "render",
+                s.to_str().unwrap(),
+                "-o",
+                reference.to_str().unwrap(),
+                "--local-workers",
+                "0",
+            ][..],
+            &size[..],
+        ]
+        .concat(),
+        &[],
+    );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let clients: Vec<_> = (0..3)
         .map(|i| {
             let png = dir.join(format!("client{i}.png"));
-            let args: Vec<String> = [&["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap()][..], &size[..]]
-                .concat()
-                .iter()
-                .map(|a| a.to_string())
-                .collect();
-            (png, std::thread::spawn(move || sylva(&args.iter().map(|a| a.as_str()).collect::<Vec<_>>(), &[])))
+            let args: Vec<String> = [
+                &[
+                    "submit",
+                    s.to_str().unwrap(),
+                    "--coordinator",
+                    &coord.addr,
+                    "-o",
+                    png.to_str().unwrap(),
+                ][..],
+                &size[..],
+            ]
+            .concat()
+            .iter()
+            .map(|a| a.to_string())
+            .collect();
+            (
+                png,
+                std::thread::spawn(move || {
+                    sylva(&args.iter().map(|a| a.as_str()).collect::<Vec<_>>(), &[])
+                }),
+            )
         })
         .collect();
     for (png, t) in clients {
         let out = t.join().unwrap();
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        assert_eq!(std::fs::read(&png).unwrap(), std::fs::read(&reference).unwrap(), "{}", png.display());
+        assert_eq!(
+            std::fs::read(&png).unwrap(),
+            std::fs::read(&reference).unwrap(),
+            "{}",
+            png.display()
+        );
     }
     let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     assert_eq!(jobs.len(), 3);
-    assert!(jobs.iter().all(|j| j.state == "done" && j.strips_done == j.strips_total && j.strips_total > 0), "{jobs:?}");
+    assert!(
+        jobs.iter()
+            .all(|j| j.state == "done" && j.strips_done == j.strips_total && j.strips_total > 0),
+        "{jobs:?}"
+    );
     assert_eq!(
-        c.fetch_result(pb::FetchRequest { id: "job-99".into(), format: "png".into(), ..Default::default() }).await.unwrap_err().code(),
+        c.fetch_result(pb::FetchRequest {
+            id: "job-99".into(),
+            format: "png".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap_err()
+        .code(),
         Code::NotFound
     );
-    let exr = c.fetch_result(pb::FetchRequest { id: jobs[0].id.clone(), format: "exr".into(), ..Default::default() }).await.unwrap().into_inner();
+    let exr = c
+        .fetch_result(pb::FetchRequest {
+            id: jobs[0].id.clone(),
+            format: "exr".into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
     assert!(exr.data.starts_with(&[0x76, 0x2f, 0x31, 0x01]), "OpenEXR magic");
 
     // Prometheus text on the metrics port.
@@ -114,22 +174,46 @@ async fn bad_jobs_are_refused_and_tokens_are_required() {
     let dir = std::env::temp_dir().join(format!("sylva-service-b-{}", std::process::id()));
     let s = scene(&dir);
     let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--token", "s3cret"], &[]);
-    let _w = spawn(&["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr], &[("SYLVA_TOKEN", "s3cret")]);
+    let _w = spawn(
+        &["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr],
+        &[("SYLVA_TOKEN", "s3cret")],
+    );
     let submit = |extra: &[&str], token: Option<&str>| {
         let png = dir.join("out.png");
-        let mut args = vec!["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "32"];
+        let mut args = vec![
+            "submit",
+            s.to_str().unwrap(),
+            "--coordinator",
+            &coord.addr,
+            "-o",
+            png.to_str().unwrap(),
+            "--width",
+            "32",
+        ];
         args.extend_from_slice(extra);
         let env: Vec<(&str, &str)> = token.map(|t| vec![("SYLVA_TOKEN", t)]).unwrap_or_default();
         sylva(&args, &env)
     };
     let no_token = submit(&["--height", "16"], None);
-    assert!(String::from_utf8_lossy(&no_token.stderr).contains("Unauthenticated"), "{}", String::from_utf8_lossy(&no_token.stderr));
+    assert!(
+        String::from_utf8_lossy(&no_token.stderr).contains("Unauthenticated"),
+        "{}",
+        String::from_utf8_lossy(&no_token.stderr)
+    );
     // `submit` checks the frame with the same rule the coordinator applies
     // (tests/hostile.rs sends such frames past it, over raw gRPC).
     let absurd = submit(&["--height", "16", "--spp", "5000"], Some("s3cret"));
-    assert!(String::from_utf8_lossy(&absurd.stderr).contains("spp 5000: valid range [1, 4096]"), "{}", String::from_utf8_lossy(&absurd.stderr));
+    assert!(
+        String::from_utf8_lossy(&absurd.stderr).contains("spp 5000: valid range [1, 4096]"),
+        "{}",
+        String::from_utf8_lossy(&absurd.stderr)
+    );
     let wide = submit(&["--height", "20000"], Some("s3cret"));
-    assert!(String::from_utf8_lossy(&wide.stderr).contains("each side must be in [1, 16384]"), "{}", String::from_utf8_lossy(&wide.stderr));
+    assert!(
+        String::from_utf8_lossy(&wide.stderr).contains("each side must be in [1, 16384]"),
+        "{}",
+        String::from_utf8_lossy(&wide.stderr)
+    );
     // The service is still up and renders a good job (once its worker has
     // registered: under load that can take longer than the refusals above).
     wait_for_workers_with(&coord.addr, 1, Some("s3cret")).await;
@@ -144,14 +228,44 @@ async fn named_workers_serve_at_once_and_no_workers_is_a_clear_failure() {
     let png = dir.join("out.png");
     // No workers at all: the job fails with the reason.
     let lonely = spawn(&["coordinator", "--listen", "127.0.0.1:0"], &[]);
-    let out =
-        sylva(&["submit", s.to_str().unwrap(), "--coordinator", &lonely.addr, "-o", png.to_str().unwrap(), "--width", "16", "--height", "8"], &[]);
-    assert!(String::from_utf8_lossy(&out.stderr).contains("no worker is registered"), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = sylva(
+        &[
+            "submit",
+            s.to_str().unwrap(),
+            "--coordinator",
+            &lonely.addr,
+            "-o",
+            png.to_str().unwrap(),
+            "--width",
+            "16",
+            "--height",
+            "8",
+        ],
+        &[],
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("no worker is registered"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     // A worker named on the command line is used by a job submitted straight away.
     let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[]);
     let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr], &[]);
-    let out =
-        sylva(&["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "16", "--height", "8"], &[]);
+    let out = sylva(
+        &[
+            "submit",
+            s.to_str().unwrap(),
+            "--coordinator",
+            &coord.addr,
+            "-o",
+            png.to_str().unwrap(),
+            "--width",
+            "16",
+            "--height",
+            "8",
+        ],
+        &[],
+    );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(png.exists());
 }
@@ -184,8 +298,15 @@ async fn submit_raw(
         submitter: "raw".into(),
         views: vec![],
     };
-    let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: b.hash.clone(), total_size: b.bytes.len() as u64, data: vec![] }];
-    chunks.extend(b.bytes.chunks(1 << 16).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
+    let mut chunks = vec![pb::SubmitChunk {
+        spec: Some(spec),
+        hash: b.hash.clone(),
+        total_size: b.bytes.len() as u64,
+        data: vec![],
+    }];
+    chunks.extend(
+        b.bytes.chunks(1 << 16).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }),
+    );
     let id = c.submit_job(tokio_stream::iter(chunks)).await.unwrap().into_inner().id;
     let mut events = c.watch_job(pb::JobId { id: id.clone() }).await.unwrap().into_inner();
     let mut last = None;
@@ -199,7 +320,12 @@ async fn submit_raw(
     }
     let last = last.unwrap();
     assert_eq!(last.state, "done", "{last:?}");
-    let png = c.fetch_result(pb::FetchRequest { id, format: "png".into(), ..Default::default() }).await.unwrap().into_inner().data;
+    let png = c
+        .fetch_result(pb::FetchRequest { id, format: "png".into(), ..Default::default() })
+        .await
+        .unwrap()
+        .into_inner()
+        .data;
     (last, png)
 }
 
@@ -209,13 +335,28 @@ async fn a_worker_killed_mid_job_loses_nothing_through_the_coordinator() {
     let s = scene(&dir);
     let reference = dir.join("reference.png");
     let out = sylva(
-        &["render", s.to_str().unwrap(), "-o", reference.to_str().unwrap(), "--local-workers", "0", "--width", "192", "--height", "48", "--spp", "2"],
+        &[
+            "render",
+            s.to_str().unwrap(),
+            "-o",
+            reference.to_str().unwrap(),
+            "--local-workers",
+            "0",
+            "--width",
+            "192",
+            "--height",
+            "48",
+            "--spp",
+            "2",
+        ],
         &[],
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let mut workers: Vec<Proc> = (0..3).map(|_| spawn(&["worker", "--listen", "127.0.0.1:0"], &[])).collect();
+    let mut workers: Vec<Proc> =
+        (0..3).map(|_| spawn(&["worker", "--listen", "127.0.0.1:0"], &[])).collect();
     let names: Vec<String> = workers.iter().map(|w| w.addr.clone()).collect();
-    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &names.join(",")], &[]);
+    let coord =
+        spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &names.join(",")], &[]);
     let mut c = CoordinatorClient::connect(format!("http://{}", coord.addr)).await.unwrap();
     let mut notices = Vec::new();
     let mut killed = false;
@@ -231,10 +372,22 @@ async fn a_worker_killed_mid_job_loses_nothing_through_the_coordinator() {
     })
     .await;
     assert!(killed);
-    assert_eq!(png, std::fs::read(&reference).unwrap(), "the frame must be bit-identical to a clean run");
-    assert!(notices.iter().any(|m| m.contains(&names[1])), "the victim's failure is reported: {notices:?}");
+    assert_eq!(
+        png,
+        std::fs::read(&reference).unwrap(),
+        "the frame must be bit-identical to a clean run"
+    );
+    assert!(
+        notices.iter().any(|m| m.contains(&names[1])),
+        "the victim's failure is reported: {notices:?}"
+    );
     let stats: serde_json::Value = serde_json::from_str(&end.stats_json).unwrap();
-    let victim = stats["workers"].as_array().unwrap().iter().find(|w| w["worker"] == names[1].as_str()).unwrap();
+    let victim = stats["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|w| w["worker"] == names[1].as_str())
+        .unwrap();
     assert!(victim["failures"].as_u64().unwrap() >= 1, "{victim}");
     assert!(stats["strip_cost"].as_str().unwrap().starts_with("uniform"), "{stats}");
     // The next frame of the scene is cut by the cost the first one measured.
@@ -252,7 +405,10 @@ fn certificates(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
     ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
     let ca = CertifiedIssuer::self_signed(ca_params, KeyPair::generate().unwrap()).unwrap();
     let key = KeyPair::generate().unwrap();
-    let cert = CertificateParams::new(vec!["localhost".to_string(), "127.0.0.1".to_string()]).unwrap().signed_by(&key, &ca).unwrap();
+    let cert = CertificateParams::new(vec!["localhost".to_string(), "127.0.0.1".to_string()])
+        .unwrap()
+        .signed_by(&key, &ca)
+        .unwrap();
     let paths = (dir.join("ca.pem"), dir.join("cert.pem"), dir.join("key.pem"));
     std::fs::write(&paths.0, ca.pem()).unwrap();
     std::fs::write(&paths.1, cert.pem()).unwrap();
@@ -267,13 +423,38 @@ async fn tls_on_both_services_with_a_token() {
     let (ca, cert, key) = certificates(&dir);
     let (ca, cert, key) = (ca.to_str().unwrap(), cert.to_str().unwrap(), key.to_str().unwrap());
     let token = [("SYLVA_TOKEN", "s3cret")];
-    let w = spawn(&["worker", "--listen", "127.0.0.1:0", "--tls-cert", cert, "--tls-key", key], &token);
-    let coord =
-        spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--tls-cert", cert, "--tls-key", key, "--tls-ca", ca], &token);
+    let w =
+        spawn(&["worker", "--listen", "127.0.0.1:0", "--tls-cert", cert, "--tls-key", key], &token);
+    let coord = spawn(
+        &[
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--workers",
+            &w.addr,
+            "--tls-cert",
+            cert,
+            "--tls-key",
+            key,
+            "--tls-ca",
+            ca,
+        ],
+        &token,
+    );
     let png = dir.join("out.png");
     let submit = |extra: &[&str], env: &[(&str, &str)]| {
-        let mut args =
-            vec!["submit", s.to_str().unwrap(), "--coordinator", &coord.addr, "-o", png.to_str().unwrap(), "--width", "32", "--height", "16"];
+        let mut args = vec![
+            "submit",
+            s.to_str().unwrap(),
+            "--coordinator",
+            &coord.addr,
+            "-o",
+            png.to_str().unwrap(),
+            "--width",
+            "32",
+            "--height",
+            "16",
+        ];
         args.extend_from_slice(extra);
         sylva(&args, env)
     };
@@ -284,7 +465,11 @@ async fn tls_on_both_services_with_a_token() {
     let plain = submit(&[], &token);
     assert!(!plain.status.success());
     let no_token = submit(&["--tls-ca", ca], &[]);
-    assert!(String::from_utf8_lossy(&no_token.stderr).contains("Unauthenticated"), "{}", String::from_utf8_lossy(&no_token.stderr));
+    assert!(
+        String::from_utf8_lossy(&no_token.stderr).contains("Unauthenticated"),
+        "{}",
+        String::from_utf8_lossy(&no_token.stderr)
+    );
     // A client that does not trust the CA is refused by its own TLS check.
     let (other_ca, _, _) = certificates(&dir.join("other"));
     let untrusted = submit(&["--tls-ca", other_ca.to_str().unwrap()], &token);

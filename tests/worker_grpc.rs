@@ -20,7 +20,10 @@ impl WorkerProcess {
     }
 
     async fn client(&self) -> WorkerClient<tonic::transport::Channel> {
-        WorkerClient::connect(format!("http://{}", self.0.addr)).await.unwrap().max_decoding_message_size(256 << 20)
+        WorkerClient::connect(format!("http://{}", self.0.addr))
+            .await
+            .unwrap()
+            .max_decoding_message_size(256 << 20)
     }
 }
 
@@ -74,20 +77,35 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
     let r = c.load_scene(tokio_stream::iter(chunks(&b, 1000))).await.unwrap().into_inner();
     assert_eq!((r.hash.as_str(), r.was_cached), (b.hash.as_str(), false));
     let again = c
-        .load_scene(tokio_stream::iter(vec![pb::SceneChunk { hash: b.hash.clone(), total_size: b.bytes.len() as u64, data: vec![] }]))
+        .load_scene(tokio_stream::iter(vec![pb::SceneChunk {
+            hash: b.hash.clone(),
+            total_size: b.bytes.len() as u64,
+            data: vec![],
+        }]))
         .await
         .unwrap();
     assert!(again.into_inner().was_cached);
 
     let mut remote = vec![0f32; 48 * 24 * 3];
     for (x0, x1) in [(0, 20), (20, 48)] {
-        let s = c.render_strip(pb::RenderStripRequest { scene_hash: b.hash.clone(), frame: Some(frame()), x0, x1 }).await.unwrap().into_inner();
+        let s = c
+            .render_strip(pb::RenderStripRequest {
+                scene_hash: b.hash.clone(),
+                frame: Some(frame()),
+                x0,
+                x1,
+            })
+            .await
+            .unwrap()
+            .into_inner();
         assert_eq!((s.x0, s.width, s.height), (x0, x1 - x0, 24));
-        let px: Vec<f32> = s.rgb_f32.as_chunks::<4>().0.iter().map(|&c| f32::from_le_bytes(c)).collect();
+        let px: Vec<f32> =
+            s.rgb_f32.as_chunks::<4>().0.iter().map(|&c| f32::from_le_bytes(c)).collect();
         for y in 0..24usize {
             for x in 0..(x1 - x0) as usize {
                 for k in 0..3 {
-                    remote[(y * 48 + x0 as usize + x) * 3 + k] = px[(y * (x1 - x0) as usize + x) * 3 + k];
+                    remote[(y * 48 + x0 as usize + x) * 3 + k] =
+                        px[(y * (x1 - x0) as usize + x) * 3 + k];
                 }
             }
         }
@@ -95,7 +113,14 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
     // The same frame rendered here, in this process.
     let scene = bundle::unpack(&b.bytes, &dir.join("local")).unwrap();
     let ctx = sylva_worker::GpuContext::new().unwrap();
-    let p = sylva_worker::prepare::prepare(&ctx, &scene, sylva_accel::AccelKind::Bvh, sylva_scene::LightingMode::Lb, &|_| {}).unwrap();
+    let p = sylva_worker::prepare::prepare(
+        &ctx,
+        &scene,
+        sylva_accel::AccelKind::Bvh,
+        sylva_scene::LightingMode::Lb,
+        &|_| {},
+    )
+    .unwrap();
     let f = sylva_worker::trace::RenderSettings {
         width: 48,
         height: 24,
@@ -124,7 +149,10 @@ async fn bad_requests_get_their_codes_and_the_worker_stays_up() {
     // Wrong hash.
     let mut wrong = chunks(&b, 4096);
     wrong[0].hash = "0".repeat(64);
-    assert_eq!(c.load_scene(tokio_stream::iter(wrong)).await.unwrap_err().code(), Code::InvalidArgument);
+    assert_eq!(
+        c.load_scene(tokio_stream::iter(wrong)).await.unwrap_err().code(),
+        Code::InvalidArgument
+    );
     // Truncated upload.
     let mut short = chunks(&b, 512);
     short.pop();
@@ -132,14 +160,22 @@ async fn bad_requests_get_their_codes_and_the_worker_stays_up() {
     assert!(e.code() == Code::InvalidArgument && e.message().contains("truncated"), "{e:?}");
     // Over the worker's bundle limit.
     let big = pb::SceneChunk { hash: b.hash.clone(), total_size: 2 << 20, data: vec![] };
-    assert_eq!(c.load_scene(tokio_stream::iter(vec![big])).await.unwrap_err().code(), Code::ResourceExhausted);
+    assert_eq!(
+        c.load_scene(tokio_stream::iter(vec![big])).await.unwrap_err().code(),
+        Code::ResourceExhausted
+    );
     // A malformed bundle with a matching hash.
     let junk = b"SYLVABN1 this is not a manifest".to_vec();
     let jb = bundle::SceneBundle { hash: bundle::hash_of(&junk), bytes: junk };
     let e = c.load_scene(tokio_stream::iter(chunks(&jb, 100))).await.unwrap_err();
     assert!(e.code() == Code::InvalidArgument && e.message().contains("bundle"), "{e:?}");
     // Rendering a scene the worker does not hold.
-    let req = |f: pb::FrameSettings, x0, x1| pb::RenderStripRequest { scene_hash: b.hash.clone(), frame: Some(f), x0, x1 };
+    let req = |f: pb::FrameSettings, x0, x1| pb::RenderStripRequest {
+        scene_hash: b.hash.clone(),
+        frame: Some(f),
+        x0,
+        x1,
+    };
     assert_eq!(c.render_strip(req(frame(), 0, 48)).await.unwrap_err().code(), Code::NotFound);
     // Absurd sizes.
     c.load_scene(tokio_stream::iter(chunks(&b, 8192))).await.unwrap();
@@ -164,22 +200,50 @@ async fn with_a_token_calls_without_it_are_refused() {
     let w = WorkerProcess::start(&["--token", "s3cret"]);
     let mut c = w.client().await;
     assert_eq!(c.status(pb::StatusRequest {}).await.unwrap_err().code(), Code::Unauthenticated);
-    assert_eq!(c.load_scene(tokio_stream::iter(chunks(&b, 4096))).await.unwrap_err().code(), Code::Unauthenticated);
-    let mut authed = sylva_coordinator::farm::connect(&w.0.addr, Some("s3cret".into()), None).await.unwrap();
+    assert_eq!(
+        c.load_scene(tokio_stream::iter(chunks(&b, 4096))).await.unwrap_err().code(),
+        Code::Unauthenticated
+    );
+    let mut authed =
+        sylva_coordinator::farm::connect(&w.0.addr, Some("s3cret".into()), None).await.unwrap();
     sylva_coordinator::farm::upload(&mut authed, &b).await.unwrap();
-    assert_eq!(authed.status(pb::StatusRequest {}).await.unwrap().into_inner().cached_scenes, vec![b.hash.clone()]);
-    let mut wrong = sylva_coordinator::farm::connect(&w.0.addr, Some("guess".into()), None).await.unwrap();
+    assert_eq!(
+        authed.status(pb::StatusRequest {}).await.unwrap().into_inner().cached_scenes,
+        vec![b.hash.clone()]
+    );
+    let mut wrong =
+        sylva_coordinator::farm::connect(&w.0.addr, Some("guess".into()), None).await.unwrap();
     assert_eq!(wrong.status(pb::StatusRequest {}).await.unwrap_err().code(), Code::Unauthenticated);
     // Health stays open for orchestrators' probes.
-    let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", w.0.addr)).unwrap().connect().await.unwrap();
+    let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", w.0.addr))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
     let mut health = tonic_health::pb::health_client::HealthClient::new(ch);
-    let h = health.check(tonic_health::pb::HealthCheckRequest { service: "sylva.v1.Worker".into() }).await.unwrap().into_inner();
+    let h = health
+        .check(tonic_health::pb::HealthCheckRequest { service: "sylva.v1.Worker".into() })
+        .await
+        .unwrap()
+        .into_inner();
     assert_eq!(h.status, tonic_health::pb::health_check_response::ServingStatus::Serving as i32);
 }
 
 /// Every chunk of a worker's export of `f`'s prepared data.
-async fn export(c: &mut WorkerClient<tonic::transport::Channel>, hash: &str, f: pb::FrameSettings) -> Vec<pb::PreparedChunk> {
-    let mut s = c.export_prepared(pb::PrepareRequest { scene_hash: hash.into(), frame: Some(f), build: false }).await.unwrap().into_inner();
+async fn export(
+    c: &mut WorkerClient<tonic::transport::Channel>,
+    hash: &str,
+    f: pb::FrameSettings,
+) -> Vec<pb::PreparedChunk> {
+    let mut s = c
+        .export_prepared(pb::PrepareRequest {
+            scene_hash: hash.into(),
+            frame: Some(f),
+            build: false,
+        })
+        .await
+        .unwrap()
+        .into_inner();
     let mut out = Vec::new();
     while let Some(c) = s.message().await.unwrap() {
         out.push(c);
@@ -188,8 +252,21 @@ async fn export(c: &mut WorkerClient<tonic::transport::Channel>, hash: &str, f: 
 }
 
 /// Columns [0, 48) of `f` as bits.
-async fn strip_bits(c: &mut WorkerClient<tonic::transport::Channel>, hash: &str, f: pb::FrameSettings) -> Vec<u8> {
-    c.render_strip(pb::RenderStripRequest { scene_hash: hash.into(), frame: Some(f), x0: 0, x1: 48 }).await.unwrap().into_inner().rgb_f32
+async fn strip_bits(
+    c: &mut WorkerClient<tonic::transport::Channel>,
+    hash: &str,
+    f: pb::FrameSettings,
+) -> Vec<u8> {
+    c.render_strip(pb::RenderStripRequest {
+        scene_hash: hash.into(),
+        frame: Some(f),
+        x0: 0,
+        x1: 48,
+    })
+    .await
+    .unwrap()
+    .into_inner()
+    .rgb_f32
 }
 
 /// Prepared data made on one worker and taken by another: the second builds
@@ -205,7 +282,11 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
     for c in [&mut a, &mut bw] {
         c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
     }
-    let ask = |f: pb::FrameSettings, build| pb::PrepareRequest { scene_hash: b.hash.clone(), frame: Some(f), build };
+    let ask = |f: pb::FrameSettings, build| pb::PrepareRequest {
+        scene_hash: b.hash.clone(),
+        frame: Some(f),
+        build,
+    };
     assert!(!a.prepare(ask(frame(), false)).await.unwrap().into_inner().held);
     let e = a.export_prepared(ask(frame(), false)).await.unwrap_err();
     assert_eq!(e.code(), Code::NotFound, "{e:?}");
@@ -214,10 +295,14 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
     assert!(good[0].total_size > 0 && good[0].content_hash.len() == 64);
 
     let refused = |e: tonic::Status, code: Code, says: &str| {
-        assert!(e.code() == code && e.message().contains(says), "{e:?} should be {code:?} saying {says:?}");
+        assert!(
+            e.code() == code && e.message().contains(says),
+            "{e:?} should be {code:?} saying {says:?}"
+        );
     };
     let mut bw2 = bw.clone();
-    let mut import = async move |c: Vec<pb::PreparedChunk>| bw2.import_prepared(tokio_stream::iter(c)).await;
+    let mut import =
+        async move |c: Vec<pb::PreparedChunk>| bw2.import_prepared(tokio_stream::iter(c)).await;
     // Bytes that do not match their hash.
     let mut wrong = good.clone();
     wrong[0].content_hash = "0".repeat(64);
@@ -252,11 +337,17 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
     // The real data: held at once, nothing built or solved, the same bits.
     assert!(import(good).await.unwrap().into_inner().held);
     assert!(bw.prepare(ask(frame(), false)).await.unwrap().into_inner().held);
-    assert_eq!(strip_bits(&mut bw, &b.hash, frame()).await, strip_bits(&mut a, &b.hash, frame()).await);
+    assert_eq!(
+        strip_bits(&mut bw, &b.hash, frame()).await,
+        strip_bits(&mut a, &b.hash, frame()).await
+    );
     let st = bw.status(pb::StatusRequest {}).await.unwrap().into_inner();
     assert_eq!((st.prepared_imports, st.accel_builds, st.lb_solves), (1, 0, 0));
     // Other lighting renders from the same structures.
-    assert_eq!(strip_bits(&mut bw, &b.hash, frame_with(pb::Lighting::Local)).await.len(), 48 * 24 * 12);
+    assert_eq!(
+        strip_bits(&mut bw, &b.hash, frame_with(pb::Lighting::Local)).await.len(),
+        48 * 24 * 12
+    );
 }
 
 fn frame_with(lighting: pb::Lighting) -> pb::FrameSettings {

@@ -44,7 +44,9 @@ impl StripPixels {
             ));
         }
         if let Some(p) = self.rgb.iter().find(|p| p.iter().any(|v| !v.is_finite() || *v < 0.0)) {
-            return Err(format!("strip [{x0}, {x1}) has a pixel {p:?} that is not a finite radiance ≥ 0"));
+            return Err(format!(
+                "strip [{x0}, {x1}) has a pixel {p:?} that is not a finite radiance ≥ 0"
+            ));
         }
         if self.coverage.iter().any(|c| !(0.0..=1.0).contains(c)) {
             return Err(format!("strip [{x0}, {x1}) has a coverage outside [0, 1]"));
@@ -81,7 +83,10 @@ impl Assembly {
     pub fn add(&mut self, s: &StripPixels) -> Result<(), String> {
         let (x0, x1) = s.strip;
         if x0 >= x1 || x1 > self.image.width {
-            return Err(format!("strip [{x0}, {x1}) is not inside a frame {} wide", self.image.width));
+            return Err(format!(
+                "strip [{x0}, {x1}) is not inside a frame {} wide",
+                self.image.width
+            ));
         }
         s.check(self.image.height)?;
         let w = x1 - x0;
@@ -110,7 +115,12 @@ mod tests {
 
     fn strip(x0: u32, x1: u32, h: u32) -> StripPixels {
         let n = ((x1 - x0) * h) as usize;
-        StripPixels { strip: (x0, x1), rgb: vec![[0.5; 3]; n], coverage: vec![1.0; n], rays: [n as u64, 0, 0] }
+        StripPixels {
+            strip: (x0, x1),
+            rgb: vec![[0.5; 3]; n],
+            coverage: vec![1.0; n],
+            rays: [n as u64, 0, 0],
+        }
     }
 
     #[test]
@@ -120,7 +130,11 @@ mod tests {
         short.rgb.pop();
         assert!(a.add(&short).is_err());
         assert!(a.add(&strip(5, 11, 4)).is_err(), "wider than the frame");
-        assert!(a.add(&StripPixels { strip: (3, 3), rgb: vec![], coverage: vec![], rays: [0; 3] }).is_err(), "zero width");
+        assert!(
+            a.add(&StripPixels { strip: (3, 3), rgb: vec![], coverage: vec![], rays: [0; 3] })
+                .is_err(),
+            "zero width"
+        );
         let mut nan = strip(0, 5, 4);
         nan.rgb[3] = [f32::NAN, 0.0, 0.0];
         assert!(a.add(&nan).is_err());

@@ -23,12 +23,18 @@ pub struct FinishedJob {
 }
 
 /// A client of the coordinator at `addr`, carrying `token`.
-pub type Client = CoordinatorClient<InterceptedService<tonic::transport::Channel, sylva_proto::auth::Attach>>;
+pub type Client =
+    CoordinatorClient<InterceptedService<tonic::transport::Channel, sylva_proto::auth::Attach>>;
 
 /// Connects to the coordinator at `addr` (within 10 s), with `token` on every call.
-pub async fn connect(addr: &str, token: Option<String>, tls: Option<&tonic::transport::ClientTlsConfig>) -> anyhow::Result<Client> {
-    let ch =
-        sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.with_context(|| format!("cannot reach the coordinator at {addr}"))?;
+pub async fn connect(
+    addr: &str,
+    token: Option<String>,
+    tls: Option<&tonic::transport::ClientTlsConfig>,
+) -> anyhow::Result<Client> {
+    let ch = sylva_proto::tls::connect(addr, tls, Duration::from_secs(10))
+        .await
+        .with_context(|| format!("cannot reach the coordinator at {addr}"))?;
     Ok(CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token))
         .max_decoding_message_size(1 << 30)
         .max_encoding_message_size(1 << 30))
@@ -51,15 +57,27 @@ pub async fn submit_and_follow(
 ) -> anyhow::Result<FinishedJob> {
     let views = spec.views.len();
     let mut c = connect(addr, token, tls).await?;
-    let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: bundle.hash.clone(), total_size: bundle.bytes.len() as u64, data: vec![] }];
-    chunks.extend(bundle.bytes.chunks(1 << 20).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
+    let mut chunks = vec![pb::SubmitChunk {
+        spec: Some(spec),
+        hash: bundle.hash.clone(),
+        total_size: bundle.bytes.len() as u64,
+        data: vec![],
+    }];
+    chunks.extend(
+        bundle
+            .bytes
+            .chunks(1 << 20)
+            .map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }),
+    );
     let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(status_error)?.into_inner().id;
     let bar = ProgressBar::new(1);
     let unit = if views > 1 { format!("strips of {views} frames") } else { "strips".into() };
     bar.set_style(
-        ProgressStyle::with_template(&format!("{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit} {{elapsed}}"))
-            .expect("valid template")
-            .progress_chars("=> "),
+        ProgressStyle::with_template(&format!(
+            "{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit} {{elapsed}}"
+        ))
+        .expect("valid template")
+        .progress_chars("=> "),
     );
     bar.set_message(id.clone());
     let mut events = c.watch_job(pb::JobId { id: id.clone() }).await?.into_inner();
@@ -86,7 +104,11 @@ pub async fn submit_and_follow(
         let mut out = Vec::new();
         for frame in 0..frames {
             out.push(
-                c.fetch_result(pb::FetchRequest { id: id.clone(), format: format.into(), frame }).await.map_err(status_error)?.into_inner().data,
+                c.fetch_result(pb::FetchRequest { id: id.clone(), format: format.into(), frame })
+                    .await
+                    .map_err(status_error)?
+                    .into_inner()
+                    .data,
             );
         }
         Ok(out)

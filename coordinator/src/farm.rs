@@ -37,7 +37,14 @@ pub enum FarmEvent {
     /// A strip of `frame` (0 unless a sequence) came back with `bytes` of
     /// pixels; `preview` is it in 8-bit sRGB, rows from the top (for a
     /// live view).
-    StripDone { frame: usize, strip: Strip, worker: String, ms: f64, bytes: u64, preview: Arc<Vec<[u8; 3]>> },
+    StripDone {
+        frame: usize,
+        strip: Strip,
+        worker: String,
+        ms: f64,
+        bytes: u64,
+        preview: Arc<Vec<[u8; 3]>>,
+    },
     /// A scene bundle of `bytes` was sent to a worker.
     BundleSent { worker: String, bytes: u64 },
     /// A strip failed on a worker and was put back on the queue.
@@ -88,16 +95,33 @@ pub type Client = WorkerClient<InterceptedService<Channel, sylva_proto::auth::At
 
 /// Connects to a worker at `addr` (`host:port`), over TLS when `tls` is
 /// set, sending `token` with every call.
-pub async fn connect(addr: &str, token: Option<String>, tls: Option<&ClientTlsConfig>) -> anyhow::Result<Client> {
-    let ch = sylva_proto::tls::connect(addr, tls, Duration::from_secs(10)).await.map_err(|e| anyhow::anyhow!("cannot reach worker {addr}: {e}"))?;
-    Ok(WorkerClient::with_interceptor(ch, sylva_proto::auth::attach(token)).max_decoding_message_size(1 << 30).max_encoding_message_size(1 << 30))
+pub async fn connect(
+    addr: &str,
+    token: Option<String>,
+    tls: Option<&ClientTlsConfig>,
+) -> anyhow::Result<Client> {
+    let ch = sylva_proto::tls::connect(addr, tls, Duration::from_secs(10))
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot reach worker {addr}: {e}"))?;
+    Ok(WorkerClient::with_interceptor(ch, sylva_proto::auth::attach(token))
+        .max_decoding_message_size(1 << 30)
+        .max_encoding_message_size(1 << 30))
 }
 
 /// Sends `bundle` to a worker (a single empty chunk first, in case it is
 /// cached); returns the bytes sent.
 pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<u64, tonic::Status> {
-    let probe = pb::SceneChunk { hash: bundle.hash.clone(), total_size: bundle.bytes.len() as u64, data: Vec::new() };
-    if bundle.bytes.is_empty() || client.load_scene(tokio_stream::iter(vec![probe])).await.is_ok_and(|r| r.get_ref().was_cached) {
+    let probe = pb::SceneChunk {
+        hash: bundle.hash.clone(),
+        total_size: bundle.bytes.len() as u64,
+        data: Vec::new(),
+    };
+    if bundle.bytes.is_empty()
+        || client
+            .load_scene(tokio_stream::iter(vec![probe]))
+            .await
+            .is_ok_and(|r| r.get_ref().was_cached)
+    {
         return Ok(0);
     }
     let chunks: Vec<pb::SceneChunk> = bundle
@@ -142,7 +166,11 @@ impl Workers {
 /// Decodes a worker's reply to `strip` and checks it before any use: a
 /// reply for other columns, of another size or with values that are no
 /// radiance is the worker's failure.
-pub fn decode_reply(r: &pb::RenderStripReply, strip: Strip, height: u32) -> Result<StripPixels, String> {
+pub fn decode_reply(
+    r: &pb::RenderStripReply,
+    strip: Strip,
+    height: u32,
+) -> Result<StripPixels, String> {
     if r.x0 != strip.0 || r.width != strip.1 - strip.0 || r.height != height {
         return Err(format!(
             "worker replied with columns [{}, {}) × {} rows to a request for [{}, {}) × {height}",
@@ -164,7 +192,13 @@ pub fn decode_reply(r: &pb::RenderStripReply, strip: Strip, height: u32) -> Resu
         ));
     }
     let f = |c: &[u8]| f32::from_le_bytes(c.try_into().expect("4 bytes"));
-    let rgb = r.rgb_f32.as_chunks::<12>().0.iter().map(|c| [f(&c[0..4]), f(&c[4..8]), f(&c[8..12])]).collect();
+    let rgb = r
+        .rgb_f32
+        .as_chunks::<12>()
+        .0
+        .iter()
+        .map(|c| [f(&c[0..4]), f(&c[4..8]), f(&c[8..12])])
+        .collect();
     let coverage = r.coverage_f32.as_chunks::<4>().0.iter().map(|c| f(c)).collect();
     let rays = r.rays.as_ref().map_or([0; 3], |c| [c.primary, c.shadow, c.transparent]);
     let px = StripPixels { strip, rgb, coverage, rays };
@@ -186,11 +220,16 @@ async fn share_prepared(
     frame: &pb::FrameSettings,
     deadline: Duration,
 ) -> Result<Option<PreparedShare>, String> {
-    let live: Vec<(usize, Client)> = clients.iter().enumerate().filter_map(|(i, c)| c.clone().map(|c| (i, c))).collect();
+    let live: Vec<(usize, Client)> =
+        clients.iter().enumerate().filter_map(|(i, c)| c.clone().map(|c| (i, c))).collect();
     if live.len() < 2 {
         return Ok(None);
     }
-    let ask = |build: bool| pb::PrepareRequest { scene_hash: hash.to_string(), frame: Some(frame.clone()), build };
+    let ask = |build: bool| pb::PrepareRequest {
+        scene_hash: hash.to_string(),
+        frame: Some(frame.clone()),
+        build,
+    };
     let mut held = futures_util::future::join_all(live.iter().map(|(_, c)| {
         let (mut c, req) = (c.clone(), ask(false));
         async move { c.prepare(req).await.ok().map(|r| r.into_inner().held) }
@@ -214,7 +253,9 @@ async fn share_prepared(
                 let k = lacking[0];
                 let mut req = tonic::Request::new(ask(true));
                 req.set_timeout(deadline);
-                let r = live[k].1.clone().prepare(req).await.map_err(|s| format!("{} could not prepare: {}", addrs[live[k].0], s.message()))?;
+                let r = live[k].1.clone().prepare(req).await.map_err(|s| {
+                    format!("{} could not prepare: {}", addrs[live[k].0], s.message())
+                })?;
                 held[k] = Some(true);
                 (k, r.into_inner().prepare_ms)
             }
@@ -225,7 +266,11 @@ async fn share_prepared(
         let to: Vec<usize> = lacking.into_iter().filter(|&k| k != source).collect();
         let imported = futures_util::future::join_all(to.iter().map(|&k| {
             let (mut c, chunks) = (live[k].1.clone(), chunks.clone());
-            async move { c.import_prepared(tokio_stream::iter(chunks.iter().cloned().collect::<Vec<_>>())).await.map(|r| r.into_inner().held) }
+            async move {
+                c.import_prepared(tokio_stream::iter(chunks.iter().cloned().collect::<Vec<_>>()))
+                    .await
+                    .map(|r| r.into_inner().held)
+            }
         }))
         .await;
         let mut sent = Vec::new();
@@ -236,12 +281,22 @@ async fn share_prepared(
                     held[k] = Some(true);
                     sent.push(addr);
                 }
-                Ok(false) => tracing::warn!(worker = %addr, "took the prepared data but does not hold it"),
-                Err(s) => tracing::warn!(worker = %addr, from = %from, "refused the prepared data: {}", s.message()),
+                Ok(false) => {
+                    tracing::warn!(worker = %addr, "took the prepared data but does not hold it")
+                }
+                Err(s) => {
+                    tracing::warn!(worker = %addr, from = %from, "refused the prepared data: {}", s.message())
+                }
             }
         }
         let refused_by_all = sent.is_empty() && !to.is_empty();
-        last = Some(PreparedShare { from, to: sent, bytes, prepare_ms, share_ms: t.elapsed().as_secs_f64() * 1e3 - prepare_ms });
+        last = Some(PreparedShare {
+            from,
+            to: sent,
+            bytes,
+            prepare_ms,
+            share_ms: t.elapsed().as_secs_f64() * 1e3 - prepare_ms,
+        });
         if !refused_by_all {
             break;
         }
@@ -251,15 +306,30 @@ async fn share_prepared(
 }
 
 /// Every chunk of a worker's export, counted against what it declared.
-async fn export_from(client: &Client, req: pb::PrepareRequest, from: &str) -> Result<Vec<pb::PreparedChunk>, String> {
-    let mut stream = client.clone().export_prepared(req).await.map_err(|s| format!("{from} could not export: {}", s.message()))?.into_inner();
+async fn export_from(
+    client: &Client,
+    req: pb::PrepareRequest,
+    from: &str,
+) -> Result<Vec<pb::PreparedChunk>, String> {
+    let mut stream = client
+        .clone()
+        .export_prepared(req)
+        .await
+        .map_err(|s| format!("{from} could not export: {}", s.message()))?
+        .into_inner();
     let mut chunks: Vec<pb::PreparedChunk> = Vec::new();
     let (mut bytes, mut declared) = (0u64, None);
-    while let Some(c) = stream.message().await.map_err(|s| format!("{from} broke off its export: {}", s.message()))? {
+    while let Some(c) = stream
+        .message()
+        .await
+        .map_err(|s| format!("{from} broke off its export: {}", s.message()))?
+    {
         let total = *declared.get_or_insert(c.total_size);
         bytes += c.data.len() as u64;
         if bytes > total || total > MAX_PREPARED_BYTES {
-            return Err(format!("{from} exported more than its declared {total} bytes, or over {MAX_PREPARED_BYTES}"));
+            return Err(format!(
+                "{from} exported more than its declared {total} bytes, or over {MAX_PREPARED_BYTES}"
+            ));
         }
         chunks.push(c);
     }
@@ -294,7 +364,10 @@ pub async fn render_frames(
 ) -> anyhow::Result<Vec<RenderedFrame>> {
     anyhow::ensure!(!workers.addrs.is_empty(), "no workers to render on");
     anyhow::ensure!(!frames.is_empty() && frames.len() == plans.len(), "one strip plan per frame");
-    anyhow::ensure!(frames.iter().all(|f| (f.width, f.height) == (frames[0].width, frames[0].height)), "a sequence's frames share one size");
+    anyhow::ensure!(
+        frames.iter().all(|f| (f.width, f.height) == (frames[0].width, frames[0].height)),
+        "a sequence's frames share one size"
+    );
     let t = Instant::now();
     // Every worker gets the bundle at once; a slow one delays only itself.
     let uploads = workers.addrs.iter().map(|w| {
@@ -302,7 +375,9 @@ pub async fn render_frames(
         async move {
             let client = async {
                 let mut c = connect(&w, token, tls.as_ref()).await.map_err(|e| e.to_string())?;
-                let bytes = upload(&mut c, bundle).await.map_err(|e| format!("scene upload: {:?}: {}", e.code(), e.message()))?;
+                let bytes = upload(&mut c, bundle)
+                    .await
+                    .map_err(|e| format!("scene upload: {:?}: {}", e.code(), e.message()))?;
                 Ok::<_, String>((c, bytes))
             }
             .await;
@@ -331,26 +406,34 @@ pub async fn render_frames(
         }
         reports.push(report);
     }
-    let wires: Arc<Vec<pb::FrameSettings>> = Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
-    let prepared = match share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline).await {
-        Ok(Some(share)) => {
-            events(FarmEvent::PreparedShared(share.clone()));
-            Some(share)
-        }
-        Ok(None) => None,
-        Err(e) => {
-            // Not fatal: each worker then prepares the scene itself.
-            tracing::warn!("prepared data not shared: {e}");
-            None
-        }
-    };
-    let queue: VecDeque<(usize, Strip)> = plans.iter().enumerate().flat_map(|(f, p)| p.iter().map(move |s| (f, *s))).collect();
-    let shared = Arc::new(Shared { total: queue.len(), queue: Mutex::new(queue), done: Mutex::new(Vec::new()) });
+    let wires: Arc<Vec<pb::FrameSettings>> =
+        Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
+    let prepared =
+        match share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline).await {
+            Ok(Some(share)) => {
+                events(FarmEvent::PreparedShared(share.clone()));
+                Some(share)
+            }
+            Ok(None) => None,
+            Err(e) => {
+                // Not fatal: each worker then prepares the scene itself.
+                tracing::warn!("prepared data not shared: {e}");
+                None
+            }
+        };
+    let queue: VecDeque<(usize, Strip)> =
+        plans.iter().enumerate().flat_map(|(f, p)| p.iter().map(move |s| (f, *s))).collect();
+    let shared = Arc::new(Shared {
+        total: queue.len(),
+        queue: Mutex::new(queue),
+        done: Mutex::new(Vec::new()),
+    });
     let events = Arc::new(events);
     let mut tasks = Vec::new();
     let n_workers = clients.len();
     for (me, (client, report)) in clients.into_iter().zip(reports).enumerate() {
-        let (shared, events, wires, hash, height) = (shared.clone(), events.clone(), wires.clone(), bundle.hash.clone(), frames[0].height);
+        let (shared, events, wires, hash, height) =
+            (shared.clone(), events.clone(), wires.clone(), bundle.hash.clone(), frames[0].height);
         tasks.push(tokio::spawn(async move {
             let mut report = report;
             let Some(mut client) = client else { return report };
@@ -361,7 +444,11 @@ pub async fn render_frames(
                     // second pass over the same views meets the light it
                     // kept per sun; it takes any other when it has none left.
                     let mut q = shared.queue.lock().expect("lock");
-                    let mine = if wires.len() > 1 { q.iter().position(|(f, _)| f % n_workers == me) } else { None };
+                    let mine = if wires.len() > 1 {
+                        q.iter().position(|(f, _)| f % n_workers == me)
+                    } else {
+                        None
+                    };
                     mine.and_then(|i| q.remove(i)).or_else(|| q.pop_front())
                 };
                 let Some((frame, strip)) = next else {
@@ -380,7 +467,12 @@ pub async fn render_frames(
                 });
                 req.set_timeout(deadline);
                 let sent = Instant::now();
-                let outcome = match tokio::time::timeout(deadline + Duration::from_secs(1), client.render_strip(req)).await {
+                let outcome = match tokio::time::timeout(
+                    deadline + Duration::from_secs(1),
+                    client.render_strip(req),
+                )
+                .await
+                {
                     Ok(Ok(reply)) => {
                         let r = reply.into_inner();
                         decode_reply(&r, strip, height).map(|px| (r, px))
@@ -395,17 +487,37 @@ pub async fn render_frames(
                         report.prepare_ms += r.prepare_ms;
                         let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
                         let preview = Arc::new(px.preview());
-                        events(FarmEvent::StripDone { frame, strip, worker: report.worker.clone(), ms: r.render_ms, bytes, preview });
-                        shared.done.lock().expect("lock").push((frame, px, r.render_ms, sent.elapsed().as_secs_f64() * 1e3));
+                        events(FarmEvent::StripDone {
+                            frame,
+                            strip,
+                            worker: report.worker.clone(),
+                            ms: r.render_ms,
+                            bytes,
+                            preview,
+                        });
+                        shared.done.lock().expect("lock").push((
+                            frame,
+                            px,
+                            r.render_ms,
+                            sent.elapsed().as_secs_f64() * 1e3,
+                        ));
                     }
                     Err(error) => {
                         shared.queue.lock().expect("lock").push_back((frame, strip));
                         report.failures += 1;
                         report.last_error = Some(error.clone());
-                        events(FarmEvent::StripRetried { frame, strip, worker: report.worker.clone(), error: error.clone() });
+                        events(FarmEvent::StripRetried {
+                            frame,
+                            strip,
+                            worker: report.worker.clone(),
+                            error: error.clone(),
+                        });
                         if report.failures >= MAX_FAILURES {
                             report.dropped = true;
-                            events(FarmEvent::WorkerDropped { worker: report.worker.clone(), error });
+                            events(FarmEvent::WorkerDropped {
+                                worker: report.worker.clone(),
+                                error,
+                            });
                             return report;
                         }
                     }
@@ -420,12 +532,21 @@ pub async fn render_frames(
     }
     let done = std::mem::take(&mut *shared.done.lock().expect("lock"));
     if done.len() < shared.total {
-        let why: Vec<String> =
-            reports.iter().filter(|r| r.dropped).map(|r| format!("{}: {}", r.worker, r.last_error.as_deref().unwrap_or("dropped"))).collect();
+        let why: Vec<String> = reports
+            .iter()
+            .filter(|r| r.dropped)
+            .map(|r| format!("{}: {}", r.worker, r.last_error.as_deref().unwrap_or("dropped")))
+            .collect();
         let what = if frames.len() == 1 { "the frame" } else { "the sequence" };
-        anyhow::bail!("{what} failed: {} of {} strips rendered; no worker left that can finish it ({})", done.len(), shared.total, why.join("; "));
+        anyhow::bail!(
+            "{what} failed: {} of {} strips rendered; no worker left that can finish it ({})",
+            done.len(),
+            shared.total,
+            why.join("; ")
+        );
     }
-    let mut assembled: Vec<(Assembly, Vec<StripTime>)> = frames.iter().map(|f| (Assembly::new(f.width, f.height), Vec::new())).collect();
+    let mut assembled: Vec<(Assembly, Vec<StripTime>)> =
+        frames.iter().map(|f| (Assembly::new(f.width, f.height), Vec::new())).collect();
     for (frame, px, render_ms, rpc_ms) in &done {
         let (a, strips) = &mut assembled[*frame];
         a.add(px).map_err(|e| anyhow::anyhow!("assembling frame {frame}: {e}"))?;

@@ -85,11 +85,32 @@ impl Metrics {
     fn registry(&self, gauges: impl Fn() -> Gauges + Send + Sync + 'static) -> Registry {
         let mut r = Registry::default();
         // Counters get `_total` appended when encoded.
-        r.register("sylva_strips_done", "Strips rendered and returned by workers.", self.strips_done.clone());
-        r.register("sylva_strips_retried", "Strips re-queued after a worker failed.", self.strips_retried.clone());
-        r.register("sylva_bytes_received", "Bytes of strip pixels received from workers.", self.bytes_received.clone());
-        r.register("sylva_bytes_sent", "Bytes of scene bundles sent to workers.", self.bytes_sent.clone());
-        r.register_with_unit("sylva_strip", "Strip render time on the worker.", Unit::Seconds, self.latency.clone());
+        r.register(
+            "sylva_strips_done",
+            "Strips rendered and returned by workers.",
+            self.strips_done.clone(),
+        );
+        r.register(
+            "sylva_strips_retried",
+            "Strips re-queued after a worker failed.",
+            self.strips_retried.clone(),
+        );
+        r.register(
+            "sylva_bytes_received",
+            "Bytes of strip pixels received from workers.",
+            self.bytes_received.clone(),
+        );
+        r.register(
+            "sylva_bytes_sent",
+            "Bytes of scene bundles sent to workers.",
+            self.bytes_sent.clone(),
+        );
+        r.register_with_unit(
+            "sylva_strip",
+            "Strip render time on the worker.",
+            Unit::Seconds,
+            self.latency.clone(),
+        );
         r.register_collector(Box::new(GaugeCollector(Box::new(gauges))));
         r
     }
@@ -137,7 +158,11 @@ impl Default for MetricsServerConfig {
 }
 
 /// Serves `GET /metrics` on `listener` with the counters and `gauges()`, with default limits.
-pub async fn serve(listener: TcpListener, metrics: Arc<Metrics>, gauges: impl Fn() -> Gauges + Send + Sync + 'static) {
+pub async fn serve(
+    listener: TcpListener,
+    metrics: Arc<Metrics>,
+    gauges: impl Fn() -> Gauges + Send + Sync + 'static,
+) {
     serve_with(listener, metrics, gauges, MetricsServerConfig::default()).await
 }
 
@@ -211,7 +236,8 @@ where
             }
         };
         backoff = FIRST_BACKOFF;
-        let conn = http.serve_connection(TokioIo::new(stream), TowerToHyperService::new(app.clone()));
+        let conn =
+            http.serve_connection(TokioIo::new(stream), TowerToHyperService::new(app.clone()));
         tokio::spawn(async move {
             let _ = conn.await;
             drop(permit);
@@ -229,7 +255,11 @@ mod tests {
 
     const CLOSE: &str = "Connection: close\r\n";
 
-    async fn start(config: MetricsServerConfig, metrics: Arc<Metrics>, gauges: impl Fn() -> Gauges + Send + Sync + 'static) -> SocketAddr {
+    async fn start(
+        config: MetricsServerConfig,
+        metrics: Arc<Metrics>,
+        gauges: impl Fn() -> Gauges + Send + Sync + 'static,
+    ) -> SocketAddr {
         let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         tokio::spawn(serve_with(listener, metrics, gauges, config));
@@ -237,16 +267,27 @@ mod tests {
     }
 
     /// Sends `method path` and reads to EOF; returns the status, the head and the body.
-    async fn request(addr: SocketAddr, method: &str, path: &str, extra: &str) -> (u16, String, String) {
+    async fn request(
+        addr: SocketAddr,
+        method: &str,
+        path: &str,
+        extra: &str,
+    ) -> (u16, String, String) {
         let mut sock = TcpStream::connect(addr).await.unwrap();
-        sock.write_all(format!("{method} {path} HTTP/1.1\r\nHost: x\r\n{extra}\r\n").as_bytes()).await.unwrap();
+        sock.write_all(format!("{method} {path} HTTP/1.1\r\nHost: x\r\n{extra}\r\n").as_bytes())
+            .await
+            .unwrap();
         let mut text = String::new();
-        tokio::time::timeout(Duration::from_secs(5), sock.read_to_string(&mut text)).await.expect("reply in time").unwrap();
+        tokio::time::timeout(Duration::from_secs(5), sock.read_to_string(&mut text))
+            .await
+            .expect("reply in time")
+            .unwrap();
         split(&text)
     }
 
     fn split(text: &str) -> (u16, String, String) {
-        let (head, body) = text.split_once("\r\n\r\n").unwrap_or_else(|| panic!("a reply: {text:?}"));
+        let (head, body) =
+            text.split_once("\r\n\r\n").unwrap_or_else(|| panic!("a reply: {text:?}"));
         (head[9..12].parse().unwrap(), head.to_ascii_lowercase(), body.to_string())
     }
 
@@ -274,14 +315,22 @@ mod tests {
         metrics.bundle_sent(512);
         let queued = Arc::new(AtomicU64::new(2));
         let q = queued.clone();
-        let gauges = move || Gauges { queued: q.load(Ordering::Relaxed), running: 1, workers_alive: 3, workers: 4 };
+        let gauges = move || Gauges {
+            queued: q.load(Ordering::Relaxed),
+            running: 1,
+            workers_alive: 3,
+            workers: 4,
+        };
         let addr = start(MetricsServerConfig::default(), metrics, gauges).await;
 
         let (status, head, body) = request(addr, "GET", "/metrics", CLOSE).await;
         assert_eq!(status, 200, "{head}");
         assert!(head.contains("content-type: application/openmetrics-text"), "{head}");
         let value = |body: &str, series: &str| -> f64 {
-            let line = body.lines().find(|l| l.starts_with(&format!("{series} "))).unwrap_or_else(|| panic!("{series} in {body}"));
+            let line = body
+                .lines()
+                .find(|l| l.starts_with(&format!("{series} ")))
+                .unwrap_or_else(|| panic!("{series} in {body}"));
             line.rsplit(' ').next().unwrap().parse().unwrap()
         };
         for (series, want) in [
@@ -325,7 +374,9 @@ mod tests {
             assert_eq!(request(addr, "GET", path, CLOSE).await.0, 404, "{path}");
         }
         for method in ["POST", "PUT", "DELETE"] {
-            let (status, head, _) = request(addr, method, "/metrics", "Content-Length: 0\r\nConnection: close\r\n").await;
+            let (status, head, _) =
+                request(addr, method, "/metrics", "Content-Length: 0\r\nConnection: close\r\n")
+                    .await;
             assert_eq!(status, 405, "{method}");
             assert!(head.contains("allow: get,head"), "{head}");
         }
@@ -349,7 +400,11 @@ mod tests {
         partial.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\n").await.unwrap();
         let reply = read_until_closed(&mut partial, Duration::from_secs(3)).await;
         assert!(t.elapsed() >= timeout - Duration::from_millis(50), "{:?}", t.elapsed());
-        assert!(reply.is_empty() || reply.starts_with(b"HTTP/1.1 408"), "{}", String::from_utf8_lossy(&reply));
+        assert!(
+            reply.is_empty() || reply.starts_with(b"HTTP/1.1 408"),
+            "{}",
+            String::from_utf8_lossy(&reply)
+        );
 
         // A keep-alive client gets its reply, goes quiet, and is dropped.
         let mut kept = TcpStream::connect(addr).await.unwrap();
@@ -358,19 +413,29 @@ mod tests {
         let reply = read_until_closed(&mut kept, Duration::from_secs(3)).await;
         let reply = String::from_utf8(reply).unwrap();
         assert!(reply.starts_with("HTTP/1.1 200") && reply.ends_with("# EOF\n"), "{reply}");
-        assert!(t.elapsed() >= timeout - Duration::from_millis(50), "kept alive for a while: {:?}", t.elapsed());
+        assert!(
+            t.elapsed() >= timeout - Duration::from_millis(50),
+            "kept alive for a while: {:?}",
+            t.elapsed()
+        );
     }
 
     #[tokio::test]
     async fn connections_beyond_the_cap_wait_for_a_slot() {
-        let config = MetricsServerConfig { header_read_timeout: Duration::from_secs(10), max_connections: 2 };
+        let config = MetricsServerConfig {
+            header_read_timeout: Duration::from_secs(10),
+            max_connections: 2,
+        };
         let addr = start(config, Arc::default(), Gauges::default).await;
         let hog1 = TcpStream::connect(addr).await.unwrap();
         let hog2 = TcpStream::connect(addr).await.unwrap();
         tokio::time::sleep(Duration::from_millis(100)).await;
 
         let mut third = TcpStream::connect(addr).await.unwrap();
-        third.write_all(format!("GET /metrics HTTP/1.1\r\nHost: x\r\n{CLOSE}\r\n").as_bytes()).await.unwrap();
+        third
+            .write_all(format!("GET /metrics HTTP/1.1\r\nHost: x\r\n{CLOSE}\r\n").as_bytes())
+            .await
+            .unwrap();
         let mut buf = [0u8; 64];
         let early = tokio::time::timeout(Duration::from_millis(500), third.read(&mut buf)).await;
         assert!(early.is_err(), "served past the cap: {early:?}");
@@ -400,7 +465,8 @@ mod tests {
     async fn accept_errors_back_off_and_are_logged() {
         let logs = Logs::default();
         let sink = logs.clone();
-        let subscriber = tracing_subscriber::fmt().with_writer(move || sink.clone()).with_ansi(false).finish();
+        let subscriber =
+            tracing_subscriber::fmt().with_writer(move || sink.clone()).with_ansi(false).finish();
         // The test runtime is single-threaded, so the server's tasks log here too.
         let _guard = tracing::subscriber::set_default(subscriber);
 
@@ -419,7 +485,11 @@ mod tests {
             }
         };
         let metrics: Arc<Metrics> = Arc::default();
-        tokio::spawn(accept_loop(accept, router(metrics.registry(Gauges::default)), MetricsServerConfig::default()));
+        tokio::spawn(accept_loop(
+            accept,
+            router(metrics.registry(Gauges::default)),
+            MetricsServerConfig::default(),
+        ));
 
         let t = Instant::now();
         let (status, _, _) = request(addr, "GET", "/metrics", CLOSE).await;

@@ -12,9 +12,19 @@ pub const PERIOD: Duration = Duration::from_secs(5);
 
 /// Registers `me` (the address the coordinator should dial) with
 /// `coordinator` once: `Ok` or the coordinator's reason.
-pub async fn register_once(coordinator: &str, me: &str, token: Option<String>, tls: Option<&ClientTlsConfig>) -> Result<(), String> {
-    let ch = sylva_proto::tls::connect(coordinator, tls, Duration::from_secs(10)).await.map_err(|e| format!("cannot reach the coordinator: {e}"))?;
-    let mut c = pb::coordinator_client::CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token));
+pub async fn register_once(
+    coordinator: &str,
+    me: &str,
+    token: Option<String>,
+    tls: Option<&ClientTlsConfig>,
+) -> Result<(), String> {
+    let ch = sylva_proto::tls::connect(coordinator, tls, Duration::from_secs(10))
+        .await
+        .map_err(|e| format!("cannot reach the coordinator: {e}"))?;
+    let mut c = pb::coordinator_client::CoordinatorClient::with_interceptor(
+        ch,
+        sylva_proto::auth::attach(token),
+    );
     c.register_worker(pb::RegisterWorkerRequest { addr: me.to_string() })
         .await
         .map(|_| ())
@@ -22,14 +32,21 @@ pub async fn register_once(coordinator: &str, me: &str, token: Option<String>, t
 }
 
 /// Registers forever, logging each change between success and failure.
-pub async fn register_loop(coordinator: String, me: String, token: Option<String>, tls: Option<ClientTlsConfig>) {
+pub async fn register_loop(
+    coordinator: String,
+    me: String,
+    token: Option<String>,
+    tls: Option<ClientTlsConfig>,
+) {
     let mut last: Option<Result<(), String>> = None;
     loop {
         let now = register_once(&coordinator, &me, token.clone(), tls.as_ref()).await;
         if last.as_ref() != Some(&now) {
             match &now {
                 Ok(()) => tracing::info!(%coordinator, "registered with the coordinator"),
-                Err(e) => tracing::warn!(%coordinator, "cannot register: {e}; retrying every {}s", PERIOD.as_secs()),
+                Err(e) => {
+                    tracing::warn!(%coordinator, "cannot register: {e}; retrying every {}s", PERIOD.as_secs())
+                }
             }
         }
         last = Some(now);

@@ -21,7 +21,12 @@ pub struct Retention {
 
 impl Default for Retention {
     fn default() -> Self {
-        Self { keep: Duration::from_secs(3600), max_jobs: 1000, memory_bytes: 256 << 20, spill_bytes: 8 << 20 }
+        Self {
+            keep: Duration::from_secs(3600),
+            max_jobs: 1000,
+            memory_bytes: 256 << 20,
+            spill_bytes: 8 << 20,
+        }
     }
 }
 
@@ -92,7 +97,10 @@ impl ResultStore {
 
     /// Frame `frame` of a job in `format` (`png` or `exr`), if kept.
     pub fn get(&self, id: &str, frame: usize, format: &str) -> Option<Stored> {
-        self.items.get(id)?.get(frame).map(|[png, exr]| if format == "exr" { exr.clone() } else { png.clone() })
+        self.items
+            .get(id)?
+            .get(frame)
+            .map(|[png, exr]| if format == "exr" { exr.clone() } else { png.clone() })
     }
 
     /// Forgets a job's results.
@@ -129,7 +137,11 @@ mod tests {
         assert_eq!(exr.read().unwrap(), vec![2; 70]);
         s.put("b", vec![(vec![3; 55], vec![4; 10]), (vec![5; 5], vec![6; 5])]).unwrap();
         assert!(matches!(s.get("b", 0, "png"), Some(Stored::Disk(_))), "over the memory budget");
-        assert_eq!(s.get("b", 1, "exr").unwrap().read().unwrap(), vec![6; 5], "a sequence's frames kept apart");
+        assert_eq!(
+            s.get("b", 1, "exr").unwrap().read().unwrap(),
+            vec![6; 5],
+            "a sequence's frames kept apart"
+        );
         assert!(s.get("b", 2, "png").is_none());
         assert_eq!(s.memory_bytes(), 70);
         s.remove("a");

@@ -40,7 +40,10 @@ pub const MAX_SUBMITTER: usize = 64;
 
 /// Milliseconds since the Unix epoch, for listings.
 fn unix_ms() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0)
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as u64)
+        .unwrap_or(0)
 }
 
 /// How the coordinator runs.
@@ -88,7 +91,8 @@ impl Default for CoordinatorConfig {
             heartbeat: Duration::from_secs(2),
             registration_ttl: Duration::from_secs(30),
             retention: Retention::default(),
-            work_dir: std::env::temp_dir().join(format!("sylva-coordinator-{}", std::process::id())),
+            work_dir: std::env::temp_dir()
+                .join(format!("sylva-coordinator-{}", std::process::id())),
             metrics: None,
             http: None,
             tls: None,
@@ -156,7 +160,10 @@ impl LiveFrame {
     fn paint(&mut self, strip: Strip, px: &[[u8; 3]]) {
         let (x0, x1) = strip;
         let w = (x1 - x0) as usize;
-        if self.preview.len() != self.width as usize * self.height as usize * 3 || px.len() != w * self.height as usize || x1 > self.width {
+        if self.preview.len() != self.width as usize * self.height as usize * 3
+            || px.len() != w * self.height as usize
+            || x1 > self.width
+        {
             return;
         }
         for (y, row) in px.chunks_exact(w).enumerate() {
@@ -214,7 +221,11 @@ impl CoordinatorService {
             .map(|a| {
                 (
                     a.clone(),
-                    KnownWorker { info: pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() }, named: true, seen: Instant::now() },
+                    KnownWorker {
+                        info: pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() },
+                        named: true,
+                        seen: Instant::now(),
+                    },
                 )
             })
             .collect();
@@ -236,7 +247,9 @@ impl CoordinatorService {
         };
         if let Some(l) = metrics_listener {
             let s = service.state.clone();
-            tokio::spawn(crate::metrics::serve(l, service.state.metrics.clone(), move || s.gauges()));
+            tokio::spawn(crate::metrics::serve(l, service.state.metrics.clone(), move || {
+                s.gauges()
+            }));
         }
         if let Some(l) = http_listener {
             tokio::spawn(crate::dashboard::serve(l, service.clone()));
@@ -253,7 +266,9 @@ impl CoordinatorService {
     pub fn accepts_token(&self, token: Option<&str>) -> bool {
         match &self.state.config.token {
             None => true,
-            Some(want) => token.is_some_and(|t| sylva_proto::auth::constant_time_eq(t.as_bytes(), want.as_bytes())),
+            Some(want) => token.is_some_and(|t| {
+                sylva_proto::auth::constant_time_eq(t.as_bytes(), want.as_bytes())
+            }),
         }
     }
 
@@ -274,7 +289,9 @@ impl CoordinatorService {
     /// carries: bundle chunks of at most 4 MiB and images of at most
     /// 16384² pixels.
     pub fn into_server(self) -> CoordinatorServer<Self> {
-        CoordinatorServer::new(self).max_decoding_message_size(8 << 20).max_encoding_message_size(usize::MAX)
+        CoordinatorServer::new(self)
+            .max_decoding_message_size(8 << 20)
+            .max_encoding_message_size(usize::MAX)
     }
 
     /// Removes what the coordinator wrote on disk.
@@ -391,7 +408,9 @@ impl State {
     async fn run_job(self: &Arc<Self>, id: &str) {
         let Some((frame, views, schedule, bundle, tx)) = ({
             let jobs = lock(&self.jobs);
-            jobs.get(id).and_then(|j| Some((j.frame, j.views.clone(), j.schedule, j.bundle.clone()?, j.events.clone())))
+            jobs.get(id).and_then(|j| {
+                Some((j.frame, j.views.clone(), j.schedule, j.bundle.clone()?, j.events.clone()))
+            })
         }) else {
             return;
         };
@@ -403,25 +422,43 @@ impl State {
             let _ = tx.send(ev);
             self.close_events(id);
         };
-        let addrs: Vec<String> = lock(&self.workers).values().filter(|w| w.info.alive).map(|w| w.info.addr.clone()).collect();
+        let addrs: Vec<String> = lock(&self.workers)
+            .values()
+            .filter(|w| w.info.alive)
+            .map(|w| w.info.addr.clone())
+            .collect();
         if addrs.is_empty() {
             return fail("no worker is registered and alive: start workers with --coordinator, or the coordinator with --workers".into());
         }
-        let frames: Vec<FrameSettings> =
-            if views.is_empty() { vec![frame] } else { views.iter().map(|v| FrameSettings { view: *v, ..frame }).collect() };
+        let frames: Vec<FrameSettings> = if views.is_empty() {
+            vec![frame]
+        } else {
+            views.iter().map(|v| FrameSettings { view: *v, ..frame }).collect()
+        };
         // A frame seen before is cut by its measured cost; a new one by
         // guided self-scheduling alone, whose shrinking strips still let
         // the last ones finish close together.
-        let cost_key = format!("{}/{}x{}/{}/{:?}/{:?}", bundle.hash, frame.width, frame.height, frame.spp, frame.lighting, frame.accel);
+        let cost_key = format!(
+            "{}/{}x{}/{}/{:?}/{:?}",
+            bundle.hash, frame.width, frame.height, frame.spp, frame.lighting, frame.accel
+        );
         let cost = lock(&self.costs).get(&cost_key).cloned().unwrap_or_default();
-        let cost_source = if cost.is_empty() { "uniform (first frame of this scene and size)" } else { "measured on the previous frame" };
+        let cost_source = if cost.is_empty() {
+            "uniform (first frame of this scene and size)"
+        } else {
+            "measured on the previous frame"
+        };
         // A sequence with at least as many frames as workers renders whole
         // frames side by side (no strip is worth cutting); a shorter one
         // cuts each frame for its share of the workers.
         let plans: Vec<Vec<Strip>> = if frames.len() > 1 && frames.len() >= addrs.len() {
             vec![vec![(0, frame.width)]; frames.len()]
         } else {
-            let plan = scheduler(schedule).plan(frame.width, addrs.len().div_ceil(frames.len()).max(1), &cost);
+            let plan = scheduler(schedule).plan(
+                frame.width,
+                addrs.len().div_ceil(frames.len()).max(1),
+                &cost,
+            );
             vec![plan; frames.len()]
         };
         let total: usize = plans.iter().map(Vec::len).sum();
@@ -507,7 +544,8 @@ impl State {
             Err(e) => return fail(format!("{e:#}")),
         };
         // Tone mapping and encoding are CPU work: off the async runtime.
-        let images: Vec<sylva_scene::film::HdrImage> = rendered.iter().map(|f| f.image.clone()).collect();
+        let images: Vec<sylva_scene::film::HdrImage> =
+            rendered.iter().map(|f| f.image.clone()).collect();
         // A sequence keeps one exposure (its middle frame's), so a sun
         // sweep shows the light change rather than the tone mapper's.
         let encoded = tokio::task::spawn_blocking(move || {
@@ -515,7 +553,11 @@ impl State {
             images
                 .iter()
                 .map(|image| {
-                    let (ldr, tone) = if images.len() == 1 { reinhard(image, 0.18) } else { (reinhard_like(image, &exposure), exposure) };
+                    let (ldr, tone) = if images.len() == 1 {
+                        reinhard(image, 0.18)
+                    } else {
+                        (reinhard_like(image, &exposure), exposure)
+                    };
                     Ok((encode_png(image.width, image.height, &ldr)?, encode_exr(image)?, tone))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()
@@ -533,10 +575,15 @@ impl State {
                 costs.clear();
             }
             if rendered[0].strip_ms.len() > 1 {
-                costs.insert(cost_key, crate::schedule::column_cost(frame.width, &rendered[0].strip_ms));
+                costs.insert(
+                    cost_key,
+                    crate::schedule::column_cost(frame.width, &rendered[0].strip_ms),
+                );
             }
         }
-        let per_frame = |f: &crate::executor::RenderedFrame, tone: &sylva_scene::film::ToneMapStats, ms: f64| {
+        let per_frame = |f: &crate::executor::RenderedFrame,
+                         tone: &sylva_scene::film::ToneMapStats,
+                         ms: f64| {
             serde_json::json!({
                 "strips": f.strip_ms.iter().map(|(s, ms, rpc)| serde_json::json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
                 "rays": { "primary": f.rays[0], "shadow": f.rays[1], "transparent_passed": f.rays[2], "mrays_per_second": (f.rays[0] + f.rays[1]) as f64 / (ms / 1e3) / 1e6 },
@@ -553,7 +600,9 @@ impl State {
             "workers": rendered[0].workers,
         });
         if views.is_empty() {
-            if let (Some(s), serde_json::Value::Object(f)) = (stats.as_object_mut(), per_frame(&rendered[0], &encoded[0].2, frame_ms)) {
+            if let (Some(s), serde_json::Value::Object(f)) =
+                (stats.as_object_mut(), per_frame(&rendered[0], &encoded[0].2, frame_ms))
+            {
                 s.extend(f);
             }
         } else {
@@ -564,7 +613,8 @@ impl State {
                 "per_frame": rendered.iter().zip(&encoded).map(|(f, e)| per_frame(f, &e.2, frame_ms / rendered.len() as f64)).collect::<Vec<_>>(),
             });
         }
-        let stored = lock(&self.results).put(id, encoded.into_iter().map(|(png, exr, _)| (png, exr)).collect());
+        let stored = lock(&self.results)
+            .put(id, encoded.into_iter().map(|(png, exr, _)| (png, exr)).collect());
         if let Err(e) = stored {
             return fail(format!("the result could not be stored: {e:#}"));
         }
@@ -585,7 +635,9 @@ impl State {
             let config = &self.config;
             let polls = addrs.into_iter().map(|a| async move {
                 let status = async {
-                    let mut c = farm::connect(&a, config.token.clone(), config.worker_tls.as_ref()).await.ok()?;
+                    let mut c = farm::connect(&a, config.token.clone(), config.worker_tls.as_ref())
+                        .await
+                        .ok()?;
                     let mut req = Request::new(pb::StatusRequest {});
                     req.set_timeout(Duration::from_secs(5));
                     c.status(req).await.ok().map(|r| r.into_inner())
@@ -602,7 +654,8 @@ impl State {
                             // A worker's reply is bounded before it is kept and listed.
                             w.info.adapter = clip(&s.adapter);
                             w.info.gpu_memory_bytes = s.gpu_memory_bytes;
-                            w.info.cached_scenes = s.cached_scenes.iter().take(1024).map(|h| clip(h)).collect();
+                            w.info.cached_scenes =
+                                s.cached_scenes.iter().take(1024).map(|h| clip(h)).collect();
                             w.info.busy_strips = s.busy_strips;
                         }
                         None => w.info.alive = false,
@@ -627,7 +680,8 @@ impl State {
     fn sweep(&self) {
         let r = self.config.retention;
         let mut jobs = lock(&self.jobs);
-        let mut finished: Vec<(Instant, String)> = jobs.iter().filter_map(|(id, j)| j.finished.map(|t| (t, id.clone()))).collect();
+        let mut finished: Vec<(Instant, String)> =
+            jobs.iter().filter_map(|(id, j)| j.finished.map(|t| (t, id.clone()))).collect();
         finished.sort();
         let over = finished.len().saturating_sub(r.max_jobs);
         let mut results = lock(&self.results);
@@ -642,24 +696,37 @@ impl State {
     /// Checks that the worker at `addr` holds the farm's token: it must
     /// answer a fresh nonce with the keyed hash only a token holder can make.
     async fn verify_worker(&self, addr: &str) -> Result<(), Status> {
-        let refused = |why: &str| Status::permission_denied(format!("worker {}: {why}", clip(addr)));
-        let ch = sylva_proto::tls::connect(addr, self.config.worker_tls.as_ref(), Duration::from_secs(5))
-            .await
-            .map_err(|_| refused("cannot be reached at that address from the coordinator"))?;
+        let refused =
+            |why: &str| Status::permission_denied(format!("worker {}: {why}", clip(addr)));
+        let ch = sylva_proto::tls::connect(
+            addr,
+            self.config.worker_tls.as_ref(),
+            Duration::from_secs(5),
+        )
+        .await
+        .map_err(|_| refused("cannot be reached at that address from the coordinator"))?;
         let nonce = sylva_proto::auth::random_bytes(32);
         let mut c = pb::worker_identity_client::WorkerIdentityClient::new(ch);
         let mut req = Request::new(pb::ProveRequest { nonce: nonce.clone() });
         req.set_timeout(Duration::from_secs(5));
-        let proof = c.prove(req).await.map_err(|_| refused("does not answer the identity check (is it a Sylva worker?)"))?.into_inner().proof;
+        let proof = c
+            .prove(req)
+            .await
+            .map_err(|_| refused("does not answer the identity check (is it a Sylva worker?)"))?
+            .into_inner()
+            .proof;
         if !sylva_proto::auth::check_proof(self.config.token.as_deref(), &nonce, &proof) {
-            return Err(refused("could not prove it holds the farm's token; start it with the coordinator's --token"));
+            return Err(refused(
+                "could not prove it holds the farm's token; start it with the coordinator's --token",
+            ));
         }
         Ok(())
     }
 }
 
 fn encode_png(w: u32, h: u32, px: &[[u8; 3]]) -> anyhow::Result<Vec<u8>> {
-    let img = image::RgbImage::from_raw(w, h, px.iter().flatten().copied().collect()).ok_or_else(|| anyhow::anyhow!("image size"))?;
+    let img = image::RgbImage::from_raw(w, h, px.iter().flatten().copied().collect())
+        .ok_or_else(|| anyhow::anyhow!("image size"))?;
     let mut out = std::io::Cursor::new(Vec::new());
     img.write_to(&mut out, image::ImageFormat::Png)?;
     Ok(out.into_inner())
@@ -667,7 +734,8 @@ fn encode_png(w: u32, h: u32, px: &[[u8; 3]]) -> anyhow::Result<Vec<u8>> {
 
 fn encode_exr(img: &sylva_scene::film::HdrImage) -> anyhow::Result<Vec<u8>> {
     let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
-    let buf = image::Rgb32FImage::from_raw(img.width, img.height, flat).ok_or_else(|| anyhow::anyhow!("image size"))?;
+    let buf = image::Rgb32FImage::from_raw(img.width, img.height, flat)
+        .ok_or_else(|| anyhow::anyhow!("image size"))?;
     let mut out = std::io::Cursor::new(Vec::new());
     image::DynamicImage::ImageRgb32F(buf).write_to(&mut out, image::ImageFormat::OpenExr)?;
     Ok(out.into_inner())
@@ -695,37 +763,65 @@ fn schedule_from_wire(v: i32) -> Result<ScheduleKind, Status> {
 
 #[tonic::async_trait]
 impl Coordinator for CoordinatorService {
-    async fn submit_job(&self, request: Request<Streaming<pb::SubmitChunk>>) -> Result<Response<pb::JobId>, Status> {
+    async fn submit_job(
+        &self,
+        request: Request<Streaming<pb::SubmitChunk>>,
+    ) -> Result<Response<pb::JobId>, Status> {
         let remote = request.remote_addr();
         let mut stream = request.into_inner();
-        let first = stream.next().await.ok_or_else(|| Status::invalid_argument("empty submission"))??;
-        let spec = first.spec.ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
-        let frame = FrameSettings::try_from(spec.frame.as_ref().ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?)?;
+        let first =
+            stream.next().await.ok_or_else(|| Status::invalid_argument("empty submission"))??;
+        let spec = first
+            .spec
+            .ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
+        let frame = FrameSettings::try_from(
+            spec.frame
+                .as_ref()
+                .ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?,
+        )?;
         let schedule = schedule_from_wire(spec.schedule)?;
         if spec.views.len() > MAX_FRAMES as usize {
-            return Err(Status::invalid_argument(format!("a sequence of {} frames: at most {MAX_FRAMES}", spec.views.len())));
+            return Err(Status::invalid_argument(format!(
+                "a sequence of {} frames: at most {MAX_FRAMES}",
+                spec.views.len()
+            )));
         }
         let views = spec
             .views
             .iter()
             .enumerate()
-            .map(|(i, v)| View::try_from(v).map_err(|e| Status::invalid_argument(format!("frame {i}: {}", e.message()))))
+            .map(|(i, v)| {
+                View::try_from(v)
+                    .map_err(|e| Status::invalid_argument(format!("frame {i}: {}", e.message())))
+            })
             .collect::<Result<Vec<View>, Status>>()?;
         if spec.name.len() > MAX_NAME {
-            return Err(Status::invalid_argument(format!("job name of {} bytes: at most {MAX_NAME}", spec.name.len())));
+            return Err(Status::invalid_argument(format!(
+                "job name of {} bytes: at most {MAX_NAME}",
+                spec.name.len()
+            )));
         }
         if spec.submitter.len() > MAX_SUBMITTER || spec.submitter.chars().any(char::is_control) {
-            return Err(Status::invalid_argument(format!("submitter name: at most {MAX_SUBMITTER} bytes, no control characters")));
+            return Err(Status::invalid_argument(format!(
+                "submitter name: at most {MAX_SUBMITTER} bytes, no control characters"
+            )));
         }
         let from = remote.map(|a| a.ip().to_string()).unwrap_or_else(|| "local".into());
-        let submitter = if spec.submitter.is_empty() { from } else { format!("{}@{from}", spec.submitter) };
+        let submitter =
+            if spec.submitter.is_empty() { from } else { format!("{}@{from}", spec.submitter) };
         let hash = first.hash.to_ascii_lowercase();
         if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
-            return Err(Status::invalid_argument(format!("hash {:?} is not a 64-digit hex BLAKE3 hash", clip(&first.hash))));
+            return Err(Status::invalid_argument(format!(
+                "hash {:?} is not a 64-digit hex BLAKE3 hash",
+                clip(&first.hash)
+            )));
         }
         let limit = self.state.config.max_bundle_bytes;
         if first.total_size > limit {
-            return Err(Status::resource_exhausted(format!("bundle of {} bytes is over the limit of {limit} bytes", first.total_size)));
+            return Err(Status::resource_exhausted(format!(
+                "bundle of {} bytes is over the limit of {limit} bytes",
+                first.total_size
+            )));
         }
         // Counted as the bytes arrive, against the declared size (itself
         // within the limit); nothing is reserved from the claim.
@@ -740,7 +836,11 @@ impl Coordinator for CoordinatorService {
             }
         }
         if (bytes.len() as u64) != first.total_size {
-            return Err(Status::invalid_argument(format!("truncated upload: {} of {} bytes", bytes.len(), first.total_size)));
+            return Err(Status::invalid_argument(format!(
+                "truncated upload: {} of {} bytes",
+                bytes.len(),
+                first.total_size
+            )));
         }
         if bundle::hash_of(&bytes) != hash {
             return Err(Status::invalid_argument("the bundle's bytes do not match its hash"));
@@ -797,7 +897,10 @@ impl Coordinator for CoordinatorService {
 
     type WatchJobStream = EventStream;
 
-    async fn watch_job(&self, request: Request<pb::JobId>) -> Result<Response<Self::WatchJobStream>, Status> {
+    async fn watch_job(
+        &self,
+        request: Request<pb::JobId>,
+    ) -> Result<Response<Self::WatchJobStream>, Status> {
         let id = request.into_inner().id;
         let id = job_id(&id)?.to_string();
         let (mut rx, current) = {
@@ -826,9 +929,14 @@ impl Coordinator for CoordinatorService {
                     // now and goes on, rather than a stream that just ends.
                     Err(broadcast::error::RecvError::Lagged(n)) => {
                         let mut ev = state.event(&id);
-                        ev.message = format!("{n} progress events skipped: this client reads slower than strips finish");
+                        ev.message = format!(
+                            "{n} progress events skipped: this client reads slower than strips finish"
+                        );
                         if ended(&ev.state) {
-                            ev.message = lock(&state.jobs).get(&id).map(|j| j.summary.error.clone()).unwrap_or_default();
+                            ev.message = lock(&state.jobs)
+                                .get(&id)
+                                .map(|j| j.summary.error.clone())
+                                .unwrap_or_default();
                         }
                         ev
                     }
@@ -844,7 +952,10 @@ impl Coordinator for CoordinatorService {
         Ok(Response::new(Box::pin(tokio_stream::wrappers::ReceiverStream::new(out))))
     }
 
-    async fn fetch_result(&self, request: Request<pb::FetchRequest>) -> Result<Response<pb::FetchReply>, Status> {
+    async fn fetch_result(
+        &self,
+        request: Request<pb::FetchRequest>,
+    ) -> Result<Response<pb::FetchReply>, Status> {
         let r = request.into_inner();
         let id = job_id(&r.id)?;
         let format = match r.format.as_str() {
@@ -856,10 +967,17 @@ impl Coordinator for CoordinatorService {
             let jobs = lock(&self.state.jobs);
             let j = jobs.get(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
             if j.summary.state != "done" {
-                return Err(Status::failed_precondition(format!("job {id} is {}", j.summary.state)));
+                return Err(Status::failed_precondition(format!(
+                    "job {id} is {}",
+                    j.summary.state
+                )));
             }
             if r.frame >= j.summary.frames.max(1) {
-                return Err(Status::out_of_range(format!("job {id} has {} frame(s), from 0; no frame {}", j.summary.frames.max(1), r.frame)));
+                return Err(Status::out_of_range(format!(
+                    "job {id} has {} frame(s), from 0; no frame {}",
+                    j.summary.frames.max(1),
+                    r.frame
+                )));
             }
         }
         let stored = lock(&self.state.results).get(id, r.frame as usize, format);
@@ -873,7 +991,10 @@ impl Coordinator for CoordinatorService {
         Ok(Response::new(pb::FetchReply { data, format: format.into() }))
     }
 
-    async fn cancel_job(&self, request: Request<pb::JobId>) -> Result<Response<pb::JobSummary>, Status> {
+    async fn cancel_job(
+        &self,
+        request: Request<pb::JobId>,
+    ) -> Result<Response<pb::JobSummary>, Status> {
         let id = request.into_inner().id;
         let id = job_id(&id)?;
         let (summary, tx) = {
@@ -904,12 +1025,18 @@ impl Coordinator for CoordinatorService {
         Ok(Response::new(summary))
     }
 
-    async fn list_jobs(&self, _: Request<pb::ListJobsRequest>) -> Result<Response<pb::JobList>, Status> {
+    async fn list_jobs(
+        &self,
+        _: Request<pb::ListJobsRequest>,
+    ) -> Result<Response<pb::JobList>, Status> {
         let jobs = lock(&self.state.jobs).values().map(|j| j.summary.clone()).collect();
         Ok(Response::new(pb::JobList { jobs }))
     }
 
-    async fn set_priority(&self, request: Request<pb::SetPriorityRequest>) -> Result<Response<pb::JobSummary>, Status> {
+    async fn set_priority(
+        &self,
+        request: Request<pb::SetPriorityRequest>,
+    ) -> Result<Response<pb::JobSummary>, Status> {
         let r = request.into_inner();
         let id = job_id(&r.id)?;
         let summary = {
@@ -923,15 +1050,26 @@ impl Coordinator for CoordinatorService {
         Ok(Response::new(summary))
     }
 
-    async fn list_workers(&self, _: Request<pb::ListWorkersRequest>) -> Result<Response<pb::WorkerList>, Status> {
+    async fn list_workers(
+        &self,
+        _: Request<pb::ListWorkersRequest>,
+    ) -> Result<Response<pb::WorkerList>, Status> {
         let workers = lock(&self.state.workers).values().map(|w| w.info.clone()).collect();
         Ok(Response::new(pb::WorkerList { workers }))
     }
 
-    async fn register_worker(&self, request: Request<pb::RegisterWorkerRequest>) -> Result<Response<pb::RegisterWorkerReply>, Status> {
+    async fn register_worker(
+        &self,
+        request: Request<pb::RegisterWorkerRequest>,
+    ) -> Result<Response<pb::RegisterWorkerReply>, Status> {
         let addr = request.into_inner().addr;
-        if addr.len() > MAX_ID || addr.parse::<std::net::SocketAddr>().is_err() && !addr.contains(':') {
-            return Err(Status::invalid_argument(format!("worker address {:?} is not host:port", clip(&addr))));
+        if addr.len() > MAX_ID
+            || addr.parse::<std::net::SocketAddr>().is_err() && !addr.contains(':')
+        {
+            return Err(Status::invalid_argument(format!(
+                "worker address {:?} is not host:port",
+                clip(&addr)
+            )));
         }
         let known = lock(&self.state.workers).get(&addr).is_some_and(|w| w.info.alive);
         if !known {
@@ -974,9 +1112,18 @@ pub async fn run(
     let served = builder
         .add_service(health)
         .add_service(tonic::service::interceptor::InterceptedService::new(reflection, auth.clone()))
-        .add_service(tonic::service::interceptor::InterceptedService::new(reflection_alpha, auth.clone()))
-        .add_service(tonic::service::interceptor::InterceptedService::new(service.clone().into_server(), auth))
-        .serve_with_incoming_shutdown(tokio_stream::wrappers::TcpListenerStream::new(listener), shutdown)
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            reflection_alpha,
+            auth.clone(),
+        ))
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            service.clone().into_server(),
+            auth,
+        ))
+        .serve_with_incoming_shutdown(
+            tokio_stream::wrappers::TcpListenerStream::new(listener),
+            shutdown,
+        )
         .await;
     service.clean_up();
     served?;

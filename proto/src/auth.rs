@@ -6,7 +6,10 @@ use tonic::{Request, Status};
 
 /// Where a token may come from, in order: the flag, the environment
 /// variable `SYLVA_TOKEN`, a file (trailing whitespace trimmed).
-pub fn load_token(flag: Option<&str>, file: Option<&std::path::Path>) -> std::io::Result<Option<String>> {
+pub fn load_token(
+    flag: Option<&str>,
+    file: Option<&std::path::Path>,
+) -> std::io::Result<Option<String>> {
     if let Some(t) = flag.filter(|t| !t.is_empty()) {
         return Ok(Some(t.to_string()));
     }
@@ -16,21 +19,28 @@ pub fn load_token(flag: Option<&str>, file: Option<&std::path::Path>) -> std::io
         return Ok(Some(t));
     }
     match file {
-        Some(p) => Ok(Some(std::fs::read_to_string(p)?.trim_end().to_string()).filter(|t| !t.is_empty())),
+        Some(p) => {
+            Ok(Some(std::fs::read_to_string(p)?.trim_end().to_string()).filter(|t| !t.is_empty()))
+        }
         None => Ok(None),
     }
 }
 
 /// A server interceptor: with a token configured, calls must carry
 /// `authorization: Bearer <token>`; UNAUTHENTICATED otherwise.
-pub fn require(token: Option<String>) -> impl FnMut(Request<()>) -> Result<Request<()>, Status> + Clone {
+pub fn require(
+    token: Option<String>,
+) -> impl FnMut(Request<()>) -> Result<Request<()>, Status> + Clone {
     move |req: Request<()>| {
         let Some(want) = &token else { return Ok(req) };
-        let got = req.metadata().get("authorization").and_then(|v| v.to_str().ok()).and_then(bearer);
+        let got =
+            req.metadata().get("authorization").and_then(|v| v.to_str().ok()).and_then(bearer);
         match got {
             Some(g) if constant_time_eq(g.as_bytes(), want.as_bytes()) => Ok(req),
             Some(_) => Err(Status::unauthenticated("wrong bearer token")),
-            None => Err(Status::unauthenticated("this service needs a bearer token (authorization: Bearer …)")),
+            None => Err(Status::unauthenticated(
+                "this service needs a bearer token (authorization: Bearer …)",
+            )),
         }
     }
 }
@@ -107,7 +117,10 @@ mod tests {
         assert!(check(add.call(Request::new(())).unwrap()).is_ok());
         assert_eq!(check(Request::new(())).unwrap_err().code(), tonic::Code::Unauthenticated);
         let mut wrong = attach(Some("guess".into()));
-        assert_eq!(check(wrong.call(Request::new(())).unwrap()).unwrap_err().code(), tonic::Code::Unauthenticated);
+        assert_eq!(
+            check(wrong.call(Request::new(())).unwrap()).unwrap_err().code(),
+            tonic::Code::Unauthenticated
+        );
         let mut open = require(None);
         assert!(open(Request::new(())).is_ok());
         for form in ["bearer s3cret", "BEARER s3cret", "  Bearer   s3cret "] {

@@ -26,15 +26,21 @@ pub fn lighting_to_wire(l: Option<LightingMode>) -> pb::Lighting {
 
 /// The method a wire lighting number names.
 pub fn lighting_from_wire(v: i32) -> Result<Option<LightingMode>, Status> {
-    Ok(match pb::Lighting::try_from(v).map_err(|_| Status::invalid_argument(format!("lighting {v}: not a lighting method this worker knows")))? {
-        pb::Lighting::Scene => None,
-        pb::Lighting::Local => Some(LightingMode::Local),
-        pb::Lighting::Ambient => Some(LightingMode::Ambient),
-        pb::Lighting::Lb => Some(LightingMode::Lb),
-        pb::Lighting::LbVisualize => Some(LightingMode::LbVisualize),
-        pb::Lighting::Reference => Some(LightingMode::Reference),
-        pb::Lighting::Boulanger => Some(LightingMode::Boulanger),
-    })
+    Ok(
+        match pb::Lighting::try_from(v).map_err(|_| {
+            Status::invalid_argument(format!(
+                "lighting {v}: not a lighting method this worker knows"
+            ))
+        })? {
+            pb::Lighting::Scene => None,
+            pb::Lighting::Local => Some(LightingMode::Local),
+            pb::Lighting::Ambient => Some(LightingMode::Ambient),
+            pb::Lighting::Lb => Some(LightingMode::Lb),
+            pb::Lighting::LbVisualize => Some(LightingMode::LbVisualize),
+            pb::Lighting::Reference => Some(LightingMode::Reference),
+            pb::Lighting::Boulanger => Some(LightingMode::Boulanger),
+        },
+    )
 }
 
 /// The structure a wire number names.
@@ -42,7 +48,9 @@ pub fn accel_from_wire(v: i32) -> Result<AccelKind, Status> {
     match pb::Accel::try_from(v) {
         Ok(pb::Accel::Bvh) => Ok(AccelKind::Bvh),
         Ok(pb::Accel::Kd) => Ok(AccelKind::Kd),
-        Err(_) => Err(Status::invalid_argument(format!("accel {v}: not a structure this worker knows (bvh, kd)"))),
+        Err(_) => Err(Status::invalid_argument(format!(
+            "accel {v}: not a structure this worker knows (bvh, kd)"
+        ))),
     }
 }
 
@@ -54,7 +62,12 @@ impl TryFrom<&pb::FrameSettings> for FrameSettings {
         let ambient = match f.ambient.as_slice() {
             [] => None,
             [r, g, b] => Some([*r, *g, *b]),
-            other => return Err(Status::invalid_argument(format!("ambient: three values or none, not {}", other.len()))),
+            other => {
+                return Err(Status::invalid_argument(format!(
+                    "ambient: three values or none, not {}",
+                    other.len()
+                )));
+            }
         };
         let frame = FrameSettings {
             width: f.width,
@@ -94,7 +107,8 @@ impl From<&FrameSettings> for pb::FrameSettings {
 
 /// Three values from the wire, or why not.
 fn three(v: &[f32], name: &str) -> Result<[f32; 3], Status> {
-    <[f32; 3]>::try_from(v).map_err(|_| Status::invalid_argument(format!("{name}: three values, not {}", v.len())))
+    <[f32; 3]>::try_from(v)
+        .map_err(|_| Status::invalid_argument(format!("{name}: three values, not {}", v.len())))
 }
 
 impl TryFrom<&pb::FrameView> for View {
@@ -111,7 +125,11 @@ impl TryFrom<&pb::FrameView> for View {
                 fov_y_deg: c.fov_y_deg,
             }),
         };
-        let sun_towards = if v.sun_towards.is_empty() { None } else { Some(three(&v.sun_towards, "sun_towards")?) };
+        let sun_towards = if v.sun_towards.is_empty() {
+            None
+        } else {
+            Some(three(&v.sun_towards, "sun_towards")?)
+        };
         let view = View { camera, sun_towards };
         view.check().map_err(Status::invalid_argument)?;
         Ok(view)
@@ -139,7 +157,12 @@ mod tests {
     #[test]
     fn frames_round_trip_and_unknown_enums_are_refused() {
         for lighting in [None, Some(LightingMode::Boulanger), Some(LightingMode::LbVisualize)] {
-            let f = FrameSettings { lighting, accel: AccelKind::Kd, ambient: Some([0.1, 0.2, 0.3]), ..Default::default() };
+            let f = FrameSettings {
+                lighting,
+                accel: AccelKind::Kd,
+                ambient: Some([0.1, 0.2, 0.3]),
+                ..Default::default()
+            };
             assert_eq!(FrameSettings::try_from(&pb::FrameSettings::from(&f)).unwrap(), f);
         }
         let mut wire = pb::FrameSettings::from(&FrameSettings::default());
@@ -150,12 +173,25 @@ mod tests {
         let mut wire = pb::FrameSettings::from(&FrameSettings::default());
         wire.accel = 7;
         assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("accel 7"));
-        let camera = CameraSpec { position: [1.0, 2.0, 3.0], look_at: [0.0; 3], up: [0.0, 1.0, 0.0], fov_y_deg: 30.0 };
-        let f = FrameSettings { view: View { camera: Some(camera), sun_towards: Some([0.0, 1.0, 0.0]) }, ..Default::default() };
+        let camera = CameraSpec {
+            position: [1.0, 2.0, 3.0],
+            look_at: [0.0; 3],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 30.0,
+        };
+        let f = FrameSettings {
+            view: View { camera: Some(camera), sun_towards: Some([0.0, 1.0, 0.0]) },
+            ..Default::default()
+        };
         assert_eq!(FrameSettings::try_from(&pb::FrameSettings::from(&f)).unwrap(), f);
         let mut wire = pb::FrameSettings::from(&f);
         wire.view.as_mut().unwrap().sun_towards = vec![1.0, 2.0];
-        assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("sun_towards: three values"));
+        assert!(
+            FrameSettings::try_from(&wire)
+                .unwrap_err()
+                .message()
+                .contains("sun_towards: three values")
+        );
         wire.view.as_mut().unwrap().sun_towards = vec![f32::NAN, 1.0, 0.0];
         assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("sun_towards"));
         wire.view.as_mut().unwrap().sun_towards = Vec::new();

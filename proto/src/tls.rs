@@ -4,7 +4,9 @@
 
 use std::path::Path;
 use std::time::Duration;
-use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint, Identity, ServerTlsConfig};
+use tonic::transport::{
+    Certificate, Channel, ClientTlsConfig, Endpoint, Identity, ServerTlsConfig,
+};
 
 /// Why TLS could not be set up.
 #[derive(Debug)]
@@ -19,23 +21,31 @@ impl std::fmt::Display for TlsError {
 impl std::error::Error for TlsError {}
 
 fn read(path: &Path, what: &str) -> Result<Vec<u8>, TlsError> {
-    let bytes = std::fs::read(path).map_err(|e| TlsError(format!("{}: cannot read the {what}: {e}", path.display())))?;
+    let bytes = std::fs::read(path)
+        .map_err(|e| TlsError(format!("{}: cannot read the {what}: {e}", path.display())))?;
     if !String::from_utf8_lossy(&bytes).contains("-----BEGIN ") {
-        return Err(TlsError(format!("{}: the {what} is not PEM (no -----BEGIN line)", path.display())));
+        return Err(TlsError(format!(
+            "{}: the {what} is not PEM (no -----BEGIN line)",
+            path.display()
+        )));
     }
     Ok(bytes)
 }
 
 /// A server identity from PEM files: the certificate chain and its private key.
 pub fn server_config(cert: &Path, key: &Path) -> Result<ServerTlsConfig, TlsError> {
-    Ok(ServerTlsConfig::new().identity(Identity::from_pem(read(cert, "TLS certificate")?, read(key, "TLS private key")?)))
+    Ok(ServerTlsConfig::new().identity(Identity::from_pem(
+        read(cert, "TLS certificate")?,
+        read(key, "TLS private key")?,
+    )))
 }
 
 /// A client that trusts the CA certificate in `ca` (PEM); `domain`, when
 /// given, is the name checked in the server's certificate instead of the
 /// host it is reached at.
 pub fn client_config(ca: &Path, domain: Option<&str>) -> Result<ClientTlsConfig, TlsError> {
-    let c = ClientTlsConfig::new().ca_certificate(Certificate::from_pem(read(ca, "CA certificate")?));
+    let c =
+        ClientTlsConfig::new().ca_certificate(Certificate::from_pem(read(ca, "CA certificate")?));
     Ok(match domain {
         Some(d) => c.domain_name(d),
         None => c,
@@ -43,7 +53,11 @@ pub fn client_config(ca: &Path, domain: Option<&str>) -> Result<ClientTlsConfig,
 }
 
 /// An endpoint for `addr` (`host:port`): `https` with `tls`, else `http`.
-pub fn endpoint(addr: &str, tls: Option<&ClientTlsConfig>, connect_timeout: Duration) -> Result<Endpoint, tonic::transport::Error> {
+pub fn endpoint(
+    addr: &str,
+    tls: Option<&ClientTlsConfig>,
+    connect_timeout: Duration,
+) -> Result<Endpoint, tonic::transport::Error> {
     let scheme = if tls.is_some() { "https" } else { "http" };
     let e = Endpoint::from_shared(format!("{scheme}://{addr}"))?.connect_timeout(connect_timeout);
     match tls {
@@ -53,6 +67,10 @@ pub fn endpoint(addr: &str, tls: Option<&ClientTlsConfig>, connect_timeout: Dura
 }
 
 /// Connects to `addr`, over TLS when `tls` is set.
-pub async fn connect(addr: &str, tls: Option<&ClientTlsConfig>, connect_timeout: Duration) -> Result<Channel, tonic::transport::Error> {
+pub async fn connect(
+    addr: &str,
+    tls: Option<&ClientTlsConfig>,
+    connect_timeout: Duration,
+) -> Result<Channel, tonic::transport::Error> {
     endpoint(addr, tls, connect_timeout)?.connect().await
 }

@@ -111,12 +111,22 @@ pub fn small_scene(dir: &Path) -> PathBuf {
 }
 
 /// A raw coordinator client that sends `token`, if any.
-pub type Client = CoordinatorClient<tonic::service::interceptor::InterceptedService<tonic::transport::Channel, sylva_proto::auth::Attach>>;
+pub type Client = CoordinatorClient<
+    tonic::service::interceptor::InterceptedService<
+        tonic::transport::Channel,
+        sylva_proto::auth::Attach,
+    >,
+>;
 
 /// Connects to the coordinator at `addr` with `token`.
 pub async fn coordinator(addr: &str, token: Option<&str>) -> Client {
-    let ch = tonic::transport::Endpoint::from_shared(format!("http://{addr}")).unwrap().connect().await.unwrap();
-    CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token.map(str::to_string))).max_decoding_message_size(64 << 20)
+    let ch = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    CoordinatorClient::with_interceptor(ch, sylva_proto::auth::attach(token.map(str::to_string)))
+        .max_decoding_message_size(64 << 20)
 }
 
 /// Waits until the coordinator lists `n` live workers.
@@ -132,9 +142,21 @@ pub async fn wait_for_workers(c: &mut Client, n: usize) {
 }
 
 /// A job's submission: the spec and the bundle's bytes in 64 KiB chunks.
-pub fn submission(spec: pb::JobSpec, hash: &str, bytes: &[u8], declared: u64) -> Vec<pb::SubmitChunk> {
-    let mut chunks = vec![pb::SubmitChunk { spec: Some(spec), hash: hash.to_string(), total_size: declared, data: vec![] }];
-    chunks.extend(bytes.chunks(1 << 16).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }));
+pub fn submission(
+    spec: pb::JobSpec,
+    hash: &str,
+    bytes: &[u8],
+    declared: u64,
+) -> Vec<pb::SubmitChunk> {
+    let mut chunks = vec![pb::SubmitChunk {
+        spec: Some(spec),
+        hash: hash.to_string(),
+        total_size: declared,
+        data: vec![],
+    }];
+    chunks.extend(
+        bytes.chunks(1 << 16).map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }),
+    );
     chunks
 }
 
@@ -167,7 +189,12 @@ pub async fn submit_and_wait(
     b: &sylva_scene::bundle::SceneBundle,
     mut on_event: impl FnMut(&pb::JobEvent),
 ) -> pb::JobEvent {
-    let id = c.submit_job(tokio_stream::iter(submission(spec, &b.hash, &b.bytes, b.bytes.len() as u64))).await.unwrap().into_inner().id;
+    let id = c
+        .submit_job(tokio_stream::iter(submission(spec, &b.hash, &b.bytes, b.bytes.len() as u64)))
+        .await
+        .unwrap()
+        .into_inner()
+        .id;
     let mut events = c.watch_job(pb::JobId { id }).await.unwrap().into_inner();
     while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
         let ev = ev.unwrap();
@@ -203,7 +230,11 @@ pub fn reference_png(scene: &Path, out: &Path, width: u32, height: u32) -> Vec<u
 /// Runs `sylva ARGS`, which must succeed; its stdout.
 pub fn ok(args: &[&str]) -> String {
     let out = sylva(args, &[]);
-    assert!(out.status.success(), "sylva {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "sylva {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     String::from_utf8(out.stdout).unwrap()
 }
 

@@ -46,7 +46,8 @@ impl GpuContext {
     }
 
     async fn open() -> anyhow::Result<Self> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = instance
             .request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() })
             .await
@@ -55,7 +56,11 @@ impl GpuContext {
             )?;
         let limits = adapter.limits();
         let (device, queue) = adapter
-            .request_device(&wgpu::DeviceDescriptor { label: Some("sylva"), required_limits: limits.clone(), ..Default::default() })
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("sylva"),
+                required_limits: limits.clone(),
+                ..Default::default()
+            })
             .await
             .with_context(|| format!("cannot open a device on {}", adapter.get_info().name))?;
         device.on_uncaptured_error(std::sync::Arc::new(|e| tracing::error!("wgpu: {e}")));
@@ -67,7 +72,11 @@ impl GpuContext {
     /// The adapter's name and driver, as reports print it.
     pub fn adapter_name(&self) -> String {
         let i = self.adapter.get_info();
-        let driver = if i.driver.is_empty() { String::new() } else { format!(", {} {}", i.driver, i.driver_info) };
+        let driver = if i.driver.is_empty() {
+            String::new()
+        } else {
+            format!(", {} {}", i.driver, i.driver_info)
+        };
         format!("{} ({:?}{driver})", i.name, i.backend)
     }
 
@@ -86,7 +95,11 @@ impl GpuContext {
 
     /// Runs `f` inside validation and out-of-memory error scopes, so a wgpu
     /// error becomes this call's error rather than a log line.
-    pub fn checked<T>(&self, what: &str, f: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {
+    pub fn checked<T>(
+        &self,
+        what: &str,
+        f: impl FnOnce() -> anyhow::Result<T>,
+    ) -> anyhow::Result<T> {
         let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let invalid = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let out = f();
@@ -102,15 +115,22 @@ impl GpuContext {
     /// kernels dearly on lavapipe, and these kernels only index the buffers
     /// their own Rust side sizes (the GPU-against-CPU tests cover them).
     pub fn trusted_module(&self, label: &str, source: String) -> wgpu::ShaderModule {
-        let desc = wgpu::ShaderModuleDescriptor { label: Some(label), source: wgpu::ShaderSource::Wgsl(source.into()) };
+        let desc = wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        };
         // SAFETY: see above; every buffer a kernel indexes is sized by the
         // code that dispatches it, and all loops are bounded by data we build.
-        unsafe { self.device.create_shader_module_trusted(desc, wgpu::ShaderRuntimeChecks::unchecked()) }
+        unsafe {
+            self.device.create_shader_module_trusted(desc, wgpu::ShaderRuntimeChecks::unchecked())
+        }
     }
 
     /// Waits for all submitted work.
     pub fn wait(&self) -> anyhow::Result<()> {
-        self.device.poll(wgpu::PollType::wait_indefinitely()).context("GPU device lost while waiting")?;
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .context("GPU device lost while waiting")?;
         Ok(())
     }
 

@@ -45,7 +45,13 @@ pub struct Reuse {
 
 /// Prepares `scene` for tracing with `kind` structures and whatever the
 /// `lighting` method needs. `progress` hears each step.
-pub fn prepare(ctx: &GpuContext, scene: &Scene, kind: AccelKind, lighting: LightingMode, progress: &dyn Fn(&str)) -> anyhow::Result<PreparedScene> {
+pub fn prepare(
+    ctx: &GpuContext,
+    scene: &Scene,
+    kind: AccelKind,
+    lighting: LightingMode,
+    progress: &dyn Fn(&str),
+) -> anyhow::Result<PreparedScene> {
     prepare_reusing(ctx, scene, kind, lighting, &mut Reuse::default(), progress)
 }
 
@@ -70,7 +76,11 @@ pub fn prepare_reusing(
             a
         }
     };
-    let mut light = SceneLight { models: vec![None; scene.models.len()], instance_scales: vec![1.0; scene.instances.len()], ..Default::default() };
+    let mut light = SceneLight {
+        models: vec![None; scene.models.len()],
+        instance_scales: vec![1.0; scene.instances.len()],
+        ..Default::default()
+    };
     let (mut reports, mut forest, mut boulanger) = (Vec::new(), None, Vec::new());
     if needs.lb {
         let lb = match &reuse.lb {
@@ -81,12 +91,14 @@ pub fn prepare_reusing(
                 lb
             }
         };
-        (light.models, light.instance_scales, light.ground) = (lb.grids.clone(), lb.scales.clone(), lb.ground.clone());
+        (light.models, light.instance_scales, light.ground) =
+            (lb.grids.clone(), lb.scales.clone(), lb.ground.clone());
         (reports, forest) = (lb.light.clone(), Some(lb.forest.clone()));
     }
     if needs.envelopes {
         progress("Boulanger envelope distances");
-        (light.envelopes, boulanger) = phases.time("boulanger precompute", || lighting::boulanger::prepare(scene));
+        (light.envelopes, boulanger) =
+            phases.time("boulanger precompute", || lighting::boulanger::prepare(scene));
     }
     if needs.clouds && !scene.clouds.is_empty() {
         progress("LB light of the clouds");
@@ -99,5 +111,12 @@ pub fn prepare_reusing(
         ctx.wait()?;
         Ok(r)
     })?;
-    Ok(PreparedScene { renderer, phases, accel_bytes: accel.bytes(), light: reports, forest, boulanger })
+    Ok(PreparedScene {
+        renderer,
+        phases,
+        accel_bytes: accel.bytes(),
+        light: reports,
+        forest,
+        boulanger,
+    })
 }

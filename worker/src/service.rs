@@ -183,8 +183,14 @@ impl WorkerService {
 impl State {
     /// Evicts least recently used bundles until `incoming` more bytes fit.
     fn make_room(&self, bundles: &mut HashMap<String, Cached>, incoming: u64) {
-        while bundles.values().map(|c| c.bytes).sum::<u64>() + incoming > self.config.cache_bytes && !bundles.is_empty() {
-            let oldest = bundles.iter().min_by_key(|(_, c)| c.last_used).map(|(h, _)| h.clone()).expect("not empty");
+        while bundles.values().map(|c| c.bytes).sum::<u64>() + incoming > self.config.cache_bytes
+            && !bundles.is_empty()
+        {
+            let oldest = bundles
+                .iter()
+                .min_by_key(|(_, c)| c.last_used)
+                .map(|(h, _)| h.clone())
+                .expect("not empty");
             bundles.remove(&oldest);
             lock(&self.prepared).retain(|k, _| k.0 != oldest);
             lock(&self.accels).retain(|k, _| k.0 != oldest);
@@ -203,7 +209,14 @@ impl State {
     /// The scene prepared for a frame's structure, lighting and view: kept
     /// from an earlier strip, or prepared now from the structures and the
     /// LB light kept for this sun, building only what is missing.
-    fn prepared_for(&self, scene: &Scene, hash: &str, accel: AccelKind, lighting: LightingMode, view: &View) -> anyhow::Result<Arc<PreparedScene>> {
+    fn prepared_for(
+        &self,
+        scene: &Scene,
+        hash: &str,
+        accel: AccelKind,
+        lighting: LightingMode,
+        view: &View,
+    ) -> anyhow::Result<Arc<PreparedScene>> {
         let needs = crate::lighting::method(lighting).needs;
         let sun = if needs.lb || needs.clouds { view.sun_key() } else { None };
         let key = (hash.to_string(), accel, lighting.preparation(), sun);
@@ -225,7 +238,9 @@ impl State {
         };
         let (solved_before, built_before) = (reuse.lb.is_some(), reuse.accel.is_some());
         let scene = scene.with_view(view);
-        let p = Arc::new(prepare_reusing(&self.ctx, &scene, accel, lighting, &mut reuse, &|m| tracing::info!("{m}"))?);
+        let p = Arc::new(prepare_reusing(&self.ctx, &scene, accel, lighting, &mut reuse, &|m| {
+            tracing::info!("{m}")
+        })?);
         if let (Some(a), false) = (reuse.accel, built_before) {
             self.accel_builds.fetch_add(1, Ordering::Relaxed);
             lock(&self.accels).insert((hash.to_string(), accel), a);
@@ -239,12 +254,16 @@ impl State {
         // Each sun variant holds the whole scene on the GPU: keep the
         // newest few of this scene's.
         loop {
-            let variants: Vec<(&PreparedKey, u64)> =
-                prepared.iter().filter(|(k, _)| (&k.0, k.1, k.2) == (&key.0, key.1, key.2)).map(|(k, u)| (k, u.stamp)).collect();
+            let variants: Vec<(&PreparedKey, u64)> = prepared
+                .iter()
+                .filter(|(k, _)| (&k.0, k.1, k.2) == (&key.0, key.1, key.2))
+                .map(|(k, u)| (k, u.stamp))
+                .collect();
             if variants.len() <= PREPARED_SUNS {
                 break;
             }
-            let oldest = variants.iter().min_by_key(|v| v.1).map(|v| v.0.clone()).expect("not empty");
+            let oldest =
+                variants.iter().min_by_key(|v| v.1).map(|v| v.0.clone()).expect("not empty");
             prepared.remove(&oldest);
         }
         Ok(p)
@@ -256,9 +275,12 @@ impl State {
         let mut lbs = lock(&self.lbs);
         lbs.insert(key, Used { value: lb, stamp: self.tick() });
         let keep = self.config.lb_cache_entries.max(1);
-        let bytes = |lbs: &HashMap<LbKey, Used<Arc<SceneLb>>>| lbs.values().map(|u| u.value.bytes()).sum::<u64>();
+        let bytes = |lbs: &HashMap<LbKey, Used<Arc<SceneLb>>>| {
+            lbs.values().map(|u| u.value.bytes()).sum::<u64>()
+        };
         while lbs.len() > keep || (lbs.len() > 1 && bytes(&lbs) > self.config.lb_cache_bytes) {
-            let oldest = lbs.iter().min_by_key(|(_, u)| u.stamp).map(|(k, _)| k.clone()).expect("not empty");
+            let oldest =
+                lbs.iter().min_by_key(|(_, u)| u.stamp).map(|(k, _)| k.clone()).expect("not empty");
             lbs.remove(&oldest);
         }
     }
@@ -266,25 +288,43 @@ impl State {
     /// A loaded scene by hash, marked used.
     fn scene(&self, hash: &str) -> Result<Arc<Scene>, Status> {
         let mut bundles = lock(&self.bundles);
-        let c = bundles.get_mut(hash).ok_or_else(|| Status::not_found(format!("scene {hash} is not loaded here; LoadScene it first")))?;
+        let c = bundles.get_mut(hash).ok_or_else(|| {
+            Status::not_found(format!("scene {hash} is not loaded here; LoadScene it first"))
+        })?;
         c.last_used = Instant::now();
         Ok(c.scene.clone())
     }
 
     /// What a frame of a loaded scene needs prepared: the scene, the keys
     /// of its structures and LB light, and whether it needs the light.
-    fn preparation(&self, scene_hash: &str, frame: Option<&pb::FrameSettings>) -> Result<Preparation, Status> {
-        let f = FrameSettings::try_from(frame.ok_or_else(|| Status::invalid_argument("frame settings missing"))?)?;
+    fn preparation(
+        &self,
+        scene_hash: &str,
+        frame: Option<&pb::FrameSettings>,
+    ) -> Result<Preparation, Status> {
+        let f = FrameSettings::try_from(
+            frame.ok_or_else(|| Status::invalid_argument("frame settings missing"))?,
+        )?;
         let hash = normalize_hash(scene_hash)?;
         let scene = self.scene(&hash)?;
         let lighting = f.lighting_or(scene.lighting);
         let needs = crate::lighting::method(lighting).needs;
         let sun = if needs.lb || needs.clouds { f.view.sun_key() } else { None };
-        Ok(Preparation { accel_key: (hash.clone(), f.accel), lb_key: (hash, sun), needs_lb: needs.lb, scene, frame: f, lighting })
+        Ok(Preparation {
+            accel_key: (hash.clone(), f.accel),
+            lb_key: (hash, sun),
+            needs_lb: needs.lb,
+            scene,
+            frame: f,
+            lighting,
+        })
     }
 
     /// The structures and LB light held for `p`, if all it needs is held.
-    fn held(&self, p: &Preparation) -> Option<(Arc<sylva_accel::SceneAccel>, Option<Arc<SceneLb>>)> {
+    fn held(
+        &self,
+        p: &Preparation,
+    ) -> Option<(Arc<sylva_accel::SceneAccel>, Option<Arc<SceneLb>>)> {
         let accel = lock(&self.accels).get(&p.accel_key).cloned()?;
         if !p.needs_lb {
             return Some((accel, None));
@@ -341,7 +381,9 @@ impl State {
     ) -> Result<(Vec<u8>, Reservation<'_>), Status> {
         let limit = self.config.max_bundle_bytes;
         if total > limit {
-            return Err(Status::resource_exhausted(format!("{what} of {total} bytes is over this worker's limit of {limit} bytes")));
+            return Err(Status::resource_exhausted(format!(
+                "{what} of {total} bytes is over this worker's limit of {limit} bytes"
+            )));
         }
         let mut held = Reservation { incoming: &self.incoming, bytes: 0 };
         let mut bytes = Vec::new();
@@ -349,16 +391,23 @@ impl State {
         while let Some(d) = chunk.take() {
             let n = d.len() as u64;
             if bytes.len() as u64 + n > total {
-                return Err(Status::invalid_argument(format!("{what} is longer than its declared {total} bytes")));
+                return Err(Status::invalid_argument(format!(
+                    "{what} is longer than its declared {total} bytes"
+                )));
             }
             if !held.grow(n, self.config.cache_bytes.max(limit)) {
-                return Err(Status::resource_exhausted("this worker is receiving as many bytes as it can hold; try again"));
+                return Err(Status::resource_exhausted(
+                    "this worker is receiving as many bytes as it can hold; try again",
+                ));
             }
             bytes.extend_from_slice(&d);
             chunk = rest.next().await.transpose()?.map(&data);
         }
         if (bytes.len() as u64) < total {
-            return Err(Status::invalid_argument(format!("truncated {what}: {} of {total} bytes", bytes.len())));
+            return Err(Status::invalid_argument(format!(
+                "truncated {what}: {} of {total} bytes",
+                bytes.len()
+            )));
         }
         Ok((bytes, held))
     }
@@ -380,22 +429,34 @@ impl Drop for CancelOnDrop {
 fn normalize_hash(h: &str) -> Result<String, Status> {
     let hash = h.to_ascii_lowercase();
     if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
-        return Err(Status::invalid_argument(format!("hash {:?} is not a 64-digit hex BLAKE3 hash", sylva_scene::sandbox::clip(h))));
+        return Err(Status::invalid_argument(format!(
+            "hash {:?} is not a 64-digit hex BLAKE3 hash",
+            sylva_scene::sandbox::clip(h)
+        )));
     }
     Ok(hash)
 }
 
 #[tonic::async_trait]
 impl Worker for WorkerService {
-    async fn load_scene(&self, request: Request<Streaming<pb::SceneChunk>>) -> Result<Response<pb::LoadSceneReply>, Status> {
+    async fn load_scene(
+        &self,
+        request: Request<Streaming<pb::SceneChunk>>,
+    ) -> Result<Response<pb::LoadSceneReply>, Status> {
         let mut stream = request.into_inner();
-        let first = stream.next().await.ok_or_else(|| Status::invalid_argument("empty upload: no chunk"))??;
+        let first = stream
+            .next()
+            .await
+            .ok_or_else(|| Status::invalid_argument("empty upload: no chunk"))??;
         let hash = normalize_hash(&first.hash)?;
         if let Some(c) = lock(&self.state.bundles).get_mut(&hash) {
             c.last_used = Instant::now();
             return Ok(Response::new(pb::LoadSceneReply { hash, was_cached: true }));
         }
-        let (bytes, held) = self.state.receive("bundle", first.total_size, first.data, &mut stream, |c| c.data).await?;
+        let (bytes, held) = self
+            .state
+            .receive("bundle", first.total_size, first.data, &mut stream, |c| c.data)
+            .await?;
         if bundle::hash_of(&bytes) != hash {
             return Err(Status::invalid_argument("the bundle's bytes do not match its hash"));
         }
@@ -415,16 +476,27 @@ impl Worker for WorkerService {
         drop(held);
         let mut bundles = lock(&self.state.bundles);
         self.state.make_room(&mut bundles, size);
-        bundles.insert(hash.clone(), Cached { scene: Arc::new(scene), bytes: size, last_used: Instant::now() });
+        bundles.insert(
+            hash.clone(),
+            Cached { scene: Arc::new(scene), bytes: size, last_used: Instant::now() },
+        );
         tracing::info!(%hash, bytes = size, "cached a scene bundle");
         Ok(Response::new(pb::LoadSceneReply { hash, was_cached: false }))
     }
 
-    async fn render_strip(&self, request: Request<pb::RenderStripRequest>) -> Result<Response<pb::RenderStripReply>, Status> {
+    async fn render_strip(
+        &self,
+        request: Request<pb::RenderStripRequest>,
+    ) -> Result<Response<pb::RenderStripReply>, Status> {
         let r = request.into_inner();
-        let f = FrameSettings::try_from(r.frame.as_ref().ok_or_else(|| Status::invalid_argument("frame settings missing"))?)?;
+        let f = FrameSettings::try_from(
+            r.frame.as_ref().ok_or_else(|| Status::invalid_argument("frame settings missing"))?,
+        )?;
         if r.x0 >= r.x1 || r.x1 > f.width {
-            return Err(Status::invalid_argument(format!("strip [{}, {}) is not inside a frame {} wide", r.x0, r.x1, f.width)));
+            return Err(Status::invalid_argument(format!(
+                "strip [{}, {}) is not inside a frame {} wide",
+                r.x0, r.x1, f.width
+            )));
         }
         let hash = normalize_hash(&r.scene_hash)?;
         let scene = self.state.scene(&hash)?;
@@ -459,12 +531,19 @@ impl Worker for WorkerService {
             if lighting == LightingMode::Ambient && !ambient_given {
                 // Matched here, once per frame shape, so every client gets
                 // the paper's ambient without a round of its own.
-                let key = format!("{hash}/{accel:?}/{}x{}/{}/{}/{:?}", settings.width, settings.height, settings.seed, settings.lb_strength, view);
+                let key = format!(
+                    "{hash}/{accel:?}/{}x{}/{}/{}/{:?}",
+                    settings.width, settings.height, settings.seed, settings.lb_strength, view
+                );
                 let known = lock(&state.ambient).get(&key).copied();
                 settings.ambient = match known {
                     Some(a) => a,
                     None => {
-                        let a = crate::lighting::ambient::matched(&prepared.renderer, &state.ctx, &settings)?;
+                        let a = crate::lighting::ambient::matched(
+                            &prepared.renderer,
+                            &state.ctx,
+                            &settings,
+                        )?;
                         lock(&state.ambient).insert(key, a);
                         a
                     }
@@ -479,9 +558,15 @@ impl Worker for WorkerService {
         .await;
         guard.1 = true;
         self.state.busy.fetch_sub(1, Ordering::SeqCst);
-        let (strip, prepare_ms, render_ms) = result.map_err(|e| Status::internal(format!("the strip's render panicked: {e}")))?.map_err(|e| {
-            if e.is::<Cancelled>() { Status::cancelled("the caller cancelled the strip") } else { Status::internal(format!("{e:#}")) }
-        })?;
+        let (strip, prepare_ms, render_ms) = result
+            .map_err(|e| Status::internal(format!("the strip's render panicked: {e}")))?
+            .map_err(|e| {
+                if e.is::<Cancelled>() {
+                    Status::cancelled("the caller cancelled the strip")
+                } else {
+                    Status::internal(format!("{e:#}"))
+                }
+            })?;
         Ok(Response::new(pb::RenderStripReply {
             x0: strip.x0,
             width: strip.width,
@@ -498,9 +583,13 @@ impl Worker for WorkerService {
         }))
     }
 
-    async fn status(&self, _: Request<pb::StatusRequest>) -> Result<Response<pb::WorkerStatus>, Status> {
+    async fn status(
+        &self,
+        _: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::WorkerStatus>, Status> {
         let cached: Vec<String> = lock(&self.state.bundles).keys().cloned().collect();
-        let gpu_bytes = lock(&self.state.prepared).values().map(|p| p.value.renderer.scene_bytes()).sum();
+        let gpu_bytes =
+            lock(&self.state.prepared).values().map(|p| p.value.renderer.scene_bytes()).sum();
         Ok(Response::new(pb::WorkerStatus {
             adapter: self.state.ctx.adapter_name(),
             gpu_memory_bytes: gpu_bytes,
@@ -512,7 +601,10 @@ impl Worker for WorkerService {
         }))
     }
 
-    async fn prepare(&self, request: Request<pb::PrepareRequest>) -> Result<Response<pb::PrepareReply>, Status> {
+    async fn prepare(
+        &self,
+        request: Request<pb::PrepareRequest>,
+    ) -> Result<Response<pb::PrepareReply>, Status> {
         let r = request.into_inner();
         let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
         let t = Instant::now();
@@ -525,25 +617,38 @@ impl Worker for WorkerService {
         tokio::task::spawn_blocking(move || {
             let _g = span.enter();
             let _gpu = lock(&state.gpu);
-            state.prepared_for(&p.scene, &p.accel_key.0, p.frame.accel, p.lighting, &p.frame.view).map(|_| ())
+            state
+                .prepared_for(&p.scene, &p.accel_key.0, p.frame.accel, p.lighting, &p.frame.view)
+                .map(|_| ())
         })
         .await
         .map_err(|e| Status::internal(format!("preparing panicked: {e}")))?
         .map_err(|e| Status::internal(format!("{e:#}")))?;
-        Ok(Response::new(pb::PrepareReply { held: true, prepare_ms: t.elapsed().as_secs_f64() * 1e3 }))
+        Ok(Response::new(pb::PrepareReply {
+            held: true,
+            prepare_ms: t.elapsed().as_secs_f64() * 1e3,
+        }))
     }
 
-    type ExportPreparedStream = std::pin::Pin<Box<dyn tokio_stream::Stream<Item = Result<pb::PreparedChunk, Status>> + Send>>;
+    type ExportPreparedStream = std::pin::Pin<
+        Box<dyn tokio_stream::Stream<Item = Result<pb::PreparedChunk, Status>> + Send>,
+    >;
 
-    async fn export_prepared(&self, request: Request<pb::PrepareRequest>) -> Result<Response<Self::ExportPreparedStream>, Status> {
+    async fn export_prepared(
+        &self,
+        request: Request<pb::PrepareRequest>,
+    ) -> Result<Response<Self::ExportPreparedStream>, Status> {
         let r = request.into_inner();
         let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
-        let (accel, lb) = self.state.held(&p).ok_or_else(|| Status::not_found("this worker does not hold that frame's prepared data"))?;
+        let (accel, lb) = self.state.held(&p).ok_or_else(|| {
+            Status::not_found("this worker does not hold that frame's prepared data")
+        })?;
         let out = tokio::task::spawn_blocking(move || crate::share::export(&accel, lb.as_deref()))
             .await
             .map_err(|e| Status::internal(format!("exporting panicked: {e}")))?
             .map_err(|e| Status::internal(format!("{e:#}")))?;
-        let (total, hash, frame, scene_hash) = (out.bytes.len() as u64, out.hash, r.frame, p.accel_key.0);
+        let (total, hash, frame, scene_hash) =
+            (out.bytes.len() as u64, out.hash, r.frame, p.accel_key.0);
         let chunks: Vec<Result<pb::PreparedChunk, Status>> = out
             .bytes
             .chunks(EXPORT_CHUNK)
@@ -562,18 +667,29 @@ impl Worker for WorkerService {
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
     }
 
-    async fn import_prepared(&self, request: Request<Streaming<pb::PreparedChunk>>) -> Result<Response<pb::PrepareReply>, Status> {
+    async fn import_prepared(
+        &self,
+        request: Request<Streaming<pb::PreparedChunk>>,
+    ) -> Result<Response<pb::PrepareReply>, Status> {
         let t = Instant::now();
         let mut stream = request.into_inner();
-        let first = stream.next().await.ok_or_else(|| Status::invalid_argument("empty import: no chunk"))??;
+        let first = stream
+            .next()
+            .await
+            .ok_or_else(|| Status::invalid_argument("empty import: no chunk"))??;
         let p = self.state.preparation(&first.scene_hash, first.frame.as_ref())?;
         let content_hash = normalize_hash(&first.content_hash)?;
-        let (bytes, held) = self.state.receive("prepared data", first.total_size, first.data, &mut stream, |c| c.data).await?;
+        let (bytes, held) = self
+            .state
+            .receive("prepared data", first.total_size, first.data, &mut stream, |c| c.data)
+            .await?;
         let (scene, kind, needs_lb) = (p.scene.clone(), p.frame.accel, p.needs_lb);
-        let (accel, lb) = tokio::task::spawn_blocking(move || crate::share::import(&bytes, &content_hash, &scene, kind, needs_lb))
-            .await
-            .map_err(|e| Status::internal(format!("importing panicked: {e}")))?
-            .map_err(|e| Status::invalid_argument(format!("prepared data refused: {e}")))?;
+        let (accel, lb) = tokio::task::spawn_blocking(move || {
+            crate::share::import(&bytes, &content_hash, &scene, kind, needs_lb)
+        })
+        .await
+        .map_err(|e| Status::internal(format!("importing panicked: {e}")))?
+        .map_err(|e| Status::invalid_argument(format!("prepared data refused: {e}")))?;
         drop(held);
         lock(&self.state.accels).entry(p.accel_key.clone()).or_insert_with(|| Arc::new(accel));
         if let Some(lb) = lb
@@ -583,7 +699,10 @@ impl Worker for WorkerService {
         }
         self.state.prepared_imports.fetch_add(1, Ordering::Relaxed);
         tracing::info!(scene = %p.accel_key.0, "took prepared data from another worker");
-        Ok(Response::new(pb::PrepareReply { held: self.state.held(&p).is_some(), prepare_ms: t.elapsed().as_secs_f64() * 1e3 }))
+        Ok(Response::new(pb::PrepareReply {
+            held: self.state.held(&p).is_some(),
+            prepare_ms: t.elapsed().as_secs_f64() * 1e3,
+        }))
     }
 }
 
@@ -599,12 +718,17 @@ struct Identity {
 
 #[tonic::async_trait]
 impl WorkerIdentity for Identity {
-    async fn prove(&self, request: Request<pb::ProveRequest>) -> Result<Response<pb::ProveReply>, Status> {
+    async fn prove(
+        &self,
+        request: Request<pb::ProveRequest>,
+    ) -> Result<Response<pb::ProveReply>, Status> {
         let nonce = request.into_inner().nonce;
         if nonce.len() < 16 || nonce.len() > 64 {
             return Err(Status::invalid_argument("the nonce must be 16 to 64 bytes"));
         }
-        Ok(Response::new(pb::ProveReply { proof: sylva_proto::auth::prove(self.token.as_deref(), &nonce).to_vec() }))
+        Ok(Response::new(pb::ProveReply {
+            proof: sylva_proto::auth::prove(self.token.as_deref(), &nonce).to_vec(),
+        }))
     }
 }
 
@@ -619,7 +743,8 @@ pub async fn run(
 ) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
     reporter.set_not_serving::<WorkerServer<WorkerService>>().await;
-    let (reflection, reflection_alpha) = sylva_proto::reflection(&["sylva.v1.Worker", "sylva.v1.WorkerIdentity"])?;
+    let (reflection, reflection_alpha) =
+        sylva_proto::reflection(&["sylva.v1.Worker", "sylva.v1.WorkerIdentity"])?;
     let auth = sylva_proto::auth::require(config.token.clone());
     let mut builder = tonic::transport::Server::builder();
     if let Some(tls) = config.tls.clone() {
@@ -633,14 +758,25 @@ pub async fn run(
         .add_service(health)
         .add_service(WorkerIdentityServer::new(identity))
         .add_service(tonic::service::interceptor::InterceptedService::new(reflection, auth.clone()))
-        .add_service(tonic::service::interceptor::InterceptedService::new(reflection_alpha, auth.clone()))
-        .add_service(tonic::service::interceptor::InterceptedService::new(service.into_server(), auth))
-        .serve_with_incoming_shutdown(tokio_stream::wrappers::TcpListenerStream::new(listener), shutdown)
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            reflection_alpha,
+            auth.clone(),
+        ))
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            service.into_server(),
+            auth,
+        ))
+        .serve_with_incoming_shutdown(
+            tokio_stream::wrappers::TcpListenerStream::new(listener),
+            shutdown,
+        )
         .await;
     if !keep && cache_dir.exists() {
         match std::fs::remove_dir_all(&cache_dir) {
             Ok(()) => tracing::info!(dir = %cache_dir.display(), "removed the bundle cache"),
-            Err(e) => tracing::warn!(dir = %cache_dir.display(), "cannot remove the bundle cache: {e}"),
+            Err(e) => {
+                tracing::warn!(dir = %cache_dir.display(), "cannot remove the bundle cache: {e}")
+            }
         }
     }
     served?;

@@ -53,20 +53,34 @@ pub fn export(accel: &SceneAccel, lb: Option<&SceneLb>) -> anyhow::Result<Export
 /// structures of `kind` and fit the scene's models, and its LB light (which
 /// it must hold when `want_lb`) fit the scene. Returns both levels, built
 /// around the received model structures, and the LB light.
-pub fn import(bytes: &[u8], hash: &str, scene: &Scene, kind: AccelKind, want_lb: bool) -> Result<(SceneAccel, Option<SceneLb>), String> {
+pub fn import(
+    bytes: &[u8],
+    hash: &str,
+    scene: &Scene,
+    kind: AccelKind,
+    want_lb: bool,
+) -> Result<(SceneAccel, Option<SceneLb>), String> {
     if blake3::hash(bytes).to_hex().as_str() != hash {
         return Err("the prepared data's bytes do not match its hash".into());
     }
-    let d: Incoming = postcard::from_bytes(bytes).map_err(|e| format!("the prepared data cannot be read: {e}"))?;
+    let d: Incoming = postcard::from_bytes(bytes)
+        .map_err(|e| format!("the prepared data cannot be read: {e}"))?;
     if d.format != FORMAT {
-        return Err(format!("prepared data of format {} where this worker reads {FORMAT}", d.format));
+        return Err(format!(
+            "prepared data of format {} where this worker reads {FORMAT}",
+            d.format
+        ));
     }
     let lb = match (d.lb, want_lb) {
         (Some(lb), true) => {
             check_lb(&lb, scene)?;
             Some(lb)
         }
-        (None, true) => return Err("the prepared data holds no LB light, which this frame's lighting needs".into()),
+        (None, true) => {
+            return Err(
+                "the prepared data holds no LB light, which this frame's lighting needs".into()
+            );
+        }
         (_, false) => None,
     };
     let accel = SceneAccel::from_models(scene, kind, d.models)?;
@@ -92,17 +106,36 @@ fn check_lb(lb: &SceneLb, scene: &Scene) -> Result<(), String> {
     }
     for (i, g) in lb.grids.iter().enumerate() {
         let Some(g) = g else { continue };
-        let nodes = g.dims.nx.checked_mul(g.dims.ny).and_then(|n| n.checked_mul(g.dims.nz)).and_then(|n| n.checked_mul(3));
-        let framed = g.frame.origin.iter().all(|v| v.is_finite()) && g.frame.cell.is_finite() && g.frame.cell > 0.0;
-        if nodes != Some(g.rgb.len()) || g.dims.nx < 3 || g.dims.ny < 3 || g.dims.nz < 3 || !framed || !light(&g.rgb) {
-            return Err(format!("model {i}'s LB grid: its shape, frame or values do not hold together"));
+        let nodes = g
+            .dims
+            .nx
+            .checked_mul(g.dims.ny)
+            .and_then(|n| n.checked_mul(g.dims.nz))
+            .and_then(|n| n.checked_mul(3));
+        let framed = g.frame.origin.iter().all(|v| v.is_finite())
+            && g.frame.cell.is_finite()
+            && g.frame.cell > 0.0;
+        if nodes != Some(g.rgb.len())
+            || g.dims.nx < 3
+            || g.dims.ny < 3
+            || g.dims.nz < 3
+            || !framed
+            || !light(&g.rgb)
+        {
+            return Err(format!(
+                "model {i}'s LB grid: its shape, frame or values do not hold together"
+            ));
         }
     }
     if let Some(ground) = &lb.ground {
-        let framed = ground.origin.iter().all(|v| v.is_finite()) && ground.cell.is_finite() && ground.cell > 0.0;
+        let framed = ground.origin.iter().all(|v| v.is_finite())
+            && ground.cell.is_finite()
+            && ground.cell > 0.0;
         let nodes = ground.nx.checked_mul(ground.nz).and_then(|n| n.checked_mul(3));
         if nodes != Some(ground.rgb.len()) || !framed || !light(&ground.rgb) {
-            return Err("the ground's LB light: its shape, frame or values do not hold together".into());
+            return Err(
+                "the ground's LB light: its shape, frame or values do not hold together".into()
+            );
         }
     }
     Ok(())

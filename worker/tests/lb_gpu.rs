@@ -8,7 +8,8 @@ use sylva_scene::format::Preset;
 use sylva_worker::GpuSolver;
 
 fn gpu() -> GpuSolver {
-    GpuSolver::open().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
+    GpuSolver::open()
+        .expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
 }
 
 fn assert_matches(dims: GridDims, steps: usize, seed: u64) {
@@ -37,8 +38,12 @@ fn gpu_stops_on_the_same_convergence_rule_as_cpu() {
     let sun = Sun::default();
     let opts = SolveOptions { tolerance: 1e-4, max_steps: Some(400), check_every: 8 };
     let mut gpu = gpu();
-    let g = gpu.solve_channel(&medium, &params.channels[0], &sun.boundary(), &opts, &|_, _| {}).unwrap();
-    let c = CpuSolver.solve_channel(&medium, &params.channels[0], &sun.boundary(), &opts, &|_, _| {}).unwrap();
+    let g = gpu
+        .solve_channel(&medium, &params.channels[0], &sun.boundary(), &opts, &|_, _| {})
+        .unwrap();
+    let c = CpuSolver
+        .solve_channel(&medium, &params.channels[0], &sun.boundary(), &opts, &|_, _| {})
+        .unwrap();
     assert!(g.report.converged && c.report.converged, "{:?} {:?}", g.report, c.report);
     assert_eq!(g.report.steps, c.report.steps);
     assert!(g.report.steps < g.report.max_steps);
@@ -50,7 +55,15 @@ fn vacuum_holds_exactly_the_boundary_light() {
     let medium = sylva_light::lb::MediumGrid::empty(dims);
     let b = Sun::from_elevation_azimuth(35.0, 70.0, 2.0).unwrap().boundary();
     let opts = SolveOptions::fixed_steps(2 * dims.longest_edge());
-    let s = gpu().solve_channel(&medium, &LbParams::from_preset(Preset::Leaf).channels[0], &b, &opts, &|_, _| {}).unwrap();
+    let s = gpu()
+        .solve_channel(
+            &medium,
+            &LbParams::from_preset(Preset::Leaf).channels[0],
+            &b,
+            &opts,
+            &|_, _| {},
+        )
+        .unwrap();
     let want: f32 = b.values.iter().sum();
     for (i, t) in s.total.iter().enumerate() {
         assert!((t - want).abs() <= 1e-6 * want, "node {i}: {t} vs {want}");
@@ -79,7 +92,8 @@ fn a_reflecting_ground_matches_the_cpu_reference() {
     for (c, b) in over_ground().boundaries().iter().enumerate() {
         assert!(b.ground.is_some());
         let g = gpu.solve_channel(&medium, &params.channels[c], b, &opts, &|_, _| {}).unwrap();
-        let want = CpuSolver.solve_channel(&medium, &params.channels[c], b, &opts, &|_, _| {}).unwrap();
+        let want =
+            CpuSolver.solve_channel(&medium, &params.channels[c], b, &opts, &|_, _| {}).unwrap();
         let d = sylva_light::studies::verify::max_relative_difference(&g.total, &want.total);
         assert!(d <= 1e-4, "channel {c}: max relative difference {d:e}");
     }
@@ -95,8 +109,24 @@ fn vacuum_over_a_reflecting_ground_is_the_open_field() {
     for (c, b) in over_ground().boundaries().iter().enumerate() {
         let want: f32 = b.values.iter().sum();
         for s in [
-            gpu().solve_channel(&medium, &LbParams::from_preset(Preset::Leaf).channels[c], b, &opts, &|_, _| {}).unwrap(),
-            CpuSolver.solve_channel(&medium, &LbParams::from_preset(Preset::Leaf).channels[c], b, &opts, &|_, _| {}).unwrap(),
+            gpu()
+                .solve_channel(
+                    &medium,
+                    &LbParams::from_preset(Preset::Leaf).channels[c],
+                    b,
+                    &opts,
+                    &|_, _| {},
+                )
+                .unwrap(),
+            CpuSolver
+                .solve_channel(
+                    &medium,
+                    &LbParams::from_preset(Preset::Leaf).channels[c],
+                    b,
+                    &opts,
+                    &|_, _| {},
+                )
+                .unwrap(),
         ] {
             for (i, t) in s.total.iter().enumerate() {
                 assert!((t - want).abs() <= 1e-5 * want, "channel {c}, node {i}: {t} vs {want}");

@@ -13,17 +13,26 @@ use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
 
 fn ctx() -> GpuContext {
-    GpuContext::new().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
+    GpuContext::new()
+        .expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
 }
 
 /// A glTF file `name.gltf` (with `name.bin`) of squares of material
 /// `material` and colour `rgb`, each given by its four corners.
-fn write_squares_gltf(dir: &Path, name: &str, material: &str, rgb: [f32; 3], squares: &[[glam::Vec3; 4]]) {
-    let positions: Vec<f32> = squares.iter().flat_map(|q| q.iter().flat_map(|v| v.to_array())).collect();
-    let indices: Vec<u32> = (0..squares.len() as u32).flat_map(|k| [0, 1, 2, 0, 2, 3].map(|i| 4 * k + i)).collect();
-    let (lo, hi) = positions
-        .chunks(3)
-        .fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), p| (std::array::from_fn(|c| lo[c].min(p[c])), std::array::from_fn(|c| hi[c].max(p[c]))));
+fn write_squares_gltf(
+    dir: &Path,
+    name: &str,
+    material: &str,
+    rgb: [f32; 3],
+    squares: &[[glam::Vec3; 4]],
+) {
+    let positions: Vec<f32> =
+        squares.iter().flat_map(|q| q.iter().flat_map(|v| v.to_array())).collect();
+    let indices: Vec<u32> =
+        (0..squares.len() as u32).flat_map(|k| [0, 1, 2, 0, 2, 3].map(|i| 4 * k + i)).collect();
+    let (lo, hi) = positions.chunks(3).fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), p| {
+        (std::array::from_fn(|c| lo[c].min(p[c])), std::array::from_fn(|c| hi[c].max(p[c])))
+    });
     let mut bytes: Vec<u8> = positions.iter().flat_map(|v| v.to_le_bytes()).collect();
     let vertex_bytes = bytes.len();
     bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
@@ -51,7 +60,12 @@ fn write_squares_gltf(dir: &Path, name: &str, material: &str, rgb: [f32; 3], squ
 /// in the plane z = 0, facing +z.
 fn write_quad_gltf(dir: &Path, material: &str) {
     use glam::Vec3;
-    let square = [Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(-1.0, 1.0, 0.0)];
+    let square = [
+        Vec3::new(-1.0, -1.0, 0.0),
+        Vec3::new(1.0, -1.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(-1.0, 1.0, 0.0),
+    ];
     write_squares_gltf(dir, "quad", material, [0.5; 3], &[square]);
 }
 
@@ -88,16 +102,23 @@ fn frame(w: u32, h: u32) -> RenderSettings {
 fn with_nothing_to_bounce_off_the_reference_is_the_local_image() {
     // A wooden square under a black sky with no ground: every path ends
     // after the sun's next-event estimate at the first hit.
-    let scene = quad_scene("direct", "bark", r#"{ "zenith": [0, 0, 0], "horizon": [0, 0, 0] }"#, "");
+    let scene =
+        quad_scene("direct", "bark", r#"{ "zenith": [0, 0, 0], "horizon": [0, 0, 0] }"#, "");
     let ctx = ctx();
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|_| {}).unwrap();
     let local = p.renderer.render_strip(&ctx, &frame(17, 17), 0, 17).unwrap();
-    let opts = ReferenceOptions { batch_spp: 2, min_batches: 2, max_batches: 2, ..Default::default() };
+    let opts =
+        ReferenceOptions { batch_spp: 2, min_batches: 2, max_batches: 2, ..Default::default() };
     let r = render_reference(&ctx, &p.renderer, &frame(17, 17), &opts, &|_| {}).unwrap();
     let (want, got) = (local.pixels[8 * 17 + 8], r.image.pixels[8 * 17 + 8]);
     assert!(want[0] > 0.1, "the square is lit: {want:?}");
     for c in 0..3 {
-        assert!((got[c] - want[c]).abs() <= 1e-4 * want[c], "channel {c}: reference {} vs local {}", got[c], want[c]);
+        assert!(
+            (got[c] - want[c]).abs() <= 1e-4 * want[c],
+            "channel {c}: reference {} vs local {}",
+            got[c],
+            want[c]
+        );
     }
     // Only the pixel jitter at the square's edges is random here.
     assert_eq!(r.std_error[8 * 17 + 8], 0.0, "nothing random reaches the centre pixel");
@@ -105,7 +126,12 @@ fn with_nothing_to_bounce_off_the_reference_is_the_local_image() {
     // whole image, at the jittered edges too: no indirect light anywhere.
     for (i, (l, p)) in r.local.pixels.iter().zip(&r.image.pixels).enumerate() {
         for c in 0..3 {
-            assert!((l[c] - p[c]).abs() <= 1e-5 * p[c].max(1e-3), "pixel {i} channel {c}: local along the samples {} vs reference {}", l[c], p[c]);
+            assert!(
+                (l[c] - p[c]).abs() <= 1e-5 * p[c].max(1e-3),
+                "pixel {i} channel {c}: local along the samples {} vs reference {}",
+                l[c],
+                p[c]
+            );
         }
     }
     assert!(r.local.pixels[8 * 17 + 8][0] > 0.1, "the local image is lit too");
@@ -125,12 +151,24 @@ fn the_reference_error_falls_as_one_over_root_spp_and_it_says_so() {
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|_| {}).unwrap();
     let f = frame(24, 24);
     let run = |seed: u32, batches: u32| {
-        let opts = ReferenceOptions { batch_spp: 4, min_batches: batches, max_batches: batches, target_error: 1e-9, ..Default::default() };
+        let opts = ReferenceOptions {
+            batch_spp: 4,
+            min_batches: batches,
+            max_batches: batches,
+            target_error: 1e-9,
+            ..Default::default()
+        };
         render_reference(&ctx, &p.renderer, &RenderSettings { seed, ..f }, &opts, &|_| {}).unwrap()
     };
     let truth = run(1_000_000, 256);
     let rmse = |img: &sylva_worker::lighting::reference::ReferenceImage| -> f64 {
-        let se: f64 = img.image.pixels.iter().zip(&truth.image.pixels).map(|(a, b)| ((luminance(*a) - luminance(*b)) as f64).powi(2)).sum();
+        let se: f64 = img
+            .image
+            .pixels
+            .iter()
+            .zip(&truth.image.pixels)
+            .map(|(a, b)| ((luminance(*a) - luminance(*b)) as f64).powi(2))
+            .sum();
         (se / img.image.pixels.len() as f64).sqrt()
     };
     let (coarse, fine) = (run(7, 4), run(9_000_000, 16));
@@ -138,12 +176,21 @@ fn the_reference_error_falls_as_one_over_root_spp_and_it_says_so() {
     // Four times the samples: half the error (the truth's own noise, 1/8 of
     // the coarse run's, and sampling of the error itself leave ±25 %).
     let ratio = e4 / e16;
-    assert!((1.5..=2.6).contains(&ratio), "error ratio {ratio:.3} for 4× the samples (errors {e4:.5}, {e16:.5})");
+    assert!(
+        (1.5..=2.6).contains(&ratio),
+        "error ratio {ratio:.3} for 4× the samples (errors {e4:.5}, {e16:.5})"
+    );
     // The image's own estimate of its error tracks the measured one.
-    let own = coarse.std_error.iter().map(|s| (*s as f64).powi(2)).sum::<f64>() / coarse.std_error.len() as f64;
+    let own = coarse.std_error.iter().map(|s| (*s as f64).powi(2)).sum::<f64>()
+        / coarse.std_error.len() as f64;
     let own = own.sqrt();
     assert!(own > 0.5 * e4 && own < 2.0 * e4, "own estimate {own:.5} vs measured {e4:.5}");
-    assert!(fine.stats.relative_error < coarse.stats.relative_error * 0.7, "{:?} vs {:?}", fine.stats, coarse.stats);
+    assert!(
+        fine.stats.relative_error < coarse.stats.relative_error * 0.7,
+        "{:?} vs {:?}",
+        fine.stats,
+        coarse.stats
+    );
 }
 
 #[test]
@@ -157,7 +204,15 @@ fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
     let ctx = ctx();
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Boulanger, &|_| {}).unwrap();
     assert_eq!(p.boulanger.len(), 1);
-    let s = p.renderer.render_strip(&ctx, &RenderSettings { lighting: LightingMode::Boulanger, ..frame(17, 17) }, 0, 17).unwrap();
+    let s = p
+        .renderer
+        .render_strip(
+            &ctx,
+            &RenderSettings { lighting: LightingMode::Boulanger, ..frame(17, 17) },
+            0,
+            17,
+        )
+        .unwrap();
     let got = s.pixels[8 * 17 + 8];
 
     use glam::Vec3;
@@ -165,28 +220,45 @@ fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
     let model = &scene.models[0].model;
     let env = precompute(model);
     let terms = sun_terms(&env, scene.sun.towards);
-    let sky = |d: Vec3| Vec3::from(scene.sky.horizon).lerp(Vec3::from(scene.sky.zenith), d.y.max(0.0).sqrt()).to_array();
+    let sky = |d: Vec3| {
+        Vec3::from(scene.sky.horizon)
+            .lerp(Vec3::from(scene.sky.zenith), d.y.max(0.0).sqrt())
+            .to_array()
+    };
     let per_dir = sky_radiance_per_direction(sky, scene.ground.as_ref().unwrap().color);
     let albedo = [0.5f32; 3];
     for c in 0..3 {
         let coeffs = scene.file.leaf_optics.coefficients(albedo, c);
         let sky_c: [f32; 8] = std::array::from_fn(|j| per_dir[j][c]);
         let e_sun = std::f32::consts::PI * scene.sun.radiance[c];
-        let (lo_sky, lo_sun, lo_ind) = shade(&env, &terms, 0, Vec3::Z, Vec3::Z, coeffs, e_sun, &sky_c);
+        let (lo_sky, lo_sun, lo_ind) =
+            shade(&env, &terms, 0, Vec3::Z, Vec3::Z, coeffs, e_sun, &sky_c);
         // The highlight the direct methods add (ks 0.12 for leaves), dimmed like the sun.
         let r = (-scene.sun.towards).reflect(Vec3::Z);
         let depth = env.tau * (0..8).map(|j| terms.weights[j] * env.s_max[0][j]).sum::<f32>();
-        let highlight = 0.12 * r.dot(Vec3::Z).max(0.0).powi(24) * (-depth).exp() * scene.sun.radiance[c];
+        let highlight =
+            0.12 * r.dot(Vec3::Z).max(0.0).powi(24) * (-depth).exp() * scene.sun.radiance[c];
         let want = lo_sky + lo_sun + lo_ind + highlight;
         assert!(lo_sky > 0.0 && lo_sun > 0.0, "both direct terms light the square");
-        assert!((got[c] - want).abs() <= 1e-3 * want, "channel {c}: GPU {} vs CPU {want} (sky {lo_sky}, sun {lo_sun}, indirect {lo_ind})", got[c]);
+        assert!(
+            (got[c] - want).abs() <= 1e-3 * want,
+            "channel {c}: GPU {} vs CPU {want} (sky {lo_sky}, sun {lo_sun}, indirect {lo_ind})",
+            got[c]
+        );
     }
 }
 
 /// Square leaves of edge `edge` with centres uniform in the region `inside`
 /// accepts within the box `lo..hi` and normals uniform on the sphere (so
 /// G = ½), `count` of them.
-fn random_leaves(count: usize, edge: f32, lo: glam::Vec3, hi: glam::Vec3, inside: impl Fn(glam::Vec3) -> bool, seed: u64) -> Vec<[glam::Vec3; 4]> {
+fn random_leaves(
+    count: usize,
+    edge: f32,
+    lo: glam::Vec3,
+    hi: glam::Vec3,
+    inside: impl Fn(glam::Vec3) -> bool,
+    seed: u64,
+) -> Vec<[glam::Vec3; 4]> {
     use glam::Vec3;
     let mut rng = sylva_scene::rng::SplitMix64::new(seed);
     let mut leaves = Vec::with_capacity(count);
@@ -209,15 +281,30 @@ fn random_leaves(count: usize, edge: f32, lo: glam::Vec3, hi: glam::Vec3, inside
 /// (its image minus `local` on the same samples) over the pixels that the
 /// reference and the method both cover fully, and the reference's (its
 /// image minus its own samples' local light).
-fn mean_indirect_against_the_reference(scene: &Scene, f: RenderSettings) -> ([f64; 3], [f64; 3], usize) {
+fn mean_indirect_against_the_reference(
+    scene: &Scene,
+    f: RenderSettings,
+) -> ([f64; 3], [f64; 3], usize) {
     let ctx = ctx();
     let p = prepare(&ctx, scene, AccelKind::Bvh, LightingMode::Lb, &|_| {}).unwrap();
-    let lb = p.renderer.render_strip(&ctx, &RenderSettings { lighting: LightingMode::Lb, ..f }, 0, f.width).unwrap();
-    let local = p.renderer.render_strip(&ctx, &RenderSettings { lighting: LightingMode::Local, ..f }, 0, f.width).unwrap();
+    let lb = p
+        .renderer
+        .render_strip(&ctx, &RenderSettings { lighting: LightingMode::Lb, ..f }, 0, f.width)
+        .unwrap();
+    let local = p
+        .renderer
+        .render_strip(&ctx, &RenderSettings { lighting: LightingMode::Local, ..f }, 0, f.width)
+        .unwrap();
     drop(p);
     let p = prepare(&ctx, scene, AccelKind::Bvh, LightingMode::Reference, &|_| {}).unwrap();
     // 3 % per pixel: the mean over ~700 pixels is then good to about 0.1 %.
-    let opts = ReferenceOptions { batch_spp: 16, min_batches: 2, max_batches: 24, target_error: 0.03, max_seconds: 120.0 };
+    let opts = ReferenceOptions {
+        batch_spp: 16,
+        min_batches: 2,
+        max_batches: 24,
+        target_error: 0.03,
+        max_seconds: 120.0,
+    };
     let r = render_reference(&ctx, &p.renderer, &f, &opts, &|_| {}).unwrap();
     let (mut m, mut rf, mut n) = ([0.0f64; 3], [0.0f64; 3], 0usize);
     for i in 0..lb.pixels.len() {
@@ -256,25 +343,44 @@ fn the_lb_leaf_radiance_agrees_with_the_reference_on_a_ball_and_a_slab_of_leaves
     let green = [0.15, 0.35, 0.08];
     let frame = RenderSettings { spp: 16, ..frame(40, 40) };
     let run = |name: &str, leaves: &[[Vec3; 4]], camera: &str| {
-        let dir = std::env::temp_dir().join(format!("sylva-lb-vs-reference-{name}-{}", std::process::id()));
+        let dir = std::env::temp_dir()
+            .join(format!("sylva-lb-vs-reference-{name}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         write_squares_gltf(&dir, "leaves", "leaf", green, leaves);
-        let (lb, reference, pixels) = mean_indirect_against_the_reference(&leaves_scene(&dir, camera), frame);
+        let (lb, reference, pixels) =
+            mean_indirect_against_the_reference(&leaves_scene(&dir, camera), frame);
         assert!(pixels > 400, "{name}: {pixels} fully covered pixels");
         let ratio: [f64; 3] = std::array::from_fn(|c| lb[c] / reference[c]);
-        eprintln!("{name}: LB indirect {lb:?}, reference {reference:?}, ratio {ratio:?} over {pixels} pixels");
+        eprintln!(
+            "{name}: LB indirect {lb:?}, reference {reference:?}, ratio {ratio:?} over {pixels} pixels"
+        );
         ratio
     };
     // A ball of radius 1.5 m with leaf area density 2.7 m⁻¹: optical radius
     // G·LAD·R = 2, the Monte Carlo comparison's ball. 0.1 m leaves.
     let radius = 1.5f32;
     let area = 2.0 / 0.5 / radius * (4.0 / 3.0 * std::f32::consts::PI * radius.powi(3));
-    let ball = random_leaves((area / 0.01) as usize, 0.1, Vec3::splat(-radius), Vec3::splat(radius), |c| c.length() <= radius, 3);
-    let ball = run("ball", &ball, r#"{ "position": [0, 0, -5.5], "look_at": [0, 0, 0], "fov_y_deg": 30 }"#);
+    let ball = random_leaves(
+        (area / 0.01) as usize,
+        0.1,
+        Vec3::splat(-radius),
+        Vec3::splat(radius),
+        |c| c.length() <= radius,
+        3,
+    );
+    let ball = run(
+        "ball",
+        &ball,
+        r#"{ "position": [0, 0, -5.5], "look_at": [0, 0, 0], "fov_y_deg": 30 }"#,
+    );
     // A slab 4 × 4 m, 1 m thick, vertical optical depth τ = G·LAD·1 m = 2.
     let (lo, hi) = (Vec3::new(-2.0, -0.5, -2.0), Vec3::new(2.0, 0.5, 2.0));
     let slab = random_leaves((4.0 * 16.0 / 0.01) as usize, 0.1, lo, hi, |_| true, 5);
-    let slab = run("slab", &slab, r#"{ "position": [0, 4, -2.5], "look_at": [0, 0, 0], "fov_y_deg": 30 }"#);
+    let slab = run(
+        "slab",
+        &slab,
+        r#"{ "position": [0, 4, -2.5], "look_at": [0, 0, 0], "fov_y_deg": 30 }"#,
+    );
     // Measured: ball 1.21 / 1.13 / 1.17, slab 1.18 / 1.05 / 1.07 (R, G, B).
     // The lattice itself is off the Monte Carlo transport by up to +16 %
     // (ball) and −9 % (slab) in scattered fluence (lb_grounded.rs); the
@@ -282,7 +388,10 @@ fn the_lb_leaf_radiance_agrees_with_the_reference_on_a_ball_and_a_slab_of_leaves
     // crown's surface, where the camera looks. So: within −15 % and +35 %.
     for (name, ratio) in [("ball", ball), ("slab", slab)] {
         for (c, r) in ratio.iter().enumerate() {
-            assert!((0.85..=1.35).contains(r), "{name}: channel {c}: LB indirect leaf radiance {r:.3}× the reference's");
+            assert!(
+                (0.85..=1.35).contains(r),
+                "{name}: channel {c}: LB indirect leaf radiance {r:.3}× the reference's"
+            );
         }
     }
 }
@@ -313,14 +422,26 @@ fn every_reference_sample_counts_and_its_local_light_is_the_local_image() {
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|_| {}).unwrap();
     // The same camera rays: the reference's batch and `local` at its spp and seed.
     let f = RenderSettings { spp: 16, ..frame(40, 32) };
-    let reference = p.renderer.render_strip(&ctx, &RenderSettings { lighting: LightingMode::Reference, ..f }, 0, 40).unwrap();
+    let reference = p
+        .renderer
+        .render_strip(&ctx, &RenderSettings { lighting: LightingMode::Reference, ..f }, 0, 40)
+        .unwrap();
     let local = p.renderer.render_strip(&ctx, &f, 0, 40).unwrap();
-    assert!(local.coverage.contains(&1.0) && local.coverage.contains(&0.0), "the frame shows trees and more");
+    assert!(
+        local.coverage.contains(&1.0) && local.coverage.contains(&0.0),
+        "the frame shows trees and more"
+    );
     for i in 0..local.pixels.len() {
-        assert_eq!(reference.coverage[i], local.coverage[i], "pixel {i}: the reference's samples hit models as often as local's");
+        assert_eq!(
+            reference.coverage[i], local.coverage[i],
+            "pixel {i}: the reference's samples hit models as often as local's"
+        );
         for c in 0..3 {
             let (r, l) = (reference.first_light[i][c], local.pixels[i][c]);
-            assert!((r - l).abs() <= 1e-4 * l.max(1e-2), "pixel {i} channel {c}: local light along the reference's samples {r} vs local {l}");
+            assert!(
+                (r - l).abs() <= 1e-4 * l.max(1e-2),
+                "pixel {i} channel {c}: local light along the reference's samples {r} vs local {l}"
+            );
         }
     }
     assert_eq!(reference.rays.primary, 40 * 32 * 16, "one camera ray per sample");

@@ -9,7 +9,8 @@ use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
 
 fn ctx() -> GpuContext {
-    GpuContext::new().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
+    GpuContext::new()
+        .expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
 }
 
 /// A glTF file holding one opaque white square, 2 × 2 in the plane z = 0, facing +z.
@@ -38,7 +39,9 @@ fn base64(data: &[u8]) -> String {
     const T: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
     let mut s = String::new();
     for c in data.chunks(3) {
-        let n = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
         for i in 0..4 {
             if i <= c.len() {
                 s.push(T[(n >> (18 - 6 * i) & 63) as usize] as char);
@@ -180,7 +183,8 @@ fn a_cloud_dims_what_lies_behind_it_and_glows_where_lit() {
     }"#;
     let render = |clouds: &str| {
         let text = base.replace("CLOUDS", clouds);
-        let scene = Scene::build(parse(&text, "c.json").unwrap(), Path::new("."), "c.json").unwrap();
+        let scene =
+            Scene::build(parse(&text, "c.json").unwrap(), Path::new("."), "c.json").unwrap();
         let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Lb, &|_| {}).unwrap();
         let f = RenderSettings {
             width: 32,
@@ -195,7 +199,8 @@ fn a_cloud_dims_what_lies_behind_it_and_glows_where_lit() {
         p.renderer.render_strip(&ctx, &f, 0, 32).unwrap()
     };
     let clear = render("");
-    let cloudy = render(r#", "clouds": [ { "center": [0, 20, 0], "size": 24, "grid": 24, "seed": 3 } ]"#);
+    let cloudy =
+        render(r#", "clouds": [ { "center": [0, 20, 0], "size": 24, "grid": 24, "seed": 3 } ]"#);
     let centre = 16 * 32 + 16;
     // The cloud's heart hides the blue sky behind it and shows its own,
     // nearly white, scattered sunlight.

@@ -31,12 +31,19 @@ fn rays(accel: &SceneAccel, n: usize) -> Vec<Ray> {
     let mut planes = Vec::new();
     for a in std::iter::once(&accel.top).chain(&accel.models) {
         if let Accel::Kd(k) = a {
-            planes.extend(k.nodes.iter().filter(|n| n.axis != KdNode::LEAF).map(|n| (n.axis as usize, n.split)).take(2000));
+            planes.extend(
+                k.nodes
+                    .iter()
+                    .filter(|n| n.axis != KdNode::LEAF)
+                    .map(|n| (n.axis as usize, n.split))
+                    .take(2000),
+            );
         }
     }
     while out.len() < n {
         let o = Vec3::new(rng.range(-20.0, 20.0), rng.range(0.0, 25.0), rng.range(-25.0, 25.0));
-        let target = Vec3::new(rng.range(-10.0, 10.0), rng.range(1.0, 18.0), rng.range(-10.0, 10.0));
+        let target =
+            Vec3::new(rng.range(-10.0, 10.0), rng.range(1.0, 18.0), rng.range(-10.0, 10.0));
         let mut d = target - o;
         let mut o2 = o;
         if !planes.is_empty() && out.len() % 10 == 0 {
@@ -52,15 +59,23 @@ fn rays(accel: &SceneAccel, n: usize) -> Vec<Ray> {
 
 #[test]
 fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
-    let ctx = GpuContext::new().expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)");
+    let ctx = GpuContext::new()
+        .expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)");
     let scene = scene();
     for kind in [AccelKind::Bvh, AccelKind::Kd] {
         let accel = SceneAccel::build(&scene, kind);
         let gpu_scene = GpuScene::upload(&ctx, &scene, &accel, &Default::default()).unwrap();
         let caster = RayCaster::new(&ctx, &gpu_scene).unwrap();
         let rays = rays(&accel, 100_000);
-        let gpu_rays: Vec<GpuRay> =
-            rays.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 1e-4, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
+        let gpu_rays: Vec<GpuRay> = rays
+            .iter()
+            .map(|r| GpuRay {
+                origin: r.origin.to_array(),
+                t_min: 1e-4,
+                dir: r.dir.to_array(),
+                t_max: f32::MAX,
+            })
+            .collect();
         let hits = caster.cast(&ctx, &gpu_scene, &gpu_rays).unwrap();
         let (mut hit_count, mut transparent_passed, mut mismatches) = (0, 0, Vec::new());
         for (i, (r, g)) in rays.iter().zip(&hits).enumerate() {
@@ -73,10 +88,15 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
                 }
                 Some(c) => {
                     hit_count += 1;
-                    let global = gpu_scene.triangle_offsets[scene.instances[c.instance as usize].model as usize] + c.triangle;
-                    let same = g.instance == c.instance && g.triangle == global && (g.t - c.t).abs() <= 1e-4 * c.t.max(1e-3);
+                    let global = gpu_scene.triangle_offsets
+                        [scene.instances[c.instance as usize].model as usize]
+                        + c.triangle;
+                    let same = g.instance == c.instance
+                        && g.triangle == global
+                        && (g.t - c.t).abs() <= 1e-4 * c.t.max(1e-3);
                     if !same {
-                        mismatches.push(format!("ray {i}: cpu {c:?} (global tri {global}), gpu {g:?}"));
+                        mismatches
+                            .push(format!("ray {i}: cpu {c:?} (global tri {global}), gpu {g:?}"));
                     }
                     // Did this ray pass through a transparent texel before its hit?
                     let m = scene.instances[c.instance as usize].model as usize;
@@ -97,10 +117,25 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
         }
         // Shadow rays from every hit toward a sun: blocked or not, the same.
         let sun = Vec3::new(0.4, 0.8, 0.3);
-        let shadow: Vec<Ray> = rays.iter().zip(&hits).filter(|(_, g)| g.triangle != u32::MAX).map(|(r, g)| Ray::new(r.at(g.t), sun)).collect();
-        let shadow_gpu: Vec<GpuRay> =
-            shadow.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 1e-3, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
-        let blocked = RayCaster::shadow(&ctx, &gpu_scene).unwrap().cast(&ctx, &gpu_scene, &shadow_gpu).unwrap();
+        let shadow: Vec<Ray> = rays
+            .iter()
+            .zip(&hits)
+            .filter(|(_, g)| g.triangle != u32::MAX)
+            .map(|(r, g)| Ray::new(r.at(g.t), sun))
+            .collect();
+        let shadow_gpu: Vec<GpuRay> = shadow
+            .iter()
+            .map(|r| GpuRay {
+                origin: r.origin.to_array(),
+                t_min: 1e-3,
+                dir: r.dir.to_array(),
+                t_max: f32::MAX,
+            })
+            .collect();
+        let blocked = RayCaster::shadow(&ctx, &gpu_scene)
+            .unwrap()
+            .cast(&ctx, &gpu_scene, &shadow_gpu)
+            .unwrap();
         let mut shadow_mismatches = 0;
         let mut blocked_count = 0;
         for (r, b) in shadow.iter().zip(&blocked) {
@@ -110,10 +145,17 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
             // Occlusion is whether a closest hit exists.
             assert_eq!(cpu, accel.closest(&scene, r, 1e-3, f32::MAX).is_some(), "{kind:?} {r:?}");
         }
-        assert!(blocked_count > shadow.len() / 10 && blocked_count < shadow.len(), "{kind:?}: {blocked_count} of {} blocked", shadow.len());
+        assert!(
+            blocked_count > shadow.len() / 10 && blocked_count < shadow.len(),
+            "{kind:?}: {blocked_count} of {} blocked",
+            shadow.len()
+        );
         assert_eq!(shadow_mismatches, 0, "{kind:?}: shadow rays differ");
         assert!(hit_count > 20_000, "{kind:?}: only {hit_count} hits");
-        assert!(transparent_passed > 100, "{kind:?}: only {transparent_passed} rays crossed a transparent texel");
+        assert!(
+            transparent_passed > 100,
+            "{kind:?}: only {transparent_passed} rays crossed a transparent texel"
+        );
         assert!(
             mismatches.is_empty(),
             "{kind:?}: {} of {} rays differ, e.g.\n{}",

@@ -75,15 +75,25 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
     let token = a.auth.load()?;
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async {
-        let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("cannot listen on {}", a.listen))?;
+        let listener = tokio::net::TcpListener::bind(&a.listen)
+            .await
+            .with_context(|| format!("cannot listen on {}", a.listen))?;
         let addr = listener.local_addr()?;
         let metrics = match &a.metrics {
-            Some(m) => Some(tokio::net::TcpListener::bind(m).await.with_context(|| format!("cannot listen on {m}"))?),
+            Some(m) => Some(
+                tokio::net::TcpListener::bind(m)
+                    .await
+                    .with_context(|| format!("cannot listen on {m}"))?,
+            ),
             None => None,
         };
         let metrics_addr = metrics.as_ref().map(|l| l.local_addr()).transpose()?;
         let http = match &a.http {
-            Some(h) => Some(tokio::net::TcpListener::bind(h).await.with_context(|| format!("cannot listen on {h}"))?),
+            Some(h) => Some(
+                tokio::net::TcpListener::bind(h)
+                    .await
+                    .with_context(|| format!("cannot listen on {h}"))?,
+            ),
             None => None,
         };
         let http_addr = http.as_ref().map(|l| l.local_addr()).transpose()?;
@@ -152,13 +162,22 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     let bundle = sylva_scene::bundle::pack(&a.scene)?;
     let frame = a.frame.settings();
     frame.check()?;
-    let text = std::fs::read_to_string(&a.scene).with_context(|| format!("{}: cannot read", a.scene.display()))?;
+    let text = std::fs::read_to_string(&a.scene)
+        .with_context(|| format!("{}: cannot read", a.scene.display()))?;
     let views = a.frame.views(&sylva_scene::parse(&text, &a.scene.display().to_string())?)?;
-    let spec = super::render::job_spec(&frame, &views, a.schedule, a.priority, &a.scene.display().to_string());
+    let spec = super::render::job_spec(
+        &frame,
+        &views,
+        a.schedule,
+        a.priority,
+        &a.scene.display().to_string(),
+    );
     let rt = tokio::runtime::Runtime::new()?;
-    let done = rt.block_on(submit_and_follow(&a.coordinator, token, tls.as_ref(), spec, &bundle, a.exr))?;
+    let done =
+        rt.block_on(submit_and_follow(&a.coordinator, token, tls.as_ref(), spec, &bundle, a.exr))?;
     if !views.is_empty() {
-        let written = sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
+        let written =
+            sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
         println!(
             "{} done: wrote {} frames, {} and {}",
             done.id,
@@ -171,7 +190,8 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
     }
-    std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
+    std::fs::write(&a.out, &done.pngs[0])
+        .with_context(|| format!("{}: cannot write", a.out.display()))?;
     if let Some(exr) = done.exrs.as_ref().map(|e| &e[0]) {
         std::fs::write(a.out.with_extension("exr"), exr)?;
     }

@@ -22,7 +22,11 @@ impl<'a> InProcess<'a> {
 }
 
 impl StripExecutor for InProcess<'_> {
-    fn render(&mut self, plan: &[Strip], on_strip: &(dyn Fn(Strip) + Send + Sync)) -> anyhow::Result<RenderedFrame> {
+    fn render(
+        &mut self,
+        plan: &[Strip],
+        on_strip: &(dyn Fn(Strip) + Send + Sync),
+    ) -> anyhow::Result<RenderedFrame> {
         let f = &self.settings;
         let mut frame = Assembly::new(f.width, f.height);
         let mut strip_ms = Vec::with_capacity(plan.len());
@@ -31,9 +35,15 @@ impl StripExecutor for InProcess<'_> {
             let s = self.renderer.render_strip(self.ctx, f, x0, x1)?;
             let ms = t.elapsed().as_secs_f64() * 1e3;
             let r = s.rays;
-            let px =
-                StripPixels { strip: (x0, x1), rgb: s.pixels, coverage: s.coverage, rays: [r.primary.into(), r.shadow.into(), r.transparent.into()] };
-            frame.add(&px).map_err(|e| anyhow::anyhow!("the renderer returned a strip that does not fit: {e}"))?;
+            let px = StripPixels {
+                strip: (x0, x1),
+                rgb: s.pixels,
+                coverage: s.coverage,
+                rays: [r.primary.into(), r.shadow.into(), r.transparent.into()],
+            };
+            frame.add(&px).map_err(|e| {
+                anyhow::anyhow!("the renderer returned a strip that does not fit: {e}")
+            })?;
             strip_ms.push(((x0, x1), ms, ms));
             on_strip((x0, x1));
         }

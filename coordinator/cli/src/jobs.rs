@@ -127,7 +127,8 @@ struct JobRow {
 impl JobRow {
     fn of(j: pb::JobSummary, now_ms: u64) -> Self {
         let nz = |v: u64| (v > 0).then_some(v);
-        let (sub, start, end) = (j.submitted_unix_ms, nz(j.started_unix_ms), nz(j.finished_unix_ms));
+        let (sub, start, end) =
+            (j.submitted_unix_ms, nz(j.started_unix_ms), nz(j.finished_unix_ms));
         let secs = |a: u64, b: u64| b.saturating_sub(a) as f64 / 1e3;
         Self {
             queued_s: (sub > 0).then(|| secs(sub, start.or(end).unwrap_or(now_ms))),
@@ -151,7 +152,10 @@ impl JobRow {
 }
 
 fn now_ms() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0)
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as u64)
+        .unwrap_or(0)
 }
 
 /// Left-aligned columns, two spaces apart, the header first.
@@ -167,7 +171,9 @@ fn table(header: &[&str], rows: &[Vec<String>]) -> String {
         s.truncate(s.trim_end().len());
         s + "\n"
     };
-    std::iter::once(line(header.iter().map(|h| h.to_string()).collect())).chain(rows.iter().map(|r| line(r.clone()))).collect()
+    std::iter::once(line(header.iter().map(|h| h.to_string()).collect()))
+        .chain(rows.iter().map(|r| line(r.clone())))
+        .collect()
 }
 
 fn seconds(s: Option<f64>) -> String {
@@ -193,14 +199,35 @@ fn job_table(rows: &[JobRow]) -> String {
             ]
         })
         .collect();
-    table(&["ID", "STATE", "PRIO", "STRIPS", "FRAMES", "RETRIES", "QUEUED", "RUNNING", "SUBMITTER", "NAME", "ERROR"], &cells)
+    table(
+        &[
+            "ID",
+            "STATE",
+            "PRIO",
+            "STRIPS",
+            "FRAMES",
+            "RETRIES",
+            "QUEUED",
+            "RUNNING",
+            "SUBMITTER",
+            "NAME",
+            "ERROR",
+        ],
+        &cells,
+    )
 }
 
 /// Runs `sylva jobs`.
 pub fn run_jobs(a: JobsArgs) -> anyhow::Result<()> {
-    let list = a.at.call(async |mut c| Ok(c.list_jobs(pb::ListJobsRequest {}).await.map_err(status_error)?.into_inner().jobs))?;
+    let list = a.at.call(async |mut c| {
+        Ok(c.list_jobs(pb::ListJobsRequest {}).await.map_err(status_error)?.into_inner().jobs)
+    })?;
     let now = now_ms();
-    let mut rows: Vec<JobRow> = list.into_iter().map(|j| JobRow::of(j, now)).filter(|j| a.state.as_ref().is_none_or(|s| &j.state == s)).collect();
+    let mut rows: Vec<JobRow> = list
+        .into_iter()
+        .map(|j| JobRow::of(j, now))
+        .filter(|j| a.state.as_ref().is_none_or(|s| &j.state == s))
+        .collect();
     rows.sort_by_key(|j| j.submitted_unix_ms);
     if a.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -225,7 +252,13 @@ struct WorkerRow {
 
 /// Runs `sylva workers`.
 pub fn run_workers(a: WorkersArgs) -> anyhow::Result<()> {
-    let list = a.at.call(async |mut c| Ok(c.list_workers(pb::ListWorkersRequest {}).await.map_err(status_error)?.into_inner().workers))?;
+    let list = a.at.call(async |mut c| {
+        Ok(c.list_workers(pb::ListWorkersRequest {})
+            .await
+            .map_err(status_error)?
+            .into_inner()
+            .workers)
+    })?;
     let mut rows: Vec<WorkerRow> = list
         .into_iter()
         .map(|w| WorkerRow {
@@ -255,7 +288,11 @@ pub fn run_workers(a: WorkersArgs) -> anyhow::Result<()> {
                 w.strips_done.to_string(),
                 w.strips_failed.to_string(),
                 // A bundle hash's first 12 digits name it well enough in a table.
-                w.cached_scenes.iter().map(|h| h.chars().take(12).collect::<String>()).collect::<Vec<_>>().join(","),
+                w.cached_scenes
+                    .iter()
+                    .map(|h| h.chars().take(12).collect::<String>())
+                    .collect::<Vec<_>>()
+                    .join(","),
             ]
         })
         .collect();
@@ -268,7 +305,12 @@ pub fn run_cancel(a: CancelArgs) -> anyhow::Result<()> {
     let results = a.at.call(async |mut c| {
         let mut out = Vec::new();
         for id in &a.ids {
-            out.push(c.cancel_job(pb::JobId { id: id.clone() }).await.map(|r| r.into_inner()).map_err(status_error));
+            out.push(
+                c.cancel_job(pb::JobId { id: id.clone() })
+                    .await
+                    .map(|r| r.into_inner())
+                    .map_err(status_error),
+            );
         }
         Ok(out)
     })?;
@@ -295,7 +337,10 @@ pub fn run_cancel(a: CancelArgs) -> anyhow::Result<()> {
 /// Runs `sylva priority`.
 pub fn run_priority(a: PriorityArgs) -> anyhow::Result<()> {
     let s = a.at.call(async |mut c| {
-        Ok(c.set_priority(pb::SetPriorityRequest { id: a.id.clone(), priority: a.priority }).await.map_err(status_error)?.into_inner())
+        Ok(c.set_priority(pb::SetPriorityRequest { id: a.id.clone(), priority: a.priority })
+            .await
+            .map_err(status_error)?
+            .into_inner())
     })?;
     let row = JobRow::of(s, now_ms());
     if a.json {
@@ -311,28 +356,54 @@ pub fn run_fetch(a: FetchArgs) -> anyhow::Result<()> {
     let exr = a.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
     let format = if exr { "exr" } else { "png" };
     if a.all {
-        anyhow::ensure!(!exr, "--all writes PNG frames (and their sheet and preview); fetch EXR frames one by one with --frame");
+        anyhow::ensure!(
+            !exr,
+            "--all writes PNG frames (and their sheet and preview); fetch EXR frames one by one with --frame"
+        );
         let pngs = a.at.call(async |mut c| {
-            let jobs = c.list_jobs(pb::ListJobsRequest {}).await.map_err(status_error)?.into_inner().jobs;
-            let frames = jobs.iter().find(|j| j.id == a.id).map(|j| j.frames.max(1)).with_context(|| format!("no job {}", a.id))?;
+            let jobs =
+                c.list_jobs(pb::ListJobsRequest {}).await.map_err(status_error)?.into_inner().jobs;
+            let frames = jobs
+                .iter()
+                .find(|j| j.id == a.id)
+                .map(|j| j.frames.max(1))
+                .with_context(|| format!("no job {}", a.id))?;
             let mut pngs = Vec::new();
             for frame in 0..frames {
                 pngs.push(
-                    c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: "png".into(), frame }).await.map_err(status_error)?.into_inner().data,
+                    c.fetch_result(pb::FetchRequest {
+                        id: a.id.clone(),
+                        format: "png".into(),
+                        frame,
+                    })
+                    .await
+                    .map_err(status_error)?
+                    .into_inner()
+                    .data,
                 );
             }
             Ok(pngs)
         })?;
         let written = sylva_coordinator::sequence::write_all(&a.out, &pngs, None)?;
-        println!("{}: wrote {} frames, {} and {}", a.id, pngs.len(), written[written.len() - 2].display(), written[written.len() - 1].display());
+        println!(
+            "{}: wrote {} frames, {} and {}",
+            a.id,
+            pngs.len(),
+            written[written.len() - 2].display(),
+            written[written.len() - 1].display()
+        );
         return Ok(());
     }
     let data = a.at.call(async |mut c| {
-        Ok(c.fetch_result(pb::FetchRequest { id: a.id.clone(), format: format.into(), frame: a.frame })
-            .await
-            .map_err(status_error)?
-            .into_inner()
-            .data)
+        Ok(c.fetch_result(pb::FetchRequest {
+            id: a.id.clone(),
+            format: format.into(),
+            frame: a.frame,
+        })
+        .await
+        .map_err(status_error)?
+        .into_inner()
+        .data)
     })?;
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
@@ -348,16 +419,27 @@ mod tests {
 
     #[test]
     fn a_table_lines_up_its_columns() {
-        let t = table(&["ID", "STATE"], &[vec!["job-1".into(), "done".into()], vec!["j".into(), "queued".into()]]);
+        let t = table(
+            &["ID", "STATE"],
+            &[vec!["job-1".into(), "done".into()], vec!["j".into(), "queued".into()]],
+        );
         assert_eq!(t, "ID     STATE\njob-1  done\nj      queued\n");
     }
 
     #[test]
     fn a_running_jobs_times_count_to_now() {
-        let s = pb::JobSummary { submitted_unix_ms: 1_000, started_unix_ms: 3_000, ..Default::default() };
+        let s = pb::JobSummary {
+            submitted_unix_ms: 1_000,
+            started_unix_ms: 3_000,
+            ..Default::default()
+        };
         let r = JobRow::of(s, 10_000);
         assert_eq!((r.queued_s, r.running_s), (Some(2.0), Some(7.0)));
-        let s = pb::JobSummary { submitted_unix_ms: 1_000, finished_unix_ms: 1_500, ..Default::default() };
+        let s = pb::JobSummary {
+            submitted_unix_ms: 1_000,
+            finished_unix_ms: 1_500,
+            ..Default::default()
+        };
         let r = JobRow::of(s, 10_000);
         assert_eq!((r.queued_s, r.running_s), (Some(0.5), None), "cancelled while queued");
     }

@@ -7,7 +7,9 @@ use serde::Serialize;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use sylva_light::lb::{GridDims, LbParams, LightingSolver, MediumGrid, NodeClass, Solution, SolveOptions, Sun, solve};
+use sylva_light::lb::{
+    GridDims, LbParams, LightingSolver, MediumGrid, NodeClass, Solution, SolveOptions, Sun, solve,
+};
 use sylva_light::studies::verify::{self, Check};
 use sylva_light::voxel::{self, GridFrame};
 use sylva_light::{npy, shapes, visualize};
@@ -143,7 +145,10 @@ struct LoadedInput {
     default_preset: Preset,
 }
 
-fn load_input(a: &SolveArgs, timings: &mut Vec<(&'static str, f64)>) -> anyhow::Result<LoadedInput> {
+fn load_input(
+    a: &SolveArgs,
+    timings: &mut Vec<(&'static str, f64)>,
+) -> anyhow::Result<LoadedInput> {
     let n = a.grid.unwrap_or(64);
     if n < 4 {
         bail!("--grid {n}: use at least 4 (the outer shell holds the boundary condition)");
@@ -153,18 +158,28 @@ fn load_input(a: &SolveArgs, timings: &mut Vec<(&'static str, f64)>) -> anyhow::
         "cloud" => {
             let medium = shapes::cloud(n, 1);
             timings.push(("generate", t.elapsed().as_secs_f64() * 1e3));
-            return Ok(LoadedInput { medium, frame: None, triangles: None, default_preset: Preset::Cloud });
+            return Ok(LoadedInput {
+                medium,
+                frame: None,
+                triangles: None,
+                default_preset: Preset::Cloud,
+            });
         }
         "plant" => shapes::plant(1),
         path => {
             let p = Path::new(path);
             if !p.exists() {
-                bail!("{path}: no such file (inputs are `plant`, `cloud`, a .gltf/.glb model or a .npy density grid)");
+                bail!(
+                    "{path}: no such file (inputs are `plant`, `cloud`, a .gltf/.glb model or a .npy density grid)"
+                );
             }
-            match p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
+            match p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref()
+            {
                 Some("npy") => {
                     if a.grid.is_some() {
-                        bail!("--grid does not apply to a .npy density grid: its shape sets the grid");
+                        bail!(
+                            "--grid does not apply to a .npy density grid: its shape sets the grid"
+                        );
                     }
                     let preset = a.preset.unwrap_or(Preset::Leaf);
                     let class = match a.class {
@@ -176,7 +191,12 @@ fn load_input(a: &SolveArgs, timings: &mut Vec<(&'static str, f64)>) -> anyhow::
                     };
                     let medium = npy::read_density(p, class)?;
                     timings.push(("load", t.elapsed().as_secs_f64() * 1e3));
-                    return Ok(LoadedInput { medium, frame: None, triangles: None, default_preset: preset });
+                    return Ok(LoadedInput {
+                        medium,
+                        frame: None,
+                        triangles: None,
+                        default_preset: preset,
+                    });
                 }
                 Some("gltf" | "glb") => model::load_gltf(p)?,
                 _ => bail!("{path}: unknown input type; expected .gltf, .glb or .npy"),
@@ -185,12 +205,19 @@ fn load_input(a: &SolveArgs, timings: &mut Vec<(&'static str, f64)>) -> anyhow::
     };
     timings.push(("load", t.elapsed().as_secs_f64() * 1e3));
     if a.class.is_some() {
-        bail!("--class applies to .npy grids only: a model's triangles decide green and brown nodes");
+        bail!(
+            "--class applies to .npy grids only: a model's triangles decide green and brown nodes"
+        );
     }
     let t = Instant::now();
     let v = voxel::voxelize(&model, n)?;
     timings.push(("voxelize", t.elapsed().as_secs_f64() * 1e3));
-    Ok(LoadedInput { medium: v.medium, frame: Some(v.frame), triangles: Some(model.triangle_count()), default_preset: Preset::Leaf })
+    Ok(LoadedInput {
+        medium: v.medium,
+        frame: Some(v.frame),
+        triangles: Some(model.triangle_count()),
+        default_preset: Preset::Leaf,
+    })
 }
 
 fn solve_cmd(a: SolveArgs) -> anyhow::Result<()> {
@@ -202,18 +229,21 @@ fn solve_cmd(a: SolveArgs) -> anyhow::Result<()> {
     let input = load_input(&a, &mut timings)?;
     let preset = a.preset.unwrap_or(input.default_preset);
     let params = LbParams::from_preset(preset);
-    let opts = SolveOptions { max_steps: a.max_steps, tolerance: a.tolerance, ..SolveOptions::default() };
+    let opts =
+        SolveOptions { max_steps: a.max_steps, tolerance: a.tolerance, ..SolveOptions::default() };
     let t = Instant::now();
     let mut solver = open_solver(a.backend)?;
     timings.push(("open solver", t.elapsed().as_secs_f64() * 1e3));
 
     let bar = progress::lb_bar("solving", opts.cap(input.medium.dims));
     let t = Instant::now();
-    let solution = solve(solver.as_mut(), &input.medium, &params, &sun, &opts, &progress::lb_callback(&bar))?;
+    let solution =
+        solve(solver.as_mut(), &input.medium, &params, &sun, &opts, &progress::lb_callback(&bar))?;
     timings.push(("solve", t.elapsed().as_secs_f64() * 1e3));
     bar.finish_and_clear();
 
-    std::fs::create_dir_all(&a.out).with_context(|| format!("{}: cannot create output folder", a.out.display()))?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("{}: cannot create output folder", a.out.display()))?;
     let t = Instant::now();
     let npy_path = a.out.join("density.npy");
     let png_path = a.out.join("density.png");
@@ -222,14 +252,26 @@ fn solve_cmd(a: SolveArgs) -> anyhow::Result<()> {
     visualize::write_solution_png(&png_path, &solution)?;
     timings.push(("write", t.elapsed().as_secs_f64() * 1e3));
 
-    let summary = summary_json(&a, &input, preset, &params, &sun, solver.name(), &solution, &timings, &npy_path, &png_path);
+    let summary = summary_json(
+        &a,
+        &input,
+        preset,
+        &params,
+        &sun,
+        solver.name(),
+        &solution,
+        &timings,
+        &npy_path,
+        &png_path,
+    );
     let summary_path = a.out.join("summary.json");
     std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)? + "\n")
         .with_context(|| format!("{}: cannot write", summary_path.display()))?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
-        let steps: Vec<String> = solution.channels.iter().map(|c| c.report.steps.to_string()).collect();
+        let steps: Vec<String> =
+            solution.channels.iter().map(|c| c.report.steps.to_string()).collect();
         println!(
             "solved {} on {} ({}, preset {}) in {:.0} ms, steps R/G/B {}; wrote {}, {}, {}",
             a.input,
@@ -260,8 +302,11 @@ fn summary_json(
     png_path: &Path,
 ) -> serde_json::Value {
     let d: GridDims = solution.dims;
-    let channels: Vec<_> =
-        ["red", "green", "blue"].iter().zip(&solution.channels).map(|(name, c)| json!({ "channel": name, "report": c.report })).collect();
+    let channels: Vec<_> = ["red", "green", "blue"]
+        .iter()
+        .zip(&solution.channels)
+        .map(|(name, c)| json!({ "channel": name, "report": c.report }))
+        .collect();
     json!({
         "input": a.input,
         "triangles": input.triangles,
@@ -290,14 +335,26 @@ fn summary_json(
 pub fn gpu_check() -> Check {
     match GpuSolver::open() {
         Ok(mut gpu) => verify::reference_check(&mut gpu),
-        Err(e) => Check::new("g", "GPU solver matches the CPU reference", f64::INFINITY, 1e-4, format!("could not run: {e:#}")),
+        Err(e) => Check::new(
+            "g",
+            "GPU solver matches the CPU reference",
+            f64::INFINITY,
+            1e-4,
+            format!("could not run: {e:#}"),
+        ),
     }
 }
 
 fn verify_cmd(a: VerifyArgs) -> anyhow::Result<()> {
     let mut checks = verify::model_checks();
     if a.no_gpu {
-        checks.push(Check::new("g", "GPU solver matches the CPU reference", f64::INFINITY, 1e-4, "skipped (--no-gpu)".into()));
+        checks.push(Check::new(
+            "g",
+            "GPU solver matches the CPU reference",
+            f64::INFINITY,
+            1e-4,
+            "skipped (--no-gpu)".into(),
+        ));
     } else {
         checks.push(gpu_check());
     }
@@ -311,7 +368,10 @@ fn verify_cmd(a: VerifyArgs) -> anyhow::Result<()> {
                 json!({ "id": c.id, "name": c.name, "measured": measured, "bound": c.bound, "pass": c.pass, "detail": c.detail })
             })
             .collect();
-        println!("{}", serde_json::to_string_pretty(&json!({ "pass": pass, "checks": checks_json }))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({ "pass": pass, "checks": checks_json }))?
+        );
     } else {
         for c in &checks {
             println!(

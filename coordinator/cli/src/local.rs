@@ -39,10 +39,16 @@ impl LocalProcesses {
     }
 
     /// [`LocalProcesses::start_workers`] with more worker flags.
-    pub fn start_workers_with(&mut self, n: usize, token: &str, extra: &[String]) -> anyhow::Result<Vec<String>> {
+    pub fn start_workers_with(
+        &mut self,
+        n: usize,
+        token: &str,
+        extra: &[String],
+    ) -> anyhow::Result<Vec<String>> {
         let mut addrs = Vec::new();
         for _ in 0..n {
-            let mut args: Vec<String> = ["worker", "--listen", "127.0.0.1:0"].map(String::from).to_vec();
+            let mut args: Vec<String> =
+                ["worker", "--listen", "127.0.0.1:0"].map(String::from).to_vec();
             args.extend_from_slice(extra);
             let (child, addr) = spawn_announcing(&args, token)?;
             self.children.push(child);
@@ -53,8 +59,16 @@ impl LocalProcesses {
 
     /// Starts a coordinator on loopback over `workers`, requiring `token`
     /// from clients and sending it to workers; `extra` are more of its flags.
-    pub fn start_coordinator(&mut self, workers: &[String], token: &str, extra: &[String]) -> anyhow::Result<String> {
-        let mut args: Vec<String> = ["coordinator", "--listen", "127.0.0.1:0", "--max-running", "1"].map(String::from).to_vec();
+    pub fn start_coordinator(
+        &mut self,
+        workers: &[String],
+        token: &str,
+        extra: &[String],
+    ) -> anyhow::Result<String> {
+        let mut args: Vec<String> =
+            ["coordinator", "--listen", "127.0.0.1:0", "--max-running", "1"]
+                .map(String::from)
+                .to_vec();
         if !workers.is_empty() {
             args.extend(["--workers".to_string(), workers.join(",")]);
         }

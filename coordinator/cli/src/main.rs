@@ -98,7 +98,10 @@ fn main() {
     unsafe { sylva_worker::gpu::prefer_narrow_lavapipe_lanes() };
     let args = Cli::parse();
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| args.log_filter().into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| args.log_filter().into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     if let Err(e) = run(args) {

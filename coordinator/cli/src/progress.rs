@@ -5,7 +5,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 /// A bar over the three channels of an LB solve.
 pub fn lb_bar(label: &str, cap: usize) -> ProgressBar {
     let bar = ProgressBar::new(3 * cap as u64);
-    bar.set_style(ProgressStyle::with_template("{prefix:>12} [{bar:40}] {msg} {elapsed}").expect("valid template").progress_chars("=> "));
+    bar.set_style(
+        ProgressStyle::with_template("{prefix:>12} [{bar:40}] {msg} {elapsed}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
     bar.set_prefix(label.to_string());
     bar
 }

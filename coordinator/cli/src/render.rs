@@ -98,7 +98,10 @@ pub struct FrameArgs {
 
 /// `ELEVATION,AZIMUTH` in degrees.
 fn sun_angles(s: &str) -> Result<SunAngles, String> {
-    let v: Vec<f32> = s.split(',').map(|x| x.trim().parse::<f32>().map_err(|e| format!("{x:?}: {e}"))).collect::<Result<_, _>>()?;
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>().map_err(|e| format!("{x:?}: {e}")))
+        .collect::<Result<_, _>>()?;
     match v.as_slice() {
         [e, a] => Ok(SunAngles { elevation_deg: *e, azimuth_deg: *a }),
         _ => Err(format!("{s:?}: ELEVATION,AZIMUTH in degrees")),
@@ -137,8 +140,11 @@ impl FrameArgs {
             seq.sun = Some(SunSweep { from, to });
         }
         if let Some(p) = &self.camera_path {
-            let text = std::fs::read_to_string(p).with_context(|| format!("{}: cannot read", p.display()))?;
-            seq.camera = serde_json::from_str(&text).with_context(|| format!("{}: not a JSON array of camera keyframes", p.display()))?;
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("{}: cannot read", p.display()))?;
+            seq.camera = serde_json::from_str(&text).with_context(|| {
+                format!("{}: not a JSON array of camera keyframes", p.display())
+            })?;
         }
         if seq.frames == 0 {
             bail!("a sequence needs --frames N (or the scene's sequence.frames)");
@@ -245,7 +251,13 @@ impl From<ScheduleArg> for ScheduleKind {
 
 /// A job for the coordinator: the frame (and a sequence's views), how to
 /// cut it, its priority and label.
-pub fn job_spec(frame: &FrameSettings, views: &[View], schedule: ScheduleArg, priority: i32, name: &str) -> sylva_proto::pb::JobSpec {
+pub fn job_spec(
+    frame: &FrameSettings,
+    views: &[View],
+    schedule: ScheduleArg,
+    priority: i32,
+    name: &str,
+) -> sylva_proto::pb::JobSpec {
     use sylva_proto::pb;
     sylva_proto::pb::JobSpec {
         views: views.iter().map(pb::FrameView::from).collect(),
@@ -277,7 +289,10 @@ fn cut(s: &str, max: usize) -> String {
 
 /// Who submits, for listings: `$SYLVA_USER`, else the login name.
 fn submitter_name() -> String {
-    ["SYLVA_USER", "USER", "LOGNAME"].iter().find_map(|v| std::env::var(v).ok().filter(|u| !u.is_empty())).unwrap_or_default()
+    ["SYLVA_USER", "USER", "LOGNAME"]
+        .iter()
+        .find_map(|v| std::env::var(v).ok().filter(|u| !u.is_empty()))
+        .unwrap_or_default()
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
@@ -288,20 +303,31 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let folder = a.scene.parent().map(Path::to_path_buf).unwrap_or_default();
     let remote = a.local_workers > 0 || !a.workers.is_empty();
     if a.allow_files_outside_scene && remote {
-        bail!("--allow-files-outside-scene works in this process only (add --local-workers 0): a bundle holds just the scene folder's files");
+        bail!(
+            "--allow-files-outside-scene works in this process only (add --local-workers 0): a bundle holds just the scene folder's files"
+        );
     }
-    let access = if a.allow_files_outside_scene { FileAccess::Anywhere(folder) } else { FileAccess::Inside(folder) };
+    let access = if a.allow_files_outside_scene {
+        FileAccess::Anywhere(folder)
+    } else {
+        FileAccess::Inside(folder)
+    };
     let mut scene = Scene::load_with(&a.scene, &access, &SceneLimits::UNLIMITED)?;
     phases.push(("load", ms(t)));
     let grid_choice = match a.lb_grid.as_deref() {
         None => None,
         Some(_) if a.local_workers > 0 || !a.workers.is_empty() => {
-            bail!("--lb-grid works in this process only: add --local-workers 0, or set \"lb\": {{ \"grid\": N }} in the scene")
+            bail!(
+                "--lb-grid works in this process only: add --local-workers 0, or set \"lb\": {{ \"grid\": N }} in the scene"
+            )
         }
         Some("auto") => Some(()),
         Some(n) => {
-            let n: usize =
-                n.parse().ok().filter(|n| (4..=256).contains(n)).with_context(|| format!("--lb-grid {n:?}: a size in [4, 256] or auto"))?;
+            let n: usize = n
+                .parse()
+                .ok()
+                .filter(|n| (4..=256).contains(n))
+                .with_context(|| format!("--lb-grid {n:?}: a size in [4, 256] or auto"))?;
             for m in &mut scene.models {
                 m.lb.grid = n;
             }
@@ -315,18 +341,26 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         return render_through_coordinator(&a, &request, &views, &scene, lighting, accel, phases);
     }
     if !views.is_empty() {
-        bail!("a sequence renders on workers, frames and strips scheduled over them: leave out --local-workers 0");
+        bail!(
+            "a sequence renders on workers, frames and strips scheduled over them: leave out --local-workers 0"
+        );
     }
     let bar = ProgressBar::new_spinner();
-    bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
+    );
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let ctx = GpuContext::new()?;
     let mut choices = None;
     if grid_choice.is_some() && lighting.needs_lb() {
         let t = Instant::now();
-        let c = sylva_worker::lighting::lb::auto::choose_lb_grids(&ctx, &scene, &[16, 32, 64, 128], a.lb_auto_tolerance, &|m| {
-            bar.set_message(m.to_string())
-        })?;
+        let c = sylva_worker::lighting::lb::auto::choose_lb_grids(
+            &ctx,
+            &scene,
+            &[16, 32, 64, 128],
+            a.lb_auto_tolerance,
+            &|m| bar.set_message(m.to_string()),
+        )?;
         for (m, c) in scene.models.iter_mut().zip(&c) {
             m.lb.grid = c.grid;
         }
@@ -350,14 +384,23 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     if lighting == LightingMode::Ambient {
         bar.set_message("matching the ambient constant to the LB image");
         let t = Instant::now();
-        settings.ambient = sylva_worker::lighting::ambient::matched(&prepared.renderer, &ctx, &settings)?;
+        settings.ambient =
+            sylva_worker::lighting::ambient::matched(&prepared.renderer, &ctx, &settings)?;
         phases.push(("ambient match", ms(t)));
     }
     bar.finish_and_clear();
 
     if lighting == LightingMode::Reference {
-        anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error {}: must be a finite number > 0", a.target_error);
-        anyhow::ensure!(a.max_seconds.is_finite() && a.max_seconds > 0.0, "--max-seconds {}: must be a finite number > 0", a.max_seconds);
+        anyhow::ensure!(
+            a.target_error.is_finite() && a.target_error > 0.0,
+            "--target-error {}: must be a finite number > 0",
+            a.target_error
+        );
+        anyhow::ensure!(
+            a.max_seconds.is_finite() && a.max_seconds > 0.0,
+            "--max-seconds {}: must be a finite number > 0",
+            a.max_seconds
+        );
         let opts = sylva_worker::lighting::reference::ReferenceOptions {
             batch_spp: a.frame.spp.max(MIN_BATCH_SPP),
             target_error: a.target_error,
@@ -366,12 +409,24 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             ..Default::default()
         };
         let bar = ProgressBar::new_spinner();
-        bar.set_style(ProgressStyle::with_template("{spinner} reference: {msg} {elapsed}").expect("valid template"));
+        bar.set_style(
+            ProgressStyle::with_template("{spinner} reference: {msg} {elapsed}")
+                .expect("valid template"),
+        );
         bar.enable_steady_tick(std::time::Duration::from_millis(200));
         let t = Instant::now();
-        let r = sylva_worker::lighting::reference::render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
-            bar.set_message(format!("{} spp, relative error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
-        })?;
+        let r = sylva_worker::lighting::reference::render_reference(
+            &ctx,
+            &prepared.renderer,
+            &settings,
+            &opts,
+            &|s| {
+                bar.set_message(format!(
+                    "{} spp, relative error {:.4} (target {})",
+                    s.spp, s.relative_error, a.target_error
+                ))
+            },
+        )?;
         phases.push(("trace", ms(t)));
         bar.finish_and_clear();
         let (tone, exr) = write_image(&a, &r.image, &mut phases)?;
@@ -412,9 +467,14 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     }
     let plan = even_strips(a.frame.width, STRIP);
     let bar = ProgressBar::new(plan.len() as u64);
-    bar.set_style(ProgressStyle::with_template("tracing [{bar:40}] {pos}/{len} strips {elapsed}").expect("valid template").progress_chars("=> "));
+    bar.set_style(
+        ProgressStyle::with_template("tracing [{bar:40}] {pos}/{len} strips {elapsed}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
     let t = Instant::now();
-    let rendered = InProcess::new(&ctx, &prepared.renderer, settings).render(&plan, &|_| bar.inc(1))?;
+    let rendered =
+        InProcess::new(&ctx, &prepared.renderer, settings).render(&plan, &|_| bar.inc(1))?;
     let [primary, shadow, transparent] = rendered.rays;
     let (frame, coverage) = (rendered.image, rendered.coverage);
     let trace_ms = ms(t);
@@ -449,7 +509,11 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
         }),
     );
-    let how = format!("in {:.0} ms of tracing, {:.2} Mrays/s", trace_ms, (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6);
+    let how = format!(
+        "in {:.0} ms of tracing, {:.2} Mrays/s",
+        trace_ms,
+        (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6
+    );
     report(&a, &stats, accel, lighting, &how)
 }
 
@@ -504,20 +568,35 @@ fn with_head(
 /// Creates the folder `path` goes in, if any.
 pub(super) fn create_parent(path: &Path) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create folder", dir.display()))?;
     }
     Ok(())
 }
 
 /// Writes the stats beside the image and tells the user.
-fn report(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting: LightingMode, how: &str) -> anyhow::Result<()> {
+fn report(
+    a: &RenderArgs,
+    stats: &serde_json::Value,
+    accel: AccelKind,
+    lighting: LightingMode,
+    how: &str,
+) -> anyhow::Result<()> {
     report_wrote(a, stats, accel, lighting, how, &a.out.display().to_string())
 }
 
 /// [`report`], naming what was written as `wrote`.
-fn report_wrote(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lighting: LightingMode, how: &str, wrote: &str) -> anyhow::Result<()> {
+fn report_wrote(
+    a: &RenderArgs,
+    stats: &serde_json::Value,
+    accel: AccelKind,
+    lighting: LightingMode,
+    how: &str,
+    wrote: &str,
+) -> anyhow::Result<()> {
     let path = stats_path(&a.out);
-    std::fs::write(&path, serde_json::to_string_pretty(stats)? + "\n").with_context(|| format!("{}: cannot write", path.display()))?;
+    std::fs::write(&path, serde_json::to_string_pretty(stats)? + "\n")
+        .with_context(|| format!("{}: cannot write", path.display()))?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(stats)?);
     } else {
@@ -536,7 +615,10 @@ fn report_wrote(a: &RenderArgs, stats: &serde_json::Value, accel: AccelKind, lig
 
 /// `NAME.stats.json` beside `NAME.png`.
 pub fn stats_path(image: &Path) -> PathBuf {
-    let stem = image.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_else(|| "render".into());
+    let stem = image
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "render".into());
     image.with_file_name(format!("{stem}.stats.json"))
 }
 
@@ -578,7 +660,14 @@ fn render_through_coordinator(
     let spec = job_spec(request, views, a.schedule, 0, &a.scene.display().to_string());
     let rt = tokio::runtime::Runtime::new()?;
     let t = Instant::now();
-    let done = rt.block_on(sylva_coordinator::client::submit_and_follow(&coordinator, Some(token), None, spec, &bundle, a.exr))?;
+    let done = rt.block_on(sylva_coordinator::client::submit_and_follow(
+        &coordinator,
+        Some(token),
+        None,
+        spec,
+        &bundle,
+        a.exr,
+    ))?;
     let frame_ms = ms(t);
     phases.push((if views.is_empty() { "frame" } else { "sequence" }, frame_ms));
     drop(processes);
@@ -594,27 +683,44 @@ fn render_through_coordinator(
     });
     // A sequence's numbered frames, sheet and preview; or the one image.
     let (exr, wrote, how) = if views.is_empty() {
-        std::fs::write(&a.out, &done.pngs[0]).with_context(|| format!("{}: cannot write", a.out.display()))?;
+        std::fs::write(&a.out, &done.pngs[0])
+            .with_context(|| format!("{}: cannot write", a.out.display()))?;
         let exr = match done.exrs.as_ref().map(|e| &e[0]) {
             Some(bytes) => {
                 let p = a.out.with_extension("exr");
-                std::fs::write(&p, bytes).with_context(|| format!("{}: cannot write", p.display()))?;
+                std::fs::write(&p, bytes)
+                    .with_context(|| format!("{}: cannot write", p.display()))?;
                 Some(p)
             }
             None => None,
         };
-        (exr, a.out.display().to_string(), format!("through a coordinator and {} workers in {:.0} ms", workers.len(), frame_ms))
+        (
+            exr,
+            a.out.display().to_string(),
+            format!("through a coordinator and {} workers in {:.0} ms", workers.len(), frame_ms),
+        )
     } else {
-        let written = sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
+        let written =
+            sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
         let names = |i: usize| written.get(i).map(|p| p.display().to_string()).unwrap_or_default();
-        let wrote = format!("{} … {}, {}, {}", names(0), names(views.len() - 1), names(written.len() - 2), names(written.len() - 1));
+        let wrote = format!(
+            "{} … {}, {}, {}",
+            names(0),
+            names(views.len() - 1),
+            names(written.len() - 2),
+            names(written.len() - 1)
+        );
         body["views"] = json!(views);
         body["written"] = json!(written);
         let n = views.len();
         (
             None,
             wrote,
-            format!("{n} frames through a coordinator and {} workers in {frame_ms:.0} ms ({:.0} ms a frame)", workers.len(), frame_ms / n as f64),
+            format!(
+                "{n} frames through a coordinator and {} workers in {frame_ms:.0} ms ({:.0} ms a frame)",
+                workers.len(),
+                frame_ms / n as f64
+            ),
         )
     };
     let mut stats = with_head(a, exr, accel, lighting, &phases, body);
@@ -651,11 +757,17 @@ mod tests {
         assert_eq!(v.len(), 6);
         assert!(v.iter().all(|v| v.camera.is_none() && v.sun_towards.is_some()));
         // Flags: more frames, and the sun sweep replaced.
-        let v = views(&["--frames", "3", "--sun-from", "60,0", "--sun-to", "60,90"], &with).unwrap();
+        let v =
+            views(&["--frames", "3", "--sun-from", "60,0", "--sun-to", "60,90"], &with).unwrap();
         assert_eq!(v.len(), 3);
         assert!((v[0].sun_towards.unwrap()[1] - 60f32.to_radians().sin()).abs() < 1e-6);
         // A sweep without a frame count is refused, and so is half a sweep.
-        assert!(views(&["--sun-from", "10,0", "--sun-to", "20,0"], plain).unwrap_err().to_string().contains("--frames"));
+        assert!(
+            views(&["--sun-from", "10,0", "--sun-to", "20,0"], plain)
+                .unwrap_err()
+                .to_string()
+                .contains("--frames")
+        );
         assert!(views(&["--frames", "2", "--sun-from", "10,0"], plain).is_err());
         assert!(views(&["--frames", "2", "--sun-from", "10", "--sun-to", "20,0"], plain).is_err());
     }

@@ -74,20 +74,32 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
     match cmd {
         SceneCommand::Export(a) => export(a),
         SceneCommand::Import(a) => {
-            let dir = a.out.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+            let dir = a
+                .out
+                .parent()
+                .filter(|d| !d.as_os_str().is_empty())
+                .unwrap_or(std::path::Path::new("."));
             let file = sylva_scene::interchange::import::import_gltf(&a.gltf, dir)?;
             // Checked as `render` would load it, before it is written.
             sylva_scene::Scene::build(file.clone(), dir, &a.out.display().to_string())?;
             create_parent(&a.out)?;
-            std::fs::write(&a.out, serde_json::to_string_pretty(&file)? + "\n").with_context(|| format!("{}: cannot write", a.out.display()))?;
-            println!("wrote {}: {} models, {} instances", a.out.display(), file.models.len(), file.instances.len());
+            std::fs::write(&a.out, serde_json::to_string_pretty(&file)? + "\n")
+                .with_context(|| format!("{}: cannot write", a.out.display()))?;
+            println!(
+                "wrote {}: {} models, {} instances",
+                a.out.display(),
+                file.models.len(),
+                file.instances.len()
+            );
             Ok(())
         }
         SceneCommand::Forest(a) => {
-            let o = ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: a.seed };
+            let o =
+                ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: a.seed };
             let scene = forest(&o).map_err(anyhow::Error::msg)?;
             create_parent(&a.out)?;
-            std::fs::write(&a.out, serde_json::to_string_pretty(&scene)? + "\n").with_context(|| format!("{}: cannot write", a.out.display()))?;
+            std::fs::write(&a.out, serde_json::to_string_pretty(&scene)? + "\n")
+                .with_context(|| format!("{}: cannot write", a.out.display()))?;
             let per_species: Vec<_> = Species::ALL
                 .iter()
                 .map(|&sp| {
@@ -95,9 +107,15 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
                     json!({ "species": sp.name(), "instances": instances_at(sp, a.scale), "triangles_per_instance": tris })
                 })
                 .collect();
-            let instanced: u64 =
-                per_species.iter().map(|s| s["instances"].as_u64().unwrap_or(0) * s["triangles_per_instance"].as_u64().unwrap_or(0)).sum();
-            let unique: u64 = per_species.iter().map(|s| s["triangles_per_instance"].as_u64().unwrap_or(0)).sum();
+            let instanced: u64 = per_species
+                .iter()
+                .map(|s| {
+                    s["instances"].as_u64().unwrap_or(0)
+                        * s["triangles_per_instance"].as_u64().unwrap_or(0)
+                })
+                .sum();
+            let unique: u64 =
+                per_species.iter().map(|s| s["triangles_per_instance"].as_u64().unwrap_or(0)).sum();
             let summary = json!({
                 "scene": a.out,
                 "scale": a.scale,
@@ -109,7 +127,13 @@ pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
             if a.json {
                 println!("{}", serde_json::to_string_pretty(&summary)?);
             } else {
-                println!("wrote {}: {} instances of 5 species, {} triangles ({} unique)", a.out.display(), scene.instances.len(), instanced, unique);
+                println!(
+                    "wrote {}: {} instances of 5 species, {} triangles ({} unique)",
+                    a.out.display(),
+                    scene.instances.len(),
+                    instanced,
+                    unique
+                );
             }
             Ok(())
         }
@@ -122,10 +146,13 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
         ExportFormat::Gltf => {
             let (bytes, summary) = sylva_scene::interchange::gltf::export_glb(&scene)?;
             create_parent(&a.out)?;
-            std::fs::write(&a.out, &bytes).with_context(|| format!("{}: cannot write", a.out.display()))?;
+            std::fs::write(&a.out, &bytes)
+                .with_context(|| format!("{}: cannot write", a.out.display()))?;
             serde_json::to_value(summary)?
         }
-        ExportFormat::Pbrt => serde_json::to_value(sylva_scene::interchange::pbrt::export_pbrt(&scene, &a.out)?)?,
+        ExportFormat::Pbrt => {
+            serde_json::to_value(sylva_scene::interchange::pbrt::export_pbrt(&scene, &a.out)?)?
+        }
     };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&json!({ "out": a.out, "summary": summary }))?);

@@ -18,7 +18,8 @@ pub struct TokenArgs {
 impl TokenArgs {
     /// The token from the flag, `SYLVA_TOKEN` or the file, if any.
     pub fn load(&self) -> anyhow::Result<Option<String>> {
-        sylva_proto::auth::load_token(self.token.as_deref(), self.token_file.as_deref()).context("cannot read the token file")
+        sylva_proto::auth::load_token(self.token.as_deref(), self.token_file.as_deref())
+            .context("cannot read the token file")
     }
 }
 
@@ -57,7 +58,11 @@ pub struct ConnectTlsArgs {
 impl ConnectTlsArgs {
     /// The client settings, when asked for.
     pub fn load(&self) -> anyhow::Result<Option<ClientTlsConfig>> {
-        self.tls_ca.as_ref().map(|ca| sylva_proto::tls::client_config(ca, self.tls_domain.as_deref())).transpose().map_err(Into::into)
+        self.tls_ca
+            .as_ref()
+            .map(|ca| sylva_proto::tls::client_config(ca, self.tls_domain.as_deref()))
+            .transpose()
+            .map_err(Into::into)
     }
 
     /// The same flags, for a child process.

@@ -51,7 +51,9 @@ pub struct WorkerArgs {
 pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async {
-        let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("cannot listen on {}", a.listen))?;
+        let listener = tokio::net::TcpListener::bind(&a.listen)
+            .await
+            .with_context(|| format!("cannot listen on {}", a.listen))?;
         let addr = listener.local_addr()?;
         let ctx = GpuContext::new()?;
         let token = a.auth.load()?;
@@ -77,7 +79,12 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         if let Some(coord) = a.coordinator.clone() {
             let me = a.advertise.clone().unwrap_or_else(|| addr.to_string());
             let token = config.token.clone();
-            tokio::spawn(sylva_coordinator::registration::register_loop(coord, me, token, coordinator_tls));
+            tokio::spawn(sylva_coordinator::registration::register_loop(
+                coord,
+                me,
+                token,
+                coordinator_tls,
+            ));
         }
         service::run(listener, ctx, config, sylva_coordinator::shutdown::signal()).await
     })

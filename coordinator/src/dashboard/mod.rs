@@ -39,8 +39,14 @@ pub async fn serve(listener: tokio::net::TcpListener, service: CoordinatorServic
 pub fn router(service: CoordinatorService) -> Router {
     Router::new()
         .route("/", get(|| async { ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], INDEX) }))
-        .route("/app.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], APP) }))
-        .route("/style.css", get(|| async { ([(header::CONTENT_TYPE, "text/css; charset=utf-8")], STYLE) }))
+        .route(
+            "/app.js",
+            get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], APP) }),
+        )
+        .route(
+            "/style.css",
+            get(|| async { ([(header::CONTENT_TYPE, "text/css; charset=utf-8")], STYLE) }),
+        )
         .route("/api/snapshot", get(snapshot_route))
         .route("/api/events", get(events))
         .route("/api/jobs/{id}/live", get(live))
@@ -59,10 +65,15 @@ fn token(headers: &HeaderMap, cookie_too: bool) -> Option<String> {
         .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
         .map(|(_, t)| t.trim().to_string());
     let cookie = || {
-        headers.get_all(header::COOKIE).iter().filter_map(|v| v.to_str().ok()).flat_map(|v| v.split(';')).find_map(|c| {
-            let (k, v) = c.trim().split_once('=')?;
-            (k == "sylva_token").then(|| percent_decode(v))
-        })
+        headers
+            .get_all(header::COOKIE)
+            .iter()
+            .filter_map(|v| v.to_str().ok())
+            .flat_map(|v| v.split(';'))
+            .find_map(|c| {
+                let (k, v) = c.trim().split_once('=')?;
+                (k == "sylva_token").then(|| percent_decode(v))
+            })
     };
     bearer.or_else(|| if cookie_too { cookie() } else { None })
 }
@@ -75,7 +86,8 @@ fn percent_decode(v: &str) -> String {
     while i < b.len() {
         if b[i] == b'%'
             && i + 2 < b.len()
-            && let Ok(x) = u8::from_str_radix(std::str::from_utf8(&b[i + 1..i + 3]).unwrap_or("zz"), 16)
+            && let Ok(x) =
+                u8::from_str_radix(std::str::from_utf8(&b[i + 1..i + 3]).unwrap_or("zz"), 16)
         {
             out.push(x);
             i += 3;
@@ -88,7 +100,8 @@ fn percent_decode(v: &str) -> String {
 }
 
 fn refused() -> Response {
-    (StatusCode::UNAUTHORIZED, "this coordinator needs its token: enter it at the top of the page").into_response()
+    (StatusCode::UNAUTHORIZED, "this coordinator needs its token: enter it at the top of the page")
+        .into_response()
 }
 
 fn status_response(s: tonic::Status) -> Response {
@@ -103,9 +116,20 @@ fn status_response(s: tonic::Status) -> Response {
 
 /// Jobs and workers as the page lists them.
 async fn snapshot(service: &CoordinatorService) -> Value {
-    let jobs = service.list_jobs(Request::new(pb::ListJobsRequest {})).await.map(|r| r.into_inner().jobs).unwrap_or_default();
-    let workers = service.list_workers(Request::new(pb::ListWorkersRequest {})).await.map(|r| r.into_inner().workers).unwrap_or_default();
-    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0);
+    let jobs = service
+        .list_jobs(Request::new(pb::ListJobsRequest {}))
+        .await
+        .map(|r| r.into_inner().jobs)
+        .unwrap_or_default();
+    let workers = service
+        .list_workers(Request::new(pb::ListWorkersRequest {}))
+        .await
+        .map(|r| r.into_inner().workers)
+        .unwrap_or_default();
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as u64)
+        .unwrap_or(0);
     json!({
         "now_unix_ms": now,
         "needs_token": service.needs_token(),
@@ -149,11 +173,17 @@ async fn events(State(service): State<CoordinatorService>, headers: HeaderMap) -
 
 /// A job's strips: which worker rendered which columns, in what time, and
 /// which failed where; with the per-column cost they imply.
-async fn live(State(service): State<CoordinatorService>, headers: HeaderMap, Path(id): Path<String>) -> Response {
+async fn live(
+    State(service): State<CoordinatorService>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+) -> Response {
     if !service.accepts_token(token(&headers, true).as_deref()) {
         return refused();
     }
-    let Some(f) = service.live(&id) else { return (StatusCode::NOT_FOUND, "no such job").into_response() };
+    let Some(f) = service.live(&id) else {
+        return (StatusCode::NOT_FOUND, "no such job").into_response();
+    };
     let mut cost = vec![0.0f64; f.width as usize];
     for s in f.strips.iter().filter(|s| s.error.is_empty() && s.x1 > s.x0) {
         let per = s.ms / (s.x1 - s.x0) as f64;
@@ -161,17 +191,33 @@ async fn live(State(service): State<CoordinatorService>, headers: HeaderMap, Pat
             *c = per;
         }
     }
-    axum::Json(json!({ "width": f.width, "height": f.height, "strips": f.strips, "column_ms": cost })).into_response()
+    axum::Json(
+        json!({ "width": f.width, "height": f.height, "strips": f.strips, "column_ms": cost }),
+    )
+    .into_response()
 }
 
 /// The frame so far (black where no strip has come back), or the finished image.
-async fn preview(State(service): State<CoordinatorService>, headers: HeaderMap, Path(id): Path<String>) -> Response {
+async fn preview(
+    State(service): State<CoordinatorService>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+) -> Response {
     if !service.accepts_token(token(&headers, true).as_deref()) {
         return refused();
     }
-    let Some(f) = service.live(&id) else { return (StatusCode::NOT_FOUND, "no such job").into_response() };
+    let Some(f) = service.live(&id) else {
+        return (StatusCode::NOT_FOUND, "no such job").into_response();
+    };
     let png = if f.preview.is_empty() {
-        match service.fetch_result(Request::new(pb::FetchRequest { id: id.clone(), format: "png".into(), frame: f.frame as u32 })).await {
+        match service
+            .fetch_result(Request::new(pb::FetchRequest {
+                id: id.clone(),
+                format: "png".into(),
+                frame: f.frame as u32,
+            }))
+            .await
+        {
             Ok(r) => r.into_inner().data,
             Err(s) => return status_response(s),
         }
@@ -185,28 +231,45 @@ async fn preview(State(service): State<CoordinatorService>, headers: HeaderMap, 
         }
         out.into_inner()
     };
-    ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], png).into_response()
+    ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], png)
+        .into_response()
 }
 
-async fn cancel(State(service): State<CoordinatorService>, headers: HeaderMap, Path(id): Path<String>) -> Response {
+async fn cancel(
+    State(service): State<CoordinatorService>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+) -> Response {
     if !service.accepts_token(token(&headers, false).as_deref()) {
         return refused();
     }
     match service.cancel_job(Request::new(pb::JobId { id })).await {
-        Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "state": r.get_ref().state })).into_response(),
+        Ok(r) => {
+            axum::Json(json!({ "id": r.get_ref().id, "state": r.get_ref().state })).into_response()
+        }
         Err(s) => status_response(s),
     }
 }
 
-async fn priority(State(service): State<CoordinatorService>, headers: HeaderMap, Path(id): Path<String>, body: String) -> Response {
+async fn priority(
+    State(service): State<CoordinatorService>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+    body: String,
+) -> Response {
     if !service.accepts_token(token(&headers, false).as_deref()) {
         return refused();
     }
-    let Some(p) = serde_json::from_str::<Value>(&body).ok().and_then(|v| v.get("priority")?.as_i64()).and_then(|p| i32::try_from(p).ok()) else {
+    let Some(p) = serde_json::from_str::<Value>(&body)
+        .ok()
+        .and_then(|v| v.get("priority")?.as_i64())
+        .and_then(|p| i32::try_from(p).ok())
+    else {
         return (StatusCode::BAD_REQUEST, "send {\"priority\": N}").into_response();
     };
     match service.set_priority(Request::new(pb::SetPriorityRequest { id, priority: p })).await {
-        Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "priority": r.get_ref().priority })).into_response(),
+        Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "priority": r.get_ref().priority }))
+            .into_response(),
         Err(s) => status_response(s),
     }
 }

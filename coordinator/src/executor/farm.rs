@@ -20,13 +20,23 @@ pub struct Farm<'a> {
 impl<'a> Farm<'a> {
     /// Renders `frame` of `bundle` on `workers`, each strip within `deadline`,
     /// driving the calls on `rt`.
-    pub fn new(rt: &'a tokio::runtime::Runtime, workers: Workers, bundle: &'a SceneBundle, frame: FrameSettings, deadline: Duration) -> Self {
+    pub fn new(
+        rt: &'a tokio::runtime::Runtime,
+        workers: Workers,
+        bundle: &'a SceneBundle,
+        frame: FrameSettings,
+        deadline: Duration,
+    ) -> Self {
         Self { rt, workers, bundle, frame, deadline }
     }
 }
 
 impl StripExecutor for Farm<'_> {
-    fn render(&mut self, plan: &[Strip], on_strip: &(dyn Fn(Strip) + Send + Sync)) -> anyhow::Result<RenderedFrame> {
+    fn render(
+        &mut self,
+        plan: &[Strip],
+        on_strip: &(dyn Fn(Strip) + Send + Sync),
+    ) -> anyhow::Result<RenderedFrame> {
         // The farm calls back from its own tasks: hand the strips over.
         let (tx, rx) = std::sync::mpsc::channel();
         let tx = Arc::new(std::sync::Mutex::new(tx));
@@ -35,7 +45,14 @@ impl StripExecutor for Farm<'_> {
                 let _ = tx.lock().expect("lock").send(strip);
             }
         };
-        let frame = self.rt.block_on(render_frame(&self.workers, self.bundle, self.frame, plan.to_vec(), self.deadline, events));
+        let frame = self.rt.block_on(render_frame(
+            &self.workers,
+            self.bundle,
+            self.frame,
+            plan.to_vec(),
+            self.deadline,
+            events,
+        ));
         for s in rx.try_iter() {
             on_strip(s);
         }

@@ -36,11 +36,17 @@ pub struct RenderedFrame {
 pub trait StripExecutor {
     /// Renders every strip of `plan` (columns covering the frame exactly);
     /// `on_strip` hears of each as it is done.
-    fn render(&mut self, plan: &[Strip], on_strip: &(dyn Fn(Strip) + Send + Sync)) -> anyhow::Result<RenderedFrame>;
+    fn render(
+        &mut self,
+        plan: &[Strip],
+        on_strip: &(dyn Fn(Strip) + Send + Sync),
+    ) -> anyhow::Result<RenderedFrame>;
 }
 
 /// `n` strips of at most `width` columns each, left to right, covering
 /// `[0, frame_width)`.
 pub fn even_strips(frame_width: u32, width: u32) -> Vec<Strip> {
-    (0..frame_width.div_ceil(width.max(1))).map(|i| (i * width, ((i + 1) * width).min(frame_width))).collect()
+    (0..frame_width.div_ceil(width.max(1)))
+        .map(|i| (i * width, ((i + 1) * width).min(frame_width)))
+        .collect()
 }

@@ -22,14 +22,15 @@ impl Default for Dynamic {
 impl Scheduler for Dynamic {
     fn plan(&self, width: u32, workers: usize, column_cost: &[f64]) -> Vec<Strip> {
         let uniform;
-        let cost: &[f64] =
-            if column_cost.len() == width as usize && column_cost.iter().all(|c| c.is_finite() && *c >= 0.0) && column_cost.iter().sum::<f64>() > 0.0
-            {
-                column_cost
-            } else {
-                uniform = vec![1.0; width as usize];
-                &uniform
-            };
+        let cost: &[f64] = if column_cost.len() == width as usize
+            && column_cost.iter().all(|c| c.is_finite() && *c >= 0.0)
+            && column_cost.iter().sum::<f64>() > 0.0
+        {
+            column_cost
+        } else {
+            uniform = vec![1.0; width as usize];
+            &uniform
+        };
         let mut remaining: f64 = cost.iter().sum();
         let mut strips = Vec::new();
         let mut x = 0u32;

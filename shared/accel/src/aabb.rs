@@ -14,7 +14,8 @@ pub struct Aabb {
 
 impl Aabb {
     /// The empty box.
-    pub const EMPTY: Aabb = Aabb { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
+    pub const EMPTY: Aabb =
+        Aabb { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
 
     /// The box around `points`.
     pub fn around(points: &[Vec3]) -> Self {

@@ -53,12 +53,20 @@ impl OpaqueTable {
     /// plain ranges (an empty second one when one suffices).
     fn spans(lo: f32, hi: f32, n: usize) -> [(usize, usize); 2] {
         let (a, b) = ((lo * n as f32).floor() - 1.0, (hi * n as f32).floor() + 1.0);
-        if !(a.is_finite() && b.is_finite()) || b - a + 1.0 >= n as f32 || a.abs() > 1e7 || b.abs() > 1e7 {
+        if !(a.is_finite() && b.is_finite())
+            || b - a + 1.0 >= n as f32
+            || a.abs() > 1e7
+            || b.abs() > 1e7
+        {
             return [(0, n), (0, 0)];
         }
         let start = (a as i64).rem_euclid(n as i64) as usize;
         let len = (b - a) as usize + 1;
-        if start + len <= n { [(start, start + len), (0, 0)] } else { [(start, n), (0, start + len - n)] }
+        if start + len <= n {
+            [(start, start + len), (0, 0)]
+        } else {
+            [(start, n), (0, start + len - n)]
+        }
     }
 
     /// Opaque texels and all texels a triangle with these coordinates can fetch.
@@ -86,7 +94,9 @@ pub fn triangle_coverage(model: &Model) -> Vec<Coverage> {
             (Some(cut), Some(t)) => {
                 let tex = &model.textures[t as usize];
                 let alpha = m.base_color[3];
-                Some(OpaqueTable::new(tex.width as usize, tex.height as usize, |i| tex.rgba[4 * i + 3] as f32 / 255.0 * alpha >= cut))
+                Some(OpaqueTable::new(tex.width as usize, tex.height as usize, |i| {
+                    tex.rgba[4 * i + 3] as f32 / 255.0 * alpha >= cut
+                }))
             }
             _ => None,
         })
@@ -127,10 +137,17 @@ mod tests {
     /// opaque triangles are never holes, cut ones always are.
     #[test]
     fn classes_agree_with_the_texel_test_everywhere_on_the_triangle() {
-        let model = generate(&TreeParams { species: Species::OhioBuckeye, triangles: Some(6000), seed: 3 }).unwrap();
+        let model =
+            generate(&TreeParams { species: Species::OhioBuckeye, triangles: Some(6000), seed: 3 })
+                .unwrap();
         let cov = triangle_coverage(&model);
         let count = |c| cov.iter().filter(|&&x| x == c).count();
-        assert!(count(Coverage::Opaque) > 0 && count(Coverage::Mixed) > 0, "{} opaque, {} mixed", count(Coverage::Opaque), count(Coverage::Mixed));
+        assert!(
+            count(Coverage::Opaque) > 0 && count(Coverage::Mixed) > 0,
+            "{} opaque, {} mixed",
+            count(Coverage::Opaque),
+            count(Coverage::Mixed)
+        );
         let mut rng = SplitMix64::new(9);
         for (t, &c) in cov.iter().enumerate() {
             if c == Coverage::Mixed {

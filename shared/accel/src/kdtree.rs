@@ -57,13 +57,20 @@ impl KdTree {
             return Err(format!("primitive {p} of a model with {primitives}"));
         }
         let finite = |v: glam::Vec3| v.is_finite();
-        if self.nodes.is_empty() || !(finite(self.bounds.min) && finite(self.bounds.max) || self.bounds.is_empty()) {
+        if self.nodes.is_empty()
+            || !(finite(self.bounds.min) && finite(self.bounds.max) || self.bounds.is_empty())
+        {
             return Err("no root, or bounds that are not finite".into());
         }
         for (i, n) in self.nodes.iter().enumerate() {
             let ok = match n.axis {
                 KdNode::LEAF => n.first as usize + n.count as usize <= self.prims.len(),
-                0..=2 => n.split.is_finite() && i + 1 < self.nodes.len() && (n.first as usize) > i + 1 && (n.first as usize) < self.nodes.len(),
+                0..=2 => {
+                    n.split.is_finite()
+                        && i + 1 < self.nodes.len()
+                        && (n.first as usize) > i + 1
+                        && (n.first as usize) < self.nodes.len()
+                }
                 _ => false,
             };
             if !ok {
@@ -86,17 +93,29 @@ impl KdTree {
         let root = bounds.iter().fold(Aabb::EMPTY, |b, p| b.union(*p));
         let max_depth = (8.0 + 1.3 * (bounds.len().max(1) as f32).log2()).round() as usize;
         let mut tree = KdTree { nodes: Vec::new(), prims: Vec::new(), bounds: root };
-        let all: Vec<u32> = (0..bounds.len() as u32).filter(|&p| !bounds[p as usize].is_empty()).collect();
+        let all: Vec<u32> =
+            (0..bounds.len() as u32).filter(|&p| !bounds[p as usize].is_empty()).collect();
         tree.build_node(bounds, all, root, max_depth, 0);
         tree
     }
 
-    fn build_node(&mut self, bounds: &[Aabb], prims: Vec<u32>, node_box: Aabb, max_depth: usize, bad_refines: u32) {
+    fn build_node(
+        &mut self,
+        bounds: &[Aabb],
+        prims: Vec<u32>,
+        node_box: Aabb,
+        max_depth: usize,
+        bad_refines: u32,
+    ) {
         let index = self.nodes.len();
         self.nodes.push(KdNode::zeroed());
         let n = prims.len();
         let leaf_cost = INTERSECT_COST * n as f32;
-        let split = if n <= LEAF_PRIMS || max_depth == 0 { None } else { best_plane(&prims, bounds, &node_box) };
+        let split = if n <= LEAF_PRIMS || max_depth == 0 {
+            None
+        } else {
+            best_plane(&prims, bounds, &node_box)
+        };
         let Some((cost, axis, split)) = split else {
             return self.make_leaf(index, &prims);
         };
@@ -127,12 +146,23 @@ impl KdTree {
     }
 
     fn make_leaf(&mut self, index: usize, prims: &[u32]) {
-        self.nodes[index] = KdNode { split: 0.0, axis: KdNode::LEAF, first: self.prims.len() as u32, count: prims.len() as u32 };
+        self.nodes[index] = KdNode {
+            split: 0.0,
+            axis: KdNode::LEAF,
+            first: self.prims.len() as u32,
+            count: prims.len() as u32,
+        };
         self.prims.extend_from_slice(prims);
     }
 
     /// The closest primitive hit in `(t_min, t_max)`; see [`super::Accel::closest`].
-    pub fn closest(&self, ray: &Ray, t_min: f32, t_max: f32, hit: &mut dyn FnMut(u32, f32) -> Option<f32>) -> Option<(u32, f32)> {
+    pub fn closest(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        hit: &mut dyn FnMut(u32, f32) -> Option<f32>,
+    ) -> Option<(u32, f32)> {
         let (scene_min, scene_max) = self.bounds.clip(ray, t_min, t_max)?;
         let mut best: Option<(u32, f32)> = None;
         let mut closest = t_max;
@@ -151,7 +181,8 @@ impl KdTree {
                 let (o, d) = (ray.origin[a], ray.dir[a]);
                 let t_split = (n.split - o) * ray.inv_dir[a];
                 let below_first = o < n.split || (o == n.split && d <= 0.0);
-                let (first, second) = if below_first { (node + 1, n.first) } else { (n.first, node + 1) };
+                let (first, second) =
+                    if below_first { (node + 1, n.first) } else { (n.first, node + 1) };
                 if t_split > hi || t_split <= 0.0 {
                     node = first;
                 } else if t_split < lo {
@@ -230,7 +261,8 @@ fn best_plane(prims: &[u32], bounds: &[Aabb], node_box: &Aabb) -> Option<(f32, u
             let (wb, wa) = (pos - node_box.min[axis], node_box.max[axis] - pos);
             let (pb, pa) = ((cap + ring * wb) / area, (cap + ring * wa) / area);
             let bonus = if below == 0 || above == 0 { EMPTY_BONUS } else { 0.0 };
-            let cost = TRAVERSAL_COST + INTERSECT_COST * (1.0 - bonus) * (pb * below as f32 + pa * above as f32);
+            let cost = TRAVERSAL_COST
+                + INTERSECT_COST * (1.0 - bonus) * (pb * below as f32 + pa * above as f32);
             if best.is_none_or(|b| cost < b.0) {
                 best = Some((cost, axis, pos));
             }

@@ -84,7 +84,13 @@ impl Accel {
     /// The closest primitive hit along `ray` in `(t_min, t_max)`:
     /// `hit(prim, t_max)` tests one primitive and returns its distance when
     /// it is hit closer than `t_max`.
-    pub fn closest(&self, ray: &Ray, t_min: f32, t_max: f32, hit: &mut dyn FnMut(u32, f32) -> Option<f32>) -> Option<(u32, f32)> {
+    pub fn closest(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        hit: &mut dyn FnMut(u32, f32) -> Option<f32>,
+    ) -> Option<(u32, f32)> {
         match self {
             Accel::Kd(k) => k.closest(ray, t_min, t_max, hit),
             Accel::Bvh(b) => b.closest(ray, t_min, t_max, hit),
@@ -127,14 +133,20 @@ mod tests {
         let mut rng = SplitMix64::new(seed);
         let mut tris = Vec::new();
         for i in 0..n {
-            let c = Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
-            let mut d = || Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+            let c =
+                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            let mut d =
+                || Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
             let (a, b) = (d(), d());
             let mut t = [c, c + a, c + b];
             if i % 7 == 0 {
                 // Axis-aligned, on round coordinates: the planes a kd-tree splits on.
                 let y = c.y.round();
-                t = [Vec3::new(c.x, y, c.z), Vec3::new(c.x + 1.0, y, c.z), Vec3::new(c.x, y, c.z + 1.0)];
+                t = [
+                    Vec3::new(c.x, y, c.z),
+                    Vec3::new(c.x + 1.0, y, c.z),
+                    Vec3::new(c.x, y, c.z + 1.0),
+                ];
             }
             tris.push(t);
         }
@@ -157,8 +169,13 @@ mod tests {
         let mut rng = SplitMix64::new(seed);
         (0..n)
             .map(|i| {
-                let o = Vec3::new(rng.range(-15.0, 15.0), rng.range(-15.0, 15.0), rng.range(-15.0, 15.0));
-                let mut d = Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+                let o = Vec3::new(
+                    rng.range(-15.0, 15.0),
+                    rng.range(-15.0, 15.0),
+                    rng.range(-15.0, 15.0),
+                );
+                let mut d =
+                    Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
                 // Some rays parallel to an axis plane, some along an axis.
                 if i % 5 == 0 {
                     d.y = 0.0;
@@ -172,13 +189,23 @@ mod tests {
     }
 
     /// Equal, or a tie: two triangles hit at exactly the same distance.
-    fn assert_same_hit(got: Option<(u32, f32)>, want: Option<(u32, f32)>, tris: &[[Vec3; 3]], r: &Ray, kind: AccelKind) {
+    fn assert_same_hit(
+        got: Option<(u32, f32)>,
+        want: Option<(u32, f32)>,
+        tris: &[[Vec3; 3]],
+        r: &Ray,
+        kind: AccelKind,
+    ) {
         assert_eq!(got.map(|h| h.1), want.map(|h| h.1), "{kind:?} ray {r:?}");
         if let (Some(g), Some(w)) = (got, want)
             && g.0 != w.0
         {
             let t = &tris[g.0 as usize];
-            assert_eq!(intersect(r, t[0], t[1], t[2], 0.0, f32::INFINITY).map(|h| h.0), Some(w.1), "{kind:?} ray {r:?}");
+            assert_eq!(
+                intersect(r, t[0], t[1], t[2], 0.0, f32::INFINITY).map(|h| h.0),
+                Some(w.1),
+                "{kind:?} ray {r:?}"
+            );
         }
     }
 
@@ -217,13 +244,21 @@ mod tests {
         let mut tris = soup(2000, 6);
         let mut rng = SplitMix64::new(7);
         for _ in 0..300 {
-            let a = Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
-            let b = Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            let a =
+                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            let b =
+                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
             tris.push([a, b, b + Vec3::splat(0.3)]);
         }
         let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
-        let Accel::Bvh(bvh) = Accel::build_triangles(AccelKind::Bvh, &bounds, &tris) else { unreachable!() };
-        assert!(bvh.prims.len() > tris.len(), "no triangle was split ({} references)", bvh.prims.len());
+        let Accel::Bvh(bvh) = Accel::build_triangles(AccelKind::Bvh, &bounds, &tris) else {
+            unreachable!()
+        };
+        assert!(
+            bvh.prims.len() > tris.len(),
+            "no triangle was split ({} references)",
+            bvh.prims.len()
+        );
         bvh.check(tris.len()).unwrap();
         check(AccelKind::Bvh, &tris, &rays(20_000, 8));
     }
@@ -237,7 +272,8 @@ mod tests {
         let mut rs = Vec::new();
         for n in kd.nodes.iter().filter(|n| n.axis != KdNode::LEAF).take(400) {
             let a = n.axis as usize;
-            let mut o = Vec3::new(rng.range(-15.0, 15.0), rng.range(-15.0, 15.0), rng.range(-15.0, 15.0));
+            let mut o =
+                Vec3::new(rng.range(-15.0, 15.0), rng.range(-15.0, 15.0), rng.range(-15.0, 15.0));
             o[a] = n.split;
             let mut d = Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
             d[a] = 0.0;
@@ -270,7 +306,10 @@ mod tests {
         let mut rng = SplitMix64::new(5);
         let rs: Vec<Ray> = (0..3000)
             .map(|_| {
-                Ray::new(Vec3::new(-1.0, rng.range(-0.6, 0.6), rng.range(-0.6, 0.6)), Vec3::new(1.0, rng.range(-0.02, 0.02), rng.range(-0.02, 0.02)))
+                Ray::new(
+                    Vec3::new(-1.0, rng.range(-0.6, 0.6), rng.range(-0.6, 0.6)),
+                    Vec3::new(1.0, rng.range(-0.02, 0.02), rng.range(-0.02, 0.02)),
+                )
             })
             .collect();
         check(AccelKind::Kd, &tris, &rs);

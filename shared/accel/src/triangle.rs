@@ -28,7 +28,14 @@ pub struct TriangleRecord {
 impl TriangleRecord {
     /// The record of triangle `(a, b, c)`.
     pub fn new(triangle: u32, [a, b, c]: [Vec3; 3], coverage: Coverage, material: u32) -> Self {
-        Self { a: a.to_array(), triangle, e1: (b - a).to_array(), coverage: coverage as u32, e2: (c - a).to_array(), material }
+        Self {
+            a: a.to_array(),
+            triangle,
+            e1: (b - a).to_array(),
+            coverage: coverage as u32,
+            e2: (c - a).to_array(),
+            material,
+        }
     }
 
     /// As [`intersect`].
@@ -42,13 +49,27 @@ impl TriangleRecord {
 /// `(a, b, c)`, the hit point being `(1 − u − v) a + u b + v c`, when
 /// `t_min < t < t_max`. Both faces are hit.
 #[inline]
-pub fn intersect(ray: &Ray, a: Vec3, b: Vec3, c: Vec3, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
+pub fn intersect(
+    ray: &Ray,
+    a: Vec3,
+    b: Vec3,
+    c: Vec3,
+    t_min: f32,
+    t_max: f32,
+) -> Option<(f32, f32, f32)> {
     intersect_edges(ray, a, b - a, c - a, t_min, t_max)
 }
 
 /// As [`intersect`], from the first vertex and the edges to the others.
 #[inline]
-pub fn intersect_edges(ray: &Ray, a: Vec3, e1: Vec3, e2: Vec3, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
+pub fn intersect_edges(
+    ray: &Ray,
+    a: Vec3,
+    e1: Vec3,
+    e2: Vec3,
+    t_min: f32,
+    t_max: f32,
+) -> Option<(f32, f32, f32)> {
     let p = ray.dir.cross(e2);
     let det = e1.dot(p);
     if det == 0.0 || !det.is_finite() {
@@ -82,7 +103,10 @@ mod tests {
         // From behind, too: leaves are two-sided.
         let back = Ray::new(Vec3::new(0.25, 0.25, -1.0), Vec3::Z);
         assert!(intersect(&back, a, b, c, 0.0, 10.0).is_some());
-        assert!(intersect(&Ray::new(Vec3::new(0.8, 0.8, 1.0), Vec3::NEG_Z), a, b, c, 0.0, 10.0).is_none());
+        assert!(
+            intersect(&Ray::new(Vec3::new(0.8, 0.8, 1.0), Vec3::NEG_Z), a, b, c, 0.0, 10.0)
+                .is_none()
+        );
         assert!(intersect(&r, a, b, c, 0.0, 0.5).is_none());
     }
 }

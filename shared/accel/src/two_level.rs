@@ -71,8 +71,16 @@ impl SceneAccel {
             .par_iter()
             .map(|m| {
                 let coverage = triangle_coverage(&m.model);
-                let triangles: Vec<[Vec3; 3]> = (0..m.model.triangle_count()).map(|t| m.model.triangle(t)).collect();
-                (Accel::build_triangles(kind, &triangle_bounds(&triangles, &coverage), &triangles), coverage)
+                let triangles: Vec<[Vec3; 3]> =
+                    (0..m.model.triangle_count()).map(|t| m.model.triangle(t)).collect();
+                (
+                    Accel::build_triangles(
+                        kind,
+                        &triangle_bounds(&triangles, &coverage),
+                        &triangles,
+                    ),
+                    coverage,
+                )
             })
             .unzip();
         Self::around(scene, kind, models, coverage)
@@ -84,13 +92,18 @@ impl SceneAccel {
     /// instance parts and the top level are derived here as `build` does.
     pub fn from_models(scene: &Scene, kind: AccelKind, models: Vec<Accel>) -> Result<Self, String> {
         if models.len() != scene.models.len() {
-            return Err(format!("{} model structures for a scene of {} models", models.len(), scene.models.len()));
+            return Err(format!(
+                "{} model structures for a scene of {} models",
+                models.len(),
+                scene.models.len()
+            ));
         }
         for (i, (a, m)) in models.iter().zip(&scene.models).enumerate() {
             if a.kind() != kind {
                 return Err(format!("model {i}: a {:?} where a {kind:?} was asked for", a.kind()));
             }
-            a.check(m.model.triangle_count()).map_err(|e| format!("model {i} ({}): {e}", m.name))?;
+            a.check(m.model.triangle_count())
+                .map_err(|e| format!("model {i} ({}): {e}", m.name))?;
         }
         let coverage = scene.models.par_iter().map(|m| triangle_coverage(&m.model)).collect();
         Ok(Self::around(scene, kind, models, coverage))
@@ -98,14 +111,21 @@ impl SceneAccel {
 
     /// The rest of both levels around the models' structures, given each
     /// triangle's coverage class.
-    fn around(scene: &Scene, kind: AccelKind, models: Vec<Accel>, coverage: Vec<Vec<Coverage>>) -> Self {
+    fn around(
+        scene: &Scene,
+        kind: AccelKind,
+        models: Vec<Accel>,
+        coverage: Vec<Vec<Coverage>>,
+    ) -> Self {
         let records = scene
             .models
             .par_iter()
             .zip(&models)
             .zip(&coverage)
             .map(|((m, accel), coverage)| match accel {
-                Accel::Bvh(b) => b.prims.iter().map(|&t| record(&m.model, t, coverage[t as usize])).collect(),
+                Accel::Bvh(b) => {
+                    b.prims.iter().map(|&t| record(&m.model, t, coverage[t as usize])).collect()
+                }
                 Accel::Kd(_) => Vec::new(),
             })
             .collect();
@@ -130,8 +150,13 @@ impl SceneAccel {
                 Accel::build(kind, &world)
             }
             AccelKind::Kd => {
-                let world: Vec<Aabb> =
-                    scene.instances.iter().map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world)).collect();
+                let world: Vec<Aabb> = scene
+                    .instances
+                    .iter()
+                    .map(|i| {
+                        model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world)
+                    })
+                    .collect();
                 Accel::build(kind, &world)
             }
         };
@@ -155,16 +180,38 @@ impl SceneAccel {
     /// The closest hit with every triangle taken as opaque (fully cut ones
     /// are not in the structures at all): what renderers without an alpha
     /// test, Embree's baseline in `sylva bench trace`, compute.
-    pub fn closest_opaque(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> Option<SceneHit> {
+    pub fn closest_opaque(
+        &self,
+        scene: &Scene,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+    ) -> Option<SceneHit> {
         self.closest_with(scene, ray, t_min, t_max, false)
     }
 
-    fn closest_with(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32, alpha: bool) -> Option<SceneHit> {
+    fn closest_with(
+        &self,
+        scene: &Scene,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        alpha: bool,
+    ) -> Option<SceneHit> {
         let mut best: Option<SceneHit> = None;
         self.top_level(ray, t_min, t_max, &mut |inst, start, limit| {
             let m = scene.instances[inst as usize].model as usize;
             let local = self.local_ray(inst, ray);
-            let (tri, t, u, v) = self.model_closest(m, &scene.models[m].model, start, &local, t_min, limit, false, alpha)?;
+            let (tri, t, u, v) = self.model_closest(
+                m,
+                &scene.models[m].model,
+                start,
+                &local,
+                t_min,
+                limit,
+                false,
+                alpha,
+            )?;
             best = Some(SceneHit { instance: inst, triangle: tri, t, u, v });
             Some(t)
         });
@@ -178,7 +225,9 @@ impl SceneAccel {
         self.top_level(ray, t_min, t_max, &mut |inst, start, limit| {
             let m = scene.instances[inst as usize].model as usize;
             let local = self.local_ray(inst, ray);
-            found |= self.model_closest(m, &scene.models[m].model, start, &local, t_min, limit, true, true).is_some();
+            found |= self
+                .model_closest(m, &scene.models[m].model, start, &local, t_min, limit, true, true)
+                .is_some();
             // An empty interval: nothing more is in reach.
             found.then_some(f32::NEG_INFINITY)
         });
@@ -193,7 +242,13 @@ impl SceneAccel {
 
     /// Walks the top level, nearest first: `enter(instance, model entry,
     /// closest so far)` returns a closer hit distance when it finds one.
-    fn top_level(&self, ray: &Ray, t_min: f32, t_max: f32, enter: &mut dyn FnMut(u32, (u32, u32), f32) -> Option<f32>) {
+    fn top_level(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        enter: &mut dyn FnMut(u32, (u32, u32), f32) -> Option<f32>,
+    ) {
         match &self.top {
             Accel::Bvh(b) => {
                 b.walk(ray, t_min, t_max, |first, count, limit| {
@@ -250,7 +305,10 @@ impl SceneAccel {
                     let mut closest = limit;
                     for r in &records[first as usize..(first + count) as usize] {
                         let Some((t, u, v)) = r.intersect(ray, t_min, closest) else { continue };
-                        if alpha && r.coverage == Coverage::Mixed as u32 && model.is_transparent(r.triangle as usize, uv_at(model, r.triangle, u, v))
+                        if alpha
+                            && r.coverage == Coverage::Mixed as u32
+                            && model
+                                .is_transparent(r.triangle as usize, uv_at(model, r.triangle, u, v))
                         {
                             continue;
                         }
@@ -292,7 +350,11 @@ pub fn uv_at(model: &Model, tri: u32, u: f32, v: f32) -> Vec2 {
 
 /// Bounds of each triangle; empty for triangles no ray can hit.
 pub fn triangle_bounds(triangles: &[[Vec3; 3]], coverage: &[Coverage]) -> Vec<Aabb> {
-    triangles.iter().zip(coverage).map(|(t, &c)| if c == Coverage::Cut { Aabb::EMPTY } else { Aabb::around(t) }).collect()
+    triangles
+        .iter()
+        .zip(coverage)
+        .map(|(t, &c)| if c == Coverage::Cut { Aabb::EMPTY } else { Aabb::around(t) })
+        .collect()
 }
 
 /// Bounds of a whole model.
@@ -351,7 +413,8 @@ mod tests {
             let (mut hits, mut agree, mut close) = (0, 0, 0);
             for _ in 0..1500 {
                 let o = Vec3::new(rng.range(-12.0, 12.0), rng.range(0.0, 24.0), -15.0);
-                let target = Vec3::new(rng.range(-8.0, 8.0), rng.range(0.0, 20.0), rng.range(-3.0, 5.0));
+                let target =
+                    Vec3::new(rng.range(-8.0, 8.0), rng.range(0.0, 20.0), rng.range(-3.0, 5.0));
                 let ray = Ray::new(o, target - o);
                 let (got, want) = (accel.closest(&s, &ray, 1e-4, f32::INFINITY), brute(&s, &ray));
                 assert_eq!(got.is_some(), want.is_some(), "{kind:?} {ray:?}");

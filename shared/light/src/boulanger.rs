@@ -70,13 +70,22 @@ const MAX_OCCLUSION: f32 = 0.99;
 /// The eight sample directions: cube diagonals, ω_0..ω_3 below the horizon
 /// (y < 0), and ω_{j+4} = −ω_j.
 pub fn directions() -> [Vec3; N_DIR] {
-    let low = [Vec3::new(-XI, -XI, -XI), Vec3::new(XI, -XI, -XI), Vec3::new(-XI, -XI, XI), Vec3::new(XI, -XI, XI)];
+    let low = [
+        Vec3::new(-XI, -XI, -XI),
+        Vec3::new(XI, -XI, -XI),
+        Vec3::new(-XI, -XI, XI),
+        Vec3::new(XI, -XI, XI),
+    ];
     [low[0], low[1], low[2], low[3], -low[0], -low[1], -low[2], -low[3]]
 }
 
 /// The index of the direction nearest to `d` (its octant), by signs only.
 pub fn bin_of(d: Vec3) -> usize {
-    if d.y < 0.0 { (d.x > 0.0) as usize + 2 * (d.z > 0.0) as usize } else { 4 + (d.x < 0.0) as usize + 2 * (d.z < 0.0) as usize }
+    if d.y < 0.0 {
+        (d.x > 0.0) as usize + 2 * (d.z > 0.0) as usize
+    } else {
+        4 + (d.x < 0.0) as usize + 2 * (d.z < 0.0) as usize
+    }
 }
 
 /// M(x) = max(x, 0).
@@ -132,12 +141,14 @@ fn leaf_cards(model: &Model) -> Vec<Card> {
         }
         let paired = t + 1 < model.triangle_count()
             && model.surface(t + 1) == Surface::Leaf
-            && model.triangles[t].iter().filter(|i| model.triangles[t + 1].contains(i)).count() == 2;
+            && model.triangles[t].iter().filter(|i| model.triangles[t + 1].contains(i)).count()
+                == 2;
         let (n0, c0) = tri(t);
         let (n_sum, centre, area, tris, n_tris) = if paired {
             let (n1, c1) = tri(t + 1);
             let (a0, a1) = (0.5 * n0.length(), 0.5 * n1.length());
-            let centre = if a0 + a1 > 0.0 { (c0 * a0 + c1 * a1) / (a0 + a1) } else { 0.5 * (c0 + c1) };
+            let centre =
+                if a0 + a1 > 0.0 { (c0 * a0 + c1 * a1) / (a0 + a1) } else { 0.5 * (c0 + c1) };
             (n0 + n1, centre, a0 + a1, [t, t + 1], 2)
         } else {
             (n0, c0, 0.5 * n0.length(), [t, t], 1)
@@ -170,7 +181,9 @@ struct Occupied {
 
 impl Grid {
     fn new(cards: &[Card]) -> Self {
-        let (lo, hi) = cards.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| (lo.min(c.centre), hi.max(c.centre)));
+        let (lo, hi) = cards.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), c| {
+            (lo.min(c.centre), hi.max(c.centre))
+        });
         let ext = (hi - lo).max_element();
         let mean_area = cards.iter().map(|c| c.area).sum::<f32>() / cards.len() as f32;
         let mut res = GRID_CELLS;
@@ -186,7 +199,14 @@ impl Grid {
 
     fn build(cards: &[Card], lo: Vec3, hi: Vec3, cell: f32) -> Self {
         let dims = ((hi - lo) / cell).to_array().map(|e| (e.ceil() as usize).max(1));
-        let mut g = Grid { lo, cell, dims, start: vec![0; dims[0] * dims[1] * dims[2] + 1], order: vec![0; cards.len()], occupied: Vec::new() };
+        let mut g = Grid {
+            lo,
+            cell,
+            dims,
+            start: vec![0; dims[0] * dims[1] * dims[2] + 1],
+            order: vec![0; cards.len()],
+            occupied: Vec::new(),
+        };
         let flat: Vec<usize> = cards.iter().map(|c| g.flat(g.index(c.centre))).collect();
         // Counting sort of leaves by cell.
         for &f in &flat {
@@ -210,7 +230,8 @@ impl Grid {
                         continue;
                     }
                     let area: f32 = leaves.iter().map(|&k| cards[k].area).sum();
-                    let centroid = leaves.iter().map(|&k| cards[k].centre).sum::<Vec3>() / leaves.len() as f32;
+                    let centroid =
+                        leaves.iter().map(|&k| cards[k].centre).sum::<Vec3>() / leaves.len() as f32;
                     g.occupied.push(Occupied { idx, flat: f, centroid, area });
                 }
             }
@@ -268,7 +289,11 @@ fn optical_depths(i: usize, cards: &[Card], grid: &Grid) -> ([f32; N_DIR], [f32;
 pub fn precompute(model: &Model) -> LeafEnvelope {
     let t0 = Instant::now();
     let cards = leaf_cards(model);
-    let mut env = LeafEnvelope { s_max: vec![[0.0; N_DIR]; model.triangle_count()], leaves: cards.len(), ..Default::default() };
+    let mut env = LeafEnvelope {
+        s_max: vec![[0.0; N_DIR]; model.triangle_count()],
+        leaves: cards.len(),
+        ..Default::default()
+    };
     if cards.is_empty() {
         env.precompute_ms = t0.elapsed().as_secs_f64() * 1e3;
         return env;
@@ -278,7 +303,8 @@ pub fn precompute(model: &Model) -> LeafEnvelope {
     env.leaf_area = cards.iter().map(|c| c.area).sum::<f32>() / n;
     env.leaf_density = n / (grid.occupied.len() as f32 * grid.cell.powi(3));
     env.tau = 0.5 * env.leaf_density * env.leaf_area;
-    let depths: Vec<([f32; N_DIR], [f32; N_DIR])> = (0..cards.len()).into_par_iter().map(|i| optical_depths(i, &cards, &grid)).collect();
+    let depths: Vec<([f32; N_DIR], [f32; N_DIR])> =
+        (0..cards.len()).into_par_iter().map(|i| optical_depths(i, &cards, &grid)).collect();
     let (mut fit_sum, mut fit_n) = (0.0f64, 0usize);
     for (depth, far) in &depths {
         for j in 0..N_DIR {
@@ -360,7 +386,11 @@ pub fn sun_terms(env: &LeafEnvelope, sun_towards: Vec3) -> SunTerms {
 pub fn bsdf(normal: Vec3, to_eye: Vec3, coeffs: [f32; 4], w: Vec3) -> f32 {
     let [rf, rb, tf, tb] = coeffs;
     let c = normal.dot(w);
-    if normal.dot(to_eye) >= 0.0 { (rf * m(c) + tb * m(-c)) / PI } else { (tf * m(c) + rb * m(-c)) / PI }
+    if normal.dot(to_eye) >= 0.0 {
+        (rf * m(c) + tb * m(-c)) / PI
+    } else {
+        (tf * m(c) + rb * m(-c)) / PI
+    }
 }
 
 /// s_max(P, ω_l) for the terms' sun (eq. 7).
@@ -370,13 +400,26 @@ pub fn sun_distance(terms: &SunTerms, s: &[f32; N_DIR]) -> f32 {
 
 /// Lo_sample(P, j) (eq. 23): radiance scattered towards P by the leaves in
 /// direction ω_j, before P's own BSDF and the leaf area A.
-pub fn lo_sample(terms: &SunTerms, s: &[f32; N_DIR], j: usize, coeffs: [f32; 4], e_sun: f32) -> f32 {
+pub fn lo_sample(
+    terms: &SunTerms,
+    s: &[f32; N_DIR],
+    j: usize,
+    coeffs: [f32; 4],
+    e_sun: f32,
+) -> f32 {
     lo_sample_from(terms, s, j, coeffs, e_sun, 0.0)
 }
 
 /// Lo_sample with the slices starting at distance `s0` instead of 0 (the
 /// tests leave out a small ball around P).
-fn lo_sample_from(terms: &SunTerms, s: &[f32; N_DIR], j: usize, coeffs: [f32; 4], e_sun: f32, s0: f32) -> f32 {
+fn lo_sample_from(
+    terms: &SunTerms,
+    s: &[f32; N_DIR],
+    j: usize,
+    coeffs: [f32; 4],
+    e_sun: f32,
+    s0: f32,
+) -> f32 {
     let len = s[j] - s0;
     if len <= 0.0 {
         return 0.0;
@@ -413,7 +456,8 @@ pub fn shade(
         lo_sky += f * (-env.tau * s[j]).exp() * sky[j]; // eq. 6
         lo_ind += f * lo_sample(terms, s, j, coeffs, e_sun); // eq. 11
     }
-    let lo_sun = bsdf(normal, to_eye, coeffs, terms.sun) * (-env.tau * sun_distance(terms, s)).exp() * e_sun; // eq. 8
+    let lo_sun =
+        bsdf(normal, to_eye, coeffs, terms.sun) * (-env.tau * sun_distance(terms, s)).exp() * e_sun; // eq. 8
     (lo_sky * 4.0 * PI / N_DIR as f32, lo_sun, lo_ind * env.leaf_area)
 }
 
@@ -423,7 +467,10 @@ pub fn shade(
 /// `ground_albedo` lit by the sky, i.e. albedo × the cosine-weighted mean
 /// of the upper-hemisphere radiance (equal to its plain mean for a uniform
 /// sky). Each octant is sampled on a 32 × 32 grid of equal solid angle.
-pub fn sky_radiance_per_direction(sky: impl Fn(Vec3) -> [f32; 3], ground_albedo: [f32; 3]) -> [[f32; 3]; N_DIR] {
+pub fn sky_radiance_per_direction(
+    sky: impl Fn(Vec3) -> [f32; 3],
+    ground_albedo: [f32; 3],
+) -> [[f32; 3]; N_DIR] {
     const K: usize = 32;
     let dirs = directions();
     let mut out = [[0.0f32; 3]; N_DIR];
@@ -447,7 +494,8 @@ pub fn sky_radiance_per_direction(sky: impl Fn(Vec3) -> [f32; 3], ground_albedo:
         out[j] = sum.map(|x| (x / (K * K) as f64) as f32);
     }
     // (1/π)∫ L cos dω over the hemisphere = 2 × mean of L·cos over uniform samples.
-    let ground = [0, 1, 2].map(|c| ground_albedo[c] * (2.0 * cos_weighted[c] / (4 * K * K) as f64) as f32);
+    let ground =
+        [0, 1, 2].map(|c| ground_albedo[c] * (2.0 * cos_weighted[c] / (4 * K * K) as f64) as f32);
     for (j, w) in dirs.iter().enumerate() {
         if w.y < 0.0 {
             out[j] = ground;
@@ -479,7 +527,13 @@ mod tests {
     }
 
     fn sphere_env(p: Vec3, r: f32, tau: f32, area: f32) -> LeafEnvelope {
-        LeafEnvelope { s_max: vec![directions().map(|w| chord(p, w, r))], tau, leaf_density: 2.0 * tau / area, leaf_area: area, ..Default::default() }
+        LeafEnvelope {
+            s_max: vec![directions().map(|w| chord(p, w, r))],
+            tau,
+            leaf_density: 2.0 * tau / area,
+            leaf_area: area,
+            ..Default::default()
+        }
     }
 
     #[test]
@@ -523,13 +577,20 @@ mod tests {
             assert!((er - (alpha.sin() - alpha * alpha.cos()) / (6.0 * PI)).abs() < 1e-6);
         }
         // G1 = ρ 4π/N_dir × [(ρ_rf+ρ_rb) A_vr + (ρ_tf+ρ_tb) A_vt] / π (eqs. 10, 15, 16).
-        let env = LeafEnvelope { tau: 1.3, leaf_density: 7.0, leaf_area: 0.37, ..Default::default() };
+        let env =
+            LeafEnvelope { tau: 1.3, leaf_density: 7.0, leaf_area: 0.37, ..Default::default() };
         let t = sun_terms(&env, Vec3::new(0.3, 1.0, -0.4));
         for j in 0..N_DIR {
             let al = t.sun.dot(directions()[j]).clamp(-1.0, 1.0).acos();
             let [rf, rb, tf, tb] = COEFFS;
-            let want = 7.0 * 4.0 * PI / 8.0 * ((rf + rb) * normal_average(PI - al) + (tf + tb) * normal_average(al)) / PI;
-            assert!((t.g1(j, COEFFS) - want).abs() < 1e-5 * want.abs().max(1e-3), "j {j}: {} vs {want}", t.g1(j, COEFFS));
+            let want = 7.0 * 4.0 * PI / 8.0
+                * ((rf + rb) * normal_average(PI - al) + (tf + tb) * normal_average(al))
+                / PI;
+            assert!(
+                (t.g1(j, COEFFS) - want).abs() < 1e-5 * want.abs().max(1e-3),
+                "j {j}: {} vs {want}",
+                t.g1(j, COEFFS)
+            );
         }
     }
 
@@ -538,7 +599,12 @@ mod tests {
     }
 
     fn test_suns() -> [Vec3; 4] {
-        [Vec3::new(0.3, 1.0, 0.2), Vec3::new(-1.0, 0.2, 0.5), directions()[4], Vec3::new(0.1, -0.2, 1.0)]
+        [
+            Vec3::new(0.3, 1.0, 0.2),
+            Vec3::new(-1.0, 0.2, 0.5),
+            directions()[4],
+            Vec3::new(0.1, -0.2, 1.0),
+        ]
     }
 
     #[test]
@@ -560,7 +626,9 @@ mod tests {
                     for i in 1..=ns {
                         let si = i as f32 * ds;
                         // Eq. 22: the model's sun distance from P + s ω_j.
-                        let s22: f32 = (0..N_DIR).map(|k| t.weights[k] * (s[k] - dirs[j].dot(dirs[k]) * si)).sum();
+                        let s22: f32 = (0..N_DIR)
+                            .map(|k| t.weights[k] * (s[k] - dirs[j].dot(dirs[k]) * si))
+                            .sum();
                         sum += ((-tau * si).exp() * (-tau * s22).exp() * e_sun * ds) as f64;
                         // The sphere's exact sun distance, for information.
                         let exact = chord(p + dirs[j] * si, t.sun, r);
@@ -569,7 +637,8 @@ mod tests {
                     let slice = t.g1(j, COEFFS) * sum as f32;
                     let rel = (closed / slice - 1.0).abs();
                     worst = worst.max(rel);
-                    worst_true = worst_true.max((closed / (t.g1(j, COEFFS) * sum_true as f32) - 1.0).abs());
+                    worst_true =
+                        worst_true.max((closed / (t.g1(j, COEFFS) * sum_true as f32) - 1.0).abs());
                     assert!(rel < 0.02, "P {p} sun {sun} j {j}: closed {closed} slices {slice}");
                     assert!(closed.is_finite() && closed >= 0.0);
                 }
@@ -596,11 +665,21 @@ mod tests {
         let s = env.s_max[0];
         let t = sun_terms(&env, sun);
         let dirs = directions();
-        let (normal, to_eye) = (Vec3::new(0.2, 0.9, -0.3).normalize(), Vec3::new(0.5, 0.4, 0.7).normalize());
-        let closed: f32 =
-            area * (0..N_DIR).map(|j| bsdf(normal, to_eye, COEFFS, dirs[j]) * lo_sample_from(&t, &s, j, COEFFS, e_sun, r0)).sum::<f32>();
+        let (normal, to_eye) =
+            (Vec3::new(0.2, 0.9, -0.3).normalize(), Vec3::new(0.5, 0.4, 0.7).normalize());
+        let closed: f32 = area
+            * (0..N_DIR)
+                .map(|j| {
+                    bsdf(normal, to_eye, COEFFS, dirs[j])
+                        * lo_sample_from(&t, &s, j, COEFFS, e_sun, r0)
+                })
+                .sum::<f32>();
         // Leaves uniform in a ball around `centre` of radius `radius`.
-        let (centre, radius) = if model_geometry { (p, s.iter().cloned().fold(0.0, f32::max)) } else { (Vec3::ZERO, r) };
+        let (centre, radius) = if model_geometry {
+            (p, s.iter().cloned().fold(0.0, f32::max))
+        } else {
+            (Vec3::ZERO, r)
+        };
         let count = (density * 4.0 / 3.0 * PI * radius.powi(3)).round() as usize;
         let mut rng = SplitMix64::new(seed);
         let mut sum = 0.0f64;
@@ -617,13 +696,22 @@ mod tests {
                 if dist > s[j] {
                     continue;
                 }
-                (dirs[j], (0..N_DIR).map(|k| t.weights[k] * (s[k] - dirs[j].dot(dirs[k]) * dist)).sum::<f32>())
+                (
+                    dirs[j],
+                    (0..N_DIR)
+                        .map(|k| t.weights[k] * (s[k] - dirs[j].dot(dirs[k]) * dist))
+                        .sum::<f32>(),
+                )
             } else {
                 (d / dist, chord(q, t.sun, r))
             };
             // Eq. 9: F(P, ω_o, PP') Lo_sun(P', −PP') V |N'·PP'| / |PP'|².
             let lo_sun = bsdf(n_leaf, -w, COEFFS, t.sun) * (-tau * sun_dist).exp() * e_sun;
-            sum += (bsdf(normal, to_eye, COEFFS, w) * lo_sun * (-tau * dist).exp() * n_leaf.dot(w).abs() / (dist * dist)) as f64;
+            sum += (bsdf(normal, to_eye, COEFFS, w)
+                * lo_sun
+                * (-tau * dist).exp()
+                * n_leaf.dot(w).abs()
+                / (dist * dist)) as f64;
         }
         (closed, area * sum as f32)
     }
@@ -655,24 +743,34 @@ mod tests {
 
     #[test]
     fn precompute_on_a_generated_tree() {
-        let model = generate(&TreeParams { species: Species::RedMaple, triangles: Some(20_000), seed: 1 }).unwrap();
+        let model =
+            generate(&TreeParams { species: Species::RedMaple, triangles: Some(20_000), seed: 1 })
+                .unwrap();
         let env = precompute(&model);
         eprintln!(
             "tree: {} leaves, tau {} (paper fit {}), density {}, area {}, {:.1} ms",
             env.leaves, env.tau, env.tau_fit, env.leaf_density, env.leaf_area, env.precompute_ms
         );
-        assert!(env.tau > 0.0 && env.tau.is_finite() && env.tau_fit > 0.0 && env.tau_fit.is_finite());
+        assert!(
+            env.tau > 0.0 && env.tau.is_finite() && env.tau_fit > 0.0 && env.tau_fit.is_finite()
+        );
         assert_eq!(env.s_max.len(), model.triangle_count());
         assert!(env.s_max.iter().flatten().all(|s| s.is_finite() && *s >= 0.0));
-        let leaf_tris: Vec<usize> = (0..model.triangle_count()).filter(|&t| model.surface(t) == Surface::Leaf).collect();
-        assert!((0..model.triangle_count()).filter(|&t| model.surface(t) == Surface::Wood).all(|t| env.s_max[t] == [0.0; N_DIR]));
+        let leaf_tris: Vec<usize> =
+            (0..model.triangle_count()).filter(|&t| model.surface(t) == Surface::Leaf).collect();
+        assert!(
+            (0..model.triangle_count())
+                .filter(|&t| model.surface(t) == Surface::Wood)
+                .all(|t| env.s_max[t] == [0.0; N_DIR])
+        );
         // Quads are cards: both halves share their values.
         assert!(env.leaves * 2 <= leaf_tris.len() + 1);
         assert_eq!(env.s_max[leaf_tris[0]], env.s_max[leaf_tris[1]]);
         let centre_of = |t: usize| model.triangle(t).iter().sum::<Vec3>() / 3.0;
         // Each leaf sees more foliage towards the octant holding the most
         // leaves within 4 m than towards the one holding the fewest.
-        let cards: Vec<(usize, Vec3)> = leaf_tris.iter().step_by(2).map(|&t| (t, centre_of(t))).collect();
+        let cards: Vec<(usize, Vec3)> =
+            leaf_tris.iter().step_by(2).map(|&t| (t, centre_of(t))).collect();
         let (mut more, mut ratio_in, mut ratio_out) = (0usize, 0.0f64, 0.0f64);
         for &(t, p) in &cards {
             let mut count = [0usize; N_DIR];
@@ -699,7 +797,8 @@ mod tests {
         // The shading terms are finite on a real tree.
         let t = sun_terms(&env, Vec3::Y);
         let sky = [0.0; N_DIR];
-        let (_, sun_in, ind_in) = shade(&env, &t, leaf_tris[0], Vec3::Y, Vec3::Y, COEFFS, 1.0, &sky);
+        let (_, sun_in, ind_in) =
+            shade(&env, &t, leaf_tris[0], Vec3::Y, Vec3::Y, COEFFS, 1.0, &sky);
         assert!(sun_in.is_finite() && ind_in.is_finite() && ind_in >= 0.0);
     }
 
@@ -719,7 +818,10 @@ mod tests {
         }
         let env = precompute(&model);
         let true_tau = 0.5 * n as f32 / (4.0 / 3.0 * PI) * side * side;
-        eprintln!("sphere: tau {} (paper fit {}, true {true_tau}), {:.1} ms", env.tau, env.tau_fit, env.precompute_ms);
+        eprintln!(
+            "sphere: tau {} (paper fit {}, true {true_tau}), {:.1} ms",
+            env.tau, env.tau_fit, env.precompute_ms
+        );
         assert_eq!(env.leaves, n);
         assert!((env.tau / true_tau - 1.0).abs() < 0.35, "tau {} true {true_tau}", env.tau);
         // Near the centre, τ s_max ≈ τ R in every direction.
@@ -762,7 +864,10 @@ mod tests {
         }
         // Ground: albedo × (1/π)∫(1 + cos θ) cos θ dω = albedo × (1 + 2/3).
         for lj in &l[..4] {
-            assert!((lj[0] - 0.5 * (1.0 + 2.0 / 3.0)).abs() < 2e-3 && (lj[1] - 0.25 * 2.0).abs() < 1e-4, "{lj:?}");
+            assert!(
+                (lj[0] - 0.5 * (1.0 + 2.0 / 3.0)).abs() < 2e-3 && (lj[1] - 0.25 * 2.0).abs() < 1e-4,
+                "{lj:?}"
+            );
         }
     }
 

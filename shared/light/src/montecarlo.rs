@@ -128,18 +128,37 @@ pub fn lb_flux_ratio(sun: &Sun) -> f64 {
 /// Fluence of `photons` analog photons, tallied per node, in the LB's units.
 ///
 /// Panics if `photons` is 0 or the medium's arrays disagree with its dimensions.
-pub fn fluence(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: u64, seed: u64) -> McFluence {
+pub fn fluence(
+    medium: &MediumGrid,
+    params: &ChannelParams,
+    sun: &Sun,
+    photons: u64,
+    seed: u64,
+) -> McFluence {
     fluence_of(medium, params, sun, photons, seed, false)
 }
 
 /// The part of [`fluence`] carried by photons that have scattered at least
 /// once: what the LB's indirect term ([`solve_indirect`](crate::lb::indirect))
 /// must equal. Shell nodes report 0 (the sun alone lights the boundary).
-pub fn scattered_fluence(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: u64, seed: u64) -> McFluence {
+pub fn scattered_fluence(
+    medium: &MediumGrid,
+    params: &ChannelParams,
+    sun: &Sun,
+    photons: u64,
+    seed: u64,
+) -> McFluence {
     fluence_of(medium, params, sun, photons, seed, true)
 }
 
-fn fluence_of(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: u64, seed: u64, scattered_only: bool) -> McFluence {
+fn fluence_of(
+    medium: &MediumGrid,
+    params: &ChannelParams,
+    sun: &Sun,
+    photons: u64,
+    seed: u64,
+    scattered_only: bool,
+) -> McFluence {
     assert!(photons > 0, "at least one photon");
     let start = Instant::now();
     let dims = medium.dims;
@@ -155,7 +174,8 @@ fn fluence_of(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: u
     let mut sum = vec![0.0f64; n];
     let mut sum_sq = vec![0.0f64; n];
     for chunk in seeds.chunks(BATCHES_IN_FLIGHT) {
-        let tallies: Vec<Vec<f64>> = chunk.par_iter().map(|&s| scene.trace_batch(per_batch, s)).collect();
+        let tallies: Vec<Vec<f64>> =
+            chunk.par_iter().map(|&s| scene.trace_batch(per_batch, s)).collect();
         for t in &tallies {
             for i in 0..n {
                 sum[i] += t[i];
@@ -179,13 +199,22 @@ fn fluence_of(medium: &MediumGrid, params: &ChannelParams, sun: &Sun, photons: u
                 }
                 let k = s0 * scene.projected_area * scene.rest_factor(i) / per_batch as f64;
                 let mean = sum[i] / b;
-                let var = if batches > 1 { ((sum_sq[i] / b - mean * mean) * b / (b - 1.0)).max(0.0) } else { 0.0 };
+                let var = if batches > 1 {
+                    ((sum_sq[i] / b - mean * mean) * b / (b - 1.0)).max(0.0)
+                } else {
+                    0.0
+                };
                 values[i] = (k * mean) as f32;
                 std_error[i] = (k * (var / b).sqrt()) as f32;
             }
         }
     }
-    McFluence { values, std_error, photons: per_batch * batches, ms: start.elapsed().as_secs_f64() * 1e3 }
+    McFluence {
+        values,
+        std_error,
+        photons: per_batch * batches,
+        ms: start.elapsed().as_secs_f64() * 1e3,
+    }
 }
 
 /// One lit face of the box: its axis, the coordinate of the plane, and its
@@ -239,19 +268,34 @@ impl<'m> Scene<'m> {
             let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
             let face_area = ((hi[a] - lo[a]) * (hi[b] - lo[b])) as f64;
             area += face_area * w.abs();
-            let (plane, cell) = if w > 0.0 { (lo[axis] as f64, lo[axis]) } else { (hi[axis] as f64, hi[axis] - 1) };
+            let (plane, cell) =
+                if w > 0.0 { (lo[axis] as f64, lo[axis]) } else { (hi[axis] as f64, hi[axis] - 1) };
             faces.push(Face { axis, plane, cell, cumulative: area });
         }
         for f in &mut faces {
             f.cumulative /= area;
         }
-        Self { medium, params: *params, dir, lo, hi, majorant, faces, projected_area: area, scattered_only: false }
+        Self {
+            medium,
+            params: *params,
+            dir,
+            lo,
+            hi,
+            majorant,
+            faces,
+            projected_area: area,
+            scattered_only: false,
+        }
     }
 
     /// `1 + σ_a` where the LB keeps a resting density (medium and brown nodes
     /// with ρ > 0), 1 elsewhere.
     fn rest_factor(&self, i: usize) -> f64 {
-        if self.medium.density[i] > 0.0 && self.medium.class[i] != NodeClass::Green { 1.0 + self.params.sigma_a as f64 } else { 1.0 }
+        if self.medium.density[i] > 0.0 && self.medium.class[i] != NodeClass::Green {
+            1.0 + self.params.sigma_a as f64
+        } else {
+            1.0
+        }
     }
 
     fn index(&self, c: [i64; 3]) -> usize {
@@ -270,8 +314,19 @@ impl<'m> Scene<'m> {
             let mut dir = self.dir;
             let mut scattered = false;
             loop {
-                let flight = if self.majorant > 0.0 { -(1.0 - rng.next_f64()).ln() / self.majorant } else { f64::INFINITY };
-                if !self.fly(&mut pos, &mut cell, dir, flight, &mut tally, scattered || !self.scattered_only) {
+                let flight = if self.majorant > 0.0 {
+                    -(1.0 - rng.next_f64()).ln() / self.majorant
+                } else {
+                    f64::INFINITY
+                };
+                if !self.fly(
+                    &mut pos,
+                    &mut cell,
+                    dir,
+                    flight,
+                    &mut tally,
+                    scattered || !self.scattered_only,
+                ) {
                     break;
                 }
                 let i = self.index(cell);
@@ -300,7 +355,11 @@ impl<'m> Scene<'m> {
     /// cell it enters.
     fn emit(&self, rng: &mut SplitMix64) -> ([f64; 3], [i64; 3]) {
         let u = rng.next_f64();
-        let face = self.faces.iter().find(|f| u < f.cumulative).unwrap_or(self.faces.last().expect("a lit face"));
+        let face = self
+            .faces
+            .iter()
+            .find(|f| u < f.cumulative)
+            .unwrap_or(self.faces.last().expect("a lit face"));
         let mut pos = [0.0; 3];
         let mut cell = [0i64; 3];
         for a in 0..3 {
@@ -318,7 +377,15 @@ impl<'m> Scene<'m> {
 
     /// Moves the photon `dist` along `dir` through the cells (a 3-D DDA),
     /// scoring each cell's chord. Returns false when it leaves the box.
-    fn fly(&self, pos: &mut [f64; 3], cell: &mut [i64; 3], dir: [f64; 3], dist: f64, tally: &mut [f64], score: bool) -> bool {
+    fn fly(
+        &self,
+        pos: &mut [f64; 3],
+        cell: &mut [i64; 3],
+        dir: [f64; 3],
+        dist: f64,
+        tally: &mut [f64],
+        score: bool,
+    ) -> bool {
         let score = if score { 1.0 } else { 0.0 };
         let mut t_next = [f64::INFINITY; 3];
         let mut t_step = [f64::INFINITY; 3];
@@ -424,7 +491,8 @@ mod tests {
         for g in [-0.9, -0.3, 0.0, 0.5, 0.95] {
             let n = 200_000;
             let mut rng = SplitMix64::new(3);
-            let mean: f64 = (0..n).map(|_| sample_hg_cos(g, rng.next_f64())).sum::<f64>() / n as f64;
+            let mean: f64 =
+                (0..n).map(|_| sample_hg_cos(g, rng.next_f64())).sum::<f64>() / n as f64;
             assert!((mean - g).abs() < 0.01, "g = {g}: mean cosine {mean}");
         }
     }

@@ -12,13 +12,17 @@ use std::path::Path;
 /// every node gets `class`.
 pub fn read_density(path: &Path, class: NodeClass) -> anyhow::Result<MediumGrid> {
     let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
-    let npy = npyz::NpyFile::new(BufReader::new(file)).with_context(|| format!("{}: not a .npy file", path.display()))?;
+    let npy = npyz::NpyFile::new(BufReader::new(file))
+        .with_context(|| format!("{}: not a .npy file", path.display()))?;
     let shape = npy.shape().to_vec();
     if shape.len() != 3 {
         bail!("{}: density grid must have shape (Z, Y, X), got {shape:?}", path.display());
     }
     if npy.order() != npyz::Order::C {
-        bail!("{}: density grid must be in C order (numpy's default), not Fortran order", path.display());
+        bail!(
+            "{}: density grid must be in C order (numpy's default), not Fortran order",
+            path.display()
+        );
     }
     let dtype = npy.dtype();
     let is_f32 = matches!(&dtype, npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4);
@@ -26,7 +30,9 @@ pub fn read_density(path: &Path, class: NodeClass) -> anyhow::Result<MediumGrid>
         bail!("{}: density grid must be float32, got {}", path.display(), dtype.descr());
     }
     let dims = GridDims { nz: shape[0] as usize, ny: shape[1] as usize, nx: shape[2] as usize };
-    let density: Vec<f32> = npy.into_vec().with_context(|| format!("{}: truncated or unreadable data", path.display()))?;
+    let density: Vec<f32> = npy
+        .into_vec()
+        .with_context(|| format!("{}: truncated or unreadable data", path.display()))?;
     let medium = MediumGrid { dims, class: vec![class; density.len()], density };
     medium.validate().with_context(|| format!("{}: not a valid density grid", path.display()))?;
     Ok(medium)
@@ -35,9 +41,17 @@ pub fn read_density(path: &Path, class: NodeClass) -> anyhow::Result<MediumGrid>
 /// Writes a float32 `.npy` array of `shape` (C order).
 pub fn write_f32(path: &Path, shape: &[u64], data: &[f32]) -> anyhow::Result<()> {
     let expected: u64 = shape.iter().product();
-    anyhow::ensure!(expected == data.len() as u64, "shape {shape:?} needs {expected} values, got {}", data.len());
+    anyhow::ensure!(
+        expected == data.len() as u64,
+        "shape {shape:?} needs {expected} values, got {}",
+        data.len()
+    );
     let file = File::create(path).with_context(|| format!("{}: cannot create", path.display()))?;
-    let mut w = npyz::WriteOptions::<f32>::new().default_dtype().shape(shape).writer(BufWriter::new(file)).begin_nd()?;
+    let mut w = npyz::WriteOptions::<f32>::new()
+        .default_dtype()
+        .shape(shape)
+        .writer(BufWriter::new(file))
+        .begin_nd()?;
     w.extend(data.iter().copied())?;
     w.finish()?;
     Ok(())
@@ -75,7 +89,10 @@ mod tests {
         assert!(err.contains("shape (Z, Y, X)"), "{err}");
 
         std::fs::write(&p, b"not numpy").unwrap();
-        assert!(format!("{:#}", read_density(&p, NodeClass::Medium).unwrap_err()).contains("not a .npy"));
+        assert!(
+            format!("{:#}", read_density(&p, NodeClass::Medium).unwrap_err())
+                .contains("not a .npy")
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }

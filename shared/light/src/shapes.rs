@@ -21,7 +21,10 @@ pub fn plant(seed: u64) -> Model {
     for s in 0..sides {
         let a0 = s as f32 / sides as f32 * std::f32::consts::TAU;
         let a1 = (s + 1) as f32 / sides as f32 * std::f32::consts::TAU;
-        let (p0, p1) = (Vec3::new(a0.cos() * r, 0.0, a0.sin() * r), Vec3::new(a1.cos() * r, 0.0, a1.sin() * r));
+        let (p0, p1) = (
+            Vec3::new(a0.cos() * r, 0.0, a0.sin() * r),
+            Vec3::new(a1.cos() * r, 0.0, a1.sin() * r),
+        );
         let up = Vec3::Y * h;
         mesh.push_quad([p0, p0 + up, p1 + up, p1], bark);
     }
@@ -71,7 +74,10 @@ pub fn cloud(n: usize, seed: u64) -> MediumGrid {
         for y in 1..n - 1 {
             for x in 1..n - 1 {
                 let p = (Vec3::new(x as f32, y as f32, z as f32) + 0.5) / n as f32;
-                let inside = puffs.iter().map(|&(c, r)| 1.0 - (p - c).length() / r).fold(f32::NEG_INFINITY, f32::max);
+                let inside = puffs
+                    .iter()
+                    .map(|&(c, r)| 1.0 - (p - c).length() / r)
+                    .fold(f32::NEG_INFINITY, f32::max);
                 let base = ((p.y - 0.3) / 0.06).clamp(0.0, 1.0); // flat bottom
                 let d = (inside * 3.0 + 0.35 * (noise.fbm(p * 8.0) - 0.5)).clamp(0.0, 1.0) * base;
                 medium.density[dims.index(x, y, z)] = d;
@@ -92,8 +98,10 @@ impl ValueNoise {
     }
 
     fn lattice(&self, i: i32, j: i32, k: i32) -> f32 {
-        let key =
-            (i as u64).wrapping_mul(0x9E37_79B9) ^ (j as u64).wrapping_mul(0x85EB_CA6B) << 1 ^ (k as u64).wrapping_mul(0xC2B2_AE35) << 2 ^ self.seed;
+        let key = (i as u64).wrapping_mul(0x9E37_79B9)
+            ^ (j as u64).wrapping_mul(0x85EB_CA6B) << 1
+            ^ (k as u64).wrapping_mul(0xC2B2_AE35) << 2
+            ^ self.seed;
         SplitMix64::new(key).next_f32()
     }
 
@@ -106,8 +114,9 @@ impl ValueNoise {
         for dz in 0..2 {
             for dy in 0..2 {
                 for dx in 0..2 {
-                    let w =
-                        (if dx == 1 { s.x } else { 1.0 - s.x }) * (if dy == 1 { s.y } else { 1.0 - s.y }) * (if dz == 1 { s.z } else { 1.0 - s.z });
+                    let w = (if dx == 1 { s.x } else { 1.0 - s.x })
+                        * (if dy == 1 { s.y } else { 1.0 - s.y })
+                        * (if dz == 1 { s.z } else { 1.0 - s.z });
                     acc += w * self.lattice(i + dx, j + dy, k + dz);
                 }
             }

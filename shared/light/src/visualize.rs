@@ -59,7 +59,8 @@ fn panel(nu: usize, nv: usize, f: impl Fn(usize, usize) -> [f32; 3], scale: f32)
 }
 
 fn percentile(channels: &[&[f32]], q: f64) -> f32 {
-    let mut all: Vec<f32> = channels.iter().flat_map(|c| c.iter().copied()).filter(|v| v.is_finite()).collect();
+    let mut all: Vec<f32> =
+        channels.iter().flat_map(|c| c.iter().copied()).filter(|v| v.is_finite()).collect();
     if all.is_empty() {
         return 1.0;
     }

@@ -60,7 +60,8 @@ impl GridFrame {
         let inner = (n - 2) as f32;
         // Cubic cells whose count over the box is (n − 2)³, with slack so
         // faces stay off the shell; no side longer than 4n cells.
-        let cell = ((e.x * e.y * e.z).cbrt() / inner).max(e.max_element() / (4 * n) as f32) * (1.0 + 1e-3);
+        let cell =
+            ((e.x * e.y * e.z).cbrt() / inner).max(e.max_element() / (4 * n) as f32) * (1.0 + 1e-3);
         let nodes = |x: f32| ((x / cell).ceil() as usize).max(2) + 2;
         let dims = GridDims { nx: nodes(e.x), ny: nodes(e.y), nz: nodes(e.z) };
         let centre = (min + max) * 0.5;
@@ -100,7 +101,14 @@ pub fn fill_interior(v: &mut Voxelization, class: NodeClass) -> usize {
         }
     }
     while let Some((x, y, z)) = stack.pop() {
-        let near = [(x.wrapping_sub(1), y, z), (x + 1, y, z), (x, y.wrapping_sub(1), z), (x, y + 1, z), (x, y, z.wrapping_sub(1)), (x, y, z + 1)];
+        let near = [
+            (x.wrapping_sub(1), y, z),
+            (x + 1, y, z),
+            (x, y.wrapping_sub(1), z),
+            (x, y + 1, z),
+            (x, y, z.wrapping_sub(1)),
+            (x, y, z + 1),
+        ];
         for (a, b, c) in near {
             if a < d.nx && b < d.ny && c < d.nz {
                 let j = d.index(a, b, c);
@@ -133,7 +141,11 @@ pub fn voxelize(mesh: &Model, n: usize) -> Result<Voxelization, VoxelError> {
 
 /// Voxelizes `mesh` into the grid `dims` placed by `frame`: each cell's
 /// density is the fraction of its 3 × 3 × 3 sub-cells a triangle overlaps.
-pub fn voxelize_in(mesh: &Model, frame: GridFrame, dims: GridDims) -> Result<Voxelization, VoxelError> {
+pub fn voxelize_in(
+    mesh: &Model,
+    frame: GridFrame,
+    dims: GridDims,
+) -> Result<Voxelization, VoxelError> {
     if dims.nx < 4 || dims.ny < 4 || dims.nz < 4 {
         return Err(VoxelError::GridTooSmall(dims.nx.min(dims.ny).min(dims.nz)));
     }
@@ -156,7 +168,8 @@ pub fn voxelize_in(mesh: &Model, frame: GridFrame, dims: GridDims) -> Result<Vox
         let lo = tri[0].min(tri[1]).min(tri[2]);
         let hi = tri[0].max(tri[1]).max(tri[2]);
         // Never mark the boundary shell: its nodes hold the sun's densities.
-        let to_index = |v: f32, s: usize| -> usize { (v.max(SUB as f32) as usize).min(s - SUB - 1) };
+        let to_index =
+            |v: f32, s: usize| -> usize { (v.max(SUB as f32) as usize).min(s - SUB - 1) };
         let (l, h) = (((lo - origin) / sub).floor(), ((hi - origin) / sub).floor());
         let a = [to_index(l.x, sx), to_index(l.y, sy), to_index(l.z, sz)];
         let b = [to_index(h.x, sx), to_index(h.y, sy), to_index(h.z, sz)];
@@ -173,7 +186,9 @@ pub fn voxelize_in(mesh: &Model, frame: GridFrame, dims: GridDims) -> Result<Vox
         }
     });
 
-    let is_set = |bits: &[AtomicU64], bit: usize| bits[bit / 64].load(Ordering::Relaxed) >> (bit % 64) & 1 == 1;
+    let is_set = |bits: &[AtomicU64], bit: usize| {
+        bits[bit / 64].load(Ordering::Relaxed) >> (bit % 64) & 1 == 1
+    };
     let cells: Vec<(f32, NodeClass)> = (0..dims.len())
         .into_par_iter()
         .map(|idx| {
@@ -194,7 +209,11 @@ pub fn voxelize_in(mesh: &Model, frame: GridFrame, dims: GridDims) -> Result<Vox
             (any as f32 / (SUB * SUB * SUB) as f32, class)
         })
         .collect();
-    let medium = MediumGrid { dims, density: cells.iter().map(|c| c.0).collect(), class: cells.iter().map(|c| c.1).collect() };
+    let medium = MediumGrid {
+        dims,
+        density: cells.iter().map(|c| c.0).collect(),
+        class: cells.iter().map(|c| c.1).collect(),
+    };
     Ok(Voxelization { medium, frame })
 }
 
@@ -226,7 +245,8 @@ pub struct LeafArea {
 /// Samples per triangle edge: at least two per cell edge, and at least 4
 /// (16 samples) on alpha-masked triangles, whose mask cuts within a card.
 fn subdivisions(tri: &[Vec3; 3], cell: f32, masked: bool) -> usize {
-    let edge = (tri[1] - tri[0]).length().max((tri[2] - tri[1]).length()).max((tri[0] - tri[2]).length());
+    let edge =
+        (tri[1] - tri[0]).length().max((tri[2] - tri[1]).length()).max((tri[0] - tri[2]).length());
     let m = (2.0 * edge / cell).ceil() as usize;
     m.max(if masked { 4 } else { 1 }).min(32)
 }
@@ -249,7 +269,12 @@ pub fn clumping_sub(dims: GridDims) -> usize {
 /// The area is gathered on sub-cells ([`clumping_sub`] per cell edge) whose
 /// columns give each cell its gap fraction: leaves clumped in a corner of a
 /// cell stop less light than the same area spread through it.
-pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, coarse: GridDims) -> LeafArea {
+pub fn leaf_area_in(
+    mesh: &Model,
+    optics: &LeafOptics,
+    frame: GridFrame,
+    coarse: GridDims,
+) -> LeafArea {
     let sub = clumping_sub(coarse);
     let dims = GridDims { nx: coarse.nx * sub, ny: coarse.ny * sub, nz: coarse.nz * sub };
     let frame = GridFrame { origin: frame.origin, cell: frame.cell / sub as f32 };
@@ -264,7 +289,14 @@ pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, coarse:
         leaf: f64,
         cut: f64,
     }
-    let empty = || Acc { area: vec![0.0; n], reflect: [0.0; 3], transmit: [0.0; 3], weight: 0.0, leaf: 0.0, cut: 0.0 };
+    let empty = || Acc {
+        area: vec![0.0; n],
+        reflect: [0.0; 3],
+        transmit: [0.0; 3],
+        weight: 0.0,
+        leaf: 0.0,
+        cut: 0.0,
+    };
     // One accumulator per thread, not per split: each holds the whole sub-cell grid.
     let per_thread = mesh.triangle_count().div_ceil(rayon::current_num_threads()).max(4096);
     let acc = (0..mesh.triangle_count())
@@ -272,7 +304,8 @@ pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, coarse:
         .with_min_len(per_thread)
         .fold(empty, |mut acc, t| {
             let tri = mesh.triangle(t);
-            let uv = mesh.triangles[t].map(|i| mesh.uvs.get(i as usize).copied().unwrap_or_default());
+            let uv =
+                mesh.triangles[t].map(|i| mesh.uvs.get(i as usize).copied().unwrap_or_default());
             let mat = &mesh.materials[mesh.material[t] as usize];
             let wood = mat.surface == Surface::Wood;
             let masked = mat.alpha_cutoff.is_some();
@@ -290,7 +323,8 @@ pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, coarse:
                 }
                 let p = tri[0] + (tri[1] - tri[0]) * u + (tri[2] - tri[0]) * v;
                 let g = ((p - origin) / frame.cell).floor();
-                let (x, y, z) = (g.x.max(0.0) as usize, g.y.max(0.0) as usize, g.z.max(0.0) as usize);
+                let (x, y, z) =
+                    (g.x.max(0.0) as usize, g.y.max(0.0) as usize, g.z.max(0.0) as usize);
                 if x >= dims.nx || y >= dims.ny || z >= dims.nz {
                     return;
                 }
@@ -343,7 +377,10 @@ pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, coarse:
         density: cells.iter().map(|c| c.density).collect(),
         readout: cells.iter().map(|c| c.readout).collect(),
         clumping_sub: sub,
-        scattering: LeafScattering { reflect: acc.reflect.map(|r| r / w), transmit: acc.transmit.map(|t| t / w) },
+        scattering: LeafScattering {
+            reflect: acc.reflect.map(|r| r / w),
+            transmit: acc.transmit.map(|t| t / w),
+        },
         total_area: acc.weight,
         cut_fraction: if acc.leaf > 0.0 { acc.cut / acc.leaf } else { 0.0 },
     }
@@ -351,13 +388,21 @@ pub fn leaf_area_in(mesh: &Model, optics: &LeafOptics, frame: GridFrame, coarse:
 
 /// Each coarse cell's leaf area (the sum of its `sub`³ sub-cells') and
 /// what its sub-cell columns along the three axes make of it.
-fn coarsen(fine: &[f64], coarse: GridDims, sub: usize, sub_cell: f64) -> (Vec<f32>, Vec<ClumpedCell>) {
+fn coarsen(
+    fine: &[f64],
+    coarse: GridDims,
+    sub: usize,
+    sub_cell: f64,
+) -> (Vec<f32>, Vec<ClumpedCell>) {
     let fd = GridDims { nx: coarse.nx * sub, ny: coarse.ny * sub, nz: coarse.nz * sub };
     let cells: Vec<(f32, ClumpedCell)> = (0..coarse.len())
         .into_par_iter()
         .map(|i| {
-            let (x, y, z) = (i % coarse.nx, (i / coarse.nx) % coarse.ny, i / (coarse.nx * coarse.ny));
-            let at = |a: usize, b: usize, c: usize| fine[fd.index(x * sub + a, y * sub + b, z * sub + c)];
+            let (x, y, z) =
+                (i % coarse.nx, (i / coarse.nx) % coarse.ny, i / (coarse.nx * coarse.ny));
+            let at = |a: usize, b: usize, c: usize| {
+                fine[fd.index(x * sub + a, y * sub + b, z * sub + c)]
+            };
             let mut total = 0.0;
             let mut columns = Vec::with_capacity(3 * sub * sub);
             for a in 0..sub {
@@ -400,7 +445,10 @@ pub fn medium_from_density(density: &[f32], dims: GridDims) -> MediumGrid {
 /// crossing its cell meets a leaf, the area spread evenly (see
 /// [`density_from_leaf_area`](crate::lb::radiometry::density_from_leaf_area)).
 pub fn medium_from_leaf_area(area: &[f32], dims: GridDims, cell: f32) -> MediumGrid {
-    let density: Vec<f32> = area.iter().map(|&a| crate::lb::radiometry::density_from_leaf_area(a as f64, cell as f64)).collect();
+    let density: Vec<f32> = area
+        .iter()
+        .map(|&a| crate::lb::radiometry::density_from_leaf_area(a as f64, cell as f64))
+        .collect();
     medium_from_density(&density, dims)
 }
 
@@ -446,7 +494,8 @@ mod tests {
     #[test]
     fn a_closed_box_fills_and_an_open_sheet_does_not() {
         let mut cube = Model::default();
-        let m = cube.add_material(sylva_scene::model::Material::plain("pmma", Surface::Leaf, [0.9; 3]));
+        let m =
+            cube.add_material(sylva_scene::model::Material::plain("pmma", Surface::Leaf, [0.9; 3]));
         let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
         for (a, b, cc, d) in [
             (c(0., 0., 0.), c(1., 0., 0.), c(1., 1., 0.), c(0., 1., 0.)),
@@ -469,7 +518,11 @@ mod tests {
         assert_eq!(v.medium.density[v.medium.dims.index(0, 0, 0)], 0.0);
         // One open square: nothing inside.
         let mut sheet = Model::default();
-        let m = sheet.add_material(sylva_scene::model::Material::plain("leaf", Surface::Leaf, [0.2; 3]));
+        let m = sheet.add_material(sylva_scene::model::Material::plain(
+            "leaf",
+            Surface::Leaf,
+            [0.2; 3],
+        ));
         sheet.push_quad([c(0., 0.5, 0.), c(0., 0.5, 1.), c(1., 0.5, 1.), c(1., 0.5, 0.)], m);
         let mut v = voxelize(&sheet, 9).unwrap();
         assert_eq!(fill_interior(&mut v, NodeClass::Medium), 0);
@@ -499,7 +552,10 @@ mod tests {
         // The box lies in the interior nodes, off the shell.
         let o = Vec3::from(frame.origin);
         let far = o + Vec3::new(dims.nx as f32, dims.ny as f32, dims.nz as f32) * frame.cell;
-        assert!((lo - o).min_element() >= frame.cell && (far - hi).min_element() >= frame.cell, "{frame:?} {dims}");
+        assert!(
+            (lo - o).min_element() >= frame.cell && (far - hi).min_element() >= frame.cell,
+            "{frame:?} {dims}"
+        );
     }
 
     #[test]
@@ -508,7 +564,11 @@ mod tests {
         // light falling straight down: the transmitted fraction is the
         // open area's plus what the stacks let through, whatever the grid.
         let mut mesh = Model::default();
-        let leaf = mesh.add_material(sylva_scene::model::Material::plain("leaf", Surface::Leaf, [0.2, 0.5, 0.1]));
+        let leaf = mesh.add_material(sylva_scene::model::Material::plain(
+            "leaf",
+            Surface::Leaf,
+            [0.2, 0.5, 0.1],
+        ));
         let (size, pitch, layers) = (0.06f32, 0.5f32, 6);
         for i in 0..8 {
             for k in 0..8 {
@@ -516,7 +576,12 @@ mod tests {
                 for l in 0..layers {
                     let y = 1.0 + 0.005 * l as f32;
                     mesh.push_quad(
-                        [Vec3::new(x, y, z), Vec3::new(x, y, z + size), Vec3::new(x + size, y, z + size), Vec3::new(x + size, y, z)],
+                        [
+                            Vec3::new(x, y, z),
+                            Vec3::new(x, y, z + size),
+                            Vec3::new(x + size, y, z + size),
+                            Vec3::new(x + size, y, z),
+                        ],
                         leaf,
                     );
                 }
@@ -529,7 +594,9 @@ mod tests {
             let mut open = 0.0;
             for z in 0..dims.nz {
                 for x in 0..dims.nx {
-                    open += (0..dims.ny).map(|y| 1.0 - a.density[dims.index(x, y, z)] as f64).product::<f64>();
+                    open += (0..dims.ny)
+                        .map(|y| 1.0 - a.density[dims.index(x, y, z)] as f64)
+                        .product::<f64>();
                 }
             }
             (open / (dims.nx * dims.nz) as f64, a.clumping_sub)
@@ -549,7 +616,9 @@ mod tests {
         let mut open = 0.0;
         for z in 0..dims.nz {
             for x in 0..dims.nx {
-                open += (0..dims.ny).map(|y| 1.0 - even.density[dims.index(x, y, z)] as f64).product::<f64>();
+                open += (0..dims.ny)
+                    .map(|y| 1.0 - even.density[dims.index(x, y, z)] as f64)
+                    .product::<f64>();
             }
         }
         let even = open / (dims.nx * dims.nz) as f64;
@@ -561,12 +630,21 @@ mod tests {
         // A 1 m² card whose texture is opaque on its left half only.
         let mut mesh = Model::default();
         let (w, h) = (8u32, 8u32);
-        let rgba = (0..w * h).flat_map(|i| [60, 120, 30, if i % w < w / 2 { 255 } else { 0 }]).collect();
+        let rgba =
+            (0..w * h).flat_map(|i| [60, 120, 30, if i % w < w / 2 { 255 } else { 0 }]).collect();
         mesh.textures.push(sylva_scene::model::Texture { width: w, height: h, rgba });
         let mut mat = sylva_scene::model::Material::plain("leaf", Surface::Leaf, [1.0; 3]);
         (mat.texture, mat.alpha_cutoff) = (Some(0), Some(0.5));
         let leaf = mesh.add_material(mat);
-        mesh.push_quad([Vec3::new(0.0, 0.5, 0.0), Vec3::new(1.0, 0.5, 0.0), Vec3::new(1.0, 0.5, 1.0), Vec3::new(0.0, 0.5, 1.0)], leaf);
+        mesh.push_quad(
+            [
+                Vec3::new(0.0, 0.5, 0.0),
+                Vec3::new(1.0, 0.5, 0.0),
+                Vec3::new(1.0, 0.5, 1.0),
+                Vec3::new(0.0, 0.5, 1.0),
+            ],
+            leaf,
+        );
         let (lo, hi) = mesh.bounds().unwrap();
         let (frame, dims) = GridFrame::fit(lo, hi, 12);
         let a = leaf_area_in(&mesh, &LeafOptics::default(), frame, dims);
@@ -590,10 +668,22 @@ mod tests {
     #[test]
     fn a_flat_square_fills_one_layer_of_cells() {
         let mut mesh = Model::default();
-        let leaf = mesh.add_material(sylva_scene::model::Material::plain("leaf", Surface::Leaf, [0.2, 0.5, 0.1]));
+        let leaf = mesh.add_material(sylva_scene::model::Material::plain(
+            "leaf",
+            Surface::Leaf,
+            [0.2, 0.5, 0.1],
+        ));
         // A square in the plane y = 0.5 spanning x, z ∈ [0, 1].
         let y = 0.5;
-        mesh.push_quad([Vec3::new(0.0, y, 0.0), Vec3::new(0.0, y, 1.0), Vec3::new(1.0, y, 1.0), Vec3::new(1.0, y, 0.0)], leaf);
+        mesh.push_quad(
+            [
+                Vec3::new(0.0, y, 0.0),
+                Vec3::new(0.0, y, 1.0),
+                Vec3::new(1.0, y, 1.0),
+                Vec3::new(1.0, y, 0.0),
+            ],
+            leaf,
+        );
         // Odd n puts the plane through the middle of the centre cell's
         // middle layer of sub-cells: 9 of 27 marked, density 1/3.
         let n = 9;
@@ -620,8 +710,20 @@ mod tests {
     fn wood_triangles_make_brown_cells() {
         let mut mesh = crate::shapes::plant(7);
         let v = voxelize(&mesh, 24).unwrap();
-        let brown = v.medium.class.iter().zip(&v.medium.density).filter(|(c, r)| **r > 0.0 && **c == NodeClass::Brown).count();
-        let green = v.medium.class.iter().zip(&v.medium.density).filter(|(c, r)| **r > 0.0 && **c == NodeClass::Green).count();
+        let brown = v
+            .medium
+            .class
+            .iter()
+            .zip(&v.medium.density)
+            .filter(|(c, r)| **r > 0.0 && **c == NodeClass::Brown)
+            .count();
+        let green = v
+            .medium
+            .class
+            .iter()
+            .zip(&v.medium.density)
+            .filter(|(c, r)| **r > 0.0 && **c == NodeClass::Green)
+            .count();
         assert!(brown > 0 && green > brown, "brown {brown}, green {green}");
         mesh.materials.iter_mut().for_each(|m| m.surface = Surface::Leaf);
         let v = voxelize(&mesh, 24).unwrap();

@@ -7,7 +7,9 @@
 //! is where it is smallest, the ball where it is largest.
 
 use sylva_light::lb::radiometry::{LeafScattering, density_from_leaf_area};
-use sylva_light::lb::{CpuSolver, GridDims, Illumination, MediumGrid, NodeClass, Sun, solve_indirect};
+use sylva_light::lb::{
+    CpuSolver, GridDims, Illumination, MediumGrid, NodeClass, Sun, solve_indirect,
+};
 use sylva_light::montecarlo::{fluence, scattered_fluence};
 use sylva_light::studies::limits::{converged_options, slab, sphere};
 
@@ -24,7 +26,14 @@ fn sun() -> Sun {
 }
 
 fn sun_only(e: f64) -> Illumination {
-    Illumination { sun: sun(), sun_irradiance: [e; 3], sky_zenith: [0.0; 3], sky_horizon: [0.0; 3], ground: Some([0.0; 3]), floor_reflects: true }
+    Illumination {
+        sun: sun(),
+        sun_irradiance: [e; 3],
+        sky_zenith: [0.0; 3],
+        sky_horizon: [0.0; 3],
+        ground: Some([0.0; 3]),
+        floor_reflects: true,
+    }
 }
 
 /// Mean over the medium's nodes, weighted by density (where the leaves are).
@@ -42,7 +51,10 @@ fn rho(lad: f64) -> f32 {
 /// continuous extinction κ = −ln(1 − ρ) per cell that ρ was made from
 /// (the Monte Carlo reads density × σ_t as extinction per unit length).
 fn continuous(medium: &MediumGrid) -> MediumGrid {
-    MediumGrid { density: medium.density.iter().map(|&r| -(1.0 - r).ln()).collect(), ..medium.clone() }
+    MediumGrid {
+        density: medium.density.iter().map(|&r| -(1.0 - r).ln()).collect(),
+        ..medium.clone()
+    }
 }
 
 /// LB total and indirect against Monte Carlo total and scattered, as
@@ -51,12 +63,21 @@ fn compare(medium: &MediumGrid, leaf: &LeafScattering, photons: u64) -> Vec<(f64
     let params = leaf.params();
     let mc_medium = continuous(medium);
     let e = 2.0;
-    let lb = solve_indirect(&mut CpuSolver, medium, &params, &sun_only(e), &converged_options(medium.dims), &|_| {}).unwrap();
+    let lb = solve_indirect(
+        &mut CpuSolver,
+        medium,
+        &params,
+        &sun_only(e),
+        &converged_options(medium.dims),
+        &|_| {},
+    )
+    .unwrap();
     let s0 = sylva_light::montecarlo::free_stream_density(&sun()) as f64;
     (0..3)
         .map(|c| {
             let mc = fluence(&mc_medium, &params.channels[c], &sun(), photons, 7 + c as u64);
-            let mc_s = scattered_fluence(&mc_medium, &params.channels[c], &sun(), photons, 7 + c as u64);
+            let mc_s =
+                scattered_fluence(&mc_medium, &params.channels[c], &sun(), photons, 7 + c as u64);
             (
                 leaf_mean(&lb.total[c], medium) / e,
                 leaf_mean(&mc.values, medium) / s0,
@@ -71,10 +92,17 @@ fn compare(medium: &MediumGrid, leaf: &LeafScattering, photons: u64) -> Vec<(f64
 fn a_slab_of_leaves_matches_monte_carlo() {
     // 8 m of leaves at LAD 0.5: vertical optical depth G·LAD·8 = 2.
     let medium = slab(GridDims::cube(26), 8, rho(0.5), NodeClass::Green);
-    for (c, (lb, mc, lb_s, mc_s)) in compare(&medium, &green_leaf(), 400_000).into_iter().enumerate() {
-        eprintln!("slab channel {c}: total LB {lb:.4} MC {mc:.4}; scattered LB {lb_s:.4} MC {mc_s:.4}");
+    for (c, (lb, mc, lb_s, mc_s)) in
+        compare(&medium, &green_leaf(), 400_000).into_iter().enumerate()
+    {
+        eprintln!(
+            "slab channel {c}: total LB {lb:.4} MC {mc:.4}; scattered LB {lb_s:.4} MC {mc_s:.4}"
+        );
         assert!((lb - mc).abs() < 0.10 * mc, "channel {c}: total LB {lb} MC {mc}");
-        assert!((lb_s - mc_s).abs() < 0.15 * mc_s + 0.005, "channel {c}: scattered LB {lb_s} MC {mc_s}");
+        assert!(
+            (lb_s - mc_s).abs() < 0.15 * mc_s + 0.005,
+            "channel {c}: scattered LB {lb_s} MC {mc_s}"
+        );
     }
 }
 
@@ -82,11 +110,18 @@ fn a_slab_of_leaves_matches_monte_carlo() {
 fn a_ball_of_leaves_matches_monte_carlo() {
     // Radius 8 m at LAD 0.5: optical radius 2.
     let medium = sphere(26, 8.0, rho(0.5), NodeClass::Green);
-    for (c, (lb, mc, lb_s, mc_s)) in compare(&medium, &green_leaf(), 400_000).into_iter().enumerate() {
-        eprintln!("ball channel {c}: total LB {lb:.4} MC {mc:.4}; scattered LB {lb_s:.4} MC {mc_s:.4}");
+    for (c, (lb, mc, lb_s, mc_s)) in
+        compare(&medium, &green_leaf(), 400_000).into_iter().enumerate()
+    {
+        eprintln!(
+            "ball channel {c}: total LB {lb:.4} MC {mc:.4}; scattered LB {lb_s:.4} MC {mc_s:.4}"
+        );
         // The total holds the uncollided beam, which the tracer adds itself.
         assert!((lb - mc).abs() < 0.35 * mc, "channel {c}: total LB {lb} MC {mc}");
-        assert!((lb_s - mc_s).abs() < 0.20 * mc_s + 0.005, "channel {c}: scattered LB {lb_s} MC {mc_s}");
+        assert!(
+            (lb_s - mc_s).abs() < 0.20 * mc_s + 0.005,
+            "channel {c}: scattered LB {lb_s} MC {mc_s}"
+        );
     }
 }
 
@@ -94,7 +129,15 @@ fn a_ball_of_leaves_matches_monte_carlo() {
 fn leaves_that_scatter_nothing_leave_no_indirect_sunlight() {
     let medium = sphere(20, 7.0, rho(1.0), NodeClass::Green);
     let black = LeafScattering { reflect: [0.0; 3], transmit: [0.0; 3] };
-    let lb = solve_indirect(&mut CpuSolver, &medium, &black.params(), &sun_only(3.0), &converged_options(medium.dims), &|_| {}).unwrap();
+    let lb = solve_indirect(
+        &mut CpuSolver,
+        &medium,
+        &black.params(),
+        &sun_only(3.0),
+        &converged_options(medium.dims),
+        &|_| {},
+    )
+    .unwrap();
     for c in 0..3 {
         let max = lb.indirect[c].iter().copied().fold(0.0f32, f32::max);
         assert!(max < 1e-5, "channel {c}: {max}");

@@ -3,15 +3,24 @@
 
 use sylva_light::lb::*;
 use sylva_light::montecarlo::{self, McFluence, fluence};
-use sylva_light::studies::limits::{self, Comparison, LB_ERROR_BOUND, Sweep, SweepKind, failure_sweep, lb_warnings, medium_mask, slab, sphere};
+use sylva_light::studies::limits::{
+    self, Comparison, LB_ERROR_BOUND, Sweep, SweepKind, failure_sweep, lb_warnings, medium_mask,
+    slab, sphere,
+};
 use sylva_scene::format::Preset;
 
 fn interior(dims: GridDims) -> Vec<bool> {
-    (0..dims.len()).map(|i| !dims.is_boundary(i % dims.nx, (i / dims.nx) % dims.ny, i / (dims.nx * dims.ny))).collect()
+    (0..dims.len())
+        .map(|i| !dims.is_boundary(i % dims.nx, (i / dims.nx) % dims.ny, i / (dims.nx * dims.ny)))
+        .collect()
 }
 
 fn masked_mean(v: &[f32], mask: &[bool]) -> f64 {
-    let (s, c) = v.iter().zip(mask).filter(|p| *p.1).fold((0.0, 0usize), |(s, c), (&x, _)| (s + x as f64, c + 1));
+    let (s, c) = v
+        .iter()
+        .zip(mask)
+        .filter(|p| *p.1)
+        .fold((0.0, 0usize), |(s, c), (&x, _)| (s + x as f64, c + 1));
     s / c as f64
 }
 
@@ -21,8 +30,20 @@ fn monte_carlo_on_an_empty_grid_equals_the_lb_free_stream() {
     let medium = MediumGrid::empty(dims);
     let p = ChannelParams::isotropic(0.1, 0.9);
     let mask = interior(dims);
-    for sun in [Sun::default(), Sun::towards([0.0, 1.0, 0.0], 2.0).unwrap(), Sun::from_elevation_azimuth(5.0, 70.0, 1.0).unwrap()] {
-        let lb = solve(&mut CpuSolver, &medium, &LbParams::grey(p), &sun, &SolveOptions::default(), &|_, _, _| {}).unwrap();
+    for sun in [
+        Sun::default(),
+        Sun::towards([0.0, 1.0, 0.0], 2.0).unwrap(),
+        Sun::from_elevation_azimuth(5.0, 70.0, 1.0).unwrap(),
+    ] {
+        let lb = solve(
+            &mut CpuSolver,
+            &medium,
+            &LbParams::grey(p),
+            &sun,
+            &SolveOptions::default(),
+            &|_, _, _| {},
+        )
+        .unwrap();
         let lb = &lb.channels[0].total;
         let mc = fluence(&medium, &p, &sun, 1_000_000, 5);
         // The LB carries the boundary densities unchanged: every node holds S₀.
@@ -30,7 +51,11 @@ fn monte_carlo_on_an_empty_grid_equals_the_lb_free_stream() {
         assert!(lb.iter().all(|&v| (v as f64 - s0).abs() < 1e-5 * s0));
         let mean = masked_mean(&mc.values, &mask);
         let rel = (mean / s0 - 1.0).abs();
-        println!("sun {:?}: S0 {s0:.4}, MC mean {mean:.4} ({:+.3} %)", sun.propagation, 100.0 * (mean / s0 - 1.0));
+        println!(
+            "sun {:?}: S0 {s0:.4}, MC mean {mean:.4} ({:+.3} %)",
+            sun.propagation,
+            100.0 * (mean / s0 - 1.0)
+        );
         assert!(rel < 0.01, "MC mean {mean} vs LB free stream {s0}");
         // Node by node, within the MC's own error (5σ; 5 000 nodes).
         for i in (0..dims.len()).filter(|&i| mask[i]) {
@@ -54,7 +79,13 @@ fn monte_carlo_is_deterministic_and_its_error_falls_as_one_over_root_n() {
     let b = fluence(&medium, &p, &sun, 1_024_000, 42);
     let se = |m: &McFluence| masked_mean(&m.std_error, &mask);
     let ratio = se(&b) / se(&a);
-    println!("std error {:.4e} at {} photons, {:.4e} at {}: ratio {ratio:.3} (1/√4 = 0.5)", se(&a), a.photons, se(&b), b.photons);
+    println!(
+        "std error {:.4e} at {} photons, {:.4e} at {}: ratio {ratio:.3} (1/√4 = 0.5)",
+        se(&a),
+        a.photons,
+        se(&b),
+        b.photons
+    );
     assert!((ratio - 0.5).abs() < 0.125, "quadrupling photons changed the std error by {ratio}");
     // The stated std errors are honest: the two independent estimates differ by about √(σa² + σo²).
     let z2: f64 = (0..mask.len())
@@ -114,9 +145,15 @@ fn lb_agrees_with_monte_carlo_inside_a_thick_slab() {
 
 fn print(s: &Sweep) {
     println!("== {} — x: {}", s.name, s.x_label);
-    println!("{:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>6}", "x", "lb_error", "ambient", "mc_noise", "lb_ms", "mc_ms", "warned");
+    println!(
+        "{:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>6}",
+        "x", "lb_error", "ambient", "mc_noise", "lb_ms", "mc_ms", "warned"
+    );
     for p in &s.points {
-        println!("{:>8.3} {:>9.4} {:>9.4} {:>8.4} {:>7.0} {:>7.0} {:>6}", p.x, p.lb_error, p.ambient_error, p.mc_noise, p.lb_ms, p.mc_ms, p.warned);
+        println!(
+            "{:>8.3} {:>9.4} {:>9.4} {:>8.4} {:>7.0} {:>7.0} {:>6}",
+            p.x, p.lb_error, p.ambient_error, p.mc_noise, p.lb_ms, p.mc_ms, p.warned
+        );
     }
 }
 
@@ -127,18 +164,33 @@ fn check_sweep(kind: SweepKind, bad: &[f64]) -> Sweep {
     print(&s);
     assert!(s.points.len() >= 5, "{}: {} points", s.name, s.points.len());
     for p in &s.points {
-        assert!(p.lb_error.is_finite() && p.ambient_error.is_finite() && p.mc_noise < 0.06, "{}: {p:?}", s.name);
+        assert!(
+            p.lb_error.is_finite() && p.ambient_error.is_finite() && p.mc_noise < 0.06,
+            "{}: {p:?}",
+            s.name
+        );
     }
     let good = &s.points[0];
     assert!(!good.warned, "{}: the good end x = {} warned", s.name, good.x);
     assert!(good.lb_error < LB_ERROR_BOUND, "{}: good end error {}", s.name, good.lb_error);
     for &x in bad {
         let p = s.points.iter().find(|p| (p.x - x).abs() < 1e-9).expect("bad-end point");
-        assert!(p.lb_error <= LB_ERROR_BOUND || p.warned, "{}: x = {x} has error {} and no warning", s.name, p.lb_error);
+        assert!(
+            p.lb_error <= LB_ERROR_BOUND || p.warned,
+            "{}: x = {x} has error {} and no warning",
+            s.name,
+            p.lb_error
+        );
     }
     // Every point past the bound was warned about.
     for p in &s.points {
-        assert!(p.lb_error <= LB_ERROR_BOUND || p.warned, "{}: x = {} has error {} and no warning", s.name, p.x, p.lb_error);
+        assert!(
+            p.lb_error <= LB_ERROR_BOUND || p.warned,
+            "{}: x = {} has error {} and no warning",
+            s.name,
+            p.x,
+            p.lb_error
+        );
     }
     s
 }
@@ -160,7 +212,10 @@ fn sweep_anisotropy() {
 fn sweep_stability() {
     let s = check_sweep(SweepKind::Stability, &[1.99]);
     let last = s.points.last().unwrap();
-    assert!(last.warned && last.lb_error > s.points[0].lb_error, "ρσ_t = 1.99 should be worse and warned: {last:?}");
+    assert!(
+        last.warned && last.lb_error > s.points[0].lb_error,
+        "ρσ_t = 1.99 should be worse and warned: {last:?}"
+    );
 }
 
 #[test]
@@ -180,18 +235,36 @@ fn each_warning_fires_alone_and_a_typical_scene_draws_none() {
     let ball = sphere(32, 11.0, 0.8, NodeClass::Green);
     let leaf = LbParams::from_preset(Preset::Leaf);
     let sun = Sun::default();
-    assert_eq!(lb_warnings(&leaf, &ball, &sun), vec![], "leaf ball at 60° is the model's home ground");
-    let kinds = |params: &LbParams, m: &MediumGrid, s: &Sun| lb_warnings(params, m, s).into_iter().map(|w| w.kind).collect::<Vec<_>>();
+    assert_eq!(
+        lb_warnings(&leaf, &ball, &sun),
+        vec![],
+        "leaf ball at 60° is the model's home ground"
+    );
+    let kinds = |params: &LbParams, m: &MediumGrid, s: &Sun| {
+        lb_warnings(params, m, s).into_iter().map(|w| w.kind).collect::<Vec<_>>()
+    };
     let thin = sphere(32, 11.0, 0.01, NodeClass::Green);
     assert_eq!(kinds(&leaf, &thin, &sun), ["thin"]);
     assert_eq!(kinds(&LbParams::from_preset(Preset::Cloud), &ball, &sun), ["anisotropy"]);
     let dense = LbParams::grey(ChannelParams::isotropic(0.2, 1.7));
     let solid = sphere(32, 11.0, 1.0, NodeClass::Medium);
     assert_eq!(kinds(&dense, &solid, &sun), ["stability"]);
-    assert_eq!(kinds(&leaf, &ball, &Sun::from_elevation_azimuth(8.0, 30.0, 1.0).unwrap()), ["grazing-sun"]);
+    assert_eq!(
+        kinds(&leaf, &ball, &Sun::from_elevation_azimuth(8.0, 30.0, 1.0).unwrap()),
+        ["grazing-sun"]
+    );
     assert_eq!(kinds(&leaf, &sphere(10, 3.5, 0.8, NodeClass::Green), &sun), ["small-grid"]);
-    for w in lb_warnings(&dense, &sphere(10, 3.5, 0.01, NodeClass::Green), &Sun::from_elevation_azimuth(3.0, 0.0, 1.0).unwrap()) {
-        assert!(w.message.len() > 60 && w.message.contains("measured"), "{}: {}", w.kind, w.message);
+    for w in lb_warnings(
+        &dense,
+        &sphere(10, 3.5, 0.01, NodeClass::Green),
+        &Sun::from_elevation_azimuth(3.0, 0.0, 1.0).unwrap(),
+    ) {
+        assert!(
+            w.message.len() > 60 && w.message.contains("measured"),
+            "{}: {}",
+            w.kind,
+            w.message
+        );
         println!("{}: {}", w.kind, w.message);
     }
 }

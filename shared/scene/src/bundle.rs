@@ -57,24 +57,44 @@ pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle
     let mut blobs: Vec<(String, Vec<u8>)> = Vec::new();
     for (i, (name, spec)) in scene.models.iter_mut().enumerate() {
         let Some(rel) = spec.gltf.clone() else { continue };
-        let full = access.resolve(access.base(), &rel).map_err(|e| anyhow::anyhow!("{label}: models.{name}.gltf: {e}"))?;
-        let bytes = std::fs::read(&full).with_context(|| format!("{label}: models.{name}.gltf: cannot read {}", rel.display()))?;
+        let full = access
+            .resolve(access.base(), &rel)
+            .map_err(|e| anyhow::anyhow!("{label}: models.{name}.gltf: {e}"))?;
+        let bytes = std::fs::read(&full).with_context(|| {
+            format!("{label}: models.{name}.gltf: cannot read {}", rel.display())
+        })?;
         let dir = format!("m{i}");
-        let file = full.file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_else(|| "model.glb".into());
+        let file = full
+            .file_name()
+            .map(|f| f.to_string_lossy().to_string())
+            .unwrap_or_else(|| "model.glb".into());
         if file.to_ascii_lowercase().ends_with(".gltf") {
             let folder = full.parent().unwrap_or(Path::new("."));
-            for uri in external_uris(&bytes).with_context(|| format!("{}: not glTF JSON", rel.display()))? {
-                let dep = access.resolve_uri(folder, &uri).map_err(|e| anyhow::anyhow!("{}: {e}", rel.display()))?.expect("not a data: URI");
-                let data = std::fs::read(&dep).with_context(|| format!("{}: cannot read {uri}", rel.display()))?;
+            for uri in external_uris(&bytes)
+                .with_context(|| format!("{}: not glTF JSON", rel.display()))?
+            {
+                let dep = access
+                    .resolve_uri(folder, &uri)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", rel.display()))?
+                    .expect("not a data: URI");
+                let data = std::fs::read(&dep)
+                    .with_context(|| format!("{}: cannot read {uri}", rel.display()))?;
                 blobs.push((format!("{dir}/{uri}"), data));
             }
         }
         blobs.push((format!("{dir}/{file}"), bytes));
         spec.gltf = Some(PathBuf::from(format!("{dir}/{file}")));
     }
-    let manifest = Manifest { scene, blobs: blobs.iter().map(|(n, b)| BlobEntry { name: n.clone(), len: b.len() as u64 }).collect() };
+    let manifest = Manifest {
+        scene,
+        blobs: blobs
+            .iter()
+            .map(|(n, b)| BlobEntry { name: n.clone(), len: b.len() as u64 })
+            .collect(),
+    };
     let json = serde_json::to_vec(&manifest)?;
-    let mut bytes = Vec::with_capacity(16 + json.len() + blobs.iter().map(|b| b.1.len()).sum::<usize>());
+    let mut bytes =
+        Vec::with_capacity(16 + json.len() + blobs.iter().map(|b| b.1.len()).sum::<usize>());
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&json);
@@ -120,7 +140,8 @@ pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> anyhow::Re
     if len > body.len() {
         bail!("truncated scene bundle: manifest of {len} bytes, {} present", body.len());
     }
-    let manifest: Manifest = serde_json::from_slice(&body[..len]).context("malformed bundle manifest")?;
+    let manifest: Manifest =
+        serde_json::from_slice(&body[..len]).context("malformed bundle manifest")?;
     // The cheap checks first: a scene that would be refused costs no disk.
     Scene::check(&manifest.scene, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))?;
     let mut at = len;
@@ -131,18 +152,22 @@ pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> anyhow::Re
             bail!("bundle blob name {:?} is not a plain relative path", b.name);
         }
         let end = at.checked_add(b.len as usize).filter(|&e| e <= body.len());
-        let Some(end) = end else { bail!("truncated scene bundle: blob {:?} runs past the end", b.name) };
+        let Some(end) = end else {
+            bail!("truncated scene bundle: blob {:?} runs past the end", b.name)
+        };
         let target = dir.join(rel);
         if let Some(parent) = target.parent() {
             std::fs::create_dir_all(parent)?;
         }
-        std::fs::write(&target, &body[at..end]).with_context(|| format!("{}: cannot write", target.display()))?;
+        std::fs::write(&target, &body[at..end])
+            .with_context(|| format!("{}: cannot write", target.display()))?;
         at = end;
     }
     if at != body.len() {
         bail!("scene bundle has {} stray bytes after its blobs", body.len() - at);
     }
-    Scene::build_with(manifest.scene, &FileAccess::Inside(dir.to_path_buf()), "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))
+    Scene::build_with(manifest.scene, &FileAccess::Inside(dir.to_path_buf()), "bundle", limits)
+        .map_err(|e: SceneError| anyhow::anyhow!(e))
 }
 
 #[cfg(test)]
@@ -158,8 +183,15 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("sylva-bundle-{}", std::process::id()));
         let s = unpack(&b.bytes, &dir).unwrap();
         assert_eq!(s.unique_triangles(), 6232);
-        assert!(unpack(&b.bytes[..b.bytes.len() - 10], &dir).unwrap_err().to_string().contains("truncated"));
-        assert!(unpack(b"nonsense-bytes-here", &dir).unwrap_err().to_string().contains("bad magic"));
+        assert!(
+            unpack(&b.bytes[..b.bytes.len() - 10], &dir)
+                .unwrap_err()
+                .to_string()
+                .contains("truncated")
+        );
+        assert!(
+            unpack(b"nonsense-bytes-here", &dir).unwrap_err().to_string().contains("bad magic")
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -35,7 +35,12 @@ pub enum CameraError {
 impl Camera {
     /// A camera at `position` looking at `target`, `up` towards the top of
     /// the image, with a vertical field of view of `fov_y_deg` degrees.
-    pub fn look_at(position: Vec3, target: Vec3, up: Vec3, fov_y_deg: f32) -> Result<Self, CameraError> {
+    pub fn look_at(
+        position: Vec3,
+        target: Vec3,
+        up: Vec3,
+        fov_y_deg: f32,
+    ) -> Result<Self, CameraError> {
         if !(fov_y_deg > 0.0 && fov_y_deg < 180.0) {
             return Err(CameraError::BadFov(fov_y_deg));
         }
@@ -49,7 +54,13 @@ impl Camera {
             return Err(CameraError::UpParallel);
         }
         let right = right.normalize();
-        Ok(Self { position, forward, right, up: right.cross(forward), tan_half_fov_y: (fov_y_deg.to_radians() / 2.0).tan() })
+        Ok(Self {
+            position,
+            forward,
+            right,
+            up: right.cross(forward),
+            tan_half_fov_y: (fov_y_deg.to_radians() / 2.0).tan(),
+        })
     }
 
     /// The unit direction through film point `(px, py)` (pixels, y down) of
@@ -68,7 +79,8 @@ mod tests {
 
     #[test]
     fn centre_pixel_looks_at_the_target_and_bad_cameras_are_refused() {
-        let c = Camera::look_at(Vec3::new(0.0, 2.0, 10.0), Vec3::new(0.0, 2.0, 0.0), Vec3::Y, 40.0).unwrap();
+        let c = Camera::look_at(Vec3::new(0.0, 2.0, 10.0), Vec3::new(0.0, 2.0, 0.0), Vec3::Y, 40.0)
+            .unwrap();
         let d = c.direction(50.0, 25.0, 100, 50);
         assert!((d - Vec3::NEG_Z).length() < 1e-6);
         // Top-left is up and to the left.

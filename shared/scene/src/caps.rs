@@ -34,8 +34,13 @@ impl SceneLimits {
     pub const LB_CELLS: u64 = 1 << 26;
 
     /// No caps, for trusted local files that are loaded anyway.
-    pub const UNLIMITED: SceneLimits =
-        SceneLimits { models: usize::MAX, instances: usize::MAX, triangles: u64::MAX, texture_pixels: u64::MAX, lb_cells: u64::MAX };
+    pub const UNLIMITED: SceneLimits = SceneLimits {
+        models: usize::MAX,
+        instances: usize::MAX,
+        triangles: u64::MAX,
+        texture_pixels: u64::MAX,
+        lb_cells: u64::MAX,
+    };
 }
 
 impl Default for SceneLimits {

@@ -37,8 +37,11 @@ impl HdrImage {
     /// Writes OpenEXR (32-bit float RGB).
     pub fn write_exr(&self, path: &Path) -> anyhow::Result<()> {
         let flat: Vec<f32> = self.pixels.iter().flatten().copied().collect();
-        let img = image::Rgb32FImage::from_raw(self.width, self.height, flat).context("image size")?;
-        image::DynamicImage::ImageRgb32F(img).save(path).with_context(|| format!("{}: cannot write EXR", path.display()))
+        let img =
+            image::Rgb32FImage::from_raw(self.width, self.height, flat).context("image size")?;
+        image::DynamicImage::ImageRgb32F(img)
+            .save(path)
+            .with_context(|| format!("{}: cannot write EXR", path.display()))
     }
 }
 
@@ -67,7 +70,11 @@ pub fn reinhard_like(img: &HdrImage, like: &ToneMapStats) -> Vec<[u8; 3]> {
     reinhard_exposed(img, like.key, Some((like.log_average, like.white))).0
 }
 
-fn reinhard_exposed(img: &HdrImage, key: f32, fixed: Option<(f32, f32)>) -> (Vec<[u8; 3]>, ToneMapStats) {
+fn reinhard_exposed(
+    img: &HdrImage,
+    key: f32,
+    fixed: Option<(f32, f32)>,
+) -> (Vec<[u8; 3]>, ToneMapStats) {
     const DELTA: f64 = 1e-4;
     let n = img.pixels.len().max(1) as f64;
     let lum: Vec<f32> = img.pixels.iter().map(|&p| luminance(p).max(0.0)).collect();

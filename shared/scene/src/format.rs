@@ -195,8 +195,14 @@ pub enum LightingMode {
 
 impl LightingMode {
     /// Every method, in the order `compare` lists them.
-    pub const ALL: [LightingMode; 6] =
-        [LightingMode::Local, LightingMode::Ambient, LightingMode::Lb, LightingMode::LbVisualize, LightingMode::Boulanger, LightingMode::Reference];
+    pub const ALL: [LightingMode; 6] = [
+        LightingMode::Local,
+        LightingMode::Ambient,
+        LightingMode::Lb,
+        LightingMode::LbVisualize,
+        LightingMode::Boulanger,
+        LightingMode::Reference,
+    ];
 
     /// Whether the method reads the LB light.
     pub fn needs_lb(self) -> bool {

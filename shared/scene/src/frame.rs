@@ -74,7 +74,10 @@ impl FrameSettings {
     pub fn check(&self) -> Result<(), FrameError> {
         let bad = |m: String| Err(FrameError(m));
         if self.width == 0 || self.height == 0 || self.width > MAX_SIDE || self.height > MAX_SIDE {
-            return bad(format!("image {}×{}: each side must be in [1, {MAX_SIDE}]", self.width, self.height));
+            return bad(format!(
+                "image {}×{}: each side must be in [1, {MAX_SIDE}]",
+                self.width, self.height
+            ));
         }
         if self.spp == 0 || self.spp > MAX_SPP {
             return bad(format!("spp {}: valid range [1, {MAX_SPP}]", self.spp));
@@ -109,7 +112,10 @@ mod tests {
             (FrameSettings { spp: 0, ..Default::default() }, "spp 0"),
             (FrameSettings { spp: MAX_SPP + 1, ..Default::default() }, "spp"),
             (FrameSettings { lb_strength: f32::NAN, ..Default::default() }, "lb_strength NaN"),
-            (FrameSettings { ambient: Some([0.1, f32::INFINITY, 0.0]), ..Default::default() }, "ambient"),
+            (
+                FrameSettings { ambient: Some([0.1, f32::INFINITY, 0.0]), ..Default::default() },
+                "ambient",
+            ),
             (FrameSettings { ambient: Some([0.1, -1.0, 0.0]), ..Default::default() }, "ambient"),
         ];
         for (f, want) in cases {

@@ -3,8 +3,8 @@
 //! ([`SceneFile`]) and checked field by field.
 
 pub use crate::format::{
-    CameraSpec, CloudSpec, ForestGridSpec, ForestGridUse, GroundSpec, InstanceSpec, LbModel, LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec,
-    SunSpec,
+    CameraSpec, CloudSpec, ForestGridSpec, ForestGridUse, GroundSpec, InstanceSpec, LbModel,
+    LbSpec, LightingMode, ModelSpec, SceneFile, SkySpec, SunSpec,
 };
 
 use crate::camera::Camera;
@@ -102,7 +102,11 @@ impl Scene {
 
     /// Reads, parses and checks a scene file, reading its models as
     /// `access` allows, within `limits`.
-    pub fn load_with(path: &Path, access: &FileAccess, limits: &SceneLimits) -> Result<Scene, SceneError> {
+    pub fn load_with(
+        path: &Path,
+        access: &FileAccess,
+        limits: &SceneLimits,
+    ) -> Result<Scene, SceneError> {
         let label = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| SceneError {
             file: label.clone(),
@@ -117,28 +121,51 @@ impl Scene {
     /// in errors; glTF paths are relative to `base` and must lie inside it;
     /// default limits.
     pub fn build(file: SceneFile, base: &Path, label: &str) -> Result<Scene, SceneError> {
-        Scene::build_with(file, &FileAccess::Inside(base.to_path_buf()), label, &SceneLimits::default())
+        Scene::build_with(
+            file,
+            &FileAccess::Inside(base.to_path_buf()),
+            label,
+            &SceneLimits::default(),
+        )
     }
 
     /// Checks a parsed scene completely — every field, and its size against
     /// `limits` from what the file declares — and only then builds its
     /// models, reading files as `access` allows.
-    pub fn build_with(file: SceneFile, access: &FileAccess, label: &str, limits: &SceneLimits) -> Result<Scene, SceneError> {
+    pub fn build_with(
+        file: SceneFile,
+        access: &FileAccess,
+        label: &str,
+        limits: &SceneLimits,
+    ) -> Result<Scene, SceneError> {
         let Checked { instances, camera, sun, declared_triangles } = check(&file, label, limits)?;
-        let err = |field: String, message: String| SceneError { file: label.to_string(), field, message };
-        let mut budget = GltfBudget { triangles: limits.triangles - declared_triangles, texture_pixels: limits.texture_pixels };
+        let err =
+            |field: String, message: String| SceneError { file: label.to_string(), field, message };
+        let mut budget = GltfBudget {
+            triangles: limits.triangles - declared_triangles,
+            texture_pixels: limits.texture_pixels,
+        };
         let mut models = Vec::with_capacity(file.models.len());
         for (name, spec) in &file.models {
             let field = format!("models.{name}");
             let model = match (&spec.gltf, &spec.tree) {
                 (Some(p), None) => {
-                    let full = access.resolve(access.base(), p).map_err(|m| err(format!("{field}.gltf"), m))?;
-                    load_gltf_with(&full, access, &mut budget, spec.mesh.as_deref()).map_err(|e| err(format!("{field}.gltf"), format!("{e:#}")))?
+                    let full = access
+                        .resolve(access.base(), p)
+                        .map_err(|m| err(format!("{field}.gltf"), m))?;
+                    load_gltf_with(&full, access, &mut budget, spec.mesh.as_deref())
+                        .map_err(|e| err(format!("{field}.gltf"), format!("{e:#}")))?
                 }
-                (None, Some(t)) => trees::generate(t).map_err(|e| err(format!("{field}.tree"), e.to_string()))?,
+                (None, Some(t)) => {
+                    trees::generate(t).map_err(|e| err(format!("{field}.tree"), e.to_string()))?
+                }
                 _ => unreachable!("checked above"),
             };
-            models.push(SceneModel { name: name.clone(), model: Arc::new(model), lb: spec.lb.unwrap_or(file.lb) });
+            models.push(SceneModel {
+                name: name.clone(),
+                model: Arc::new(model),
+                lb: spec.lb.unwrap_or(file.lb),
+            });
         }
         Ok(Scene {
             models,
@@ -167,7 +194,10 @@ impl Scene {
 
     /// Triangles of all instances.
     pub fn instanced_triangles(&self) -> u64 {
-        self.instances.iter().map(|i| self.models[i.model as usize].model.triangle_count() as u64).sum()
+        self.instances
+            .iter()
+            .map(|i| self.models[i.model as usize].model.triangle_count() as u64)
+            .sum()
     }
 }
 
@@ -180,15 +210,22 @@ struct Checked {
 }
 
 fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked, SceneError> {
-    let err = |field: String, message: String| SceneError { file: label.to_string(), field, message };
+    let err =
+        |field: String, message: String| SceneError { file: label.to_string(), field, message };
     if file.models.is_empty() {
         return Err(err("models".into(), "at least one model is needed".into()));
     }
     if file.models.len() > limits.models {
-        return Err(err("models".into(), format!("{} models: at most {} per scene", file.models.len(), limits.models)));
+        return Err(err(
+            "models".into(),
+            format!("{} models: at most {} per scene", file.models.len(), limits.models),
+        ));
     }
     if file.instances.len() > limits.instances {
-        return Err(err("instances".into(), format!("{} instances: at most {} per scene", file.instances.len(), limits.instances)));
+        return Err(err(
+            "instances".into(),
+            format!("{} instances: at most {} per scene", file.instances.len(), limits.instances),
+        ));
     }
     let mut lb_cells = 0u64;
     for (name, spec) in &file.models {
@@ -201,7 +238,10 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
             _ => return Err(err(field, "give exactly one of \"gltf\" and \"tree\"".into())),
         }
         if spec.mesh.is_some() && spec.gltf.is_none() {
-            return Err(err(format!("{field}.mesh"), "names a mesh of a \"gltf\" file; this model has none".into()));
+            return Err(err(
+                format!("{field}.mesh"),
+                "names a mesh of a \"gltf\" file; this model has none".into(),
+            ));
         }
         if spec.mesh.as_ref().is_some_and(|m| m.is_empty() || m.len() > 256) {
             return Err(err(format!("{field}.mesh"), "a mesh name of 1 to 256 bytes".into()));
@@ -213,17 +253,22 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
         return Err(err("forest_grid.grid".into(), format!("{}: valid range [4, 256]", fg.grid)));
     }
     if !(fg.threshold.is_finite() && fg.threshold >= 0.0) {
-        return Err(err("forest_grid.threshold".into(), format!("{}: must be a finite number ≥ 0", fg.threshold)));
+        return Err(err(
+            "forest_grid.threshold".into(),
+            format!("{}: must be a finite number ≥ 0", fg.threshold),
+        ));
     }
     lb_cells += (fg.grid as u64).pow(3);
     let names: Vec<&String> = file.models.keys().collect();
     let mut instances = Vec::with_capacity(file.instances.len());
     for (i, inst) in file.instances.iter().enumerate() {
         let field = format!("instances[{i}]");
-        let model = names
-            .iter()
-            .position(|m| **m == inst.model)
-            .ok_or_else(|| err(format!("{field}.model"), format!("unknown model {:?}", crate::sandbox::clip(&inst.model))))?;
+        let model = names.iter().position(|m| **m == inst.model).ok_or_else(|| {
+            err(
+                format!("{field}.model"),
+                format!("unknown model {:?}", crate::sandbox::clip(&inst.model)),
+            )
+        })?;
         let to_world = instance_transform(inst).map_err(|(f, m)| err(format!("{field}.{f}"), m))?;
         instances.push(Instance { model: model as u32, to_world });
     }
@@ -234,7 +279,8 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
     bounded3(&c.position).map_err(|m| err("camera.position".into(), m))?;
     bounded3(&c.look_at).map_err(|m| err("camera.look_at".into(), m))?;
     bounded3(&c.up).map_err(|m| err("camera.up".into(), m))?;
-    let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg).map_err(|e| err("camera".into(), e.to_string()))?;
+    let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg)
+        .map_err(|e| err("camera".into(), e.to_string()))?;
     let sun = sun_light(&file.sun).map_err(|(f, m)| err(format!("sun.{f}"), m))?;
     if let Some(s) = &file.sequence {
         s.views().map_err(|m| err("sequence".into(), m))?;
@@ -248,30 +294,52 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
         // An albedo: a ground that sent back more than it receives would
         // make the LB's reflecting floor a source that grows every step.
         if g.color.iter().any(|&x| x > 1.0) {
-            return Err(err("ground.color".into(), format!("{:?}: an albedo, each component at most 1", g.color)));
+            return Err(err(
+                "ground.color".into(),
+                format!("{:?}: an albedo, each component at most 1", g.color),
+            ));
         }
     }
     for (i, c) in file.clouds.iter().enumerate() {
         finite3(&c.center).map_err(|m| err(format!("clouds[{i}].center"), m))?;
         if !(c.size.is_finite() && c.size > 0.0) {
-            return Err(err(format!("clouds[{i}].size"), format!("{} must be a finite number > 0", c.size)));
+            return Err(err(
+                format!("clouds[{i}].size"),
+                format!("{} must be a finite number > 0", c.size),
+            ));
         }
         if !(4..=512).contains(&c.grid) {
-            return Err(err(format!("clouds[{i}].grid"), format!("{}: valid range [4, 512]", c.grid)));
+            return Err(err(
+                format!("clouds[{i}].grid"),
+                format!("{}: valid range [4, 512]", c.grid),
+            ));
         }
         lb_cells += (c.grid as u64).pow(3);
     }
     if lb_cells > limits.lb_cells {
         return Err(err(
             "lb".into(),
-            format!("the LB grids of models, clouds and forest come to {lb_cells} nodes: at most {} per scene", limits.lb_cells),
+            format!(
+                "the LB grids of models, clouds and forest come to {lb_cells} nodes: at most {} per scene",
+                limits.lb_cells
+            ),
         ));
     }
     // Generated trees declare their size: refuse before generating any.
-    let declared: u64 =
-        file.models.values().filter_map(|m| m.tree.as_ref()).map(|t| u64::from(t.triangles.unwrap_or(t.species.shape().paper_triangles))).sum();
+    let declared: u64 = file
+        .models
+        .values()
+        .filter_map(|m| m.tree.as_ref())
+        .map(|t| u64::from(t.triangles.unwrap_or(t.species.shape().paper_triangles)))
+        .sum();
     if declared > limits.triangles {
-        return Err(err("models".into(), format!("the trees come to {declared} triangles: at most {} per scene", limits.triangles)));
+        return Err(err(
+            "models".into(),
+            format!(
+                "the trees come to {declared} triangles: at most {} per scene",
+                limits.triangles
+            ),
+        ));
     }
     Ok(Checked { instances, camera, sun, declared_triangles: declared })
 }
@@ -281,7 +349,11 @@ pub fn parse(text: &str, label: &str) -> Result<SceneFile, SceneError> {
     let de = &mut serde_json::Deserializer::from_str(text);
     serde_path_to_error::deserialize(de).map_err(|e| {
         let field = e.path().to_string();
-        SceneError { file: label.to_string(), field: if field == "." { "(document)".into() } else { field }, message: e.into_inner().to_string() }
+        SceneError {
+            file: label.to_string(),
+            field: if field == "." { "(document)".into() } else { field },
+            message: e.into_inner().to_string(),
+        }
     })
 }
 
@@ -305,7 +377,11 @@ fn bounded3(v: &[f32; 3]) -> Result<(), String> {
 }
 
 fn finite3(v: &[f32; 3]) -> Result<(), String> {
-    if v.iter().all(|x| x.is_finite()) { Ok(()) } else { Err(format!("{v:?} has a value that is not a finite number")) }
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(format!("{v:?} has a value that is not a finite number"))
+    }
 }
 
 fn colour(v: &[f32; 3]) -> Result<(), String> {
@@ -324,14 +400,21 @@ fn instance_transform(inst: &InstanceSpec) -> Result<Affine3A, (&'static str, St
             }
             let m = Mat4::from_cols_array(&cols);
             if m.row(3) != glam::Vec4::W {
-                return Err(("matrix", "the bottom row must be (0, 0, 0, 1): only affine transforms place instances".into()));
+                return Err((
+                    "matrix",
+                    "the bottom row must be (0, 0, 0, 1): only affine transforms place instances"
+                        .into(),
+                ));
             }
             Affine3A::from_mat4(m)
         }
         None => {
             finite3(&inst.position).map_err(|e| ("position", e))?;
             if !inst.rotate_y_deg.is_finite() {
-                return Err(("rotate_y_deg", format!("{} is not a finite number", inst.rotate_y_deg)));
+                return Err((
+                    "rotate_y_deg",
+                    format!("{} is not a finite number", inst.rotate_y_deg),
+                ));
             }
             if !(inst.scale.is_finite() && inst.scale > 0.0) {
                 return Err(("scale", format!("{}: must be a finite number > 0", inst.scale)));
@@ -345,7 +428,10 @@ fn instance_transform(inst: &InstanceSpec) -> Result<Affine3A, (&'static str, St
     };
     let det = m.matrix3.determinant();
     if det.abs() < 1e-12 || !det.is_finite() {
-        return Err(("matrix", "degenerate transform (determinant 0): it flattens the model".into()));
+        return Err((
+            "matrix",
+            "degenerate transform (determinant 0): it flattens the model".into(),
+        ));
     }
     Ok(m)
 }
@@ -354,7 +440,10 @@ fn sun_light(s: &SunSpec) -> Result<SunLight, (&'static str, String)> {
     let towards = match (s.direction, s.elevation_deg, s.azimuth_deg) {
         (Some(d), None, None) => {
             let v = Vec3::from(d);
-            if !v.is_finite() || v.abs().max_element() > MAX_COORDINATE || v.length_squared() < 1e-12 {
+            if !v.is_finite()
+                || v.abs().max_element() > MAX_COORDINATE
+                || v.length_squared() < 1e-12
+            {
                 return Err(("direction", format!("{d:?} must be a finite, non-zero vector")));
             }
             v.normalize()
@@ -369,7 +458,12 @@ fn sun_light(s: &SunSpec) -> Result<SunLight, (&'static str, String)> {
             let (e, a) = (e.to_radians(), a.to_radians());
             Vec3::new(e.cos() * a.cos(), e.sin(), e.cos() * a.sin())
         }
-        _ => return Err(("direction", "give either direction or both elevation_deg and azimuth_deg".into())),
+        _ => {
+            return Err((
+                "direction",
+                "give either direction or both elevation_deg and azimuth_deg".into(),
+            ));
+        }
     };
     if !(s.temperature_k.is_finite() && (1000.0..=40000.0).contains(&s.temperature_k)) {
         return Err(("temperature_k", format!("{}: valid range [1000, 40000]", s.temperature_k)));
@@ -412,30 +506,63 @@ mod tests {
     #[test]
     fn malformed_scenes_name_file_field_and_fault() {
         let cases = [
-            (SMALL.replace("\"ground\"", "\"grund\""), "test.json: grund: unknown field `grund`, expected one of"),
             (
-                SMALL.replace("\"model\": \"maple\", \"position\": [10", "\"model\": \"oak\", \"position\": [10"),
+                SMALL.replace("\"ground\"", "\"grund\""),
+                "test.json: grund: unknown field `grund`, expected one of",
+            ),
+            (
+                SMALL.replace(
+                    "\"model\": \"maple\", \"position\": [10",
+                    "\"model\": \"oak\", \"position\": [10",
+                ),
                 "instances[1].model: unknown model \"oak\"",
             ),
-            (SMALL.replace("\"scale\": 1.2", "\"scale\": 0"), "instances[1].scale: 0: must be a finite number > 0"),
+            (
+                SMALL.replace("\"scale\": 1.2", "\"scale\": 0"),
+                "instances[1].scale: 0: must be a finite number > 0",
+            ),
             (SMALL.replace("\"scale\": 1.2", "\"scale\": 1e39"), "instances[1].scale"),
             (SMALL.replace("\"position\": [0, 0, 0]", "\"position\": [0, NaN, 0]"), "test.json"),
             (
-                SMALL.replace("\"rotate_y_deg\": 90, \"scale\": 1.2", "\"matrix\": [1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]"),
+                SMALL.replace(
+                    "\"rotate_y_deg\": 90, \"scale\": 1.2",
+                    "\"matrix\": [1,0,0,0, 0,0,0,0, 0,0,1,0, 0,0,0,1]",
+                ),
                 "instances[1].matrix: degenerate transform",
             ),
-            (SMALL.replace("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {"), "models.maple: give exactly one"),
             (
-                SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"nowhere.glb\""),
+                SMALL.replace("\"tree\": {", "\"gltf\": \"nowhere.glb\", \"tree\": {"),
+                "models.maple: give exactly one",
+            ),
+            (
+                SMALL.replace(
+                    "\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }",
+                    "\"gltf\": \"nowhere.glb\"",
+                ),
                 "models.maple.gltf: \"nowhere.glb\" is not a file inside the scene's folder",
             ),
             (SMALL.replace("red_maple", "oak"), "models.maple.tree.species: unknown variant `oak`"),
-            (SMALL.replace("\"triangles\": 2000", "\"triangles\": 3"), "models.maple.tree: red_maple needs at least"),
-            (SMALL.replace("\"look_at\": [0, 5, 0]", "\"look_at\": [0, 5, -30]"), "camera: camera position and look_at must be distinct"),
-            (SMALL.replace("\"elevation_deg\": 40", "\"elevation_deg\": 140"), "sun.elevation_deg: 140: valid range [-90, 90]"),
-            (SMALL.replace("\"elevation_deg\": 40, ", ""), "sun.direction: give either direction or both"),
+            (
+                SMALL.replace("\"triangles\": 2000", "\"triangles\": 3"),
+                "models.maple.tree: red_maple needs at least",
+            ),
+            (
+                SMALL.replace("\"look_at\": [0, 5, 0]", "\"look_at\": [0, 5, -30]"),
+                "camera: camera position and look_at must be distinct",
+            ),
+            (
+                SMALL.replace("\"elevation_deg\": 40", "\"elevation_deg\": 140"),
+                "sun.elevation_deg: 140: valid range [-90, 90]",
+            ),
+            (
+                SMALL.replace("\"elevation_deg\": 40, ", ""),
+                "sun.direction: give either direction or both",
+            ),
             (SMALL.replace("[0.1, 0.08, 0.05]", "[0.1, -0.08, 0.05]"), "ground.color"),
-            (SMALL.replace("[0.1, 0.08, 0.05]", "[0.1, 1.5, 0.05]"), "ground.color: [0.1, 1.5, 0.05]: an albedo, each component at most 1"),
+            (
+                SMALL.replace("[0.1, 0.08, 0.05]", "[0.1, 1.5, 0.05]"),
+                "ground.color: [0.1, 1.5, 0.05]: an albedo, each component at most 1",
+            ),
         ];
         for (text, want) in cases {
             let e = error_of(&text);
@@ -447,7 +574,10 @@ mod tests {
     #[test]
     fn the_fern_loads_from_a_scene_relative_path() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/models");
-        let text = SMALL.replace("\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }", "\"gltf\": \"fern_02.glb\"");
+        let text = SMALL.replace(
+            "\"tree\": { \"species\": \"red_maple\", \"triangles\": 2000, \"seed\": 1 }",
+            "\"gltf\": \"fern_02.glb\"",
+        );
         let s = Scene::build(parse(&text, "t.json").unwrap(), &dir, "t.json").unwrap();
         assert_eq!(s.unique_triangles(), 6232);
     }

@@ -111,7 +111,12 @@ impl Model {
     pub fn push_quad(&mut self, q: [Vec3; 4], material: u32) {
         let base = self.positions.len() as u32;
         self.positions.extend_from_slice(&q);
-        self.uvs.extend_from_slice(&[Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0), Vec2::new(0.0, 0.0)]);
+        self.uvs.extend_from_slice(&[
+            Vec2::new(0.0, 1.0),
+            Vec2::new(1.0, 1.0),
+            Vec2::new(1.0, 0.0),
+            Vec2::new(0.0, 0.0),
+        ]);
         self.triangles.push([base, base + 1, base + 2]);
         self.triangles.push([base, base + 2, base + 3]);
         self.material.extend([material, material]);
@@ -137,7 +142,9 @@ impl Model {
                 self.textures.push(t);
             }
         }
-        self.materials.iter_mut().for_each(|m| m.texture = m.texture.and_then(|t| tex_index[t as usize]));
+        self.materials
+            .iter_mut()
+            .for_each(|m| m.texture = m.texture.and_then(|t| tex_index[t as usize]));
     }
 
     /// Corners of triangle `t`.
@@ -217,33 +224,51 @@ impl GltfBudget {
 /// URIs always; sizes are checked against `budget` first. With `mesh`,
 /// only the mesh of that name is read, in its own space (one species of
 /// an instanced scene, whose placements the scene file gives).
-pub fn load_gltf_with(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mesh: Option<&str>) -> anyhow::Result<Model> {
+pub fn load_gltf_with(
+    path: &Path,
+    access: &FileAccess,
+    budget: &mut GltfBudget,
+    mesh: Option<&str>,
+) -> anyhow::Result<Model> {
     // The glTF crates assert on some malformed accessors instead of
     // returning errors; a hostile file must cost its scene, not the process.
     let mut b = *budget;
-    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| load_unguarded(path, access, &mut b, mesh)));
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        load_unguarded(path, access, &mut b, mesh)
+    }));
     match r {
         Ok(Ok(m)) => {
             *budget = b;
             Ok(m)
         }
         Ok(Err(e)) => Err(e),
-        Err(_) => bail!("{}: malformed glTF: the loader failed on it", path.file_name().map(|f| f.to_string_lossy()).unwrap_or_default()),
+        Err(_) => bail!(
+            "{}: malformed glTF: the loader failed on it",
+            path.file_name().map(|f| f.to_string_lossy()).unwrap_or_default()
+        ),
     }
 }
 
-fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mesh: Option<&str>) -> anyhow::Result<Model> {
+fn load_unguarded(
+    path: &Path,
+    access: &FileAccess,
+    budget: &mut GltfBudget,
+    mesh: Option<&str>,
+) -> anyhow::Result<Model> {
     // Inside a bundle, name files as the bundle does: its folder is ours.
     let shown = match access {
-        FileAccess::Inside(base) => {
-            path.strip_prefix(base.canonicalize().unwrap_or_else(|_| base.clone())).or_else(|_| path.strip_prefix(base)).unwrap_or(path)
-        }
+        FileAccess::Inside(base) => path
+            .strip_prefix(base.canonicalize().unwrap_or_else(|_| base.clone()))
+            .or_else(|_| path.strip_prefix(base))
+            .unwrap_or(path),
         FileAccess::Anywhere(_) => path,
     }
     .display()
     .to_string();
-    let bytes = std::fs::read(path).with_context(|| format!("{shown}: cannot load glTF: cannot read the file"))?;
-    let gltf::Gltf { document: doc, blob } = gltf::Gltf::from_slice(&bytes).with_context(|| format!("{shown}: cannot load glTF"))?;
+    let bytes = std::fs::read(path)
+        .with_context(|| format!("{shown}: cannot load glTF: cannot read the file"))?;
+    let gltf::Gltf { document: doc, blob } =
+        gltf::Gltf::from_slice(&bytes).with_context(|| format!("{shown}: cannot load glTF"))?;
     drop(bytes);
     let folder = path.parent().unwrap_or(Path::new("."));
     // Every file the document names must be one we may read, before any is.
@@ -257,17 +282,20 @@ fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mes
         gltf::image::Source::View { .. } => None,
     });
     for uri in uris.chain(image_uris) {
-        if let Some(p) = access.resolve_uri(folder, uri).map_err(|e| anyhow::anyhow!("{shown}: {e}"))? {
+        if let Some(p) =
+            access.resolve_uri(folder, uri).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?
+        {
             files.insert(uri.to_string(), p);
         }
     }
-    let scene = doc.default_scene().or_else(|| doc.scenes().next()).with_context(|| format!("{shown}: the glTF file has no scene"))?;
+    let scene = doc
+        .default_scene()
+        .or_else(|| doc.scenes().next())
+        .with_context(|| format!("{shown}: the glTF file has no scene"))?;
     let only = match mesh {
-        Some(name) => Some(
-            doc.meshes()
-                .find(|m| m.name() == Some(name))
-                .with_context(|| format!("{shown}: no mesh named {:?}", name.chars().take(64).collect::<String>()))?,
-        ),
+        Some(name) => Some(doc.meshes().find(|m| m.name() == Some(name)).with_context(|| {
+            format!("{shown}: no mesh named {:?}", name.chars().take(64).collect::<String>())
+        })?),
         None => None,
     };
     let triangles = match &only {
@@ -276,10 +304,13 @@ fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mes
     };
     check_accessors(&doc).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     if triangles > budget.triangles {
-        bail!("{shown}: {triangles} triangles is more than the {} this scene may still have", budget.triangles);
+        bail!(
+            "{shown}: {triangles} triangles is more than the {} this scene may still have",
+            budget.triangles
+        );
     }
-    let buffers =
-        gltf::import_buffers(&doc, Some(folder), blob).map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF buffers: {}", gltf_error(&e)))?;
+    let buffers = gltf::import_buffers(&doc, Some(folder), blob)
+        .map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF buffers: {}", gltf_error(&e)))?;
     // The images the read triangles can show: all of them, or the base
     // colours of the named mesh's materials.
     let wanted: Vec<bool> = match &only {
@@ -296,11 +327,15 @@ fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mes
     };
     let mut texels = 0u64;
     for img in doc.images().filter(|i| wanted[i.index()]) {
-        let (w, h) = image_size(&img, &files, &buffers).with_context(|| format!("{shown}: image {}: cannot read its size", img.index()))?;
+        let (w, h) = image_size(&img, &files, &buffers)
+            .with_context(|| format!("{shown}: image {}: cannot read its size", img.index()))?;
         texels = texels.saturating_add(u64::from(w) * u64::from(h));
     }
     if texels > budget.texture_pixels {
-        bail!("{shown}: {texels} texels of textures is more than the {} this scene may still have", budget.texture_pixels);
+        bail!(
+            "{shown}: {texels} texels of textures is more than the {} this scene may still have",
+            budget.texture_pixels
+        );
     }
     let images = doc
         .images()
@@ -308,7 +343,9 @@ fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mes
             wanted[i.index()]
                 .then(|| gltf::image::Data::from_source(i.source(), Some(folder), &buffers))
                 .transpose()
-                .map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF images: {}", gltf_error(&e)))
+                .map_err(|e| {
+                    anyhow::anyhow!("{shown}: cannot load glTF images: {}", gltf_error(&e))
+                })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     budget.triangles -= triangles;
@@ -327,17 +364,24 @@ fn load_unguarded(path: &Path, access: &FileAccess, budget: &mut GltfBudget, mes
     }
     for m in doc.materials() {
         let pbr = m.pbr_metallic_roughness();
-        let texture = pbr.base_color_texture().and_then(|t| texture_of_image.get(t.texture().source().index()).copied().flatten());
+        let texture = pbr
+            .base_color_texture()
+            .and_then(|t| texture_of_image.get(t.texture().source().index()).copied().flatten());
         let alpha_cutoff = match m.alpha_mode() {
             gltf::material::AlphaMode::Opaque => None,
             gltf::material::AlphaMode::Mask => Some(m.alpha_cutoff().unwrap_or(0.5)),
             gltf::material::AlphaMode::Blend => Some(0.5),
         };
-        let image = pbr.base_color_texture().and_then(|t| images.get(t.texture().source().index())?.as_ref());
+        let image = pbr
+            .base_color_texture()
+            .and_then(|t| images.get(t.texture().source().index())?.as_ref());
         if let (Some(_), Some(img)) = (alpha_cutoff, image)
             && matches!(
                 img.format,
-                gltf::image::Format::R8G8B8 | gltf::image::Format::R8 | gltf::image::Format::R16G16B16 | gltf::image::Format::R32G32B32FLOAT
+                gltf::image::Format::R8G8B8
+                    | gltf::image::Format::R8
+                    | gltf::image::Format::R16G16B16
+                    | gltf::image::Format::R32G32B32FLOAT
             )
         {
             tracing::warn!(
@@ -396,7 +440,9 @@ fn scene_triangles(scene: &gltf::Scene) -> Result<u64, String> {
     let (mut triangles, mut placements) = (0u64, 0u64);
     while let Some((node, depth)) = stack.pop() {
         if depth >= MAX_NODE_DEPTH {
-            return Err(format!("the node hierarchy is deeper than {MAX_NODE_DEPTH} (a node that is its own descendant?)"));
+            return Err(format!(
+                "the node hierarchy is deeper than {MAX_NODE_DEPTH} (a node that is its own descendant?)"
+            ));
         }
         placements += 1;
         if placements > MAX_NODE_PLACEMENTS {
@@ -414,7 +460,11 @@ fn scene_triangles(scene: &gltf::Scene) -> Result<u64, String> {
 fn mesh_triangles(m: &gltf::Mesh) -> u64 {
     m.primitives()
         .filter(|p| p.mode() == gltf::mesh::Mode::Triangles)
-        .map(|p| p.indices().or_else(|| p.get(&gltf::Semantic::Positions)).map_or(0, |a| a.count() as u64 / 3))
+        .map(|p| {
+            p.indices()
+                .or_else(|| p.get(&gltf::Semantic::Positions))
+                .map_or(0, |a| a.count() as u64 / 3)
+        })
         .fold(0u64, u64::saturating_add)
 }
 
@@ -430,13 +480,23 @@ fn check_accessors(doc: &gltf::Document) -> Result<(), String> {
             let uses = [
                 (p.get(&gltf::Semantic::Positions), "POSITION", &[N::Vec3][..], &[D::F32][..]),
                 (p.indices(), "indices", &[N::Scalar][..], &[D::U8, D::U16, D::U32][..]),
-                (p.get(&gltf::Semantic::TexCoords(0)), "TEXCOORD_0", &[N::Vec2][..], &[D::F32, D::U8, D::U16][..]),
+                (
+                    p.get(&gltf::Semantic::TexCoords(0)),
+                    "TEXCOORD_0",
+                    &[N::Vec2][..],
+                    &[D::F32, D::U8, D::U16][..],
+                ),
             ];
             for (acc, what, dims, types) in uses {
                 let Some(a) = acc else { continue };
-                let bad = |m: String| Err(format!("mesh {mesh:?}: {what} accessor {}: {m}", a.index()));
+                let bad =
+                    |m: String| Err(format!("mesh {mesh:?}: {what} accessor {}: {m}", a.index()));
                 if !dims.contains(&a.dimensions()) || !types.contains(&a.data_type()) {
-                    return bad(format!("{:?} of {:?} cannot be read as {what}", a.dimensions(), a.data_type()));
+                    return bad(format!(
+                        "{:?} of {:?} cannot be read as {what}",
+                        a.dimensions(),
+                        a.data_type()
+                    ));
                 }
                 if a.count() == 0 || a.count() > 1 << 28 {
                     return bad(format!("count {} outside [1, 2^28]", a.count()));
@@ -448,12 +508,19 @@ fn check_accessors(doc: &gltf::Document) -> Result<(), String> {
                 let element = a.size();
                 let stride = view.stride().unwrap_or(element);
                 if stride < element {
-                    return bad(format!("stride {stride} is less than the element's {element} bytes"));
+                    return bad(format!(
+                        "stride {stride} is less than the element's {element} bytes"
+                    ));
                 }
                 let end_of_first = (a.offset() as u64).checked_add(element as u64);
-                let span = (a.count() as u64 - 1).checked_mul(stride as u64).zip(end_of_first).and_then(|(v, e)| v.checked_add(e));
+                let span = (a.count() as u64 - 1)
+                    .checked_mul(stride as u64)
+                    .zip(end_of_first)
+                    .and_then(|(v, e)| v.checked_add(e));
                 if span.is_none_or(|s| s > view.length() as u64)
-                    || (view.offset() as u64).checked_add(view.length() as u64).is_none_or(|end| end > view.buffer().length() as u64)
+                    || (view.offset() as u64)
+                        .checked_add(view.length() as u64)
+                        .is_none_or(|end| end > view.buffer().length() as u64)
                 {
                     return bad("runs past its buffer view or the view past its buffer".into());
                 }
@@ -471,19 +538,31 @@ fn image_size(
 ) -> anyhow::Result<(u32, u32)> {
     let reader = match img.source() {
         gltf::image::Source::Uri { uri, .. } => match files.get(uri) {
-            Some(p) => image::ImageReader::new(std::io::BufReader::new(std::fs::File::open(p)?)).with_guessed_format()?.into_dimensions()?,
+            Some(p) => image::ImageReader::new(std::io::BufReader::new(std::fs::File::open(p)?))
+                .with_guessed_format()?
+                .into_dimensions()?,
             None => {
                 use base64::Engine as _;
                 // A data: URI; the bytes are base64 after the comma.
-                let b64 = uri.split_once(";base64,").map(|(_, d)| d).context("a data: URI that is not base64")?;
+                let b64 = uri
+                    .split_once(";base64,")
+                    .map(|(_, d)| d)
+                    .context("a data: URI that is not base64")?;
                 let bytes = base64::engine::general_purpose::STANDARD.decode(b64)?;
-                image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format()?.into_dimensions()?
+                image::ImageReader::new(std::io::Cursor::new(bytes))
+                    .with_guessed_format()?
+                    .into_dimensions()?
             }
         },
         gltf::image::Source::View { view, .. } => {
             let data = buffers.get(view.buffer().index()).context("no such buffer")?;
-            let bytes = data.0.get(view.offset()..view.offset() + view.length()).context("buffer view runs past its buffer")?;
-            image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format()?.into_dimensions()?
+            let bytes = data
+                .0
+                .get(view.offset()..view.offset() + view.length())
+                .context("buffer view runs past its buffer")?;
+            image::ImageReader::new(std::io::Cursor::new(bytes))
+                .with_guessed_format()?
+                .into_dimensions()?
         }
     };
     Ok(reader)
@@ -493,7 +572,9 @@ fn image_size(
 fn gltf_error(e: &gltf::Error) -> String {
     match e {
         gltf::Error::Io(_) => "a file it names cannot be read".into(),
-        gltf::Error::BufferLength { buffer, expected, actual } => format!("buffer {buffer} holds {actual} bytes where it declares {expected}"),
+        gltf::Error::BufferLength { buffer, expected, actual } => {
+            format!("buffer {buffer} holds {actual} bytes where it declares {expected}")
+        }
         other => other.to_string(),
     }
 }
@@ -503,12 +584,20 @@ fn to_rgba8(img: &gltf::image::Data) -> Option<Texture> {
     let px = (img.width * img.height) as usize;
     let rgba = match img.format {
         Format::R8G8B8A8 => img.pixels.clone(),
-        Format::R8G8B8 => img.pixels.as_chunks::<3>().0.iter().flat_map(|c| [c[0], c[1], c[2], 255]).collect(),
-        Format::R8G8 => img.pixels.as_chunks::<2>().0.iter().flat_map(|c| [c[0], c[0], c[0], c[1]]).collect(),
+        Format::R8G8B8 => {
+            img.pixels.as_chunks::<3>().0.iter().flat_map(|c| [c[0], c[1], c[2], 255]).collect()
+        }
+        Format::R8G8 => {
+            img.pixels.as_chunks::<2>().0.iter().flat_map(|c| [c[0], c[0], c[0], c[1]]).collect()
+        }
         Format::R8 => img.pixels.iter().flat_map(|&c| [c, c, c, 255]).collect(),
         _ => return None,
     };
-    (rgba.len() == 4 * px && px > 0).then_some(Texture { width: img.width, height: img.height, rgba })
+    (rgba.len() == 4 * px && px > 0).then_some(Texture {
+        width: img.width,
+        height: img.height,
+        rgba,
+    })
 }
 
 fn add_node(
@@ -550,7 +639,11 @@ fn add_mesh(
             for p in pos {
                 let v = world.transform_point3(Vec3::from(p));
                 if !v.is_finite() {
-                    bail!("{}: mesh {:?} has a non-finite vertex position", path.display(), m.name().unwrap_or("?"));
+                    bail!(
+                        "{}: mesh {:?} has a non-finite vertex position",
+                        path.display(),
+                        m.name().unwrap_or("?")
+                    );
                 }
                 model.positions.push(v);
             }
@@ -572,7 +665,11 @@ fn add_mesh(
                 None => (0..count).collect(),
             };
             if let Some(&bad) = indices.iter().find(|&&i| i >= count) {
-                bail!("{}: mesh {:?} indexes vertex {bad} of {count}", path.display(), m.name().unwrap_or("?"));
+                bail!(
+                    "{}: mesh {:?} indexes vertex {bad} of {count}",
+                    path.display(),
+                    m.name().unwrap_or("?")
+                );
             }
             let material = prim.material().index().map_or(default_material, |i| i as u32);
             for t in indices.as_chunks::<3>().0 {

@@ -39,13 +39,23 @@ impl FileAccess {
             }
             FileAccess::Inside(root) => {
                 // One answer for every refusal, so it tells nothing of outside.
-                let outside = || format!("{shown:?} is not a file inside the scene's folder (scenes name files by relative paths, without \"..\")");
-                if rel.as_os_str().is_empty() || rel.is_absolute() || rel.components().any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
+                let outside = || {
+                    format!(
+                        "{shown:?} is not a file inside the scene's folder (scenes name files by relative paths, without \"..\")"
+                    )
+                };
+                if rel.as_os_str().is_empty()
+                    || rel.is_absolute()
+                    || rel
+                        .components()
+                        .any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
                 {
                     return Err(outside());
                 }
                 let full = from.join(rel);
-                let (Ok(canon), Ok(root)) = (full.canonicalize(), root.canonicalize()) else { return Err(outside()) };
+                let (Ok(canon), Ok(root)) = (full.canonicalize(), root.canonicalize()) else {
+                    return Err(outside());
+                };
                 if !canon.starts_with(&root) || !canon.is_file() {
                     return Err(outside());
                 }
@@ -62,9 +72,13 @@ impl FileAccess {
             return Ok(None);
         }
         if uri.contains(':') {
-            return Err(format!("URI {:?} has a scheme other than data: (only relative paths and data: URIs are read)", clip(uri)));
+            return Err(format!(
+                "URI {:?} has a scheme other than data: (only relative paths and data: URIs are read)",
+                clip(uri)
+            ));
         }
-        let decoded = percent_decode(uri).ok_or_else(|| format!("URI {:?} is not valid percent-encoded UTF-8", clip(uri)))?;
+        let decoded = percent_decode(uri)
+            .ok_or_else(|| format!("URI {:?} is not valid percent-encoded UTF-8", clip(uri)))?;
         self.resolve(from, Path::new(&decoded)).map(Some)
     }
 }
@@ -116,11 +130,19 @@ mod tests {
         let a = FileAccess::Inside(root.clone());
         assert!(a.resolve(&root, Path::new("sub/model.glb")).is_ok());
         assert!(a.resolve(&root, Path::new("./sub/model.glb")).is_ok());
-        let outside = [d.join("secret.glb"), PathBuf::from("../secret.glb"), PathBuf::from("sub/../../secret.glb"), PathBuf::from("/etc/passwd")];
+        let outside = [
+            d.join("secret.glb"),
+            PathBuf::from("../secret.glb"),
+            PathBuf::from("sub/../../secret.glb"),
+            PathBuf::from("/etc/passwd"),
+        ];
         for p in &outside {
             let e = a.resolve(&root, p).unwrap_err();
             // It names the path as given, and says nothing of what is there.
-            assert!(!e.contains("exist") && !e.contains("bytes") && !e.contains("No such file"), "{e}");
+            assert!(
+                !e.contains("exist") && !e.contains("bytes") && !e.contains("No such file"),
+                "{e}"
+            );
         }
         // Existing and missing files outside get the same answer.
         assert_eq!(
@@ -140,7 +162,10 @@ mod tests {
         let d = scratch("uri");
         let root = d.join("inside");
         let a = FileAccess::Inside(root.clone());
-        assert_eq!(a.resolve_uri(&root, "data:application/octet-stream;base64,AAAA").unwrap(), None);
+        assert_eq!(
+            a.resolve_uri(&root, "data:application/octet-stream;base64,AAAA").unwrap(),
+            None
+        );
         assert!(a.resolve_uri(&root, "sub/model.glb").unwrap().is_some());
         assert!(a.resolve_uri(&root, "sub%2Fmodel.glb").unwrap().is_some());
         for bad in [

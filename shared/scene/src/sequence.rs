@@ -33,7 +33,10 @@ impl View {
         }
         if let Some(s) = self.sun_towards {
             let v = Vec3::from(s);
-            if !v.is_finite() || v.abs().max_element() > MAX_COORDINATE || v.length_squared() < 1e-12 {
+            if !v.is_finite()
+                || v.abs().max_element() > MAX_COORDINATE
+                || v.length_squared() < 1e-12
+            {
                 return Err(format!("sun_towards {s:?}: a finite, non-zero vector"));
             }
         }
@@ -63,7 +66,8 @@ pub fn camera_of(c: &CameraSpec) -> Result<Camera, String> {
             return Err(format!("camera {name} {v:?}: finite values within ±{MAX_COORDINATE}"));
         }
     }
-    Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg).map_err(|e| format!("camera: {e}"))
+    Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg)
+        .map_err(|e| format!("camera: {e}"))
 }
 
 /// The sun's place in the sky.
@@ -85,10 +89,16 @@ impl SunAngles {
 
     fn check(&self, name: &str) -> Result<(), String> {
         if !(self.elevation_deg.is_finite() && self.elevation_deg.abs() <= 90.0) {
-            return Err(format!("sequence.sun.{name}.elevation_deg {}: valid range [-90, 90]", self.elevation_deg));
+            return Err(format!(
+                "sequence.sun.{name}.elevation_deg {}: valid range [-90, 90]",
+                self.elevation_deg
+            ));
         }
         if !(self.azimuth_deg.is_finite() && self.azimuth_deg.abs() <= 3600.0) {
-            return Err(format!("sequence.sun.{name}.azimuth_deg {}: valid range [-3600, 3600]", self.azimuth_deg));
+            return Err(format!(
+                "sequence.sun.{name}.azimuth_deg {}: valid range [-3600, 3600]",
+                self.azimuth_deg
+            ));
         }
         Ok(())
     }
@@ -154,10 +164,17 @@ impl SequenceSpec {
         }
         for (i, k) in self.camera.iter().enumerate() {
             if k.frame >= self.frames {
-                return Err(format!("sequence.camera[{i}].frame {}: the sequence has frames 0 to {}", k.frame, self.frames - 1));
+                return Err(format!(
+                    "sequence.camera[{i}].frame {}: the sequence has frames 0 to {}",
+                    k.frame,
+                    self.frames - 1
+                ));
             }
             if i > 0 && k.frame <= self.camera[i - 1].frame {
-                return Err(format!("sequence.camera[{i}].frame {}: keyframes must come in increasing frame order", k.frame));
+                return Err(format!(
+                    "sequence.camera[{i}].frame {}: keyframes must come in increasing frame order",
+                    k.frame
+                ));
             }
             camera_of(&k.pose()).map_err(|e| format!("sequence.camera[{i}]: {e}"))?;
         }
@@ -168,8 +185,10 @@ impl SequenceSpec {
                 sun_towards: self.sun.map(|s| {
                     let t = f as f32 / last;
                     SunAngles {
-                        elevation_deg: s.from.elevation_deg + t * (s.to.elevation_deg - s.from.elevation_deg),
-                        azimuth_deg: s.from.azimuth_deg + t * (s.to.azimuth_deg - s.from.azimuth_deg),
+                        elevation_deg: s.from.elevation_deg
+                            + t * (s.to.elevation_deg - s.from.elevation_deg),
+                        azimuth_deg: s.from.azimuth_deg
+                            + t * (s.to.azimuth_deg - s.from.azimuth_deg),
                     }
                     .towards()
                 }),
@@ -187,7 +206,12 @@ impl SequenceSpec {
 impl CameraKey {
     /// The key's camera.
     pub fn pose(&self) -> CameraSpec {
-        CameraSpec { position: self.position, look_at: self.look_at, up: self.up, fov_y_deg: self.fov_y_deg }
+        CameraSpec {
+            position: self.position,
+            look_at: self.look_at,
+            up: self.up,
+            fov_y_deg: self.fov_y_deg,
+        }
     }
 }
 
@@ -219,7 +243,10 @@ fn camera_at(keys: &[CameraKey], frame: u32) -> CameraSpec {
 /// The uniform Catmull–Rom spline through `p1` (t = 0) and `p2` (t = 1).
 fn catmull_rom(p0: Vec3, p1: Vec3, p2: Vec3, p3: Vec3, t: f32) -> Vec3 {
     let (t2, t3) = (t * t, t * t * t);
-    0.5 * ((2.0 * p1) + (p2 - p0) * t + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2 + (3.0 * p1 - p0 - 3.0 * p2 + p3) * t3)
+    0.5 * ((2.0 * p1)
+        + (p2 - p0) * t
+        + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * t2
+        + (3.0 * p1 - p0 - 3.0 * p2 + p3) * t3)
 }
 
 #[cfg(test)]
@@ -227,16 +254,31 @@ mod tests {
     use super::*;
 
     fn key(frame: u32, x: f32) -> CameraKey {
-        CameraKey { frame, position: [x, 2.0, -10.0], look_at: [0.0, 2.0, 0.0], up: y_up(), fov_y_deg: 40.0 + frame as f32 }
+        CameraKey {
+            frame,
+            position: [x, 2.0, -10.0],
+            look_at: [0.0, 2.0, 0.0],
+            up: y_up(),
+            fov_y_deg: 40.0 + frame as f32,
+        }
     }
 
     #[test]
     fn the_path_passes_through_its_keys_and_holds_beyond_them() {
-        let s = SequenceSpec { frames: 12, sun: None, camera: vec![key(2, -4.0), key(6, 0.0), key(10, 4.0)] };
+        let s = SequenceSpec {
+            frames: 12,
+            sun: None,
+            camera: vec![key(2, -4.0), key(6, 0.0), key(10, 4.0)],
+        };
         let v = s.views().unwrap();
         assert_eq!(v.len(), 12);
         for k in &s.camera {
-            assert_eq!(v[k.frame as usize].camera.unwrap().position, k.position, "frame {}", k.frame);
+            assert_eq!(
+                v[k.frame as usize].camera.unwrap().position,
+                k.position,
+                "frame {}",
+                k.frame
+            );
         }
         assert_eq!(v[0].camera.unwrap().position, [-4.0, 2.0, -10.0]);
         assert_eq!(v[11].camera.unwrap().position, [4.0, 2.0, -10.0]);
@@ -248,8 +290,10 @@ mod tests {
 
     #[test]
     fn the_sun_sweeps_from_one_place_to_the_other() {
-        let sweep =
-            SunSweep { from: SunAngles { elevation_deg: 10.0, azimuth_deg: 90.0 }, to: SunAngles { elevation_deg: 50.0, azimuth_deg: 270.0 } };
+        let sweep = SunSweep {
+            from: SunAngles { elevation_deg: 10.0, azimuth_deg: 90.0 },
+            to: SunAngles { elevation_deg: 50.0, azimuth_deg: 270.0 },
+        };
         let v = SequenceSpec { frames: 5, sun: Some(sweep), camera: Vec::new() }.views().unwrap();
         let elevation = |v: &View| v.sun_towards.unwrap()[1].asin().to_degrees();
         let want = [10.0, 20.0, 30.0, 40.0, 50.0];
@@ -267,13 +311,25 @@ mod tests {
         let cases = [
             (SequenceSpec { frames: 0, ..ok() }, "sequence.frames 0"),
             (SequenceSpec { frames: MAX_FRAMES + 1, ..ok() }, "sequence.frames"),
-            (SequenceSpec { camera: vec![key(3, 1.0), key(1, 0.0)], ..ok() }, "increasing frame order"),
+            (
+                SequenceSpec { camera: vec![key(3, 1.0), key(1, 0.0)], ..ok() },
+                "increasing frame order",
+            ),
             (SequenceSpec { camera: vec![key(9, 1.0)], ..ok() }, "camera[0].frame 9"),
             (
-                SequenceSpec { camera: vec![CameraKey { look_at: [0.0, 2.0, -10.0], ..key(0, 0.0) }], ..ok() },
+                SequenceSpec {
+                    camera: vec![CameraKey { look_at: [0.0, 2.0, -10.0], ..key(0, 0.0) }],
+                    ..ok()
+                },
                 "camera[0]: camera: camera position and look_at",
             ),
-            (SequenceSpec { camera: vec![CameraKey { position: [f32::NAN, 0.0, 0.0], ..key(0, 0.0) }], ..ok() }, "camera position"),
+            (
+                SequenceSpec {
+                    camera: vec![CameraKey { position: [f32::NAN, 0.0, 0.0], ..key(0, 0.0) }],
+                    ..ok()
+                },
+                "camera position",
+            ),
             (
                 SequenceSpec {
                     sun: Some(SunSweep {
@@ -289,6 +345,11 @@ mod tests {
             let e = s.views().unwrap_err();
             assert!(e.contains(want), "{want}: {e}");
         }
-        assert!(View { camera: None, sun_towards: Some([0.0; 3]) }.check().unwrap_err().contains("non-zero"));
+        assert!(
+            View { camera: None, sun_towards: Some([0.0; 3]) }
+                .check()
+                .unwrap_err()
+                .contains("non-zero")
+        );
     }
 }

@@ -43,10 +43,20 @@ pub fn forest(o: &ForestOptions) -> Result<SceneFile, String> {
     let mut models = BTreeMap::new();
     let mut kinds = Vec::new();
     for (k, sp) in Species::ALL.into_iter().enumerate() {
-        let tris = ((sp.shape().paper_triangles as f64 * o.triangle_scale).round() as u32).max(1000);
+        let tris =
+            ((sp.shape().paper_triangles as f64 * o.triangle_scale).round() as u32).max(1000);
         models.insert(
             sp.name().to_string(),
-            ModelSpec { gltf: None, mesh: None, tree: Some(TreeParams { species: sp, triangles: Some(tris), seed: o.seed + k as u64 }), lb: None },
+            ModelSpec {
+                gltf: None,
+                mesh: None,
+                tree: Some(TreeParams {
+                    species: sp,
+                    triangles: Some(tris),
+                    seed: o.seed + k as u64,
+                }),
+                lb: None,
+            },
         );
         kinds.extend(std::iter::repeat_n(sp, instances_at(sp, o.scale) as usize));
     }
@@ -73,8 +83,19 @@ pub fn forest(o: &ForestOptions) -> Result<SceneFile, String> {
         models,
         instances,
         // From the southern edge, above the understorey, looking into the stand.
-        camera: CameraSpec { position: [0.0, 14.0, -side / 2.0 - 12.0], look_at: [0.0, 7.0, 0.0], up: [0.0, 1.0, 0.0], fov_y_deg: 35.0 },
-        sun: SunSpec { elevation_deg: Some(45.0), azimuth_deg: Some(60.0), direction: None, temperature_k: 6500.0, intensity: 3.0 },
+        camera: CameraSpec {
+            position: [0.0, 14.0, -side / 2.0 - 12.0],
+            look_at: [0.0, 7.0, 0.0],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 35.0,
+        },
+        sun: SunSpec {
+            elevation_deg: Some(45.0),
+            azimuth_deg: Some(60.0),
+            direction: None,
+            temperature_k: 6500.0,
+            intensity: 3.0,
+        },
         sky: SkySpec::default(),
         ground: Some(GroundSpec { color: [0.1, 0.08, 0.05] }),
         lighting: LightingMode::Lb,
@@ -94,7 +115,10 @@ fn scatter(n: usize, side: f32, min_gap: f32, rng: &mut SplitMix64) -> Vec<[f32;
     let cell = min_gap.max(1e-3);
     let cells = (side / cell).ceil() as usize + 1;
     let mut grid: Vec<Vec<usize>> = vec![Vec::new(); cells * cells];
-    let at = |p: [f32; 2]| (((p[0] + side / 2.0) / cell) as usize).min(cells - 1) + cells * (((p[1] + side / 2.0) / cell) as usize).min(cells - 1);
+    let at = |p: [f32; 2]| {
+        (((p[0] + side / 2.0) / cell) as usize).min(cells - 1)
+            + cells * (((p[1] + side / 2.0) / cell) as usize).min(cells - 1)
+    };
     while pts.len() < n {
         let mut best = [rng.range(-side / 2.0, side / 2.0), rng.range(-side / 2.0, side / 2.0)];
         for _ in 0..30 {
@@ -128,7 +152,11 @@ mod tests {
     fn scale_one_is_the_papers_table_2() {
         let f = forest(&ForestOptions::default()).unwrap();
         assert_eq!(f.instances.len(), 962);
-        let tris: u64 = f.instances.iter().map(|i| f.models[&i.model].tree.unwrap().triangles.unwrap() as u64).sum();
+        let tris: u64 = f
+            .instances
+            .iter()
+            .map(|i| f.models[&i.model].tree.unwrap().triangles.unwrap() as u64)
+            .sum();
         assert_eq!(tris, 273_376_528);
         for sp in Species::ALL {
             let count = f.instances.iter().filter(|i| i.model == sp.name()).count() as u32;

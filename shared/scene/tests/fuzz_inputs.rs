@@ -66,9 +66,10 @@ const MAX_INSTANCES: usize = 64;
 fn cheap_to_build(f: &SceneFile) -> bool {
     f.models.len() <= MAX_MODELS
         && f.instances.len() <= MAX_INSTANCES
-        && f.models
-            .values()
-            .all(|m| m.tree.is_none_or(|t| t.triangles.is_some_and(|n| n <= MAX_TREE_TRIANGLES)) && m.gltf.as_deref().is_none_or(stays_inside))
+        && f.models.values().all(|m| {
+            m.tree.is_none_or(|t| t.triangles.is_some_and(|n| n <= MAX_TREE_TRIANGLES))
+                && m.gltf.as_deref().is_none_or(stays_inside)
+        })
 }
 
 /// A relative path of plain names only.
@@ -290,7 +291,13 @@ impl Sandbox {
         let climbs: Vec<String> = (1..=5)
             .flat_map(|n| {
                 let up = "../".repeat(n);
-                [format!("{up}{t}"), format!("a/{up}{t}"), format!("a/b/{up}{t}"), format!("./{up}{t}"), format!("{up}d3/{t}")]
+                [
+                    format!("{up}{t}"),
+                    format!("a/{up}{t}"),
+                    format!("a/b/{up}{t}"),
+                    format!("./{up}{t}"),
+                    format!("{up}d3/{t}"),
+                ]
             })
             .collect();
         let fixed: Vec<String> = vec![
@@ -339,12 +346,17 @@ impl Sandbox {
     /// `dir` for the next case.
     fn check_nothing_escaped(&self, what: &str) -> TestCaseResult {
         let now = self.outside_dir();
-        let new: Vec<_> = now.iter().filter(|(p, m)| self.before.get(*p) != Some(m)).map(|(p, _)| p).collect();
+        let new: Vec<_> =
+            now.iter().filter(|(p, m)| self.before.get(*p) != Some(m)).map(|(p, _)| p).collect();
         let in_temp = std::env::temp_dir().join(&self.token);
         let escaped_to_temp = in_temp.exists();
         std::fs::remove_file(&in_temp).ok();
         std::fs::remove_dir_all(&self.dir).ok();
-        prop_assert!(new.is_empty() && !escaped_to_temp, "{what} wrote outside {}: {new:?} {in_temp:?}", self.dir.display());
+        prop_assert!(
+            new.is_empty() && !escaped_to_temp,
+            "{what} wrote outside {}: {new:?} {in_temp:?}",
+            self.dir.display()
+        );
         Ok(())
     }
 }
@@ -435,7 +447,9 @@ fn bundle_is_cheap(bytes: &[u8]) -> bool {
         return true;
     }
     let len = u64::from_le_bytes(bytes[8..16].try_into().unwrap());
-    let Some(manifest) = usize::try_from(len).ok().and_then(|l| bytes[16..].get(..l)) else { return true };
+    let Some(manifest) = usize::try_from(len).ok().and_then(|l| bytes[16..].get(..l)) else {
+        return true;
+    };
     let Ok(mut v) = serde_json::from_slice::<Value>(manifest) else { return true };
     let Some(scene) = v.get_mut("scene").map(Value::take) else { return true };
     let Ok(file) = serde_json::from_value::<SceneFile>(scene) else { return true };
@@ -539,11 +553,13 @@ fn any_json() -> impl Strategy<Value = Value> {
         proptest::sample::select(EDGE_STRINGS).prop_map(|s| json!(s)),
         ".{0,8}".prop_map(Value::String),
     ];
-    let key = prop_oneof![4 => proptest::sample::select(KEYS).prop_map(String::from), 1 => "[a-z_]{0,8}"];
+    let key =
+        prop_oneof![4 => proptest::sample::select(KEYS).prop_map(String::from), 1 => "[a-z_]{0,8}"];
     leaf.prop_recursive(5, 64, 6, move |inner| {
         prop_oneof![
             proptest::collection::vec(inner.clone(), 0..6).prop_map(Value::Array),
-            proptest::collection::btree_map(key.clone(), inner, 0..6).prop_map(|m| Value::Object(m.into_iter().collect())),
+            proptest::collection::btree_map(key.clone(), inner, 0..6)
+                .prop_map(|m| Value::Object(m.into_iter().collect())),
         ]
     })
 }
@@ -621,7 +637,9 @@ fn mutate(doc: &Value, muts: &[Mutation]) -> String {
                         Value::Object(mut o) => {
                             if j.index(2) == 0 {
                                 o.clear();
-                            } else if let Some((k, c)) = o.iter().next().map(|(k, c)| (k.clone(), c.clone())) {
+                            } else if let Some((k, c)) =
+                                o.iter().next().map(|(k, c)| (k.clone(), c.clone()))
+                            {
                                 o.insert(format!("{k}2"), c);
                             }
                             Value::Object(o)
@@ -716,15 +734,21 @@ fn mutated_scene() -> impl Strategy<Value = String> {
 // ---------------------------------------------------------------------------
 
 /// `valid` nine times in ten, else `edge`.
-fn or_edge<T: std::fmt::Debug>(valid: impl Strategy<Value = T> + 'static, edge: impl Strategy<Value = T> + 'static) -> BoxedStrategy<T> {
+fn or_edge<T: std::fmt::Debug>(
+    valid: impl Strategy<Value = T> + 'static,
+    edge: impl Strategy<Value = T> + 'static,
+) -> BoxedStrategy<T> {
     prop_oneof![9 => valid, 1 => edge].boxed()
 }
 
 /// Floats at and past the edges of f32 (1e39 parses as infinity).
 fn edge_float() -> impl Strategy<Value = Value> {
     prop_oneof![
-        proptest::sample::select(vec![0.0f64, -0.0, 1e-45, 1e-40, 1e-12, -1e-12, 3.4e38, -3.4e38, 3.5e38, 1e39, -1e39, 1e300, 1e20, -1e20])
-            .prop_map(|x| json!(x)),
+        proptest::sample::select(vec![
+            0.0f64, -0.0, 1e-45, 1e-40, 1e-12, -1e-12, 3.4e38, -3.4e38, 3.5e38, 1e39, -1e39, 1e300,
+            1e20, -1e20
+        ])
+        .prop_map(|x| json!(x)),
         any::<f32>().prop_filter("finite", |x| x.is_finite()).prop_map(|x| json!(x)),
     ]
 }
@@ -737,8 +761,15 @@ fn float_in(lo: f64, hi: f64) -> BoxedStrategy<Value> {
 fn vec3_in(lo: f64, hi: f64) -> BoxedStrategy<Value> {
     let edge = prop_oneof![
         [edge_float(), edge_float(), edge_float()].prop_map(|a| json!(a)),
-        proptest::sample::select(vec![[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [1e-20, 0.0, 0.0], [3e38, 3e38, 3e38], [-3e38, 0.0, 3e38]])
-            .prop_map(|a| json!(a)),
+        proptest::sample::select(vec![
+            [0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, -1.0, 0.0],
+            [1e-20, 0.0, 0.0],
+            [3e38, 3e38, 3e38],
+            [-3e38, 0.0, 3e38]
+        ])
+        .prop_map(|a| json!(a)),
     ];
     or_edge([lo..hi, lo..hi, lo..hi].prop_map(|a| json!(a)), edge)
 }
@@ -770,9 +801,19 @@ fn lb() -> impl Strategy<Value = Value> {
 }
 
 fn model() -> impl Strategy<Value = Value> {
-    let species = proptest::sample::select(vec!["red_maple", "ohio_buckeye", "paper_birch", "southern_catalpa", "american_beech"]);
-    let triangles = or_edge(240u32..=MAX_TREE_TRIANGLES, prop_oneof![0u32..240, proptest::sample::select(vec![u32::MAX, 50_000_001])]);
-    let tree = (species, triangles, any::<u64>()).prop_map(|(s, n, seed)| json!({ "species": s, "triangles": n, "seed": seed }));
+    let species = proptest::sample::select(vec![
+        "red_maple",
+        "ohio_buckeye",
+        "paper_birch",
+        "southern_catalpa",
+        "american_beech",
+    ]);
+    let triangles = or_edge(
+        240u32..=MAX_TREE_TRIANGLES,
+        prop_oneof![0u32..240, proptest::sample::select(vec![u32::MAX, 50_000_001])],
+    );
+    let tree = (species, triangles, any::<u64>())
+        .prop_map(|(s, n, seed)| json!({ "species": s, "triangles": n, "seed": seed }));
     let source = prop_oneof![
         12 => tree.prop_map(|t| json!({ "tree": t })),
         4 => proptest::sample::select(vec!["tri.gltf", "quad.glb"]).prop_map(|g| json!({ "gltf": g })),
@@ -792,14 +833,23 @@ const MODEL_NAMES: [&str; 3] = ["a", "b", "c"];
 
 /// An instance of one of `models` models (or, now and then, of none).
 fn instance() -> impl Strategy<Value = (Index, Value)> {
-    let matrix = proptest::collection::vec((any::<Index>(), float_in(-10.0, 10.0)), 0..4).prop_map(|edits| {
-        let mut m = [1.0f64, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0].map(|x| json!(x));
-        for (i, v) in edits {
-            m[i.index(16)] = v;
-        }
-        json!(m)
-    });
-    let place = (vec3_in(-100.0, 100.0), maybe(float_in(-720.0, 720.0)), maybe(float_in(0.01, 10.0)), proptest::option::weighted(0.15, matrix));
+    let matrix = proptest::collection::vec((any::<Index>(), float_in(-10.0, 10.0)), 0..4).prop_map(
+        |edits| {
+            let mut m =
+                [1.0f64, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+                    .map(|x| json!(x));
+            for (i, v) in edits {
+                m[i.index(16)] = v;
+            }
+            json!(m)
+        },
+    );
+    let place = (
+        vec3_in(-100.0, 100.0),
+        maybe(float_in(-720.0, 720.0)),
+        maybe(float_in(0.01, 10.0)),
+        proptest::option::weighted(0.15, matrix),
+    );
     (any::<Index>(), place).prop_map(|(model, (p, r, s, m))| {
         let mut i = json!({ "position": p });
         if let Some(r) = r {
@@ -816,27 +866,32 @@ fn instance() -> impl Strategy<Value = (Index, Value)> {
 }
 
 fn sun() -> impl Strategy<Value = Value> {
-    let angles = (float_in(-90.0, 90.0), float_in(-360.0, 360.0)).prop_map(|(e, a)| json!({ "elevation_deg": e, "azimuth_deg": a }));
+    let angles = (float_in(-90.0, 90.0), float_in(-360.0, 360.0))
+        .prop_map(|(e, a)| json!({ "elevation_deg": e, "azimuth_deg": a }));
     let direction = vec3_in(-1.0, 1.0).prop_map(|d| json!({ "direction": d }));
-    let odd = (maybe(float_in(-90.0, 90.0)), maybe(float_in(0.0, 360.0)), maybe(vec3_in(-1.0, 1.0))).prop_map(|(e, a, d)| {
-        let mut s = json!({});
-        for (k, v) in [("elevation_deg", e), ("azimuth_deg", a), ("direction", d)] {
-            if let Some(v) = v {
-                s[k] = v;
-            }
-        }
-        s
-    });
+    let odd =
+        (maybe(float_in(-90.0, 90.0)), maybe(float_in(0.0, 360.0)), maybe(vec3_in(-1.0, 1.0)))
+            .prop_map(|(e, a, d)| {
+                let mut s = json!({});
+                for (k, v) in [("elevation_deg", e), ("azimuth_deg", a), ("direction", d)] {
+                    if let Some(v) = v {
+                        s[k] = v;
+                    }
+                }
+                s
+            });
     let which = prop_oneof![5 => angles, 5 => direction, 1 => odd];
-    (which, maybe(float_in(1000.0, 40000.0)), maybe(float_in(0.0, 10.0))).prop_map(|(mut s, t, i)| {
-        if let Some(t) = t {
-            s["temperature_k"] = t;
-        }
-        if let Some(i) = i {
-            s["intensity"] = i;
-        }
-        s
-    })
+    (which, maybe(float_in(1000.0, 40000.0)), maybe(float_in(0.0, 10.0))).prop_map(
+        |(mut s, t, i)| {
+            if let Some(t) = t {
+                s["temperature_k"] = t;
+            }
+            if let Some(i) = i {
+                s["intensity"] = i;
+            }
+            s
+        },
+    )
 }
 
 /// A whole scene file as JSON.
@@ -845,26 +900,43 @@ fn generated_scene() -> impl Strategy<Value = Value> {
     let instances = proptest::collection::vec(instance(), 1..4);
     let fov = or_edge(
         (1.0f64..179.0).prop_map(|x| json!(x)),
-        proptest::sample::select(vec![json!(0), json!(180), json!(-1), json!(1e-30), json!(179.99999)]),
+        proptest::sample::select(vec![
+            json!(0),
+            json!(180),
+            json!(-1),
+            json!(1e-30),
+            json!(179.99999),
+        ]),
     );
-    let camera = (vec3_in(-50.0, 50.0), vec3_in(-50.0, 50.0), maybe(vec3_in(-1.0, 1.0)), maybe(fov)).prop_map(|(p, l, u, f)| {
-        let mut c = json!({ "position": p, "look_at": l });
-        if let Some(u) = u {
-            c["up"] = u;
-        }
-        if let Some(f) = f {
-            c["fov_y_deg"] = f;
-        }
-        c
-    });
-    let sky = (vec3_in(0.0, 2.0), vec3_in(0.0, 2.0)).prop_map(|(z, h)| json!({ "zenith": z, "horizon": h }));
-    let forest = (grid(256), proptest::sample::select(vec!["auto", "always", "never"]), float_in(0.0, 1.0))
-        .prop_map(|(g, u, t)| json!({ "grid": g, "use": u, "threshold": t }));
+    let camera =
+        (vec3_in(-50.0, 50.0), vec3_in(-50.0, 50.0), maybe(vec3_in(-1.0, 1.0)), maybe(fov))
+            .prop_map(|(p, l, u, f)| {
+                let mut c = json!({ "position": p, "look_at": l });
+                if let Some(u) = u {
+                    c["up"] = u;
+                }
+                if let Some(f) = f {
+                    c["fov_y_deg"] = f;
+                }
+                c
+            });
+    let sky = (vec3_in(0.0, 2.0), vec3_in(0.0, 2.0))
+        .prop_map(|(z, h)| json!({ "zenith": z, "horizon": h }));
+    let forest =
+        (grid(256), proptest::sample::select(vec!["auto", "always", "never"]), float_in(0.0, 1.0))
+            .prop_map(|(g, u, t)| json!({ "grid": g, "use": u, "threshold": t }));
     let cloud = (vec3_in(-50.0, 50.0), float_in(0.1, 20.0), grid(32), any::<u64>())
         .prop_map(|(c, s, g, seed)| json!({ "center": c, "size": s, "grid": g, "seed": seed }));
     let optics = [vec3_in(0.0, 2.0), vec3_in(0.0, 2.0), vec3_in(0.0, 2.0), vec3_in(0.0, 2.0)]
         .prop_map(|[a, b, c, d]| json!({ "reflect_front": a, "reflect_back": b, "transmit_front": c, "transmit_back": d }));
-    let lighting = proptest::sample::select(vec!["local", "ambient", "lb", "lb-visualize", "reference", "boulanger"]);
+    let lighting = proptest::sample::select(vec![
+        "local",
+        "ambient",
+        "lb",
+        "lb-visualize",
+        "reference",
+        "boulanger",
+    ]);
     (
         (models, instances, camera, sun(), proptest::bool::weighted(0.05)),
         (maybe(sky), maybe(vec3_in(0.0, 1.0)), lighting, maybe(lb()), maybe(forest)),
@@ -899,7 +971,11 @@ fn generated_scene() -> impl Strategy<Value = Value> {
 /// choices, which are not readable as a scene or a bundle).
 fn no_panic<T>(input: impl Fn() -> String, f: impl FnOnce() -> T) -> Result<T, TestCaseError> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|p| {
-        let message = p.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| p.downcast_ref::<String>().cloned()).unwrap_or_default();
+        let message = p
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
         TestCaseError::fail(format!("panicked: {message}\n{}", input()))
     })
 }
@@ -929,7 +1005,11 @@ fn check_usable(s: &Scene) -> TestCaseResult {
     prop_assert!(unit(c.forward) && unit(c.right) && unit(c.up), "camera basis {:?}", c);
     prop_assert!(c.tan_half_fov_y.is_finite() && c.tan_half_fov_y > 0.0, "camera fov {:?}", c);
     prop_assert!(unit(s.sun.towards), "sun direction {:?}", s.sun.towards);
-    prop_assert!(s.sun.radiance.iter().all(|x| x.is_finite() && *x >= 0.0), "sun radiance {:?}", s.sun.radiance);
+    prop_assert!(
+        s.sun.radiance.iter().all(|x| x.is_finite() && *x >= 0.0),
+        "sun radiance {:?}",
+        s.sun.radiance
+    );
     for i in &s.instances {
         prop_assert!(i.to_world.is_finite(), "instance transform {:?}", i.to_world);
         prop_assert!((i.model as usize) < s.models.len());
@@ -976,7 +1056,11 @@ fn the_sandbox_sees_escapes() {
     std::fs::write(sb.dir.join("a/b/c"), b"inside").unwrap();
     assert!(sb.check_nothing_escaped("test").is_ok());
     std::thread::sleep(std::time::Duration::from_millis(20));
-    let escapes = [sb.parent.join("d1/new"), sb.fixtures.join("tri.bin"), std::env::temp_dir().join(&sb.token)];
+    let escapes = [
+        sb.parent.join("d1/new"),
+        sb.fixtures.join("tri.bin"),
+        std::env::temp_dir().join(&sb.token),
+    ];
     for path in escapes {
         std::fs::write(&path, b"escaped").unwrap();
         assert!(sb.check_nothing_escaped("test").is_err(), "{}", path.display());
@@ -995,7 +1079,8 @@ fn parse_never_panics_on_arbitrary_text() {
         "\"species\"", "\"triangles\"", "\"position\"", "\"grid\"", "\"red_maple\"", "\"m\"", "0", "-1", "1e39", "1e999",
         "NaN", "null", "true", "\"", "\\", "\\u0000", "\\ud800",
     ];
-    let soup = proptest::collection::vec(proptest::sample::select(TOKENS), 0..60).prop_map(|t| t.concat());
+    let soup =
+        proptest::collection::vec(proptest::sample::select(TOKENS), 0..60).prop_map(|t| t.concat());
     let text = prop_oneof![any::<String>(), "[ -~]{0,200}", soup];
     let base = std::env::temp_dir().join(format!("sylva-fuzz-{}-no-such-dir", std::process::id()));
     check(256, text, |t| parse_then_build(&t, &base));
@@ -1007,7 +1092,9 @@ fn parse_never_panics_on_arbitrary_json() {
     let doc = prop_oneof![
         any_json(),
         // An object with the scene's top-level keys, anything under them.
-        proptest::collection::vec(any_json(), 4).prop_map(|v| json!({ "models": v[0], "instances": v[1], "camera": v[2], "sun": v[3] })),
+        proptest::collection::vec(any_json(), 4).prop_map(
+            |v| json!({ "models": v[0], "instances": v[1], "camera": v[2], "sun": v[3] })
+        ),
     ];
     check(256, doc, |v| parse_then_build(&v.to_string(), &base));
 }
@@ -1025,7 +1112,10 @@ fn deeply_nested_json_is_refused_without_overflowing_the_stack() {
                 for (open, close) in [("[", "]"), ("{\"models\":", "}"), ("{\"a\":", "}")] {
                     let text = format!("{}{}", open.repeat(depth), close.repeat(depth));
                     assert!(parse(&text).is_err());
-                    let inside = format!("{{\"models\":{{\"m\":{{\"tree\":{{\"species\":{}}}}}}}}}", "[".repeat(depth));
+                    let inside = format!(
+                        "{{\"models\":{{\"m\":{{\"tree\":{{\"species\":{}}}}}}}}}",
+                        "[".repeat(depth)
+                    );
                     assert!(parse(&inside).is_err());
                     let bundle = assemble(text.as_bytes(), b"");
                     assert!(unpack(&bundle, &dir).is_err());
@@ -1105,7 +1195,10 @@ fn unpack_in(sb: &Sandbox, bytes: &[u8]) -> TestCaseResult {
 /// Like [`unpack_in`], known bugs included.
 fn unpack_in_unfiltered(sb: &Sandbox, bytes: &[u8]) -> TestCaseResult {
     if bundle_is_cheap(bytes) {
-        let _ = no_panic(|| format!("bundle bytes: b\"{}\"", bytes.escape_ascii()), || unpack(bytes, &sb.dir))?;
+        let _ = no_panic(
+            || format!("bundle bytes: b\"{}\"", bytes.escape_ascii()),
+            || unpack(bytes, &sb.dir),
+        )?;
     }
     sb.check_nothing_escaped("unpack")
 }
@@ -1163,11 +1256,14 @@ fn known_gltf_bug(file: &[u8]) -> Option<&'static str> {
         ];
         for (index, kind, components) in wants {
             let Some(a) = index.and_then(|i| root.accessors.get(i.value())) else { continue };
-            let (Checked::Valid(t), Checked::Valid(c)) = (&a.type_, &a.component_type) else { continue };
+            let (Checked::Valid(t), Checked::Valid(c)) = (&a.type_, &a.component_type) else {
+                continue;
+            };
             let size = (t.multiplicity() * c.0.size()) as u64;
             let view = a.buffer_view.and_then(|v| root.buffer_views.get(v.value()));
             let stride = view.and_then(|v| v.byte_stride).map(|s| s.0 as u64);
-            let view_end = view.and_then(|v| v.byte_offset.map_or(0, |o| o.0).checked_add(v.byte_length.0));
+            let view_end =
+                view.and_then(|v| v.byte_offset.map_or(0, |o| o.0).checked_add(v.byte_length.0));
             let end = stride
                 .unwrap_or(size)
                 .checked_mul(a.count.0.saturating_sub(1))
@@ -1217,8 +1313,16 @@ fn unpack_never_panics_on_arbitrary_bytes() {
 #[test]
 fn unpack_never_panics_on_arbitrary_lengths_and_manifests() {
     let sb = Sandbox::new("arbitrary-manifests");
-    let scene = prop_oneof![mutated_scene().prop_map(|t| serde_json::from_str(&t).unwrap_or(Value::Null)), generated_scene(), any_json()];
-    let blob = (sb.hostile_names(), proptest::collection::vec(any::<u8>(), 0..32), proptest::option::weighted(0.2, any::<u64>()));
+    let scene = prop_oneof![
+        mutated_scene().prop_map(|t| serde_json::from_str(&t).unwrap_or(Value::Null)),
+        generated_scene(),
+        any_json()
+    ];
+    let blob = (
+        sb.hostile_names(),
+        proptest::collection::vec(any::<u8>(), 0..32),
+        proptest::option::weighted(0.2, any::<u64>()),
+    );
     let manifest = prop_oneof![
         3 => (scene, proptest::collection::vec(blob, 0..4)).prop_map(|(scene, blobs)| {
             let entries: Vec<Value> = blobs.iter().map(|(n, b, len)| json!({ "name": n, "len": len.unwrap_or(b.len() as u64) })).collect();
@@ -1301,7 +1405,10 @@ fn unpack_never_writes_outside_its_folder_whatever_the_blob_names() {
     let parts = Parts::of(&packed_full(&sb.fixtures));
     sb.snapshot();
     let names = proptest::collection::vec((any::<Index>(), sb.hostile_names()), 1..4);
-    let extra = proptest::option::weighted(0.3, (sb.hostile_names(), proptest::collection::vec(any::<u8>(), 0..16)));
+    let extra = proptest::option::weighted(
+        0.3,
+        (sb.hostile_names(), proptest::collection::vec(any::<u8>(), 0..16)),
+    );
     check(384, (names, extra), |(renames, extra)| {
         let mut p = parts.clone();
         for (i, name) in renames {
@@ -1322,14 +1429,18 @@ fn unpack_never_panics_on_mutated_manifests() {
     let parts = Parts::of(&packed_full(&sb.fixtures));
     sb.snapshot();
     let manifest = parts.manifest.clone();
-    check(256, (proptest::collection::vec(mutation(), 1..5), text_edit(), any::<bool>()), |(muts, e, fix_lengths)| {
-        let text = edit_text(mutate(&manifest, &muts), &e);
-        let b = match serde_json::from_str::<Value>(&text) {
-            Ok(m) if fix_lengths => Parts { manifest: m, blobs: parts.blobs.clone() }.bytes(),
-            _ => assemble(text.as_bytes(), &parts.blobs.concat()),
-        };
-        unpack_in(&sb, &b)
-    });
+    check(
+        256,
+        (proptest::collection::vec(mutation(), 1..5), text_edit(), any::<bool>()),
+        |(muts, e, fix_lengths)| {
+            let text = edit_text(mutate(&manifest, &muts), &e);
+            let b = match serde_json::from_str::<Value>(&text) {
+                Ok(m) if fix_lengths => Parts { manifest: m, blobs: parts.blobs.clone() }.bytes(),
+                _ => assemble(text.as_bytes(), &parts.blobs.concat()),
+            };
+            unpack_in(&sb, &b)
+        },
+    );
 }
 
 /// The glTF models inside a bundle come from the client too: the `.gltf`
@@ -1339,7 +1450,12 @@ fn mutated_gltf_models(test: &str, cases: u32, unpack_in: fn(&Sandbox, &[u8]) ->
     let mut sb = Sandbox::new(test);
     let parts = Parts::of(&packed_full(&sb.fixtures));
     sb.snapshot();
-    let names: Vec<String> = parts.manifest["blobs"].as_array().unwrap().iter().map(|b| b["name"].as_str().unwrap().to_string()).collect();
+    let names: Vec<String> = parts.manifest["blobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["name"].as_str().unwrap().to_string())
+        .collect();
     let gltf_at = names.iter().position(|n| n.ends_with(".gltf")).unwrap();
     let glb_at = names.iter().position(|n| n.ends_with(".glb")).unwrap();
     let bin_at = names.iter().position(|n| n.ends_with(".bin")).unwrap();
@@ -1410,13 +1526,17 @@ fn a_bundle_scene_cannot_read_files_outside_its_folder() {
     for path in scene_paths {
         let mut p = parts.clone();
         p.manifest["scene"]["models"]["b"]["gltf"] = json!(path);
-        if let out @ (Outcome::Ok | Outcome::Panicked(_) | Outcome::TimedOut) = unpack_within(30, p.bytes(), sb.dir.clone()) {
+        if let out @ (Outcome::Ok | Outcome::Panicked(_) | Outcome::TimedOut) =
+            unpack_within(30, p.bytes(), sb.dir.clone())
+        {
             wrong.push(format!("models.b.gltf {path:?}: {out:?}"));
         }
     }
     for uri in uris {
         let b = bundle_with_gltf(&sb, |d| d["buffers"][0]["uri"] = json!(uri));
-        if let out @ (Outcome::Ok | Outcome::Panicked(_) | Outcome::TimedOut) = unpack_within(30, b, sb.dir.clone()) {
+        if let out @ (Outcome::Ok | Outcome::Panicked(_) | Outcome::TimedOut) =
+            unpack_within(30, b, sb.dir.clone())
+        {
             wrong.push(format!("buffer URI {uri:?}: {out:?}"));
         }
     }
@@ -1446,13 +1566,18 @@ type GltfEdit = Box<dyn FnOnce(&mut Value)>;
 fn unpack_within(secs: u64, bytes: Vec<u8>, dir: PathBuf) -> Outcome {
     let (tx, rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {
-        let r = std::panic::catch_unwind(|| unpack(&bytes, &dir).map(|_| ()).map_err(|e| format!("{e:#}")));
+        let r = std::panic::catch_unwind(|| {
+            unpack(&bytes, &dir).map(|_| ()).map_err(|e| format!("{e:#}"))
+        });
         let _ = tx.send(match r {
             Ok(Ok(())) => Outcome::Ok,
             Ok(Err(e)) => Outcome::Err(e),
-            Err(p) => {
-                Outcome::Panicked(p.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| p.downcast_ref::<String>().cloned()).unwrap_or_default())
-            }
+            Err(p) => Outcome::Panicked(
+                p.downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| p.downcast_ref::<String>().cloned())
+                    .unwrap_or_default(),
+            ),
         });
     });
     rx.recv_timeout(std::time::Duration::from_secs(secs)).unwrap_or(Outcome::TimedOut)
@@ -1461,7 +1586,12 @@ fn unpack_within(secs: u64, bytes: Vec<u8>, dir: PathBuf) -> Outcome {
 /// [`FULL`] packed, with model `a`'s glTF document edited by `edit`.
 fn bundle_with_gltf(sb: &Sandbox, edit: impl FnOnce(&mut Value)) -> Vec<u8> {
     let mut parts = Parts::of(&packed_full(&sb.fixtures));
-    let at = parts.manifest["blobs"].as_array().unwrap().iter().position(|b| b["name"] == "m0/tri.gltf").unwrap();
+    let at = parts.manifest["blobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .position(|b| b["name"] == "m0/tri.gltf")
+        .unwrap();
     let mut doc: Value = serde_json::from_slice(&parts.blobs[at]).unwrap();
     edit(&mut doc);
     parts.blobs[at] = serde_json::to_vec(&doc).unwrap();
@@ -1475,10 +1605,18 @@ fn bundle_with_gltf(sb: &Sandbox, edit: impl FnOnce(&mut Value)) -> Vec<u8> {
 #[test]
 fn a_gltf_position_accessor_out_of_range_is_an_error_not_a_panic() {
     let sb = Sandbox::new("position-index");
-    let cases: Vec<(&str, GltfEdit)> = [("POSITION: 3", 3), ("POSITION: 7", 7), ("POSITION: 4000000000", 4_000_000_000u64)]
-        .into_iter()
-        .map(|(what, i)| (what, Box::new(move |d: &mut Value| d["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(i)) as GltfEdit))
-        .collect();
+    let cases: Vec<(&str, GltfEdit)> =
+        [("POSITION: 3", 3), ("POSITION: 7", 7), ("POSITION: 4000000000", 4_000_000_000u64)]
+            .into_iter()
+            .map(|(what, i)| {
+                (
+                    what,
+                    Box::new(move |d: &mut Value| {
+                        d["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(i)
+                    }) as GltfEdit,
+                )
+            })
+            .collect();
     replay_gltf_edits(&sb, cases, 30);
 }
 
@@ -1493,13 +1631,23 @@ fn a_gltf_position_accessor_out_of_range_is_an_error_not_a_panic() {
 fn gltf_node_cycles_and_shared_children_are_refused_quickly() {
     let sb = Sandbox::new("node-graph");
     let cases: Vec<(&str, GltfEdit)> = vec![
-        ("a node that is its own child", Box::new(|d: &mut Value| d["nodes"][1]["children"] = json!([1]))),
-        ("a node that is its own child twice", Box::new(|d: &mut Value| d["nodes"][1]["children"] = json!([1, 1]))),
-        ("two nodes each the other's child", Box::new(|d: &mut Value| d["nodes"][1]["children"] = json!([0]))),
+        (
+            "a node that is its own child",
+            Box::new(|d: &mut Value| d["nodes"][1]["children"] = json!([1])),
+        ),
+        (
+            "a node that is its own child twice",
+            Box::new(|d: &mut Value| d["nodes"][1]["children"] = json!([1, 1])),
+        ),
+        (
+            "two nodes each the other's child",
+            Box::new(|d: &mut Value| d["nodes"][1]["children"] = json!([0])),
+        ),
         (
             "40 nodes, each the next one's parent twice",
             Box::new(|d: &mut Value| {
-                let mut nodes: Vec<Value> = (1..40).map(|i| json!({ "children": [i, i] })).collect();
+                let mut nodes: Vec<Value> =
+                    (1..40).map(|i| json!({ "children": [i, i] })).collect();
                 nodes.push(json!({ "mesh": 0 }));
                 d["nodes"] = json!(nodes);
             }),
@@ -1517,9 +1665,18 @@ fn gltf_node_cycles_and_shared_children_are_refused_quickly() {
 fn gltf_accessor_component_types_the_reader_cannot_read_are_errors() {
     let sb = Sandbox::new("component-types");
     let cases: Vec<(&str, GltfEdit)> = vec![
-        ("indices of FLOAT (5126)", Box::new(|d: &mut Value| d["accessors"][2]["componentType"] = json!(5126))),
-        ("indices of BYTE (5120)", Box::new(|d: &mut Value| d["accessors"][2]["componentType"] = json!(5120))),
-        ("TEXCOORD_0 of UNSIGNED_INT (5125)", Box::new(|d: &mut Value| d["accessors"][1]["componentType"] = json!(5125))),
+        (
+            "indices of FLOAT (5126)",
+            Box::new(|d: &mut Value| d["accessors"][2]["componentType"] = json!(5126)),
+        ),
+        (
+            "indices of BYTE (5120)",
+            Box::new(|d: &mut Value| d["accessors"][2]["componentType"] = json!(5120)),
+        ),
+        (
+            "TEXCOORD_0 of UNSIGNED_INT (5125)",
+            Box::new(|d: &mut Value| d["accessors"][1]["componentType"] = json!(5125)),
+        ),
     ];
     replay_gltf_edits(&sb, cases, 30);
 }
@@ -1536,21 +1693,41 @@ fn gltf_accessor_component_types_the_reader_cannot_read_are_errors() {
 fn gltf_accessor_sizes_strides_and_counts_are_checked_before_reading() {
     let sb = Sandbox::new("accessor-sizes");
     let cases: Vec<(&str, GltfEdit)> = vec![
-        ("POSITION of type VEC2", Box::new(|d: &mut Value| d["accessors"][0]["type"] = json!("VEC2"))),
-        ("POSITION of UNSIGNED_SHORT", Box::new(|d: &mut Value| d["accessors"][0]["componentType"] = json!(5123))),
-        ("TEXCOORD_0 of type SCALAR", Box::new(|d: &mut Value| d["accessors"][1]["type"] = json!("SCALAR"))),
-        ("indices of type VEC2", Box::new(|d: &mut Value| d["accessors"][2]["type"] = json!("VEC2"))),
-        ("POSITION view with byteStride 4", Box::new(|d: &mut Value| d["bufferViews"][0]["byteStride"] = json!(4))),
+        (
+            "POSITION of type VEC2",
+            Box::new(|d: &mut Value| d["accessors"][0]["type"] = json!("VEC2")),
+        ),
+        (
+            "POSITION of UNSIGNED_SHORT",
+            Box::new(|d: &mut Value| d["accessors"][0]["componentType"] = json!(5123)),
+        ),
+        (
+            "TEXCOORD_0 of type SCALAR",
+            Box::new(|d: &mut Value| d["accessors"][1]["type"] = json!("SCALAR")),
+        ),
+        (
+            "indices of type VEC2",
+            Box::new(|d: &mut Value| d["accessors"][2]["type"] = json!("VEC2")),
+        ),
+        (
+            "POSITION view with byteStride 4",
+            Box::new(|d: &mut Value| d["bufferViews"][0]["byteStride"] = json!(4)),
+        ),
         ("POSITION count 0", Box::new(|d: &mut Value| d["accessors"][0]["count"] = json!(0))),
         ("indices count 0", Box::new(|d: &mut Value| d["accessors"][2]["count"] = json!(0))),
-        ("POSITION count u64::MAX", Box::new(|d: &mut Value| d["accessors"][0]["count"] = json!(u64::MAX))),
-        ("TEXCOORD_0 view with byteOffset u64::MAX", Box::new(|d: &mut Value| d["bufferViews"][1]["byteOffset"] = json!(u64::MAX))),
+        (
+            "POSITION count u64::MAX",
+            Box::new(|d: &mut Value| d["accessors"][0]["count"] = json!(u64::MAX)),
+        ),
+        (
+            "TEXCOORD_0 view with byteOffset u64::MAX",
+            Box::new(|d: &mut Value| d["bufferViews"][1]["byteOffset"] = json!(u64::MAX)),
+        ),
         (
             "sparse POSITION with count 0",
-            Box::new(|d: &mut Value| {
-                d["accessors"][0]["sparse"] =
-                    json!({ "count": 0, "indices": { "bufferView": 2, "componentType": 5123 }, "values": { "bufferView": 0 } })
-            }),
+            Box::new(
+                |d: &mut Value| d["accessors"][0]["sparse"] = json!({ "count": 0, "indices": { "bufferView": 2, "componentType": 5123 }, "values": { "bufferView": 0 } }),
+            ),
         ),
     ];
     replay_gltf_edits(&sb, cases, 30);
@@ -1566,7 +1743,8 @@ fn replay_gltf_edits(sb: &Sandbox, cases: Vec<(&str, GltfEdit)>, secs: u64) {
         let skipped = known_bug(&b).is_some();
         let out = unpack_within(secs, b, sb.dir.clone());
         if !matches!(out, Outcome::Err(_)) {
-            let note = if skipped { "" } else { " (and known_bug() does not skip it in the properties)" };
+            let note =
+                if skipped { "" } else { " (and known_bug() does not skip it in the properties)" };
             wrong.push(format!("{what}: {out:?}{note}"));
         }
     }
@@ -1582,19 +1760,43 @@ fn replay_gltf_edits(sb: &Sandbox, cases: Vec<(&str, GltfEdit)>, secs: u64) {
 #[test]
 fn huge_camera_and_sun_vectors_are_refused() {
     let cases = [
-        ("camera.up [3.4e38, 0, 0]", SMALL.replace("\"look_at\": [0, 5, 0]", "\"look_at\": [0, 5, 0], \"up\": [3.4e38, 0, 0]")),
-        ("sun.direction [3e38, 3e38, 3e38]", SMALL.replace("\"elevation_deg\": 40, \"azimuth_deg\": 30", "\"direction\": [3e38, 3e38, 3e38]")),
-        ("sun.intensity 3.4e38", SMALL.replace("\"azimuth_deg\": 30", "\"azimuth_deg\": 30, \"temperature_k\": 1000, \"intensity\": 3.4e38")),
+        (
+            "camera.up [3.4e38, 0, 0]",
+            SMALL.replace(
+                "\"look_at\": [0, 5, 0]",
+                "\"look_at\": [0, 5, 0], \"up\": [3.4e38, 0, 0]",
+            ),
+        ),
+        (
+            "sun.direction [3e38, 3e38, 3e38]",
+            SMALL.replace(
+                "\"elevation_deg\": 40, \"azimuth_deg\": 30",
+                "\"direction\": [3e38, 3e38, 3e38]",
+            ),
+        ),
+        (
+            "sun.intensity 3.4e38",
+            SMALL.replace(
+                "\"azimuth_deg\": 30",
+                "\"azimuth_deg\": 30, \"temperature_k\": 1000, \"intensity\": 3.4e38",
+            ),
+        ),
         (
             "camera from -3e38 to 3e38",
-            SMALL.replace("\"position\": [0, 5, -30], \"look_at\": [0, 5, 0]", "\"position\": [-3e38, 5, 0], \"look_at\": [3e38, 5, 0]"),
+            SMALL.replace(
+                "\"position\": [0, 5, -30], \"look_at\": [0, 5, 0]",
+                "\"position\": [-3e38, 5, 0], \"look_at\": [3e38, 5, 0]",
+            ),
         ),
     ];
     let base = std::env::temp_dir();
     let mut wrong = Vec::new();
     for (what, text) in cases {
         let file = parse(&text).unwrap();
-        assert!(known_scene_bug(&file).is_some(), "{what}: known_scene_bug() must skip it in the properties");
+        assert!(
+            known_scene_bug(&file).is_some(),
+            "{what}: known_scene_bug() must skip it in the properties"
+        );
         if let Ok(s) = build(file, &base)
             && let Err(e) = check_usable(&s)
         {

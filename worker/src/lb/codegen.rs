@@ -30,10 +30,14 @@ pub struct StateLayout {
 #[derive(Debug, thiserror::Error)]
 pub enum LayoutError {
     /// One direction's array alone exceeds a storage binding.
-    #[error("grid {dims} needs {need} bytes per direction, more than this adapter's {limit}-byte storage-binding limit")]
+    #[error(
+        "grid {dims} needs {need} bytes per direction, more than this adapter's {limit}-byte storage-binding limit"
+    )]
     DirectionTooLarge { dims: GridDims, need: u64, limit: u64 },
     /// Too many bindings for the adapter.
-    #[error("grid {dims} needs {need} storage buffers per shader stage; this adapter allows {limit}")]
+    #[error(
+        "grid {dims} needs {need} storage buffers per shader stage; this adapter allows {limit}"
+    )]
     TooManyBindings { dims: GridDims, need: u32, limit: u32 },
     /// Indices would overflow the kernel's u32 arithmetic.
     #[error("grid {0} is too large for 32-bit node indices")]
@@ -57,7 +61,11 @@ impl StateLayout {
         // Two state copies, density, class, node totals, group sums.
         let need = 2 * buffers as u32 + 4;
         if need > limits.max_storage_buffers_per_shader_stage {
-            return Err(LayoutError::TooManyBindings { dims, need, limit: limits.max_storage_buffers_per_shader_stage });
+            return Err(LayoutError::TooManyBindings {
+                dims,
+                need,
+                limit: limits.max_storage_buffers_per_shader_stage,
+            });
         }
         let total_groups = (nodes as u32).div_ceil(WORKGROUP);
         let gx = total_groups.min(MAX_GROUPS_PER_DIM);
@@ -94,21 +102,47 @@ impl StateLayout {
 
 /// The WGSL for one channel's collision matrices on `layout`, with the
 /// bottom face reflecting as `ground` says.
-pub fn step_shader(layout: &StateLayout, collision: &Collision, ground: Option<&GroundReflection>) -> String {
+pub fn step_shader(
+    layout: &StateLayout,
+    collision: &Collision,
+    ground: Option<&GroundReflection>,
+) -> String {
     let d = layout.dims;
     let b = layout.buffers;
     let mut bindings = String::new();
     for i in 0..b {
-        writeln!(bindings, "@group(0) @binding({i}) var<storage, read> src{i}: array<f32>;").unwrap();
+        writeln!(bindings, "@group(0) @binding({i}) var<storage, read> src{i}: array<f32>;")
+            .unwrap();
     }
     for i in 0..b {
-        writeln!(bindings, "@group(0) @binding({}) var<storage, read_write> dst{i}: array<f32>;", b + i).unwrap();
+        writeln!(
+            bindings,
+            "@group(0) @binding({}) var<storage, read_write> dst{i}: array<f32>;",
+            b + i
+        )
+        .unwrap();
     }
     let base = layout.binding_density();
-    writeln!(bindings, "@group(0) @binding({base}) var<storage, read> density: array<f32>;").unwrap();
-    writeln!(bindings, "@group(0) @binding({}) var<storage, read> node_class: array<u32>;", base + 1).unwrap();
-    writeln!(bindings, "@group(0) @binding({}) var<storage, read_write> node_total: array<f32>;", base + 2).unwrap();
-    writeln!(bindings, "@group(0) @binding({}) var<storage, read_write> group_sum: array<f32>;", base + 3).unwrap();
+    writeln!(bindings, "@group(0) @binding({base}) var<storage, read> density: array<f32>;")
+        .unwrap();
+    writeln!(
+        bindings,
+        "@group(0) @binding({}) var<storage, read> node_class: array<u32>;",
+        base + 1
+    )
+    .unwrap();
+    writeln!(
+        bindings,
+        "@group(0) @binding({}) var<storage, read_write> node_total: array<f32>;",
+        base + 2
+    )
+    .unwrap();
+    writeln!(
+        bindings,
+        "@group(0) @binding({}) var<storage, read_write> group_sum: array<f32>;",
+        base + 3
+    )
+    .unwrap();
 
     let mut gather = String::new();
     let mut store = String::new();
@@ -164,10 +198,15 @@ fn ground_code(layout: &StateLayout, ground: &GroundReflection) -> String {
     for (m, &c) in DIRECTIONS.iter().enumerate() {
         let (buf, at) = layout.location(m);
         if collect[m] != 0.0 {
-            terms.push(format!("{} * src{buf}[{at}u + idx{}]", literal(collect[m]), pull_shift(d.offset(c))));
+            terms.push(format!(
+                "{} * src{buf}[{at}u + idx{}]",
+                literal(collect[m]),
+                pull_shift(d.offset(c))
+            ));
         }
         if emit[m] != 0.0 {
-            writeln!(stores, "            dst{buf}[{at}u + idx] = {} * e;", literal(emit[m])).unwrap();
+            writeln!(stores, "            dst{buf}[{at}u + idx] = {} * e;", literal(emit[m]))
+                .unwrap();
         }
     }
     format!(
@@ -184,22 +223,44 @@ fn collide(w: &PairedOmega) -> String {
     let mut out = String::new();
     // A chain of fma over the non-zero terms, starting from `start`.
     let chain = |start: String, terms: &[(f32, String)]| {
-        terms.iter().filter(|(c, _)| *c != 0.0).fold(start, |acc, (c, x)| format!("fma({}, {x}, {acc})", literal(*c)))
+        terms
+            .iter()
+            .filter(|(c, _)| *c != 0.0)
+            .fold(start, |acc, (c, x)| format!("fma({}, {x}, {acc})", literal(*c)))
     };
     for b in 0..PAIRS {
         let (j, jb) = (2 * b + 1, 2 * b + 2);
-        writeln!(out, "        let s{b} = f{j} + f{jb};\n        let d{b} = f{j} - f{jb};").unwrap();
+        writeln!(out, "        let s{b} = f{j} + f{jb};\n        let d{b} = f{j} - f{jb};")
+            .unwrap();
     }
-    let rest_terms: Vec<(f32, String)> = (0..PAIRS).flat_map(|b| [(w.rest_even[b], format!("s{b}")), (w.rest_odd[b], format!("d{b}"))]).collect();
+    let rest_terms: Vec<(f32, String)> = (0..PAIRS)
+        .flat_map(|b| [(w.rest_even[b], format!("s{b}")), (w.rest_odd[b], format!("d{b}"))])
+        .collect();
     let rest = chain(format!("{} * f0", literal(w.from_rest[0])), &rest_terms);
     writeln!(out, "        o0 = fma(rho, {rest}, f0);").unwrap();
     for a in 0..PAIRS {
-        let even = chain("0.0".into(), &(0..PAIRS).map(|b| (w.even[a][b], format!("s{b}"))).collect::<Vec<_>>());
-        let odd = chain("0.0".into(), &(0..PAIRS).map(|b| (w.odd[a][b], format!("d{b}"))).collect::<Vec<_>>());
+        let even = chain(
+            "0.0".into(),
+            &(0..PAIRS).map(|b| (w.even[a][b], format!("s{b}"))).collect::<Vec<_>>(),
+        );
+        let odd = chain(
+            "0.0".into(),
+            &(0..PAIRS).map(|b| (w.odd[a][b], format!("d{b}"))).collect::<Vec<_>>(),
+        );
         let (i, ib) = (2 * a + 1, 2 * a + 2);
         writeln!(out, "        let e{a} = {even};\n        let q{a} = {odd};").unwrap();
-        writeln!(out, "        o{i} = fma(rho, fma({}, f0, e{a} + q{a}), f{i});", literal(w.from_rest[i])).unwrap();
-        writeln!(out, "        o{ib} = fma(rho, fma({}, f0, e{a} - q{a}), f{ib});", literal(w.from_rest[ib])).unwrap();
+        writeln!(
+            out,
+            "        o{i} = fma(rho, fma({}, f0, e{a} + q{a}), f{i});",
+            literal(w.from_rest[i])
+        )
+        .unwrap();
+        writeln!(
+            out,
+            "        o{ib} = fma(rho, fma({}, f0, e{a} - q{a}), f{ib});",
+            literal(w.from_rest[ib])
+        )
+        .unwrap();
     }
     out.trim_end().to_string()
 }
@@ -217,10 +278,14 @@ mod tests {
     use sylva_light::lb::ChannelParams;
 
     fn validate(src: &str) {
-        let module = naga::front::wgsl::parse_str(src).unwrap_or_else(|e| panic!("{}\n{src}", e.emit_to_string(src)));
-        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-            .validate(&module)
-            .unwrap_or_else(|e| panic!("{e:?}"));
+        let module = naga::front::wgsl::parse_str(src)
+            .unwrap_or_else(|e| panic!("{}\n{src}", e.emit_to_string(src)));
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::all(),
+        )
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{e:?}"));
     }
 
     fn limits(binding: u64) -> wgpu::Limits {
@@ -238,7 +303,11 @@ mod tests {
         for (n, binding) in [(8usize, 128u64 << 20), (128, 128 << 20), (64, 2 << 20)] {
             let layout = StateLayout::new(GridDims::cube(n), &limits(binding)).unwrap();
             validate(&step_shader(&layout, &coll, None));
-            validate(&step_shader(&layout, &coll, Some(&GroundReflection { albedo: 0.3, gain: 1.4 })));
+            validate(&step_shader(
+                &layout,
+                &coll,
+                Some(&GroundReflection { albedo: 0.3, gain: 1.4 }),
+            ));
         }
     }
 
@@ -258,7 +327,8 @@ mod tests {
     fn literals_round_trip() {
         for v in [1.0f32 / 12.0, -0.891, 1e-7, 0.0375, -1.0] {
             let s = literal(v);
-            let parsed: f32 = s.trim_matches(|c| c == '(' || c == ')').trim_end_matches('f').parse().unwrap();
+            let parsed: f32 =
+                s.trim_matches(|c| c == '(' || c == ')').trim_end_matches('f').parse().unwrap();
             assert_eq!(parsed, v, "{s}");
         }
     }

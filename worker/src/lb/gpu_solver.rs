@@ -6,7 +6,9 @@ use crate::gpu::GpuContext;
 use anyhow::Context;
 use sylva_light::lb::lattice::Q;
 use sylva_light::lb::solver::{Convergence, PhaseTimer, initial_state};
-use sylva_light::lb::{Boundary, ChannelParams, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions};
+use sylva_light::lb::{
+    Boundary, ChannelParams, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions,
+};
 use wgpu::util::DeviceExt;
 
 /// Solves LB channels on a GPU.
@@ -61,8 +63,14 @@ impl LightingSolver for GpuSolver {
         let mut phases = PhaseTimer::default();
         let dims = medium.dims;
         let layout = StateLayout::new(dims, &self.ctx.limits)?;
-        let source = phases.time("codegen", || codegen::step_shader(&layout, &Collision::new(params), boundary.ground.as_ref()));
-        let k = phases.time("upload", || self.ctx.checked("building the LB kernels", || self.build(&layout, &source, medium, boundary)))?;
+        let source = phases.time("codegen", || {
+            codegen::step_shader(&layout, &Collision::new(params), boundary.ground.as_ref())
+        });
+        let k = phases.time("upload", || {
+            self.ctx.checked("building the LB kernels", || {
+                self.build(&layout, &source, medium, boundary)
+            })
+        })?;
         let mut conv = Convergence::new(*opts, dims);
         let cap = conv.cap();
         let check = opts.check_every.max(1);
@@ -86,7 +94,13 @@ impl LightingSolver for GpuSolver {
                             pass.dispatch_workgroups(gx, gy, 1);
                             drop(pass);
                             let bytes = layout.group_count() as u64 * 4;
-                            enc.copy_buffer_to_buffer(&k.group_sum, 0, &k.sums_staging, measured.len() as u64 * bytes, bytes);
+                            enc.copy_buffer_to_buffer(
+                                &k.group_sum,
+                                0,
+                                &k.sums_staging,
+                                measured.len() as u64 * bytes,
+                                bytes,
+                            );
                             measured.push(s);
                         }
                     }
@@ -97,7 +111,8 @@ impl LightingSolver for GpuSolver {
                         let sums: &[f32] = bytemuck::cast_slice(&raw);
                         let per = layout.group_count() as usize;
                         for (i, &s) in measured.iter().enumerate() {
-                            let total: f64 = sums[i * per..(i + 1) * per].iter().map(|&v| v as f64).sum();
+                            let total: f64 =
+                                sums[i * per..(i + 1) * per].iter().map(|&v| v as f64).sum();
                             if conv.record(s, total) {
                                 step = s;
                                 progress(step, cap);
@@ -130,22 +145,40 @@ impl LightingSolver for GpuSolver {
 impl GpuSolver {
     /// Compiles the kernels and uploads the starting state, the medium and
     /// the scratch buffers.
-    fn build(&self, layout: &StateLayout, source: &str, medium: &MediumGrid, boundary: &Boundary) -> anyhow::Result<Kernels> {
+    fn build(
+        &self,
+        layout: &StateLayout,
+        source: &str,
+        medium: &MediumGrid,
+        boundary: &Boundary,
+    ) -> anyhow::Result<Kernels> {
         let device = &self.ctx.device;
         let n = layout.dims.len();
         let module = self.ctx.trusted_module("lb step", source.to_string());
         let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only }, has_dynamic_offset: false, min_binding_size: None },
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
             count: None,
         };
         let b = layout.buffers as u32;
         let base = layout.binding_density();
         let mut entries: Vec<_> = (0..b).map(|i| storage(i, true)).collect();
         entries.extend((0..b).map(|i| storage(b + i, false)));
-        entries.extend([storage(base, true), storage(base + 1, true), storage(base + 2, false), storage(base + 3, false)]);
-        let bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("lb"), entries: &entries });
+        entries.extend([
+            storage(base, true),
+            storage(base + 1, true),
+            storage(base + 2, false),
+            storage(base + 3, false),
+        ]);
+        let bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("lb"),
+            entries: &entries,
+        });
         let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("lb"),
             bind_group_layouts: &[Some(&bgl)],
@@ -192,21 +225,48 @@ impl GpuSolver {
             usage: wgpu::BufferUsages::STORAGE,
         });
         let scratch = |label: &str, bytes: u64, usage: wgpu::BufferUsages| {
-            device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes, usage, mapped_at_creation: false })
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes,
+                usage,
+                mapped_at_creation: false,
+            })
         };
         let groups = layout.group_count() as u64;
-        let node_total = scratch("lb node totals", n as u64 * 4, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
-        let group_sum = scratch("lb group sums", groups * 4, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
-        let sums_staging = scratch("lb sums staging", SUM_SLOTS * groups * 4, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
+        let node_total = scratch(
+            "lb node totals",
+            n as u64 * 4,
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        );
+        let group_sum = scratch(
+            "lb group sums",
+            groups * 4,
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        );
+        let sums_staging = scratch(
+            "lb sums staging",
+            SUM_SLOTS * groups * 4,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        );
         let bind_group = |src: &[wgpu::Buffer], dst: &[wgpu::Buffer]| {
             let mut e: Vec<wgpu::BindGroupEntry> = Vec::with_capacity(2 * src.len() + 4);
             for (i, buf) in src.iter().chain(dst).enumerate() {
-                e.push(wgpu::BindGroupEntry { binding: i as u32, resource: buf.as_entire_binding() });
+                e.push(wgpu::BindGroupEntry {
+                    binding: i as u32,
+                    resource: buf.as_entire_binding(),
+                });
             }
             for (i, buf) in [&density, &class, &node_total, &group_sum].into_iter().enumerate() {
-                e.push(wgpu::BindGroupEntry { binding: base + i as u32, resource: buf.as_entire_binding() });
+                e.push(wgpu::BindGroupEntry {
+                    binding: base + i as u32,
+                    resource: buf.as_entire_binding(),
+                });
             }
-            device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("lb"), layout: &bgl, entries: &e })
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("lb"),
+                layout: &bgl,
+                entries: &e,
+            })
         };
         let bind_groups = [bind_group(&a, &bb), bind_group(&bb, &a)];
         self.ctx.wait().context("uploading the LB state")?;

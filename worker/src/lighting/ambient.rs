@@ -20,8 +20,18 @@ pub const METHOD: Method = Method {
 /// the LB light's: the LB light alone, rendered at a quarter of `f`'s
 /// resolution, averaged over the pixels that see a model. Deterministic,
 /// so every worker of a frame finds the same.
-pub fn matched(renderer: &StripRenderer, ctx: &GpuContext, f: &RenderSettings) -> anyhow::Result<[f32; 3]> {
-    let small = RenderSettings { width: (f.width / 4).max(16), height: (f.height / 4).max(8), spp: 1, lighting: LightingMode::LbVisualize, ..*f };
+pub fn matched(
+    renderer: &StripRenderer,
+    ctx: &GpuContext,
+    f: &RenderSettings,
+) -> anyhow::Result<[f32; 3]> {
+    let small = RenderSettings {
+        width: (f.width / 4).max(16),
+        height: (f.height / 4).max(8),
+        spp: 1,
+        lighting: LightingMode::LbVisualize,
+        ..*f
+    };
     let s = renderer.render_strip(ctx, &small, 0, small.width)?;
     Ok(coverage_weighted_mean(&s.pixels, &s.coverage))
 }
@@ -48,7 +58,10 @@ mod tests {
 
     #[test]
     fn the_mean_counts_each_pixel_by_how_much_model_it_shows() {
-        let m = coverage_weighted_mean(&[[1.0, 2.0, 3.0], [5.0, 6.0, 7.0], [100.0; 3]], &[1.0, 0.5, 0.0]);
+        let m = coverage_weighted_mean(
+            &[[1.0, 2.0, 3.0], [5.0, 6.0, 7.0], [100.0; 3]],
+            &[1.0, 0.5, 0.0],
+        );
         assert_eq!(m.map(|v| (v * 3.0).round()), [7.0, 10.0, 13.0]);
         assert_eq!(coverage_weighted_mean(&[[1.0; 3]], &[0.0]), [0.0; 3]);
     }

@@ -21,7 +21,14 @@ pub fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<Cloud
         .iter()
         .map(|c| {
             let medium = sylva_light::shapes::cloud(c.grid, c.seed);
-            let s = solve(&mut solver, &medium, &params, &sun, &SolveOptions::default(), &|_, _, _| {})?;
+            let s = solve(
+                &mut solver,
+                &medium,
+                &params,
+                &sun,
+                &SolveOptions::default(),
+                &|_, _, _| {},
+            )?;
             let p = params.channels[0];
             Ok(CloudGrid {
                 min: (glam::Vec3::from(c.center) - glam::Vec3::splat(c.size / 2.0)).to_array(),

@@ -87,8 +87,12 @@ pub fn method(mode: LightingMode) -> &'static Method {
 /// The WGSL constants naming every method and kernel, generated from the
 /// declarations above so the kernel and the host cannot disagree.
 pub fn wgsl_constants() -> String {
-    let methods = LightingMode::ALL.iter().map(|&m| method(m)).map(|m| format!("const {}: u32 = {}u;\n", m.wgsl, m.code));
-    let kernels = Kernel::ALL.iter().map(|&k| format!("const {}: u32 = {}u;\n", k.wgsl_name(), k as u32));
+    let methods = LightingMode::ALL
+        .iter()
+        .map(|&m| method(m))
+        .map(|m| format!("const {}: u32 = {}u;\n", m.wgsl, m.code));
+    let kernels =
+        Kernel::ALL.iter().map(|&k| format!("const {}: u32 = {}u;\n", k.wgsl_name(), k as u32));
     methods.chain(kernels).collect()
 }
 
@@ -106,7 +110,11 @@ mod tests {
             assert_eq!(method(m).mode, m);
         }
         let w = wgsl_constants();
-        assert!(w.contains("const LIGHTING_REFERENCE: u32 = 4u;") && w.contains("const KERNEL_BOULANGER: u32 = 2u;"), "{w}");
+        assert!(
+            w.contains("const LIGHTING_REFERENCE: u32 = 4u;")
+                && w.contains("const KERNEL_BOULANGER: u32 = 2u;"),
+            "{w}"
+        );
     }
 
     #[test]
@@ -114,7 +122,13 @@ mod tests {
         for a in LightingMode::ALL {
             for b in LightingMode::ALL {
                 if a.preparation() == b.preparation() {
-                    assert_eq!(method(a).needs, method(b).needs, "{} and {} share a cache entry", a.name(), b.name());
+                    assert_eq!(
+                        method(a).needs,
+                        method(b).needs,
+                        "{} and {} share a cache entry",
+                        a.name(),
+                        b.name()
+                    );
                 }
             }
         }

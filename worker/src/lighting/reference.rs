@@ -45,7 +45,13 @@ pub struct ReferenceOptions {
 
 impl Default for ReferenceOptions {
     fn default() -> Self {
-        Self { batch_spp: MIN_BATCH_SPP, min_batches: 4, max_batches: 1024, target_error: 0.01, max_seconds: 600.0 }
+        Self {
+            batch_spp: MIN_BATCH_SPP,
+            min_batches: 4,
+            max_batches: 1024,
+            target_error: 0.01,
+            max_seconds: 600.0,
+        }
     }
 }
 
@@ -94,7 +100,10 @@ pub fn render_reference(
     opts: &ReferenceOptions,
     progress: &dyn Fn(&ReferenceStats),
 ) -> anyhow::Result<ReferenceImage> {
-    anyhow::ensure!(opts.batch_spp > 0 && opts.max_batches >= opts.min_batches.max(2), "reference batches: need batch_spp ≥ 1 and max_batches ≥ 2");
+    anyhow::ensure!(
+        opts.batch_spp > 0 && opts.max_batches >= opts.min_batches.max(2),
+        "reference batches: need batch_spp ≥ 1 and max_batches ≥ 2"
+    );
     let t = Instant::now();
     let n = (f.width * f.height) as usize;
     let mut sum = vec![[0.0f64; 3]; n];
@@ -104,19 +113,30 @@ pub fn render_reference(
     let mut ind_sq = vec![[0.0f64; 3]; n];
     let mut coverage = vec![0.0f64; n];
     let mut local = vec![[0.0f64; 3]; n];
-    let mut stats = ReferenceStats { spp: 0, batches: 0, relative_error: f64::INFINITY, converged: false, ms: 0.0 };
+    let mut stats = ReferenceStats {
+        spp: 0,
+        batches: 0,
+        relative_error: f64::INFINITY,
+        converged: false,
+        ms: 0.0,
+    };
     // Each sample of a batch has its own output slot (two images of 16
     // bytes per pixel): as many samples and columns per dispatch as the
     // adapter binds, with a margin.
     let budget = (ctx.limits.max_storage_buffer_binding_size / 2).max(1 << 20);
     let per_sample_column = 32 * f.height as u64;
-    let batch_spp = (opts.batch_spp as u64).min((budget / (per_sample_column * f.width as u64)).max(1)) as u32;
+    let batch_spp =
+        (opts.batch_spp as u64).min((budget / (per_sample_column * f.width as u64)).max(1)) as u32;
     let columns = ((budget / (per_sample_column * batch_spp as u64)).max(1) as u32).min(f.width);
     let mut batch = 0u32;
     loop {
         // Seeds far apart, so no batch repeats another's samples.
-        let settings =
-            RenderSettings { spp: batch_spp, seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)), lighting: LightingMode::Reference, ..*f };
+        let settings = RenderSettings {
+            spp: batch_spp,
+            seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)),
+            lighting: LightingMode::Reference,
+            ..*f
+        };
         for x0 in (0..f.width).step_by(columns as usize) {
             let x1 = (x0 + columns).min(f.width);
             let s = renderer.render_strip(ctx, &settings, x0, x1)?;
@@ -147,12 +167,18 @@ pub fn render_reference(
         stats.ms = t.elapsed().as_secs_f64() * 1e3;
         stats.converged = batch >= 2 && stats.relative_error <= opts.target_error;
         progress(&stats);
-        if batch >= opts.min_batches.max(2) && (stats.converged || batch >= opts.max_batches || stats.ms / 1e3 >= opts.max_seconds) {
+        if batch >= opts.min_batches.max(2)
+            && (stats.converged || batch >= opts.max_batches || stats.ms / 1e3 >= opts.max_seconds)
+        {
             break;
         }
     }
     let b = batch as f64;
-    let image = HdrImage { width: f.width, height: f.height, pixels: sum.iter().map(|s| s.map(|v| (v / b) as f32)).collect() };
+    let image = HdrImage {
+        width: f.width,
+        height: f.height,
+        pixels: sum.iter().map(|s| s.map(|v| (v / b) as f32)).collect(),
+    };
     let std_error = (0..n)
         .map(|i| {
             let mean_l = luminance(image.pixels[i]) as f64;
@@ -167,6 +193,17 @@ pub fn render_reference(
             })
         })
         .collect();
-    let local = HdrImage { width: f.width, height: f.height, pixels: local.iter().map(|s| s.map(|v| (v / b) as f32)).collect() };
-    Ok(ReferenceImage { image, coverage: coverage.iter().map(|c| (c / b) as f32).collect(), local, std_error, indirect_variance, stats })
+    let local = HdrImage {
+        width: f.width,
+        height: f.height,
+        pixels: local.iter().map(|s| s.map(|v| (v / b) as f32)).collect(),
+    };
+    Ok(ReferenceImage {
+        image,
+        coverage: coverage.iter().map(|c| (c / b) as f32).collect(),
+        local,
+        std_error,
+        indirect_variance,
+        stats,
+    })
 }

@@ -231,18 +231,33 @@ impl Flat {
     /// `prim_shift`) in `prims`; a BVH's leaves point at `records`
     /// (`stride` entries each, in the BVH's slot order), which follow its
     /// nodes.
-    fn push_accel(&mut self, accel: &Accel, prim_shift: u32, records: &[[u32; 4]], stride: u32) -> anyhow::Result<(u32, u32)> {
+    fn push_accel(
+        &mut self,
+        accel: &Accel,
+        prim_shift: u32,
+        records: &[[u32; 4]],
+        stride: u32,
+    ) -> anyhow::Result<(u32, u32)> {
         let prim_base = self.prims.len() as u32;
         Ok(match accel {
             Accel::Bvh(b) => {
                 let base = self.nodes.len() as u32;
-                let nodes: &[BvhNode] = if b.nodes.is_empty() { std::slice::from_ref(&BvhNode::EMPTY) } else { &b.nodes };
+                let nodes: &[BvhNode] = if b.nodes.is_empty() {
+                    std::slice::from_ref(&BvhNode::EMPTY)
+                } else {
+                    &b.nodes
+                };
                 let record_base = base + nodes.len() as u32 * NODE_ENTRIES;
-                anyhow::ensure!(record_base as usize + records.len() < bvh::LEAF as usize, "the scene's BVH is too large to address");
+                anyhow::ensure!(
+                    record_base as usize + records.len() < bvh::LEAF as usize,
+                    "the scene's BVH is too large to address"
+                );
                 for n in nodes {
                     let mut n = *n;
                     n.child = n.child.map(|c| placed(c, base, record_base, stride));
-                    self.nodes.extend_from_slice(bytemuck::cast_slice::<BvhNode, [u32; 4]>(std::slice::from_ref(&n)));
+                    self.nodes.extend_from_slice(bytemuck::cast_slice::<BvhNode, [u32; 4]>(
+                        std::slice::from_ref(&n),
+                    ));
                 }
                 self.nodes.extend_from_slice(records);
                 (base, record_base)
@@ -254,7 +269,8 @@ impl Flat {
                 self.nodes.push([x1, y1, z1, 0]);
                 let base = self.nodes.len() as u32;
                 for n in &k.nodes {
-                    let first = if n.axis == KdNode::LEAF { n.first + prim_base } else { n.first + base };
+                    let first =
+                        if n.axis == KdNode::LEAF { n.first + prim_base } else { n.first + base };
                     self.nodes.push([n.split.to_bits(), n.axis, first, n.count]);
                 }
                 self.prims.extend(k.prims.iter().map(|p| p + prim_shift));
@@ -266,20 +282,35 @@ impl Flat {
 
 impl GpuScene {
     /// Uploads `scene` with its acceleration structures and its solved light.
-    pub fn upload(ctx: &GpuContext, scene: &Scene, accel: &SceneAccel, light: &SceneLight) -> anyhow::Result<Self> {
+    pub fn upload(
+        ctx: &GpuContext,
+        scene: &Scene,
+        accel: &SceneAccel,
+        light: &SceneLight,
+    ) -> anyhow::Result<Self> {
         let (lb, lb_scales) = (&light.models, &light.instance_scales);
         let mut f = Flat::default();
         if let Accel::Bvh(top) = &accel.top {
             // The top level's entries, one part's remainder, then a model's.
-            let deepest_model = accel.models.iter().map(|m| if let Accel::Bvh(b) = m { b.stack_depth } else { 0 }).max().unwrap_or(0);
+            let deepest_model = accel
+                .models
+                .iter()
+                .map(|m| if let Accel::Bvh(b) = m { b.stack_depth } else { 0 })
+                .max()
+                .unwrap_or(0);
             let need = top.stack_depth + 1 + deepest_model;
-            anyhow::ensure!(need <= GPU_BVH_STACK, "the scene's BVH needs {need} stack entries, more than the GPU traversal's {GPU_BVH_STACK}");
+            anyhow::ensure!(
+                need <= GPU_BVH_STACK,
+                "the scene's BVH needs {need} stack entries, more than the GPU traversal's {GPU_BVH_STACK}"
+            );
         }
         // With a BVH the top level's leaves hold instance parts, one entry
         // each: (instance, entry of its subtree, leaf count, 0), the entry
         // patched once the models' places are known.
         let top_records: Vec<[u32; 4]> = match &accel.top {
-            Accel::Bvh(b) => b.prims.iter().map(|&p| bytemuck::cast(accel.parts[p as usize])).collect(),
+            Accel::Bvh(b) => {
+                b.prims.iter().map(|&p| bytemuck::cast(accel.parts[p as usize])).collect()
+            }
             Accel::Kd(_) => Vec::new(),
         };
         let (top_root, parts_at) = f.push_accel(&accel.top, 0, &top_records, 1)?;
@@ -297,16 +328,26 @@ impl GpuScene {
                 .map_or(&[][..], |r| r.as_slice())
                 .iter()
                 .flat_map(|r| {
-                    let r = TriangleRecord { triangle: r.triangle + tri0, material: r.material + mat0, ..*r };
+                    let r = TriangleRecord {
+                        triangle: r.triangle + tri0,
+                        material: r.material + mat0,
+                        ..*r
+                    };
                     bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
                 })
                 .collect();
-            let (root, records_at) = f.push_accel(&accel.models[m], tri0, &records, RECORD_ENTRIES)?;
+            let (root, records_at) =
+                f.push_accel(&accel.models[m], tri0, &records, RECORD_ENTRIES)?;
             model_places.push((root, records_at));
             f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
             f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
-            f.triangles
-                .extend(model.triangles.iter().zip(&model.material).map(|(t, &mat)| GpuTriangle { v: t.map(|i| i + vert0), material: mat + mat0 }));
+            f.triangles.extend(
+                model
+                    .triangles
+                    .iter()
+                    .zip(&model.material)
+                    .map(|(t, &mat)| GpuTriangle { v: t.map(|i| i + vert0), material: mat + mat0 }),
+            );
             f.materials.extend(model.materials.iter().map(|mt| GpuMaterial {
                 base_color: mt.base_color,
                 texture: mt.texture.map_or(u32::MAX, |t| t + tex0),
@@ -315,13 +356,22 @@ impl GpuScene {
                 surface: (mt.surface == sylva_scene::model::Surface::Wood) as u32,
             }));
             for t in &model.textures {
-                f.textures.push(GpuTexture { offset: f.texels.len() as u32, width: t.width, height: t.height, pad: 0 });
+                f.textures.push(GpuTexture {
+                    offset: f.texels.len() as u32,
+                    width: t.width,
+                    height: t.height,
+                    pad: 0,
+                });
                 f.texels.extend(t.rgba.as_chunks::<4>().0.iter().map(|&p| u32::from_le_bytes(p)));
             }
             let mut gm = GpuModel { root, ..GpuModel::zeroed() };
             if let Some(Some(g)) = lb.get(m) {
                 let d = g.dims;
-                anyhow::ensure!(d.nx >= 2 && d.ny >= 2 && d.nz >= 2 && g.rgb.len() == 3 * d.len(), "LB grid of model {} has the wrong size", sm.name);
+                anyhow::ensure!(
+                    d.nx >= 2 && d.ny >= 2 && d.nz >= 2 && g.rgb.len() == 3 * d.len(),
+                    "LB grid of model {} has the wrong size",
+                    sm.name
+                );
                 gm = GpuModel {
                     root,
                     lb_offset: f.lb.len() as u32,
@@ -337,8 +387,13 @@ impl GpuScene {
             if light.envelopes.iter().any(|e| e.is_some()) {
                 match light.envelopes.get(m).and_then(|e| e.as_ref()) {
                     Some(e) => {
-                        anyhow::ensure!(e.s_max.len() == model.triangles.len(), "envelope of model {} has the wrong size", sm.name);
-                        (gm.tau, gm.leaf_density, gm.leaf_area, gm.has_envelope) = (e.tau, e.leaf_density, e.leaf_area, 1);
+                        anyhow::ensure!(
+                            e.s_max.len() == model.triangles.len(),
+                            "envelope of model {} has the wrong size",
+                            sm.name
+                        );
+                        (gm.tau, gm.leaf_density, gm.leaf_area, gm.has_envelope) =
+                            (e.tau, e.leaf_density, e.leaf_area, 1);
                         f.envelope.extend(e.s_max.iter().flatten());
                     }
                     None => f.envelope.extend(std::iter::repeat_n(0.0, 8 * model.triangles.len())),
@@ -361,10 +416,19 @@ impl GpuScene {
             let wc = [w.x_axis / scale, w.y_axis / scale, w.z_axis / scale];
             let to_lb = std::array::from_fn(|r| [wc[0][r], wc[1][r], wc[2][r], 0.0]);
             let lb_scale = lb_scales.get(i).copied().unwrap_or(1.0);
-            f.instances.push(GpuInstance { to_model, to_lb, model: inst.model, lb_scale, pad: [0; 2] });
+            f.instances.push(GpuInstance {
+                to_model,
+                to_lb,
+                model: inst.model,
+                lb_scale,
+                pad: [0; 2],
+            });
         }
         for c in &light.clouds {
-            anyhow::ensure!(c.n >= 2 && c.density.len() == c.n.pow(3) && c.light.len() == 3 * c.n.pow(3), "cloud grid has the wrong size");
+            anyhow::ensure!(
+                c.n >= 2 && c.density.len() == c.n.pow(3) && c.light.len() == 3 * c.n.pow(3),
+                "cloud grid has the wrong size"
+            );
             f.clouds.push(GpuCloud {
                 min: c.min,
                 size: c.size,
@@ -380,16 +444,28 @@ impl GpuScene {
         }
         let mut ground = ([0.0; 4], [0; 4]);
         if let Some(g) = &light.ground {
-            anyhow::ensure!(g.nx >= 2 && g.nz >= 2 && g.rgb.len() == 3 * g.nx * g.nz, "the ground's light has the wrong size");
-            ground = ([g.origin[0], g.origin[1], g.cell, 0.0], [g.nx as u32, g.nz as u32, f.lb.len() as u32, 1]);
+            anyhow::ensure!(
+                g.nx >= 2 && g.nz >= 2 && g.rgb.len() == 3 * g.nx * g.nz,
+                "the ground's light has the wrong size"
+            );
+            ground = (
+                [g.origin[0], g.origin[1], g.cell, 0.0],
+                [g.nx as u32, g.nz as u32, f.lb.len() as u32, 1],
+            );
             f.lb.extend_from_slice(&g.rgb);
         }
-        let mut scene = Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)?;
+        let mut scene =
+            Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)?;
         scene.ground = ground;
         Ok(scene)
     }
 
-    fn create(ctx: &GpuContext, mut f: Flat, triangle_offsets: Vec<u32>, accel_kind: u32) -> anyhow::Result<Self> {
+    fn create(
+        ctx: &GpuContext,
+        mut f: Flat,
+        triangle_offsets: Vec<u32>,
+        accel_kind: u32,
+    ) -> anyhow::Result<Self> {
         let device = &ctx.device;
         // wgpu refuses empty bindings: give every array at least one element.
         if f.textures.is_empty() {
@@ -422,7 +498,11 @@ impl GpuScene {
                 contents.len(),
                 ctx.limits.max_storage_buffer_binding_size
             );
-            Ok(device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage: wgpu::BufferUsages::STORAGE }))
+            Ok(device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE,
+            }))
         };
         let buffers = [
             buffer("nodes", bytemuck::cast_slice(&f.nodes))?,
@@ -452,10 +532,30 @@ impl GpuScene {
                 count: None,
             })
             .collect();
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("scene"), entries: &entries });
-        let bg_entries: Vec<wgpu::BindGroupEntry> =
-            buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("scene"), layout: &layout, entries: &bg_entries });
-        Ok(Self { layout, bind_group, triangle_offsets, bytes, accel_kind, ground: ([0.0; 4], [0; 4]) })
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("scene"),
+            entries: &entries,
+        });
+        let bg_entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("scene"),
+            layout: &layout,
+            entries: &bg_entries,
+        });
+        Ok(Self {
+            layout,
+            bind_group,
+            triangle_offsets,
+            bytes,
+            accel_kind,
+            ground: ([0.0; 4], [0; 4]),
+        })
     }
 }

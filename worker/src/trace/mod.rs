@@ -8,7 +8,10 @@ mod raycast;
 pub(crate) mod render;
 mod shaders;
 
-pub use gpu_scene::{CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, GroundLight, SceneLight};
+pub use gpu_scene::{
+    CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle,
+    GroundLight, SceneLight,
+};
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use render::MAX_BOUNCES;
 pub use render::{FrameUniform, RayCounts, RenderSettings, Strip, StripRenderer};

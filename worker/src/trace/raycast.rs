@@ -66,11 +66,17 @@ impl RayCaster {
         let entry = |binding, read_only| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty: wgpu::BufferBindingType::Storage { read_only }, has_dynamic_offset: false, min_binding_size: None },
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
             count: None,
         };
-        let layout =
-            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("rays"), entries: &[entry(0, true), entry(1, false)] });
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("rays"),
+            entries: &[entry(0, true), entry(1, false)],
+        });
         let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("rays"),
             bind_group_layouts: &[Some(&scene.layout), Some(&layout)],
@@ -82,7 +88,10 @@ impl RayCaster {
             module: &module,
             entry_point: Some("cast_rays"),
             compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[("ACCEL_KIND", scene.accel_kind as f64), ("ANY_HIT", any_hit as u8 as f64)],
+                constants: &[
+                    ("ACCEL_KIND", scene.accel_kind as f64),
+                    ("ANY_HIT", any_hit as u8 as f64),
+                ],
                 ..Default::default()
             },
             cache: None,
@@ -91,7 +100,12 @@ impl RayCaster {
     }
 
     /// Casts `rays` and returns their closest hits, in order.
-    pub fn cast(&self, ctx: &GpuContext, scene: &GpuScene, rays: &[GpuRay]) -> anyhow::Result<Vec<GpuHit>> {
+    pub fn cast(
+        &self,
+        ctx: &GpuContext,
+        scene: &GpuScene,
+        rays: &[GpuRay],
+    ) -> anyhow::Result<Vec<GpuHit>> {
         if rays.is_empty() {
             return Ok(Vec::new());
         }

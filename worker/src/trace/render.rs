@@ -75,7 +75,11 @@ impl FrameUniform {
     /// total for it (`lb_free`, its boundary's sum at unit strength).
     fn set_sun(&mut self, towards: glam::Vec3) -> anyhow::Result<()> {
         self.sun_towards = towards.to_array();
-        self.lb_free = sylva_light::lb::Sun::towards(towards.as_dvec3().to_array(), 1.0)?.boundary().values.iter().sum();
+        self.lb_free = sylva_light::lb::Sun::towards(towards.as_dvec3().to_array(), 1.0)?
+            .boundary()
+            .values
+            .iter()
+            .sum();
         Ok(())
     }
 }
@@ -237,8 +241,18 @@ impl StripRenderer {
     }
 
     /// Renders columns `[x0, x1)` of the frame.
-    pub fn render_strip(&self, ctx: &GpuContext, f: &RenderSettings, x0: u32, x1: u32) -> anyhow::Result<Strip> {
-        anyhow::ensure!(x0 < x1 && x1 <= f.width, "strip [{x0}, {x1}) is not inside a frame {} wide", f.width);
+    pub fn render_strip(
+        &self,
+        ctx: &GpuContext,
+        f: &RenderSettings,
+        x0: u32,
+        x1: u32,
+    ) -> anyhow::Result<Strip> {
+        anyhow::ensure!(
+            x0 < x1 && x1 <= f.width,
+            "strip [{x0}, {x1}) is not inside a frame {} wide",
+            f.width
+        );
         let strip_width = x1 - x0;
         let method = lighting::method(f.lighting);
         // A frame of a sequence: its own camera and sun (the LB light it
@@ -354,6 +368,10 @@ pub fn render_source() -> String {
 /// How far secondary rays start off the surface they leave: a millimetre,
 /// or more where the scene's coordinates are large enough for f32 to need it.
 fn ray_offset(scene: &Scene) -> f32 {
-    let extent = scene.instances.iter().map(|i| i.to_world.translation.abs().max_element()).fold(0.0, f32::max);
+    let extent = scene
+        .instances
+        .iter()
+        .map(|i| i.to_world.translation.abs().max_element())
+        .fold(0.0, f32::max);
     (1e-5 * extent).max(1e-3)
 }

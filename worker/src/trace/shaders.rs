@@ -27,10 +27,14 @@ mod tests {
 
     /// Parses and validates a module; panics with naga's message.
     pub fn validate(src: &str) -> naga::Module {
-        let module = naga::front::wgsl::parse_str(src).unwrap_or_else(|e| panic!("{}", e.emit_to_string(src)));
-        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-            .validate(&module)
+        let module = naga::front::wgsl::parse_str(src)
             .unwrap_or_else(|e| panic!("{}", e.emit_to_string(src)));
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::all(),
+        )
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(src)));
         module
     }
 
@@ -43,10 +47,16 @@ mod tests {
     /// The WGSL structs the Rust side uploads have the Rust layouts.
     #[test]
     fn gpu_structs_match_their_rust_twins() {
-        use crate::trace::{FrameUniform, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuTexture, GpuTriangle};
+        use crate::trace::{
+            FrameUniform, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuTexture, GpuTriangle,
+        };
         let m = validate(&crate::trace::render::render_source());
         let size_of_struct = |name: &str| -> u32 {
-            let (_, ty) = m.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("no struct {name}"));
+            let (_, ty) = m
+                .types
+                .iter()
+                .find(|(_, t)| t.name.as_deref() == Some(name))
+                .unwrap_or_else(|| panic!("no struct {name}"));
             match &ty.inner {
                 naga::TypeInner::Struct { span, .. } => *span,
                 _ => panic!("{name} is not a struct"),

@@ -98,12 +98,27 @@ fn bench_lb(a: LbBenchArgs) -> anyhow::Result<()> {
         let mut solver = open_solver(backend)?;
         // Warm-up: pipeline compilation (lavapipe compiles on first
         // dispatch), allocation, thread-pool start.
-        solve(solver.as_mut(), &medium, &params, &sun, &SolveOptions::fixed_steps(8), &|_, _, _| {})?;
+        solve(
+            solver.as_mut(),
+            &medium,
+            &params,
+            &sun,
+            &SolveOptions::fixed_steps(8),
+            &|_, _, _| {},
+        )?;
         let mut runs = Vec::new();
         for _ in 0..a.repeat.max(1) {
-            let bar = progress::lb_bar(&format!("{backend:?}").to_lowercase(), opts.cap(medium.dims));
+            let bar =
+                progress::lb_bar(&format!("{backend:?}").to_lowercase(), opts.cap(medium.dims));
             let t = Instant::now();
-            let s = solve(solver.as_mut(), &medium, &params, &sun, &opts, &progress::lb_callback(&bar))?;
+            let s = solve(
+                solver.as_mut(),
+                &medium,
+                &params,
+                &sun,
+                &opts,
+                &progress::lb_callback(&bar),
+            )?;
             let wall = t.elapsed().as_secs_f64();
             bar.finish_and_clear();
             runs.push((wall, s));
@@ -131,8 +146,13 @@ fn bench_lb(a: LbBenchArgs) -> anyhow::Result<()> {
     for r in &mut results {
         r["fraction_of_triad"] = json!(r["bytes_per_second"].as_f64().unwrap_or(0.0) / triad);
     }
-    let ratio = match (results.iter().find(|r| r["backend"] == "cpu"), results.iter().find(|r| r["backend"] == "gpu")) {
-        (Some(c), Some(g)) => json!(g["mlups"].as_f64().unwrap_or(0.0) / c["mlups"].as_f64().unwrap_or(f64::NAN)),
+    let ratio = match (
+        results.iter().find(|r| r["backend"] == "cpu"),
+        results.iter().find(|r| r["backend"] == "gpu"),
+    ) {
+        (Some(c), Some(g)) => {
+            json!(g["mlups"].as_f64().unwrap_or(0.0) / c["mlups"].as_f64().unwrap_or(f64::NAN))
+        }
         _ => serde_json::Value::Null,
     };
     let out = json!({
@@ -165,11 +185,14 @@ fn bench_lb(a: LbBenchArgs) -> anyhow::Result<()> {
 /// alpha otherwise ignored: Embree's opaque baseline), in world space.
 fn flattened(scene: &sylva_scene::Scene) -> Vec<[glam::Vec3; 3]> {
     use sylva_accel::coverage::{Coverage, triangle_coverage};
-    let coverage: Vec<Vec<Coverage>> = scene.models.iter().map(|m| triangle_coverage(&m.model)).collect();
+    let coverage: Vec<Vec<Coverage>> =
+        scene.models.iter().map(|m| triangle_coverage(&m.model)).collect();
     let mut tris = Vec::new();
     for inst in &scene.instances {
         let m = &scene.models[inst.model as usize].model;
-        for t in (0..m.triangle_count()).filter(|&t| coverage[inst.model as usize][t] != Coverage::Cut) {
+        for t in
+            (0..m.triangle_count()).filter(|&t| coverage[inst.model as usize][t] != Coverage::Cut)
+        {
             tris.push(m.triangle(t).map(|p| inst.to_world.transform_point3(p)));
         }
     }
@@ -177,9 +200,14 @@ fn flattened(scene: &sylva_scene::Scene) -> Vec<[glam::Vec3; 3]> {
 }
 
 /// Writes the rays and the flattened triangles for `benchmarks/embree.py`.
-fn export_rays(dir: &std::path::Path, rays: &[sylva_accel::Ray], tris: &[[glam::Vec3; 3]]) -> anyhow::Result<()> {
+fn export_rays(
+    dir: &std::path::Path,
+    rays: &[sylva_accel::Ray],
+    tris: &[[glam::Vec3; 3]],
+) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir)?;
-    let r: Vec<f32> = rays.iter().flat_map(|r| r.origin.to_array().into_iter().chain(r.dir.to_array())).collect();
+    let r: Vec<f32> =
+        rays.iter().flat_map(|r| r.origin.to_array().into_iter().chain(r.dir.to_array())).collect();
     sylva_light::npy::write_f32(&dir.join("rays.npy"), &[rays.len() as u64, 6], &r)?;
     let t: Vec<f32> = tris.iter().flatten().flat_map(|p| p.to_array()).collect();
     sylva_light::npy::write_f32(&dir.join("triangles.npy"), &[tris.len() as u64, 3, 3], &t)?;
@@ -196,7 +224,11 @@ fn flat_opaque(tris: &[[glam::Vec3; 3]], rays: &[sylva_accel::Ray]) -> serde_jso
     let t = Instant::now();
     let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
     let bvh = Bvh::build(&bounds);
-    let records: Vec<TriangleRecord> = bvh.prims.iter().map(|&p| TriangleRecord::new(p, tris[p as usize], Coverage::Opaque, 0)).collect();
+    let records: Vec<TriangleRecord> = bvh
+        .prims
+        .iter()
+        .map(|&p| TriangleRecord::new(p, tris[p as usize], Coverage::Opaque, 0))
+        .collect();
     let build_ms = t.elapsed().as_secs_f64() * 1e3;
     // Best of three, as benchmarks/embree.py times Embree.
     let (mut s, mut hits) = (f64::INFINITY, 0);
@@ -206,21 +238,23 @@ fn flat_opaque(tris: &[[glam::Vec3; 3]], rays: &[sylva_accel::Ray]) -> serde_jso
             .par_iter()
             .filter(|ray| {
                 let ahead = |first: u32| sylva_accel::bvh::prefetch(&records[first as usize]);
-                let walked = bvh.walk_from((0, 0), ray, 0.0, f32::MAX, ahead, |first, count, limit| {
-                    let mut closest = limit;
-                    for r in &records[first as usize..(first + count) as usize] {
-                        if let Some((t, _, _)) = r.intersect(ray, 0.0, closest) {
-                            closest = t;
+                let walked =
+                    bvh.walk_from((0, 0), ray, 0.0, f32::MAX, ahead, |first, count, limit| {
+                        let mut closest = limit;
+                        for r in &records[first as usize..(first + count) as usize] {
+                            if let Some((t, _, _)) = r.intersect(ray, 0.0, closest) {
+                                closest = t;
+                            }
                         }
-                    }
-                    (closest < limit).then_some(closest)
-                });
+                        (closest < limit).then_some(closest)
+                    });
                 walked < f32::MAX
             })
             .count();
         s = s.min(t.elapsed().as_secs_f64());
     }
-    let bytes = bvh.nodes.len() * size_of::<sylva_accel::BvhNode>() + size_of_val(records.as_slice());
+    let bytes =
+        bvh.nodes.len() * size_of::<sylva_accel::BvhNode>() + size_of_val(records.as_slice());
     json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": rayon::current_num_threads(),
             "triangles": tris.len(), "build_ms": build_ms, "bytes": bytes })
 }
@@ -237,11 +271,13 @@ fn stream_triad() -> f64 {
     for rep in 0..8 {
         let s = 0.5 + rep as f32;
         let t = Instant::now();
-        a.par_chunks_mut(CHUNK).zip(b.par_chunks(CHUNK)).zip(c.par_chunks(CHUNK)).for_each(|((a, b), c)| {
-            for i in 0..a.len() {
-                a[i] = b[i] + s * c[i];
-            }
-        });
+        a.par_chunks_mut(CHUNK).zip(b.par_chunks(CHUNK)).zip(c.par_chunks(CHUNK)).for_each(
+            |((a, b), c)| {
+                for i in 0..a.len() {
+                    a[i] = b[i] + s * c[i];
+                }
+            },
+        );
         best = best.min(t.elapsed().as_secs_f64());
         std::hint::black_box(&a);
     }
@@ -250,9 +286,11 @@ fn stream_triad() -> f64 {
 
 /// The host the benchmark ran on.
 pub(super) fn machine() -> serde_json::Value {
-    let cpu = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with("model name")).map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string()));
+    let cpu = std::fs::read_to_string("/proc/cpuinfo").ok().and_then(|s| {
+        s.lines()
+            .find(|l| l.starts_with("model name"))
+            .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+    });
     json!({
         "cpu": cpu,
         "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
@@ -310,17 +348,27 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     use sylva_worker::prepare::prepare;
     use sylva_worker::trace::{GpuRay, GpuScene, RayCaster, RenderSettings};
 
-    let file = forest(&ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: 1 }).map_err(anyhow::Error::msg)?;
+    let file = forest(&ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: 1 })
+        .map_err(anyhow::Error::msg)?;
     let t = Instant::now();
     let scene = Scene::build(file, std::path::Path::new("."), "forest")?;
     let generate_ms = t.elapsed().as_secs_f64() * 1e3;
     let cam = scene.camera;
     let rays: Vec<Ray> = (0..a.height)
         .flat_map(|y| (0..a.width).map(move |x| (x, y)))
-        .map(|(x, y)| Ray::new(cam.position, cam.direction(x as f32 + 0.5, y as f32 + 0.5, a.width, a.height)))
+        .map(|(x, y)| {
+            Ray::new(cam.position, cam.direction(x as f32 + 0.5, y as f32 + 0.5, a.width, a.height))
+        })
         .collect();
-    let gpu_rays: Vec<GpuRay> =
-        rays.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 0.0, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
+    let gpu_rays: Vec<GpuRay> = rays
+        .iter()
+        .map(|r| GpuRay {
+            origin: r.origin.to_array(),
+            t_min: 0.0,
+            dir: r.dir.to_array(),
+            t_max: f32::MAX,
+        })
+        .collect();
     let flat = if a.export.is_some() || a.flat { flattened(&scene) } else { Vec::new() };
     if let Some(dir) = &a.export {
         export_rays(dir, &rays, &flat)?;
@@ -346,8 +394,21 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         let gpu = json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": gpu_hits });
         let (shadow_cpu, shadow_gpu) = shadow.get_or_insert_with(|| {
             let towards = scene.sun.towards;
-            let cpu: Vec<Ray> = rays.iter().zip(&hits).filter(|(_, h)| h.triangle != u32::MAX).map(|(r, h)| Ray::new(r.at(h.t), towards)).collect();
-            let gpu = cpu.iter().map(|r| GpuRay { origin: r.origin.to_array(), t_min: 1e-3, dir: r.dir.to_array(), t_max: f32::MAX }).collect();
+            let cpu: Vec<Ray> = rays
+                .iter()
+                .zip(&hits)
+                .filter(|(_, h)| h.triangle != u32::MAX)
+                .map(|(r, h)| Ray::new(r.at(h.t), towards))
+                .collect();
+            let gpu = cpu
+                .iter()
+                .map(|r| GpuRay {
+                    origin: r.origin.to_array(),
+                    t_min: 1e-3,
+                    dir: r.dir.to_array(),
+                    t_max: f32::MAX,
+                })
+                .collect();
             (cpu, gpu)
         });
         let shadow_caster = RayCaster::shadow(&ctx, &gpu_scene)?;
@@ -366,7 +427,12 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
                 let hits = rays
                     .par_iter()
                     .filter(|r| {
-                        if alpha { accel.closest(&scene, r, 0.0, f32::MAX) } else { accel.closest_opaque(&scene, r, 0.0, f32::MAX) }.is_some()
+                        if alpha {
+                            accel.closest(&scene, r, 0.0, f32::MAX)
+                        } else {
+                            accel.closest_opaque(&scene, r, 0.0, f32::MAX)
+                        }
+                        .is_some()
                     })
                     .count();
                 let s = t.elapsed().as_secs_f64();
@@ -374,9 +440,14 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             };
             let (cpu, cpu_opaque) = (time(true), time(false));
             let t = Instant::now();
-            let blocked = shadow_cpu.par_iter().filter(|r| accel.occluded(&scene, r, 1e-3, f32::MAX)).count();
+            let blocked =
+                shadow_cpu.par_iter().filter(|r| accel.occluded(&scene, r, 1e-3, f32::MAX)).count();
             let s = t.elapsed().as_secs_f64();
-            (cpu, cpu_opaque, json!({ "mrays_per_second": shadow_cpu.len() as f64 / s / 1e6, "ms": s * 1e3, "blocked": blocked, "threads": threads }))
+            (
+                cpu,
+                cpu_opaque,
+                json!({ "mrays_per_second": shadow_cpu.len() as f64 / s / 1e6, "ms": s * 1e3, "blocked": blocked, "threads": threads }),
+            )
         };
         traversal.push(json!({
             "accel": kind,
@@ -405,9 +476,15 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
                 lb_strength: 0.35,
                 view: Default::default(),
             };
-            prepared.renderer.render_strip(&ctx, &RenderSettings { width: 64, height: 32, ..f }, 0, 64)?; // warm-up
+            prepared.renderer.render_strip(
+                &ctx,
+                &RenderSettings { width: 64, height: 32, ..f },
+                0,
+                64,
+            )?; // warm-up
             let t = Instant::now();
-            let frame = InProcess::new(&ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;
+            let frame =
+                InProcess::new(&ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;
             let s = t.elapsed().as_secs_f64();
             let [primary, shadow, transparent] = frame.rays;
             frames.push(json!({
@@ -508,34 +585,55 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
             o => Err(anyhow::anyhow!("--schedule {o:?}: static or dynamic")),
         })
         .collect::<anyhow::Result<_>>()?;
-    anyhow::ensure!(a.workers.iter().all(|&n| (1..=1024).contains(&n)), "--workers: counts in [1, 1024]");
-    anyhow::ensure!(a.width > 0 && a.height > 0 && a.width <= 16384 && a.height <= 16384, "image sides in [1, 16384]");
+    anyhow::ensure!(
+        a.workers.iter().all(|&n| (1..=1024).contains(&n)),
+        "--workers: counts in [1, 1024]"
+    );
+    anyhow::ensure!(
+        a.width > 0 && a.height > 0 && a.width <= 16384 && a.height <= 16384,
+        "image sides in [1, 16384]"
+    );
     let scene = sylva_scene::Scene::load(&a.scene)?;
     let bundle = sylva_scene::bundle::pack(&a.scene)?;
-    let frame =
-        sylva_scene::frame::FrameSettings { width: a.width, height: a.height, spp: a.spp, lighting: Some(scene.lighting), ..Default::default() };
+    let frame = sylva_scene::frame::FrameSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        lighting: Some(scene.lighting),
+        ..Default::default()
+    };
     frame.check()?;
     let rt = tokio::runtime::Runtime::new()?;
     let deadline = std::time::Duration::from_secs(3600);
     // One worker profiles the frame: strips one at a time on one device.
     let token = sylva_proto::auth::random_token();
     let mut profiler = LocalProcesses::default();
-    let one = Workers { addrs: profiler.start_workers(1, &token)?, token: Some(token.clone()), tls: None };
+    let one = Workers {
+        addrs: profiler.start_workers(1, &token)?,
+        token: Some(token.clone()),
+        tls: None,
+    };
     let whole = vec![(0, a.width)];
     Farm::new(&rt, one.clone(), &bundle, frame, deadline).render(&whole, &|_| {})?; // prepare + compile
     let t = Instant::now();
     let single = Farm::new(&rt, one.clone(), &bundle, frame, deadline).render(&whole, &|_| {})?;
     let single_ms = t.elapsed().as_secs_f64() * 1e3;
     let n = a.profile_strips.clamp(1, a.width);
-    let fine: Vec<(u32, u32)> = (0..n).map(|i| (i * a.width / n, (i + 1) * a.width / n)).filter(|s| s.0 < s.1).collect();
+    let fine: Vec<(u32, u32)> =
+        (0..n).map(|i| (i * a.width / n, (i + 1) * a.width / n)).filter(|s| s.0 < s.1).collect();
     let profile = Farm::new(&rt, one, &bundle, frame, deadline).render(&fine, &|_| {})?;
     drop(profiler);
     let column_ms = column_cost(a.width, &profile.strip_ms);
-    let overhead: f64 = profile.strip_ms.iter().map(|&(_, render, rpc)| (rpc - render).max(0.0)).sum();
+    let overhead: f64 =
+        profile.strip_ms.iter().map(|&(_, render, rpc)| (rpc - render).max(0.0)).sum();
     let t = Instant::now();
     let _ = reinhard(&single.image, 0.18);
     let assembly_ms = t.elapsed().as_secs_f64() * 1e3;
-    let cost = FrameCost { column_ms, per_strip_ms: overhead / profile.strip_ms.len().max(1) as f64, assembly_ms };
+    let cost = FrameCost {
+        column_ms,
+        per_strip_ms: overhead / profile.strip_ms.len().max(1) as f64,
+        assembly_ms,
+    };
 
     let mut rows = Vec::new();
     let mut lines = Vec::new();
@@ -546,22 +644,34 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
             let plan = scheduler(kind).plan(a.width, w, &cost.column_ms);
             let sim = cost.frame_ms(&plan, w);
             // Measured wall time where real workers are at hand.
-            let measured = if w <= a.real_workers.len() || (a.real_workers.is_empty() && w <= a.local_real) {
-                let (_local, workers) = if a.real_workers.is_empty() {
-                    let mut l = LocalProcesses::default();
-                    let ws = Workers { addrs: l.start_workers(w, &token)?, token: Some(token.clone()), tls: None };
-                    (Some(l), ws)
+            let measured =
+                if w <= a.real_workers.len() || (a.real_workers.is_empty() && w <= a.local_real) {
+                    let (_local, workers) = if a.real_workers.is_empty() {
+                        let mut l = LocalProcesses::default();
+                        let ws = Workers {
+                            addrs: l.start_workers(w, &token)?,
+                            token: Some(token.clone()),
+                            tls: None,
+                        };
+                        (Some(l), ws)
+                    } else {
+                        (
+                            None,
+                            Workers {
+                                addrs: a.real_workers[..w].to_vec(),
+                                token: a.auth.load()?,
+                                tls: a.tls.load()?,
+                            },
+                        )
+                    };
+                    let mut farm = Farm::new(&rt, workers, &bundle, frame, deadline);
+                    farm.render(&plan, &|_| {})?; // every worker prepares
+                    let t = Instant::now();
+                    farm.render(&plan, &|_| {})?;
+                    Some(t.elapsed().as_secs_f64() * 1e3 + cost.assembly_ms)
                 } else {
-                    (None, Workers { addrs: a.real_workers[..w].to_vec(), token: a.auth.load()?, tls: a.tls.load()? })
+                    None
                 };
-                let mut farm = Farm::new(&rt, workers, &bundle, frame, deadline);
-                farm.render(&plan, &|_| {})?; // every worker prepares
-                let t = Instant::now();
-                farm.render(&plan, &|_| {})?;
-                Some(t.elapsed().as_secs_f64() * 1e3 + cost.assembly_ms)
-            } else {
-                None
-            };
             pts.push((w as f64, base / sim));
             rows.push(json!({
                 "schedule": kind,
@@ -580,13 +690,23 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
         });
     }
     let max_w = a.workers.iter().copied().max().unwrap_or(1) as f64;
-    lines.insert(0, Series { name: "ideal".into(), color: "#888", dashed: true, points: vec![(0.0, 0.0), (max_w, max_w)] });
+    lines.insert(
+        0,
+        Series {
+            name: "ideal".into(),
+            color: "#888",
+            dashed: true,
+            points: vec![(0.0, 0.0), (max_w, max_w)],
+        },
+    );
     let paper_base = 2.277;
     lines.push(Series {
         name: "paper, G80s".into(),
         color: "#27ae60",
         dashed: true,
-        points: std::iter::once((1.0, 1.0)).chain(PAPER_TABLE_4.iter().map(|&(w, s)| (w as f64, paper_base / s))).collect(),
+        points: std::iter::once((1.0, 1.0))
+            .chain(PAPER_TABLE_4.iter().map(|&(w, s)| (w as f64, paper_base / s)))
+            .collect(),
     });
     let ticks: Vec<f64> = a.workers.iter().map(|&w| w as f64).collect();
     if let Some(dir) = a.chart.parent().filter(|d| !d.as_os_str().is_empty()) {

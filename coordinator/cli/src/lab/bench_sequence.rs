@@ -55,7 +55,11 @@ pub struct SequenceBenchArgs {
 
 /// `ELEVATION,AZIMUTH`.
 fn angles(s: &str) -> anyhow::Result<SunAngles> {
-    let v: Vec<f32> = s.split(',').map(|x| x.trim().parse::<f32>()).collect::<Result<_, _>>().with_context(|| format!("{s:?}: ELEVATION,AZIMUTH"))?;
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("{s:?}: ELEVATION,AZIMUTH"))?;
     anyhow::ensure!(v.len() == 2, "{s:?}: ELEVATION,AZIMUTH");
     Ok(SunAngles { elevation_deg: v[0], azimuth_deg: v[1] })
 }
@@ -78,10 +82,23 @@ impl Farm {
     }
 
     /// Renders `views` (empty: one plain frame) as one job; milliseconds.
-    fn render(&self, rt: &tokio::runtime::Runtime, bundle: &SceneBundle, frame: &FrameSettings, views: &[View]) -> anyhow::Result<f64> {
+    fn render(
+        &self,
+        rt: &tokio::runtime::Runtime,
+        bundle: &SceneBundle,
+        frame: &FrameSettings,
+        views: &[View],
+    ) -> anyhow::Result<f64> {
         let spec = job_spec(frame, views, ScheduleArg::Dynamic, 0, "bench sequence");
         let t = Instant::now();
-        rt.block_on(submit_and_follow(&self.coordinator, Some(self.token.clone()), None, spec, bundle, false))?;
+        rt.block_on(submit_and_follow(
+            &self.coordinator,
+            Some(self.token.clone()),
+            None,
+            spec,
+            bundle,
+            false,
+        ))?;
         Ok(t.elapsed().as_secs_f64() * 1e3)
     }
 
@@ -90,7 +107,8 @@ impl Farm {
         rt.block_on(async {
             let mut out = Vec::new();
             for w in &self.workers {
-                let mut c = sylva_coordinator::farm::connect(w, Some(self.token.clone()), None).await?;
+                let mut c =
+                    sylva_coordinator::farm::connect(w, Some(self.token.clone()), None).await?;
                 out.push(c.status(pb::StatusRequest {}).await?.into_inner());
             }
             Ok(out)
@@ -105,15 +123,23 @@ impl Farm {
 
 pub fn run(a: SequenceBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(a.frames >= 2, "--frames {}: a sequence of at least 2", a.frames);
-    let text = std::fs::read_to_string(&a.scene).with_context(|| format!("{}: cannot read", a.scene.display()))?;
+    let text = std::fs::read_to_string(&a.scene)
+        .with_context(|| format!("{}: cannot read", a.scene.display()))?;
     let file = sylva_scene::parse(&text, &a.scene.display().to_string())?;
     let bundle = sylva_scene::bundle::pack(&a.scene)?;
     let rt = tokio::runtime::Runtime::new()?;
-    let frame = FrameSettings { width: a.width, height: a.height, spp: a.spp, lighting: Some(LightingMode::Lb), ..Default::default() };
+    let frame = FrameSettings {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        lighting: Some(LightingMode::Lb),
+        ..Default::default()
+    };
     frame.check()?;
 
     // A quarter orbit around the scene's target, keys every third of the way.
-    let (eye, target) = (glam::Vec3::from(file.camera.position), glam::Vec3::from(file.camera.look_at));
+    let (eye, target) =
+        (glam::Vec3::from(file.camera.position), glam::Vec3::from(file.camera.look_at));
     let last = a.frames - 1;
     let camera: Vec<CameraKey> = (0..4)
         .map(|k| {
@@ -127,9 +153,12 @@ pub fn run(a: SequenceBenchArgs) -> anyhow::Result<()> {
             }
         })
         .collect();
-    let path = SequenceSpec { frames: a.frames, sun: None, camera }.views().map_err(anyhow::Error::msg)?;
+    let path =
+        SequenceSpec { frames: a.frames, sun: None, camera }.views().map_err(anyhow::Error::msg)?;
     let sweep = SunSweep { from: angles(&a.sun_from)?, to: angles(&a.sun_to)? };
-    let suns = SequenceSpec { frames: a.frames, sun: Some(sweep), camera: Vec::new() }.views().map_err(anyhow::Error::msg)?;
+    let suns = SequenceSpec { frames: a.frames, sun: Some(sweep), camera: Vec::new() }
+        .views()
+        .map_err(anyhow::Error::msg)?;
     let n = a.frames as f64;
 
     // The camera path: warm the farm with one frame, then one job against
@@ -146,7 +175,10 @@ pub fn run(a: SequenceBenchArgs) -> anyhow::Result<()> {
 
     // The sun sweep, twice, on workers with and without the LB kept per sun.
     let mut sweeps = Vec::new();
-    for (name, flags) in [("lb cache", vec![]), ("no lb cache", vec!["--lb-cache-entries".to_string(), "0".to_string()])] {
+    for (name, flags) in [
+        ("lb cache", vec![]),
+        ("no lb cache", vec!["--lb-cache-entries".to_string(), "0".to_string()]),
+    ] {
         let farm = Farm::start(a.workers, &flags)?;
         let preview = FrameSettings { spp: 1, ..frame };
         let preview_ms = farm.render(&rt, &bundle, &preview, &suns)?;
@@ -159,7 +191,8 @@ pub fn run(a: SequenceBenchArgs) -> anyhow::Result<()> {
             "final_pass": { "spp": a.spp, "ms": final_ms, "ms_per_frame": final_ms / n, "lb_solves": final_solves },
         }));
     }
-    let per_frame = |v: &serde_json::Value| v["final_pass"]["ms_per_frame"].as_f64().unwrap_or(f64::NAN);
+    let per_frame =
+        |v: &serde_json::Value| v["final_pass"]["ms_per_frame"].as_f64().unwrap_or(f64::NAN);
     let out = json!({
         "benchmark": "sequence",
         "scene": a.scene,

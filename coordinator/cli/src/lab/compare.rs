@@ -124,20 +124,35 @@ fn ms(t: Instant) -> f64 {
 }
 
 pub fn run(a: CompareArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(a.width >= 8 && a.height >= 8 && a.width <= 4096 && a.height <= 4096, "image sides in [8, 4096]");
+    anyhow::ensure!(
+        a.width >= 8 && a.height >= 8 && a.width <= 4096 && a.height <= 4096,
+        "image sides in [8, 4096]"
+    );
     anyhow::ensure!((1..=256).contains(&a.spp), "--spp {}: valid range [1, 256]", a.spp);
     anyhow::ensure!(a.grids.iter().all(|g| (4..=256).contains(g)), "--grids: each in [4, 256]");
     let mut distinct = a.grids.clone();
     distinct.sort_unstable();
     distinct.dedup();
-    anyhow::ensure!(distinct.len() >= 2, "--grids needs two sizes or more: `lb auto` chooses between them");
-    anyhow::ensure!(a.target_error.is_finite() && a.target_error > 0.0, "--target-error must be > 0");
-    anyhow::ensure!(a.auto_tolerance.is_finite() && a.auto_tolerance > 0.0, "--auto-tolerance must be > 0");
-    std::fs::create_dir_all(&a.out).with_context(|| format!("{}: cannot create folder", a.out.display()))?;
+    anyhow::ensure!(
+        distinct.len() >= 2,
+        "--grids needs two sizes or more: `lb auto` chooses between them"
+    );
+    anyhow::ensure!(
+        a.target_error.is_finite() && a.target_error > 0.0,
+        "--target-error must be > 0"
+    );
+    anyhow::ensure!(
+        a.auto_tolerance.is_finite() && a.auto_tolerance > 0.0,
+        "--auto-tolerance must be > 0"
+    );
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("{}: cannot create folder", a.out.display()))?;
     let scene = Scene::load(&a.scene)?;
     let ctx = GpuContext::new()?;
     let bar = ProgressBar::new_spinner();
-    bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
+    );
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let say = |m: &str| bar.set_message(m.to_string());
     let settings = RenderSettings {
@@ -155,34 +170,61 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     say("reference: path tracing");
     let cache = a.out.join("reference.bin");
     let key = reference_key(&a)?;
-    let cached = if a.reuse_reference { load_reference(&cache, &key, a.width, a.height) } else { None };
+    let cached =
+        if a.reuse_reference { load_reference(&cache, &key, a.width, a.height) } else { None };
     let (r, build_ms, pre, reused) = match cached {
         Some(r) => (r, 0.0, 0.0, true),
         None => {
             let t = Instant::now();
-            let prepared = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|m| say(m))?;
-            let opts = ReferenceOptions { target_error: a.target_error, max_seconds: a.max_seconds, ..Default::default() };
+            let prepared =
+                prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|m| say(m))?;
+            let opts = ReferenceOptions {
+                target_error: a.target_error,
+                max_seconds: a.max_seconds,
+                ..Default::default()
+            };
             let build_ms = prepared.phases.ms("build");
             let pre = ms(t) - build_ms - prepared.phases.ms("upload");
             let r = render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
-                bar.set_message(format!("reference: {} spp, relative standard error {:.4} (target {})", s.spp, s.relative_error, a.target_error))
+                bar.set_message(format!(
+                    "reference: {} spp, relative standard error {:.4} (target {})",
+                    s.spp, s.relative_error, a.target_error
+                ))
             })?;
             save_reference(&cache, &key, &r)?;
             (r, build_ms, pre, false)
         }
     };
     let reference = r.image.clone();
-    let lit: Vec<bool> = r.coverage.iter().zip(&reference.pixels).map(|(&c, &p)| c >= 0.5 && luminance(p) > 0.0).collect();
-    anyhow::ensure!(lit.iter().any(|&l| l), "no pixel of the frame shows a lit model: nothing to compare");
+    let lit: Vec<bool> = r
+        .coverage
+        .iter()
+        .zip(&reference.pixels)
+        .map(|(&c, &p)| c >= 0.5 && luminance(p) > 0.0)
+        .collect();
+    anyhow::ensure!(
+        lit.iter().any(|&l| l),
+        "no pixel of the frame shows a lit model: nothing to compare"
+    );
     let (_, exposure) = reinhard(&reference, 0.18);
 
-    let mut methods: Vec<(String, LightingMode, Scene)> =
-        vec![("local".into(), LightingMode::Local, scene.clone()), ("ambient".into(), LightingMode::Ambient, scene.clone())];
+    let mut methods: Vec<(String, LightingMode, Scene)> = vec![
+        ("local".into(), LightingMode::Local, scene.clone()),
+        ("ambient".into(), LightingMode::Ambient, scene.clone()),
+    ];
     for &g in &a.grids {
-        methods.push((format!("lb {g}³"), LightingMode::Lb, with_lb(&scene, Some(g), Some(ForestGridUse::Never))));
+        methods.push((
+            format!("lb {g}³"),
+            LightingMode::Lb,
+            with_lb(&scene, Some(g), Some(ForestGridUse::Never)),
+        ));
     }
     let forest_grid = scene.models.first().map_or(32, |m| m.lb.grid);
-    methods.push((format!("lb {forest_grid}³ + forest grid"), LightingMode::Lb, with_lb(&scene, None, Some(ForestGridUse::Always))));
+    methods.push((
+        format!("lb {forest_grid}³ + forest grid"),
+        LightingMode::Lb,
+        with_lb(&scene, None, Some(ForestGridUse::Always)),
+    ));
     // The papers' model as written, beside the grounded one.
     let mut paper = with_lb(&scene, None, Some(ForestGridUse::Always));
     paper.file.lb_model = LbModel::Paper;
@@ -192,7 +234,17 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     let mut rendered: Vec<Rendered> = Vec::new();
     for (name, lighting, s) in &methods {
         say(name);
-        rendered.push(render_method(&ctx, name, *lighting, s, &settings, &a.out, &exposure, a.hdr, &|m| say(m))?);
+        rendered.push(render_method(
+            &ctx,
+            name,
+            *lighting,
+            s,
+            &settings,
+            &a.out,
+            &exposure,
+            a.hdr,
+            &|m| say(m),
+        )?);
     }
     // `--lb-grid auto`: the smallest grid per species that agrees with the next finer one.
     say("lb auto: choosing grids");
@@ -203,7 +255,17 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     for (m, c) in auto_scene.models.iter_mut().zip(&choices) {
         m.lb.grid = c.grid;
     }
-    let mut auto = render_method(&ctx, "lb auto", LightingMode::Lb, &auto_scene, &settings, &a.out, &exposure, a.hdr, &|m| say(m))?;
+    let mut auto = render_method(
+        &ctx,
+        "lb auto",
+        LightingMode::Lb,
+        &auto_scene,
+        &settings,
+        &a.out,
+        &exposure,
+        a.hdr,
+        &|m| say(m),
+    )?;
     auto.report.preprocess_ms += choose_ms;
     auto.report.notes["grid_choice"] = serde_json::to_value(&choices)?;
     rendered.push(auto);
@@ -227,12 +289,17 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         write_hdr(&a.out.join("reference-local.npy"), &r.local)?;
         let (h, w) = (a.height as u64, a.width as u64);
         let var: Vec<f32> = r.indirect_variance.iter().flatten().copied().collect();
-        sylva_light::npy::write_f32(&a.out.join("reference-indirect-variance.npy"), &[h, w, 3], &var)?;
+        sylva_light::npy::write_f32(
+            &a.out.join("reference-indirect-variance.npy"),
+            &[h, w, 3],
+            &var,
+        )?;
         sylva_light::npy::write_f32(&a.out.join("reference-coverage.npy"), &[h, w], &r.coverage)?;
     }
     let grid_svg = a.out.join("figure2.svg");
     write_figure(&grid_svg, &a, &rendered, &reference)?;
-    let mut reports: Vec<MethodReport> = rendered.iter_mut().map(|m| std::mem::replace(&mut m.report, empty_report())).collect();
+    let mut reports: Vec<MethodReport> =
+        rendered.iter_mut().map(|m| std::mem::replace(&mut m.report, empty_report())).collect();
     reports.push(MethodReport {
         name: "reference".into(),
         lighting: LightingMode::Reference,
@@ -252,7 +319,8 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     });
 
     let chart = a.chart.clone().unwrap_or_else(|| a.out.join("compare.svg"));
-    std::fs::write(&chart, error_chart(&reports)).with_context(|| format!("{}: cannot write", chart.display()))?;
+    std::fs::write(&chart, error_chart(&reports))
+        .with_context(|| format!("{}: cannot write", chart.display()))?;
     let sweeps = if a.sweeps { Some(write_sweeps(&a.out)?) } else { None };
     let best = winner(&reports);
     let table = json!({
@@ -291,7 +359,12 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
             );
         }
         println!("{}", best);
-        println!("wrote {}, {} and {}", a.out.join("compare.json").display(), grid_svg.display(), chart.display());
+        println!(
+            "wrote {}, {} and {}",
+            a.out.join("compare.json").display(),
+            grid_svg.display(),
+            chart.display()
+        );
     }
     Ok(())
 }
@@ -344,24 +417,42 @@ fn render_method(
     say: &dyn Fn(&str),
 ) -> anyhow::Result<Rendered> {
     let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
-    let mut pre: f64 = prepared.phases.0.iter().filter(|p| !matches!(p.name, "build" | "upload")).map(|p| p.ms).sum::<f64>() + 0.0;
+    let mut pre: f64 = prepared
+        .phases
+        .0
+        .iter()
+        .filter(|p| !matches!(p.name, "build" | "upload"))
+        .map(|p| p.ms)
+        .sum::<f64>()
+        + 0.0;
     let mut settings = RenderSettings { lighting, ..*f };
     if lighting == LightingMode::Ambient {
         let t = Instant::now();
-        settings.ambient = sylva_worker::lighting::ambient::matched(&prepared.renderer, ctx, &settings)?;
+        settings.ambient =
+            sylva_worker::lighting::ambient::matched(&prepared.renderer, ctx, &settings)?;
         pre += ms(t);
     }
     say(&format!("{name}: rendering"));
     // One untimed strip first: the pipeline's first dispatch compiles it.
-    prepared.renderer.render_strip(ctx, &RenderSettings { width: 8, height: 8, spp: 1, ..settings }, 0, 8)?;
+    prepared.renderer.render_strip(
+        ctx,
+        &RenderSettings { width: 8, height: 8, spp: 1, ..settings },
+        0,
+        8,
+    )?;
     let t = Instant::now();
-    let image = InProcess::new(ctx, &prepared.renderer, settings).render(&[(0, f.width)], &|_| {})?.image;
+    let image =
+        InProcess::new(ctx, &prepared.renderer, settings).render(&[(0, f.width)], &|_| {})?.image;
     let frame_ms = ms(t);
     // The same frame with other seeds (untimed): with `local`'s second
     // render, the spread of the two tells the method's own sampling noise.
-    let again = InProcess::new(ctx, &prepared.renderer, RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings })
-        .render(&[(0, f.width)], &|_| {})?
-        .image;
+    let again = InProcess::new(
+        ctx,
+        &prepared.renderer,
+        RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings },
+    )
+    .render(&[(0, f.width)], &|_| {})?
+    .image;
     let file = out.join(format!("{}.png", name.replace(['³', ' ', '+'], "").replace("lb", "lb-")));
     write_png(&file, f.width, f.height, &reinhard_like(&image, exposure))?;
     if hdr {
@@ -489,7 +580,8 @@ fn reference_key(a: &CompareArgs) -> anyhow::Result<String> {
     h.update(bundle.hash.as_bytes());
     h.update(format!("{}x{} {} {}", a.width, a.height, a.target_error, a.max_seconds).as_bytes());
     let exe = std::env::current_exe().context("this program's own file")?;
-    let mut file = std::fs::File::open(&exe).with_context(|| format!("{}: cannot read", exe.display()))?;
+    let mut file =
+        std::fs::File::open(&exe).with_context(|| format!("{}: cannot read", exe.display()))?;
     std::io::copy(&mut file, &mut h).with_context(|| format!("{}: cannot read", exe.display()))?;
     Ok(h.finalize().to_hex().to_string())
 }
@@ -510,15 +602,30 @@ fn save_reference(path: &Path, key: &str, r: &ReferenceImage) -> anyhow::Result<
 /// The saved reference if it was made for `key` and has the image's size;
 /// otherwise `None` (and the reason, logged), so the reference is rendered.
 fn load_reference(path: &Path, key: &str, width: u32, height: u32) -> Option<ReferenceImage> {
-    let bytes = std::fs::read(path).map_err(|e| tracing::info!("{}: no saved reference ({e})", path.display())).ok()?;
-    let saved: SavedReference = postcard::from_bytes(&bytes).map_err(|e| tracing::warn!("{}: unreadable reference ({e})", path.display())).ok()?;
+    let bytes = std::fs::read(path)
+        .map_err(|e| tracing::info!("{}: no saved reference ({e})", path.display()))
+        .ok()?;
+    let saved: SavedReference = postcard::from_bytes(&bytes)
+        .map_err(|e| tracing::warn!("{}: unreadable reference ({e})", path.display()))
+        .ok()?;
     let n = (width * height) as usize;
     let r = saved.reference;
-    let sized = [r.image.pixels.len(), r.local.pixels.len(), r.coverage.len(), r.std_error.len(), r.indirect_variance.len()].iter().all(|&l| l == n)
+    let sized = [
+        r.image.pixels.len(),
+        r.local.pixels.len(),
+        r.coverage.len(),
+        r.std_error.len(),
+        r.indirect_variance.len(),
+    ]
+    .iter()
+    .all(|&l| l == n)
         && r.image.width == width
         && r.image.height == height;
     if saved.key != key || !sized {
-        tracing::warn!("{}: made for another scene, size, budget or build; rendering a new reference", path.display());
+        tracing::warn!(
+            "{}: made for another scene, size, budget or build; rendering a new reference",
+            path.display()
+        );
         return None;
     }
     tracing::info!("{}: reusing the saved reference ({} spp)", path.display(), r.stats.spp);
@@ -528,9 +635,17 @@ fn load_reference(path: &Path, key: &str, width: u32, height: u32) -> Option<Ref
 /// Which method wins where: the most accurate, the fastest that beats
 /// constant ambient, and the best error per unit time.
 fn winner(reports: &[MethodReport]) -> String {
-    let methods: Vec<&MethodReport> = reports.iter().filter(|m| m.lighting != LightingMode::Reference).collect();
-    let Some(best) = methods.iter().min_by(|a, b| a.mean_relative_error.total_cmp(&b.mean_relative_error)) else { return String::new() };
-    let ambient = methods.iter().find(|m| m.lighting == LightingMode::Ambient).map_or(f64::INFINITY, |m| m.mean_relative_error);
+    let methods: Vec<&MethodReport> =
+        reports.iter().filter(|m| m.lighting != LightingMode::Reference).collect();
+    let Some(best) =
+        methods.iter().min_by(|a, b| a.mean_relative_error.total_cmp(&b.mean_relative_error))
+    else {
+        return String::new();
+    };
+    let ambient = methods
+        .iter()
+        .find(|m| m.lighting == LightingMode::Ambient)
+        .map_or(f64::INFINITY, |m| m.mean_relative_error);
     let cheapest_better = methods
         .iter()
         .filter(|m| m.mean_relative_error < ambient)
@@ -559,8 +674,10 @@ fn winner(reports: &[MethodReport]) -> String {
     s
 }
 
-const COLORS: [&str; 12] =
-    ["#444444", "#999999", "#1f77b4", "#2ca02c", "#17becf", "#9467bd", "#8c564b", "#d62728", "#ff7f0e", "#e377c2", "#bcbd22", "#000000"];
+const COLORS: [&str; 12] = [
+    "#444444", "#999999", "#1f77b4", "#2ca02c", "#17becf", "#9467bd", "#8c564b", "#d62728",
+    "#ff7f0e", "#e377c2", "#bcbd22", "#000000",
+];
 
 /// Mean relative error against log10 of pre-process + frame time, every method a point.
 fn error_chart(reports: &[MethodReport]) -> String {
@@ -572,10 +689,14 @@ fn error_chart(reports: &[MethodReport]) -> String {
             name: m.name.clone(),
             color: COLORS[i % COLORS.len()],
             dashed: false,
-            points: vec![((m.preprocess_ms + m.frame_ms).max(1.0).log10(), 100.0 * m.mean_relative_error)],
+            points: vec![(
+                (m.preprocess_ms + m.frame_ms).max(1.0).log10(),
+                100.0 * m.mean_relative_error,
+            )],
         })
         .collect();
-    let hi = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0f64, f64::max).ceil() as i32;
+    let hi = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0f64, f64::max).ceil()
+        as i32;
     let ticks: Vec<f64> = (0..=hi).map(f64::from).collect();
     line_chart(
         "Error against time (reference = path tracer)",
@@ -588,16 +709,25 @@ fn error_chart(reports: &[MethodReport]) -> String {
 
 /// Figure 2 of the forest paper as an SVG of PNG tiles: full (LB), local,
 /// ambient matched, LB visualization, reference, and error heat maps.
-fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: &HdrImage) -> anyhow::Result<()> {
+fn write_figure(
+    path: &Path,
+    a: &CompareArgs,
+    rendered: &[Rendered],
+    reference: &HdrImage,
+) -> anyhow::Result<()> {
     let find = |pred: &dyn Fn(&MethodReport) -> bool| rendered.iter().find(|m| pred(&m.report));
     let lb = find(&|m| m.name == "lb auto").or_else(|| find(&|m| m.lighting == LightingMode::Lb));
     let mut tiles: Vec<(String, PathBuf)> = Vec::new();
     let dir = path.parent().unwrap_or(Path::new("."));
-    let name_of = |p: &str| PathBuf::from(p).file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_default();
+    let name_of = |p: &str| {
+        PathBuf::from(p).file_name().map(|f| f.to_string_lossy().to_string()).unwrap_or_default()
+    };
     if let Some(m) = lb {
         tiles.push((format!("(a) full: {}", m.report.name), name_of(&m.report.image).into()));
     }
-    for (label, l) in [("(b) local", LightingMode::Local), ("(c) ambient matched", LightingMode::Ambient)] {
+    for (label, l) in
+        [("(b) local", LightingMode::Local), ("(c) ambient matched", LightingMode::Ambient)]
+    {
         if let Some(m) = find(&|m| m.lighting == l) {
             tiles.push((label.into(), name_of(&m.report.image).into()));
         }
@@ -608,7 +738,13 @@ fn write_figure(path: &Path, a: &CompareArgs, rendered: &[Rendered], reference: 
         let diff = HdrImage {
             width: a.width,
             height: a.height,
-            pixels: m.image.pixels.iter().zip(&l.image.pixels).map(|(p, q)| std::array::from_fn(|c| (p[c] - q[c]).max(0.0))).collect(),
+            pixels: m
+                .image
+                .pixels
+                .iter()
+                .zip(&l.image.pixels)
+                .map(|(p, q)| std::array::from_fn(|c| (p[c] - q[c]).max(0.0)))
+                .collect(),
         };
         let (ldr, _) = reinhard(&diff, 0.18);
         write_png(&dir.join("lb-visualize.png"), a.width, a.height, &ldr)?;
@@ -676,19 +812,37 @@ fn write_sweeps(out: &Path) -> anyhow::Result<serde_json::Value> {
     let mut all = Vec::new();
     for sweep in sylva_light::studies::limits::failure_sweeps(true) {
         let lb: Vec<(f64, f64)> = sweep.points.iter().map(|p| (p.x, 100.0 * p.lb_error)).collect();
-        let amb: Vec<(f64, f64)> = sweep.points.iter().map(|p| (p.x, 100.0 * p.ambient_error)).collect();
-        let warned: Vec<(f64, f64)> = sweep.points.iter().filter(|p| p.warned).map(|p| (p.x, 100.0 * p.lb_error)).collect();
+        let amb: Vec<(f64, f64)> =
+            sweep.points.iter().map(|p| (p.x, 100.0 * p.ambient_error)).collect();
+        let warned: Vec<(f64, f64)> =
+            sweep.points.iter().filter(|p| p.warned).map(|p| (p.x, 100.0 * p.lb_error)).collect();
         let mut xs: Vec<f64> = sweep.points.iter().map(|p| p.x).collect();
         xs.sort_by(f64::total_cmp);
         let series = [
             Series { name: "LB".into(), color: "#2ca02c", dashed: false, points: sorted(lb) },
-            Series { name: "constant ambient".into(), color: "#999999", dashed: true, points: sorted(amb) },
-            Series { name: "LB, warned".into(), color: "#d62728", dashed: false, points: sorted(warned) },
+            Series {
+                name: "constant ambient".into(),
+                color: "#999999",
+                dashed: true,
+                points: sorted(amb),
+            },
+            Series {
+                name: "LB, warned".into(),
+                color: "#d62728",
+                dashed: false,
+                points: sorted(warned),
+            },
         ];
         let file = out.join(format!("failure-{}.svg", sweep.name.replace(' ', "-")));
         std::fs::write(
             &file,
-            line_chart(&format!("LB against Monte Carlo: {}", sweep.name), sweep.x_label, "relative RMS error of fluence, %", &xs, &series),
+            line_chart(
+                &format!("LB against Monte Carlo: {}", sweep.name),
+                sweep.x_label,
+                "relative RMS error of fluence, %",
+                &xs,
+                &series,
+            ),
         )?;
         all.push(json!({ "name": sweep.name, "x_label": sweep.x_label, "chart": file, "points": sweep.points.iter().map(|p| json!({ "x": p.x, "lb_error": p.lb_error, "ambient_error": p.ambient_error, "warned": p.warned, "lb_ms": p.lb_ms, "mc_ms": p.mc_ms })).collect::<Vec<_>>() }));
     }

@@ -27,7 +27,12 @@ impl FrameCost {
     pub fn frame_ms(&self, plan: &[Strip], workers: usize) -> f64 {
         let mut free_at = vec![0.0f64; workers.max(1)];
         for &s in plan {
-            let w = free_at.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i).expect("at least one worker");
+            let w = free_at
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(b.1))
+                .map(|(i, _)| i)
+                .expect("at least one worker");
             free_at[w] += self.strip_ms(s);
         }
         free_at.iter().copied().fold(0.0, f64::max) + self.assembly_ms
@@ -46,7 +51,11 @@ mod tests {
         let four = flat.frame_ms(&Static.plan(800, 4, &[]), 4);
         assert!((one / four - 4.0).abs() < 1e-9);
         // All the work on the right: one static strip gets all of it.
-        let skew = FrameCost { column_ms: (0..800).map(|x| if x >= 600 { 4.0 } else { 0.1 }).collect(), per_strip_ms: 0.5, assembly_ms: 2.0 };
+        let skew = FrameCost {
+            column_ms: (0..800).map(|x| if x >= 600 { 4.0 } else { 0.1 }).collect(),
+            per_strip_ms: 0.5,
+            assembly_ms: 2.0,
+        };
         let st = skew.frame_ms(&Static.plan(800, 4, &[]), 4);
         let dy = skew.frame_ms(&Dynamic::default().plan(800, 4, &skew.column_ms), 4);
         assert!(dy < 0.6 * st, "dynamic {dy} vs static {st}");

@@ -58,7 +58,14 @@ pub struct BvhNode {
 
 impl BvhNode {
     /// A node with every child slot empty.
-    pub const EMPTY: BvhNode = BvhNode { origin: [0.0; 3], exponents: 0, child: [EMPTY; WIDTH], lo: [0; 3], hi: [0; 3], count: [0; 2] };
+    pub const EMPTY: BvhNode = BvhNode {
+        origin: [0.0; 3],
+        exponents: 0,
+        child: [EMPTY; WIDTH],
+        lo: [0; 3],
+        hi: [0; 3],
+        count: [0; 2],
+    };
 
     /// The grid step on `axis`.
     #[inline(always)]
@@ -80,7 +87,11 @@ impl BvhNode {
 
     /// Child `i`'s box.
     pub fn child_box(&self, i: usize) -> Aabb {
-        let corner = |q: &[u32; 3]| glam::Vec3::from_array(std::array::from_fn(|a| self.origin[a] + byte(q[a], i) as f32 * self.step(a)));
+        let corner = |q: &[u32; 3]| {
+            glam::Vec3::from_array(std::array::from_fn(|a| {
+                self.origin[a] + byte(q[a], i) as f32 * self.step(a)
+            }))
+        };
         Aabb { min: corner(&self.lo), max: corner(&self.hi) }
     }
 
@@ -124,7 +135,9 @@ impl BvhNode {
             // The smallest power-of-two step whose 255 cells reach the top.
             let mut e = if extent > 0.0 { (extent / 255.0).log2().ceil() as i32 } else { -126 };
             e = e.clamp(-126, 127);
-            while e < 127 && bounds.min[a] + 255.0 * f32::from_bits(((e + 127) as u32) << 23) < bounds.max[a] {
+            while e < 127
+                && bounds.min[a] + 255.0 * f32::from_bits(((e + 127) as u32) << 23) < bounds.max[a]
+            {
                 e += 1;
             }
             n.exponents |= ((e + 127) as u32) << (8 * a);
@@ -140,7 +153,9 @@ pub fn prefetch<T>(item: &T) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: a prefetch reads nothing and cannot fault; SSE is part of x86-64.
     unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((item as *const T).cast());
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+            (item as *const T).cast(),
+        );
     }
     #[cfg(not(target_arch = "x86_64"))]
     let _ = item;
@@ -223,12 +238,18 @@ impl Bvh {
     }
 
     fn build_with(bounds: &[Aabb], triangles: Option<&[[glam::Vec3; 3]]>) -> Self {
-        let refs: Vec<Ref> = bounds.iter().enumerate().filter(|(_, b)| !b.is_empty()).map(|(p, &b)| Ref { prim: p as u32, bounds: b }).collect();
+        let refs: Vec<Ref> = bounds
+            .iter()
+            .enumerate()
+            .filter(|(_, b)| !b.is_empty())
+            .map(|(p, &b)| Ref { prim: p as u32, bounds: b })
+            .collect();
         if refs.is_empty() {
             return Bvh::default();
         }
         let (binary, prims) = build_binary(refs, triangles);
-        let mut bvh = Bvh { nodes: Vec::with_capacity(binary.len() / 3 + 1), prims, stack_depth: 0 };
+        let mut bvh =
+            Bvh { nodes: Vec::with_capacity(binary.len() / 3 + 1), prims, stack_depth: 0 };
         if binary[0].count > 0 {
             // A single leaf: a root whose one child it is.
             let mut root = BvhNode::over(binary[0].bounds);
@@ -251,11 +272,17 @@ impl Bvh {
             return Err(format!("primitive {p} of a model with {primitives}"));
         }
         if self.nodes.is_empty() {
-            return if self.stack_depth == 0 { Ok(()) } else { Err("a stack depth for an empty tree".into()) };
+            return if self.stack_depth == 0 {
+                Ok(())
+            } else {
+                Err("a stack depth for an empty tree".into())
+            };
         }
         let mut need = vec![0usize; self.nodes.len()];
         for (i, n) in self.nodes.iter().enumerate().rev() {
-            if !n.origin.iter().all(|v| v.is_finite()) || (0..3).any(|a| !(1..=254).contains(&((n.exponents >> (8 * a)) & 0xff))) {
+            if !n.origin.iter().all(|v| v.is_finite())
+                || (0..3).any(|a| !(1..=254).contains(&((n.exponents >> (8 * a)) & 0xff)))
+            {
                 return Err(format!("node {i}: its grid is not finite"));
             }
             let (mut used, mut deepest) = (0, 0);
@@ -268,10 +295,16 @@ impl Bvh {
                 if c & LEAF != 0 {
                     let (first, count) = ((c & !LEAF) as usize, n.leaf_count(slot) as usize);
                     if count == 0 || first + count > self.prims.len() {
-                        return Err(format!("node {i}: a leaf of {count} primitives from slot {first}, of {}", self.prims.len()));
+                        return Err(format!(
+                            "node {i}: a leaf of {count} primitives from slot {first}, of {}",
+                            self.prims.len()
+                        ));
                     }
                 } else if (c as usize) <= i || c as usize >= self.nodes.len() {
-                    return Err(format!("node {i}: child {c} is not a later node of {}", self.nodes.len()));
+                    return Err(format!(
+                        "node {i}: child {c} is not a later node of {}",
+                        self.nodes.len()
+                    ));
                 } else {
                     deepest = deepest.max(need[c as usize]);
                 }
@@ -280,7 +313,10 @@ impl Bvh {
         }
         let depth = need[0] + 1;
         if depth != self.stack_depth || depth > MAX_STACK {
-            return Err(format!("stack depth {} where the tree needs {depth} (at most {MAX_STACK})", self.stack_depth));
+            return Err(format!(
+                "stack depth {} where the tree needs {depth} (at most {MAX_STACK})",
+                self.stack_depth
+            ));
         }
         Ok(())
     }
@@ -291,9 +327,10 @@ impl Bvh {
         let mut kids = vec![binary[b].first, binary[b].first + 1];
         // Open the largest inner child until the node is full.
         while kids.len() < WIDTH {
-            let Some(i) = (0..kids.len())
-                .filter(|&i| binary[kids[i]].count == 0)
-                .max_by(|&i, &j| binary[kids[i]].bounds.area().total_cmp(&binary[kids[j]].bounds.area()))
+            let Some(i) =
+                (0..kids.len()).filter(|&i| binary[kids[i]].count == 0).max_by(|&i, &j| {
+                    binary[kids[i]].bounds.area().total_cmp(&binary[kids[j]].bounds.area())
+                })
             else {
                 break;
             };
@@ -317,7 +354,13 @@ impl Bvh {
     }
 
     /// The closest primitive hit in `(t_min, t_max)`; see [`crate::Accel::closest`].
-    pub fn closest(&self, ray: &Ray, t_min: f32, t_max: f32, hit: &mut dyn FnMut(u32, f32) -> Option<f32>) -> Option<(u32, f32)> {
+    pub fn closest(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        hit: &mut dyn FnMut(u32, f32) -> Option<f32>,
+    ) -> Option<(u32, f32)> {
         let mut best = None;
         self.walk(ray, t_min, t_max, |first, count, limit| {
             let mut closest = limit;
@@ -341,11 +384,17 @@ impl Bvh {
     /// box)`, the reference as in [`BvhNode::child`].
     pub fn parts(&self, max: usize) -> Vec<(u32, u32, Aabb)> {
         let Some(root) = self.nodes.first() else { return Vec::new() };
-        let entries =
-            |n: &BvhNode| (0..WIDTH).filter(|&i| n.child[i] != EMPTY).map(|i| (n.child[i], n.leaf_count(i), n.child_box(i))).collect::<Vec<_>>();
+        let entries = |n: &BvhNode| {
+            (0..WIDTH)
+                .filter(|&i| n.child[i] != EMPTY)
+                .map(|i| (n.child[i], n.leaf_count(i), n.child_box(i)))
+                .collect::<Vec<_>>()
+        };
         let mut parts = entries(root);
         loop {
-            let open = (0..parts.len()).filter(|&i| parts[i].0 & LEAF == 0).max_by(|&i, &j| parts[i].2.area().total_cmp(&parts[j].2.area()));
+            let open = (0..parts.len())
+                .filter(|&i| parts[i].0 & LEAF == 0)
+                .max_by(|&i, &j| parts[i].2.area().total_cmp(&parts[j].2.area()));
             let Some(i) = open else { break };
             let kids = entries(&self.nodes[parts[i].0 as usize]);
             if parts.len() - 1 + kids.len() > max {
@@ -361,7 +410,13 @@ impl Bvh {
     /// hit: `leaf(first slot, count, closest so far)` returns a closer hit
     /// distance when it finds one. Returns the closest distance.
     #[inline]
-    pub fn walk(&self, ray: &Ray, t_min: f32, t_max: f32, leaf: impl FnMut(u32, u32, f32) -> Option<f32>) -> f32 {
+    pub fn walk(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        leaf: impl FnMut(u32, u32, f32) -> Option<f32>,
+    ) -> f32 {
         self.walk_from((0, 0), ray, t_min, t_max, |_| {}, leaf)
     }
 
@@ -532,7 +587,9 @@ fn best_split(
     let count = refs.len();
     let object = object_split(&refs);
     let spatial = match (triangles, &object) {
-        (Some(triangles), Some(o)) if *budget > 0 && o.left.intersection(o.right).area() > SPATIAL_OVERLAP * root_area => {
+        (Some(triangles), Some(o))
+            if *budget > 0 && o.left.intersection(o.right).area() > SPATIAL_OVERLAP * root_area =>
+        {
             spatial::find(&refs, triangles, bb).filter(|s| s.cost < o.cost).map(|s| (s, triangles))
         }
         _ => None,
@@ -603,8 +660,15 @@ fn object_split(refs: &[Ref]) -> Option<ObjectSplit> {
         if extent[axis] <= 0.0 {
             continue;
         }
-        let mut split =
-            ObjectSplit { cost: 0.0, axis, boundary: 0, min: cb.min[axis], scale: BINS as f32 / extent[axis], left: Aabb::EMPTY, right: Aabb::EMPTY };
+        let mut split = ObjectSplit {
+            cost: 0.0,
+            axis,
+            boundary: 0,
+            min: cb.min[axis],
+            scale: BINS as f32 / extent[axis],
+            left: Aabb::EMPTY,
+            right: Aabb::EMPTY,
+        };
         let mut counts = [0usize; BINS];
         let mut boxes = [Aabb::EMPTY; BINS];
         for r in refs {
@@ -615,7 +679,8 @@ fn object_split(refs: &[Ref]) -> Option<ObjectSplit> {
         if let Some(sweep) = sweep(&boxes, &counts, &counts)
             && best.is_none_or(|b| sweep.cost < b.cost)
         {
-            (split.cost, split.boundary, split.left, split.right) = (sweep.cost, sweep.boundary, sweep.left, sweep.right);
+            (split.cost, split.boundary, split.left, split.right) =
+                (sweep.cost, sweep.boundary, sweep.left, sweep.right);
             best = Some(split);
         }
     }
@@ -637,7 +702,11 @@ pub(super) struct Sweep {
 /// `exits` (where they end): the same counts for an object split, which
 /// puts each reference in one bin. `None` when every boundary leaves a
 /// side empty.
-pub(super) fn sweep<const N: usize>(boxes: &[Aabb; N], entries: &[usize; N], exits: &[usize; N]) -> Option<Sweep> {
+pub(super) fn sweep<const N: usize>(
+    boxes: &[Aabb; N],
+    entries: &[usize; N],
+    exits: &[usize; N],
+) -> Option<Sweep> {
     let mut left_box = [Aabb::EMPTY; N];
     let mut left_count = [0usize; N];
     let (mut acc, mut n) = (Aabb::EMPTY, 0);
@@ -688,7 +757,11 @@ mod tests {
             .filter(|&i| n.child[i] != EMPTY)
             .flat_map(|i| {
                 let c = n.child[i];
-                if c & LEAF != 0 { bvh.prims[(c & !LEAF) as usize..][..n.leaf_count(i) as usize].to_vec() } else { under(bvh, c) }
+                if c & LEAF != 0 {
+                    bvh.prims[(c & !LEAF) as usize..][..n.leaf_count(i) as usize].to_vec()
+                } else {
+                    under(bvh, c)
+                }
             })
             .collect()
     }
@@ -709,13 +782,18 @@ mod tests {
                     }
                     let bx = node.child_box(i);
                     if c & LEAF != 0 {
-                        for &p in &bvh.prims[(c & !LEAF) as usize..][..node.leaf_count(i) as usize] {
+                        for &p in &bvh.prims[(c & !LEAF) as usize..][..node.leaf_count(i) as usize]
+                        {
                             seen[p as usize] += 1;
                             assert_eq!(bx.union(b[p as usize]), bx);
                         }
                     } else {
                         for p in under(&bvh, c) {
-                            assert_eq!(bx.union(b[p as usize]), bx, "a primitive leaves an ancestor's box");
+                            assert_eq!(
+                                bx.union(b[p as usize]),
+                                bx,
+                                "a primitive leaves an ancestor's box"
+                            );
                         }
                     }
                 }
@@ -730,7 +808,12 @@ mod tests {
     fn coincident_primitives_still_make_small_leaves() {
         let b = vec![Aabb::around(&[Vec3::ZERO, Vec3::ONE]); 100];
         let bvh = Bvh::build(&b);
-        assert!(bvh.nodes.iter().flat_map(|n| (0..WIDTH).map(|i| n.leaf_count(i))).all(|c| c as usize <= MAX_LEAF));
+        assert!(
+            bvh.nodes
+                .iter()
+                .flat_map(|n| (0..WIDTH).map(|i| n.leaf_count(i)))
+                .all(|c| c as usize <= MAX_LEAF)
+        );
         let mut empty = b.clone();
         empty[3] = Aabb::EMPTY;
         assert_eq!(Bvh::build(&empty).prims.len(), 99);

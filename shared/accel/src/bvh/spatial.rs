@@ -100,7 +100,12 @@ pub(super) fn find(refs: &[Ref], triangles: &[[Vec3; 3]], bb: &Aabb) -> Option<S
 /// one across it is clipped into a piece per side while `budget` (more
 /// references the whole build may make) lasts, and afterwards goes whole
 /// to the side of its centre.
-pub(super) fn partition(refs: Vec<Ref>, triangles: &[[Vec3; 3]], split: SpatialSplit, budget: &mut usize) -> (Vec<Ref>, Vec<Ref>) {
+pub(super) fn partition(
+    refs: Vec<Ref>,
+    triangles: &[[Vec3; 3]],
+    split: SpatialSplit,
+    budget: &mut usize,
+) -> (Vec<Ref>, Vec<Ref>) {
     let (axis, pos) = (split.axis, split.pos);
     let (mut left, mut right) = (Vec::with_capacity(refs.len()), Vec::with_capacity(refs.len()));
     for r in refs {
@@ -165,7 +170,10 @@ mod tests {
                 let l = clip(&tri, axis, f32::NEG_INFINITY, pos, whole);
                 let h = clip(&tri, axis, pos, f32::INFINITY, whole);
                 for p in points(&tri, 2000) {
-                    assert!(contains(&l, p) || contains(&h, p), "axis {axis} plane {pos}: {p} in neither piece");
+                    assert!(
+                        contains(&l, p) || contains(&h, p),
+                        "axis {axis} plane {pos}: {p} in neither piece"
+                    );
                 }
                 assert!(l.max[axis] <= pos && h.min[axis] >= pos);
                 // A plane across the triangle leaves each piece smaller than
@@ -191,10 +199,18 @@ mod tests {
         let triangles: Vec<[Vec3; 3]> = (0..64)
             .map(|i| {
                 let y = i as f32 * 0.1;
-                [Vec3::new(0.0, y, 0.0), Vec3::new(10.0, 6.4 - y, 0.0), Vec3::new(10.0, 6.4 - y + 0.01, 0.01)]
+                [
+                    Vec3::new(0.0, y, 0.0),
+                    Vec3::new(10.0, 6.4 - y, 0.0),
+                    Vec3::new(10.0, 6.4 - y + 0.01, 0.01),
+                ]
             })
             .collect();
-        let refs: Vec<Ref> = triangles.iter().enumerate().map(|(i, t)| Ref { prim: i as u32, bounds: Aabb::around(t) }).collect();
+        let refs: Vec<Ref> = triangles
+            .iter()
+            .enumerate()
+            .map(|(i, t)| Ref { prim: i as u32, bounds: Aabb::around(t) })
+            .collect();
         let bb = refs.iter().fold(Aabb::EMPTY, |b, r| b.union(r.bounds));
         let split = find(&refs, &triangles, &bb).expect("a split");
         // With budget to spare, the sides meet at the plane and do not overlap.

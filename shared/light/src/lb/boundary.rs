@@ -31,7 +31,11 @@ pub enum SunError {
 impl Sun {
     /// A sun at `elevation` degrees above the horizon (y is up) and
     /// `azimuth` degrees from +x towards +z.
-    pub fn from_elevation_azimuth(elevation: f64, azimuth: f64, intensity: f64) -> Result<Self, SunError> {
+    pub fn from_elevation_azimuth(
+        elevation: f64,
+        azimuth: f64,
+        intensity: f64,
+    ) -> Result<Self, SunError> {
         if !elevation.is_finite() || elevation.abs() > 90.0 {
             return Err(SunError::BadElevation(elevation));
         }
@@ -45,7 +49,8 @@ impl Sun {
 
     /// A sun that lies along `towards` (a vector from the scene to the sun).
     pub fn towards(towards: [f64; 3], intensity: f64) -> Result<Self, SunError> {
-        let len = (towards[0] * towards[0] + towards[1] * towards[1] + towards[2] * towards[2]).sqrt();
+        let len =
+            (towards[0] * towards[0] + towards[1] * towards[1] + towards[2] * towards[2]).sqrt();
         if !len.is_finite() || len == 0.0 {
             return Err(SunError::BadDirection(towards));
         }
@@ -60,7 +65,9 @@ impl Sun {
         let mut values = [0.0f32; Q];
         for (m, v) in values.iter_mut().enumerate().skip(1) {
             let n = lattice::unit(m);
-            let dot = n[0] * self.propagation[0] + n[1] * self.propagation[1] + n[2] * self.propagation[2];
+            let dot = n[0] * self.propagation[0]
+                + n[1] * self.propagation[1]
+                + n[2] * self.propagation[2];
             if dot > 0.0 {
                 *v = (self.intensity * dot) as f32;
             }
@@ -119,16 +126,23 @@ impl GroundReflection {
     /// Per direction, the weight of its density in the ground's
     /// irradiance: `|ĉ_m·y|` for downward directions, else 0.
     pub fn collect() -> [f32; Q] {
-        std::array::from_fn(|m| if lattice::DIRECTIONS[m][1] < 0 { (-lattice::unit(m)[1]) as f32 } else { 0.0 })
+        std::array::from_fn(|m| {
+            if lattice::DIRECTIONS[m][1] < 0 { (-lattice::unit(m)[1]) as f32 } else { 0.0 }
+        })
     }
 
     /// Per direction, the density sent up per unit irradiance: `k_m` for
     /// upward directions, else 0.
     pub fn emit(&self) -> [f32; Q] {
         let omega = super::radiometry::bin_solid_angles();
-        let up: f64 = (1..Q).filter(|&m| lattice::DIRECTIONS[m][1] > 0).map(|m| omega[m] * lattice::unit(m)[1]).sum();
+        let up: f64 = (1..Q)
+            .filter(|&m| lattice::DIRECTIONS[m][1] > 0)
+            .map(|m| omega[m] * lattice::unit(m)[1])
+            .sum();
         let k = self.gain as f64 * self.albedo as f64;
-        std::array::from_fn(|m| if lattice::DIRECTIONS[m][1] > 0 { (k * omega[m] / up) as f32 } else { 0.0 })
+        std::array::from_fn(|m| {
+            if lattice::DIRECTIONS[m][1] > 0 { (k * omega[m] / up) as f32 } else { 0.0 }
+        })
     }
 
     /// The irradiance the lattice collects from densities `values`, in the

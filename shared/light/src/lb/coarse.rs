@@ -109,13 +109,28 @@ pub struct ForestLight {
 impl ForestLight {
     /// The grid was not used, for `reason`; every instance keeps scale 1.
     pub fn unused(reason: String, grid: Option<WorldGrid>) -> Self {
-        Self { used: false, reason, grid, spread: 0.0, scale_min: 1.0, scale_mean: 1.0, scale_max: 1.0 }
+        Self {
+            used: false,
+            reason,
+            grid,
+            spread: 0.0,
+            scale_min: 1.0,
+            scale_mean: 1.0,
+            scale_max: 1.0,
+        }
     }
 
     /// Whether the per-instance `light` differs enough (by the scene's
     /// rule) to scale each instance by `scale(light)`; fills `scales` and
     /// says why. `what` names the light and what happens without the grid.
-    pub fn decide(spec: ForestGridSpec, grid: WorldGrid, light: &[f32], what: (&str, &str), scale: impl Fn(f32) -> f32, scales: &mut [f32]) -> Self {
+    pub fn decide(
+        spec: ForestGridSpec,
+        grid: WorldGrid,
+        light: &[f32],
+        what: (&str, &str),
+        scale: impl Fn(f32) -> f32,
+        scales: &mut [f32],
+    ) -> Self {
         let max = light.iter().copied().fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
         let min = light.iter().copied().fold(f32::INFINITY, f32::min);
         let spread = (max - min) / max;
@@ -172,7 +187,11 @@ pub struct ModelArea {
 /// crown. (Spread evenly over the instance's box, 40 % of a tall tree's
 /// leaves sat in its trunk zone and shaded the ground from the low sky
 /// under the stand.) `areas` is indexed by model.
-pub fn forest_leaf_area(scene: &Scene, areas: &[Option<ModelArea>], grid: &WorldGrid) -> (Vec<f32>, LeafScattering) {
+pub fn forest_leaf_area(
+    scene: &Scene,
+    areas: &[Option<ModelArea>],
+    grid: &WorldGrid,
+) -> (Vec<f32>, LeafScattering) {
     let d = grid.dims;
     let mut area = vec![0.0f32; d.len()];
     let (mut reflect, mut transmit, mut weight) = ([0.0f64; 3], [0.0f64; 3], 0.0f64);
@@ -197,9 +216,14 @@ pub fn forest_leaf_area(scene: &Scene, areas: &[Option<ModelArea>], grid: &World
                     }
                     // What the cell stops, as evenly spread area: its clumps leave gaps.
                     let cell_area = effective_area(a.density[i], m.frame.cell);
-                    let centre = Vec3::from(m.frame.origin) + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) * m.frame.cell;
-                    let q = ((inst.to_world.transform_point3(centre) - Vec3::from(grid.origin)) / grid.cell).floor().clamp(Vec3::ONE, last);
-                    area[d.index(q.x as usize, q.y as usize, q.z as usize)] += (cell_area as f64 * scale2) as f32;
+                    let centre = Vec3::from(m.frame.origin)
+                        + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) * m.frame.cell;
+                    let q = ((inst.to_world.transform_point3(centre) - Vec3::from(grid.origin))
+                        / grid.cell)
+                        .floor()
+                        .clamp(Vec3::ONE, last);
+                    area[d.index(q.x as usize, q.y as usize, q.z as usize)] +=
+                        (cell_area as f64 * scale2) as f32;
                 }
             }
         }
@@ -221,7 +245,13 @@ pub fn effective_area(density: f32, cell: f32) -> f32 {
 /// `total` fluence (three channel planes) over points one cell outside the
 /// box, on its top and on its sides that face the sun (`towards`), where
 /// its own crown casts no shadow.
-pub fn crown_reach(grid: &WorldGrid, total: &[Vec<f32>], free: f64, towards: Vec3, boxes: &[Aabb]) -> Vec<f32> {
+pub fn crown_reach(
+    grid: &WorldGrid,
+    total: &[Vec<f32>],
+    free: f64,
+    towards: Vec3,
+    boxes: &[Aabb],
+) -> Vec<f32> {
     boxes
         .iter()
         .map(|b| {
@@ -259,7 +289,10 @@ mod tests {
     fn trees_fill_the_cells_they_stand_in() {
         let trees: Vec<Occupant> = (0..4)
             .map(|i| Occupant {
-                bounds: Aabb { min: Vec3::new(i as f32 * 10.0, 0.0, 0.0), max: Vec3::new(i as f32 * 10.0 + 8.0, 16.0, 8.0) },
+                bounds: Aabb {
+                    min: Vec3::new(i as f32 * 10.0, 0.0, 0.0),
+                    max: Vec3::new(i as f32 * 10.0 + 8.0, 16.0, 8.0),
+                },
                 fill: 0.5,
             })
             .collect();

@@ -27,7 +27,8 @@ pub fn hg_weights(g: f64) -> [[f64; Q]; Q] {
                 (1.0 - g * g) / (1.0 - 2.0 * g * cos + g * g).powf(1.5)
             };
         }
-        let norm: f64 = (1..Q).map(|i| p[i] * 24.0 / lattice::weight_denominator(i)).sum::<f64>() / 24.0;
+        let norm: f64 =
+            (1..Q).map(|i| p[i] * 24.0 / lattice::weight_denominator(i)).sum::<f64>() / 24.0;
         for i in 1..Q {
             pn[i][j] = p[i] / norm;
         }
@@ -101,8 +102,12 @@ impl PairedOmega {
     pub fn new(w: &[[f64; Q]; Q]) -> Self {
         let (j, jb) = (|b: usize| 2 * b + 1, |b: usize| 2 * b + 2);
         Self {
-            even: std::array::from_fn(|a| std::array::from_fn(|b| ((w[j(a)][j(b)] + w[j(a)][jb(b)]) / 2.0) as f32)),
-            odd: std::array::from_fn(|a| std::array::from_fn(|b| ((w[j(a)][j(b)] - w[j(a)][jb(b)]) / 2.0) as f32)),
+            even: std::array::from_fn(|a| {
+                std::array::from_fn(|b| ((w[j(a)][j(b)] + w[j(a)][jb(b)]) / 2.0) as f32)
+            }),
+            odd: std::array::from_fn(|a| {
+                std::array::from_fn(|b| ((w[j(a)][j(b)] - w[j(a)][jb(b)]) / 2.0) as f32)
+            }),
             from_rest: std::array::from_fn(|m| w[m][0] as f32),
             rest_even: std::array::from_fn(|b| ((w[0][j(b)] + w[0][jb(b)]) / 2.0) as f32),
             rest_odd: std::array::from_fn(|b| ((w[0][j(b)] - w[0][jb(b)]) / 2.0) as f32),
@@ -150,7 +155,10 @@ pub struct Collision {
 impl Collision {
     /// Both matrices for one channel.
     pub fn new(p: &ChannelParams) -> Self {
-        Self { medium: PairedOmega::new(&Omega::matrix_f64(p)), brown: PairedOmega::new(&Omega::matrix_f64(&ChannelParams { g: -1.0, ..*p })) }
+        Self {
+            medium: PairedOmega::new(&Omega::matrix_f64(p)),
+            brown: PairedOmega::new(&Omega::matrix_f64(&ChannelParams { g: -1.0, ..*p })),
+        }
     }
 }
 
@@ -173,7 +181,10 @@ mod tests {
             for i in 1..Q {
                 for j in 1..Q {
                     let (ib, jb) = (lattice::opposite(i), lattice::opposite(j));
-                    assert!((w[ib][j] - w[i][jb]).abs() < 1e-12, "g {g}: Ω[{ib}][{j}] ≠ Ω[{i}][{jb}]");
+                    assert!(
+                        (w[ib][j] - w[i][jb]).abs() < 1e-12,
+                        "g {g}: Ω[{ib}][{j}] ≠ Ω[{i}][{jb}]"
+                    );
                 }
             }
             let paired = PairedOmega::new(&w);
@@ -182,7 +193,11 @@ mod tests {
                 let got = paired.apply(&f);
                 for m in 0..Q {
                     let want: f64 = (0..Q).map(|n| w[m][n] * f[n] as f64).sum();
-                    assert!((got[m] as f64 - want).abs() < 2e-6 * (1.0 + want.abs()), "g {g}, m {m}: {} vs {want}", got[m]);
+                    assert!(
+                        (got[m] as f64 - want).abs() < 2e-6 * (1.0 + want.abs()),
+                        "g {g}, m {m}: {} vs {want}",
+                        got[m]
+                    );
                 }
             }
         }

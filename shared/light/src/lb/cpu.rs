@@ -13,7 +13,9 @@ use super::collision::{Collision, PAIRS, PairedOmega};
 use super::lattice::{DIRECTIONS, Q};
 use super::medium::{MediumGrid, NodeClass};
 use super::params::ChannelParams;
-use super::solver::{ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, initial_state};
+use super::solver::{
+    ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, initial_state,
+};
 use rayon::prelude::*;
 
 /// Nodes collided together: two AVX2 registers per direction (measured
@@ -140,7 +142,17 @@ impl<'m> CpuLattice<'m> {
                 let mut sum = 0.0;
                 for y in 1..dims.ny - 1 {
                     let base = dims.index(1, y, z);
-                    sum += update_row(src, dst, n, base, dims.nx - 2, &offsets, medium, coll, want_total);
+                    sum += update_row(
+                        src,
+                        dst,
+                        n,
+                        base,
+                        dims.nx - 2,
+                        &offsets,
+                        medium,
+                        coll,
+                        want_total,
+                    );
                 }
                 sum
             })
@@ -163,7 +175,8 @@ impl<'m> CpuLattice<'m> {
                 let mut e = 0.0f32;
                 for m in 0..Q {
                     if collect[m] != 0.0 {
-                        e += collect[m] * self.state[((m * n + node) as isize - offsets[m]) as usize];
+                        e += collect[m]
+                            * self.state[((m * n + node) as isize - offsets[m]) as usize];
                     }
                 }
                 for m in 0..Q {
@@ -185,7 +198,10 @@ impl<'m> CpuLattice<'m> {
         if self.ground.is_none() {
             return shell as f64 * per_node;
         }
-        let ground: f64 = (1..d.nz - 1).flat_map(|z| (1..d.nx - 1).map(move |x| d.index(x, 0, z))).map(node_sum).sum();
+        let ground: f64 = (1..d.nz - 1)
+            .flat_map(|z| (1..d.nx - 1).map(move |x| d.index(x, 0, z)))
+            .map(node_sum)
+            .sum();
         (shell - (d.nx - 2) * (d.nz - 2)) as f64 * per_node + ground
     }
 }
@@ -209,7 +225,9 @@ fn update_row(
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the processor supports AVX2 and FMA, checked just above.
-        return unsafe { update_row_avx2(src, dst, n, base, len, offsets, medium, coll, want_total) };
+        return unsafe {
+            update_row_avx2(src, dst, n, base, len, offsets, medium, coll, want_total)
+        };
     }
     update_row_portable::<false>(src, dst, n, base, len, offsets, medium, coll, want_total)
 }
@@ -255,7 +273,9 @@ fn update_row_portable<const FMA: bool>(
     let mut f = [[0.0f32; LANES]; Q];
     let mut out = [[0.0f32; LANES]; Q];
     if len < LANES {
-        return block::<FMA, false>(src, dst, n, base, len, 0, offsets, medium, coll, want_total, &mut f, &mut out);
+        return block::<FMA, false>(
+            src, dst, n, base, len, 0, offsets, medium, coll, want_total, &mut f, &mut out,
+        );
     }
     // Whole blocks only, the last one overlapping its neighbour (its
     // nodes are recomputed to the same values), so every copy has a
@@ -264,7 +284,20 @@ fn update_row_portable<const FMA: bool>(
     let mut x = 0;
     while x < len {
         let start = x.min(len - LANES);
-        sum += block::<FMA, true>(src, dst, n, base + start, LANES, x - start, offsets, medium, coll, want_total, &mut f, &mut out);
+        sum += block::<FMA, true>(
+            src,
+            dst,
+            n,
+            base + start,
+            LANES,
+            x - start,
+            offsets,
+            medium,
+            coll,
+            want_total,
+            &mut f,
+            &mut out,
+        );
         x += LANES;
     }
     sum
@@ -365,7 +398,12 @@ fn omega_for(coll: &Collision, class: NodeClass) -> &PairedOmega {
 /// `out_m = f_m + ρ · Σ_n Ω[m][n] f_n` for all lanes at once, in the
 /// order of [`PairedOmega::apply`].
 #[inline(always)]
-fn collide_lanes<const FMA: bool>(f: &[[f32; LANES]; Q], rho: &[f32; LANES], w: &PairedOmega, out: &mut [[f32; LANES]; Q]) {
+fn collide_lanes<const FMA: bool>(
+    f: &[[f32; LANES]; Q],
+    rho: &[f32; LANES],
+    w: &PairedOmega,
+    out: &mut [[f32; LANES]; Q],
+) {
     let mut s = [[0.0f32; LANES]; PAIRS];
     let mut d = [[0.0f32; LANES]; PAIRS];
     for b in 0..PAIRS {
@@ -409,7 +447,14 @@ fn collide_lanes<const FMA: bool>(f: &[[f32; LANES]; Q], rho: &[f32; LANES], w: 
 
 /// The same arithmetic for one lane whose class differs from its neighbours'.
 #[inline(always)]
-fn collide_one<const FMA: bool>(f: &[[f32; LANES]; Q], k: usize, rho: f32, w: &PairedOmega, class: NodeClass, out: &mut [[f32; LANES]; Q]) {
+fn collide_one<const FMA: bool>(
+    f: &[[f32; LANES]; Q],
+    k: usize,
+    rho: f32,
+    w: &PairedOmega,
+    class: NodeClass,
+    out: &mut [[f32; LANES]; Q],
+) {
     let acc = w.apply(&std::array::from_fn(|m| f[m][k]));
     for m in 0..Q {
         out[m][k] = madd::<FMA>(rho, acc[m], f[m][k]);
@@ -451,7 +496,16 @@ mod tests {
         let total = |class| {
             let medium = MediumGrid::uniform(dims, 1.0, class);
             let mut s = CpuSolver;
-            s.solve_channel(&medium, &p, &sun.boundary(), &SolveOptions::fixed_steps(24), &|_, _| {}).unwrap().report.total_density
+            s.solve_channel(
+                &medium,
+                &p,
+                &sun.boundary(),
+                &SolveOptions::fixed_steps(24),
+                &|_, _| {},
+            )
+            .unwrap()
+            .report
+            .total_density
         };
         let (medium, green) = (total(NodeClass::Medium), total(NodeClass::Green));
         assert!(green < 0.8 * medium, "green {green} vs medium {medium}");

@@ -66,7 +66,8 @@ pub fn solve_indirect(
         absorbing = medium.clone().with_class(NodeClass::Green);
         &absorbing
     };
-    let beam = solver.solve_channel(beam_medium, &absorb, &unit.sun_boundary(0), opts, &|_, _| {})?;
+    let beam =
+        solver.solve_channel(beam_medium, &absorb, &unit.sun_boundary(0), opts, &|_, _| {})?;
     reports.push(beam.report);
     let indirect = std::array::from_fn(|c| {
         let e = light.sun_irradiance[c] as f32;

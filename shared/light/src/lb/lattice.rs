@@ -48,7 +48,10 @@ pub fn unit(m: usize) -> [f64; 3] {
 /// Index of the direction opposite `m`.
 pub fn opposite(m: usize) -> usize {
     let c = DIRECTIONS[m];
-    DIRECTIONS.iter().position(|d| d[0] == -c[0] && d[1] == -c[1] && d[2] == -c[2]).expect("D3Q19 is symmetric")
+    DIRECTIONS
+        .iter()
+        .position(|d| d[0] == -c[0] && d[1] == -c[1] && d[2] == -c[2])
+        .expect("D3Q19 is symmetric")
 }
 
 #[cfg(test)]

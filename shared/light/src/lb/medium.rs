@@ -119,7 +119,9 @@ pub enum MediumError {
     #[error("medium grid {dims} needs {expected} values, got {got}")]
     WrongLength { dims: GridDims, expected: usize, got: usize },
     /// A lattice too small to have an interior.
-    #[error("medium grid {0} is too small: every side needs at least 3 nodes (the outer shell holds the boundary condition)")]
+    #[error(
+        "medium grid {0} is too small: every side needs at least 3 nodes (the outer shell holds the boundary condition)"
+    )]
     TooSmall(GridDims),
     /// A density outside [0, 1] or not finite.
     #[error("density at node (x={x}, y={y}, z={z}) is {value}; valid range: [0, 1]")]

@@ -35,12 +35,23 @@ pub const SIGMA_RANGE: &str = "[0, 2] with sigma_t = sigma_a + sigma_s in (0, 2]
 /// The valid range of g.
 pub const G_RANGE: &str = "[-1, 1]";
 
-fn check(name: &str, value: f32, range: &'static str, ok: bool, why: &'static str) -> Result<(), ParamError> {
+fn check(
+    name: &str,
+    value: f32,
+    range: &'static str,
+    ok: bool,
+    why: &'static str,
+) -> Result<(), ParamError> {
     if !value.is_finite() {
         return Err(ParamError::NotFinite { name: name.to_string(), value: value as f64, range });
     }
     if !ok {
-        return Err(ParamError::OutOfRange { name: name.to_string(), value: value as f64, range, why });
+        return Err(ParamError::OutOfRange {
+            name: name.to_string(),
+            value: value as f64,
+            range,
+            why,
+        });
     }
     Ok(())
 }
@@ -61,12 +72,19 @@ impl ChannelParams {
     /// `I + ρΩ` have eigenvalue 1 − ρσ_t, unstable past 2 for ρ = 1).
     /// `channel` names the channel in the message ("red", ...).
     pub fn validate(&self, channel: &str) -> Result<(), ParamError> {
-        let name = |p: &str| if channel.is_empty() { p.to_string() } else { format!("{p} ({channel})") };
+        let name =
+            |p: &str| if channel.is_empty() { p.to_string() } else { format!("{p} ({channel})") };
         check(&name("sigma_a"), self.sigma_a, SIGMA_RANGE, self.sigma_a >= 0.0, "")?;
         check(&name("sigma_s"), self.sigma_s, SIGMA_RANGE, self.sigma_s >= 0.0, "")?;
         check(&name("g"), self.g, G_RANGE, self.g.abs() <= 1.0, "")?;
         let t = self.sigma_t();
-        check(&name("sigma_t"), t, "(0, 2]", t > 0.0 && t <= 2.0, " (rho * sigma_t above 2 makes the LB step unstable; 0 scatters nothing)")
+        check(
+            &name("sigma_t"),
+            t,
+            "(0, 2]",
+            t > 0.0 && t <= 2.0,
+            " (rho * sigma_t above 2 makes the LB step unstable; 0 scatters nothing)",
+        )
     }
 }
 
@@ -94,12 +112,19 @@ impl LbParams {
 
     /// A named preset's parameters.
     pub fn from_preset(preset: Preset) -> LbParams {
-        let rgb =
-            |a: [f32; 3], s: [f32; 3], g: [f32; 3]| LbParams { channels: [0, 1, 2].map(|i| ChannelParams { sigma_a: a[i], sigma_s: s[i], g: g[i] }) };
+        let rgb = |a: [f32; 3], s: [f32; 3], g: [f32; 3]| LbParams {
+            channels: [0, 1, 2].map(|i| ChannelParams { sigma_a: a[i], sigma_s: s[i], g: g[i] }),
+        };
         match preset {
-            Preset::Leaf => rgb([0.109, 0.091, 0.118], [0.891, 0.909, 0.882], [-0.120, 0.091, -0.333]),
-            Preset::Dogrose => rgb([0.109, 0.091, 0.118], [0.891, 0.909, 0.882], [-0.231, 0.103, -0.750]),
-            Preset::Cloud => LbParams::grey(ChannelParams { sigma_a: 0.008, sigma_s: 0.792, g: 0.9 }),
+            Preset::Leaf => {
+                rgb([0.109, 0.091, 0.118], [0.891, 0.909, 0.882], [-0.120, 0.091, -0.333])
+            }
+            Preset::Dogrose => {
+                rgb([0.109, 0.091, 0.118], [0.891, 0.909, 0.882], [-0.231, 0.103, -0.750])
+            }
+            Preset::Cloud => {
+                LbParams::grey(ChannelParams { sigma_a: 0.008, sigma_s: 0.792, g: 0.9 })
+            }
             Preset::Pmma => rgb([0.01; 3], [0.99; 3], [0.80, -0.88, -0.88]),
         }
     }
@@ -129,16 +154,28 @@ mod tests {
         let leaf = LbParams::from_preset(Preset::Leaf);
         for i in 0..3 {
             let g = g_from_scattering_fractions(fs[i], bs[i]);
-            assert!((g - leaf.channels[i].g).abs() < 5e-4, "channel {i}: {g} vs {}", leaf.channels[i].g);
+            assert!(
+                (g - leaf.channels[i].g).abs() < 5e-4,
+                "channel {i}: {g} vs {}",
+                leaf.channels[i].g
+            );
         }
     }
 
     #[test]
     fn errors_name_the_parameter_and_the_range() {
         let cases = [
-            (ChannelParams { sigma_a: f32::NAN, sigma_s: 0.5, g: 0.0 }, "sigma_a (red)", "not a finite"),
+            (
+                ChannelParams { sigma_a: f32::NAN, sigma_s: 0.5, g: 0.0 },
+                "sigma_a (red)",
+                "not a finite",
+            ),
             (ChannelParams { sigma_a: -0.1, sigma_s: 0.5, g: 0.0 }, "sigma_a (red)", "[0, 2]"),
-            (ChannelParams { sigma_a: 0.1, sigma_s: f32::INFINITY, g: 0.0 }, "sigma_s (red)", "not a finite"),
+            (
+                ChannelParams { sigma_a: 0.1, sigma_s: f32::INFINITY, g: 0.0 },
+                "sigma_s (red)",
+                "not a finite",
+            ),
             (ChannelParams { sigma_a: 0.1, sigma_s: 0.5, g: 1.5 }, "g (red)", "[-1, 1]"),
             (ChannelParams { sigma_a: 0.1, sigma_s: 0.5, g: f32::NAN }, "g (red)", "not a finite"),
             (ChannelParams { sigma_a: 0.5, sigma_s: 1.6, g: 0.0 }, "sigma_t (red)", "unstable"),

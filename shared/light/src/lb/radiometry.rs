@@ -104,7 +104,8 @@ impl Illumination {
     /// E⊥ = π × its radiance scale (a surface facing it shows ρ × radiance,
     /// docs/lighting.md), and the sky, per colour.
     pub fn of_scene(scene: &sylva_scene::Scene) -> Self {
-        let sun = Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0).expect("the scene's sun was checked");
+        let sun = Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)
+            .expect("the scene's sun was checked");
         let f = |v: [f32; 3]| v.map(|x| x as f64);
         Illumination {
             sun,
@@ -124,7 +125,9 @@ impl Illumination {
             return [0.0; 3];
         }
         let t = from[1].max(0.0).sqrt();
-        std::array::from_fn(|c| self.sky_horizon[c] + (self.sky_zenith[c] - self.sky_horizon[c]) * t)
+        std::array::from_fn(|c| {
+            self.sky_horizon[c] + (self.sky_zenith[c] - self.sky_horizon[c]) * t
+        })
     }
 
     /// Fluence of the sky in each lattice direction's bin: light travelling
@@ -138,7 +141,11 @@ impl Illumination {
     pub fn sun_bins(&self) -> [[f64; 3]; Q] {
         let b = Sun { intensity: 1.0, ..self.sun }.boundary();
         let s0: f64 = b.values.iter().map(|&v| v as f64).sum();
-        std::array::from_fn(|m| std::array::from_fn(|c| if s0 > 0.0 { self.sun_irradiance[c] * b.values[m] as f64 / s0 } else { 0.0 }))
+        std::array::from_fn(|m| {
+            std::array::from_fn(|c| {
+                if s0 > 0.0 { self.sun_irradiance[c] * b.values[m] as f64 / s0 } else { 0.0 }
+            })
+        })
     }
 
     /// Boundary densities of the three channels: sun, sky and, over a
@@ -155,11 +162,15 @@ impl Illumination {
             match self.ground {
                 None => Boundary::fixed(values),
                 Some(albedo) => {
-                    let open = self.sun_irradiance[c] * (-self.sun.propagation[1]).max(0.0) + sky_e[c];
+                    let open =
+                        self.sun_irradiance[c] * (-self.sun.propagation[1]).max(0.0) + sky_e[c];
                     let collected = GroundReflection::collected(&values) as f64;
                     let gain = if collected > 0.0 { (open / collected) as f32 } else { 1.0 };
                     let ground = GroundReflection { albedo: albedo[c] as f32, gain };
-                    Boundary { values: ground.reflect(&values), ground: self.floor_reflects.then_some(ground) }
+                    Boundary {
+                        values: ground.reflect(&values),
+                        ground: self.floor_reflects.then_some(ground),
+                    }
                 }
             }
         })
@@ -206,8 +217,13 @@ impl LeafScattering {
             channels: std::array::from_fn(|c| {
                 let (r, t) = (self.reflect[c].max(0.0), self.transmit[c].max(0.0));
                 let albedo = (r + t).min(1.0);
-                let g = if r + t > 0.0 { BI_LAMBERTIAN_MEAN_COSINE * (t - r) / (t + r) } else { 0.0 };
-                ChannelParams { sigma_a: (1.0 - albedo) as f32, sigma_s: albedo as f32, g: g as f32 }
+                let g =
+                    if r + t > 0.0 { BI_LAMBERTIAN_MEAN_COSINE * (t - r) / (t + r) } else { 0.0 };
+                ChannelParams {
+                    sigma_a: (1.0 - albedo) as f32,
+                    sigma_s: albedo as f32,
+                    g: g as f32,
+                }
             }),
         }
     }
@@ -257,8 +273,10 @@ pub fn clumped_cell(columns: &[f64], sub_cell: f64) -> ClumpedCell {
         return ClumpedCell { density: 0.0, readout: 1.0 };
     }
     let k = LEAF_PROJECTION / (sub_cell * sub_cell);
-    let open: f64 = columns.iter().map(|&a| (-k * a.max(0.0)).exp()).sum::<f64>() / columns.len() as f64;
-    let on_leaves: f64 = columns.iter().map(|&a| a.max(0.0) * slab_mean(k * a.max(0.0))).sum::<f64>() / total;
+    let open: f64 =
+        columns.iter().map(|&a| (-k * a.max(0.0)).exp()).sum::<f64>() / columns.len() as f64;
+    let on_leaves: f64 =
+        columns.iter().map(|&a| a.max(0.0) * slab_mean(k * a.max(0.0))).sum::<f64>() / total;
     let effective = -open.max(f64::MIN_POSITIVE).ln();
     ClumpedCell { density: (1.0 - open) as f32, readout: (on_leaves / slab_mean(effective)) as f32 }
 }
@@ -319,8 +337,14 @@ mod tests {
 
     #[test]
     fn the_horizontal_sky_irradiance_is_the_cosine_weighted_integral() {
-        let il = Illumination { sky_zenith: [0.2, 0.4, 0.9], sky_horizon: [0.8, 0.8, 0.9], ..illumination(0.0, true) };
-        let bins = integrate_bins(|w| if w[1] > 0.0 { il.sky_radiance(w).map(|l| l * w[1]) } else { [0.0; 3] });
+        let il = Illumination {
+            sky_zenith: [0.2, 0.4, 0.9],
+            sky_horizon: [0.8, 0.8, 0.9],
+            ..illumination(0.0, true)
+        };
+        let bins = integrate_bins(|w| {
+            if w[1] > 0.0 { il.sky_radiance(w).map(|l| l * w[1]) } else { [0.0; 3] }
+        });
         for c in 0..3 {
             let e: f64 = bins.iter().map(|v| v[c]).sum();
             assert!((e - il.sky_irradiance_horizontal()[c]).abs() < 1e-3 * e, "{c}: {e}");
@@ -337,16 +361,27 @@ mod tests {
             let g = b.ground.unwrap();
             assert_eq!(g.albedo, albedo as f32);
             let down: f64 = (1..Q).map(|m| collect[m] as f64 * b.values[m] as f64).sum();
-            let up: f64 = (1..Q).filter(|&m| unit(m)[1] > 0.0).map(|m| unit(m)[1] * b.values[m] as f64).sum();
+            let up: f64 =
+                (1..Q).filter(|&m| unit(m)[1] > 0.0).map(|m| unit(m)[1] * b.values[m] as f64).sum();
             // Sun at 50° plus a uniform sky: E = E⊥ sin 50° + π L. The
             // downward directions collect 0.71–0.77 of it; the gain restores it.
             let e = il.sun_irradiance[c] * 50f64.to_radians().sin() + PI * 0.3;
             assert!(down < e && down > 0.6 * e, "channel {c}: {down} against {e}");
-            assert!((g.gain as f64 * down - e).abs() < 1e-5 * e, "channel {c}: gain {} × {down} against {e}", g.gain);
+            assert!(
+                (g.gain as f64 * down - e).abs() < 1e-5 * e,
+                "channel {c}: gain {} × {down} against {e}",
+                g.gain
+            );
             assert!((up - albedo * e).abs() < 1e-5 * e, "channel {c}: up {up}, E {e}");
             // One radiance in every upward bin: fluence in proportion to solid angle.
-            let radiance: Vec<f64> = (1..Q).filter(|&m| unit(m)[1] > 0.0).map(|m| b.values[m] as f64 / omega[m]).collect();
-            assert!(radiance.iter().all(|r| (r - radiance[0]).abs() <= 1e-5 * radiance[0].max(1e-9)), "{radiance:?}");
+            let radiance: Vec<f64> = (1..Q)
+                .filter(|&m| unit(m)[1] > 0.0)
+                .map(|m| b.values[m] as f64 / omega[m])
+                .collect();
+            assert!(
+                radiance.iter().all(|r| (r - radiance[0]).abs() <= 1e-5 * radiance[0].max(1e-9)),
+                "{radiance:?}"
+            );
         }
         // The sun-only boundary of the uncollided pass has no ground: its reflection is scattered light.
         assert_eq!(il.sun_boundary(0).ground, None);
@@ -357,7 +392,10 @@ mod tests {
         let p = LeafScattering { reflect: [0.1, 0.2, 0.0], transmit: [0.1, 0.4, 0.0] }.params();
         p.validate().unwrap();
         assert!((p.channels[0].sigma_s - 0.2).abs() < 1e-6 && p.channels[0].g.abs() < 1e-6);
-        assert!((p.channels[1].sigma_s - 0.6).abs() < 1e-6 && (p.channels[1].g as f64 - 4.0 / 27.0).abs() < 1e-6);
+        assert!(
+            (p.channels[1].sigma_s - 0.6).abs() < 1e-6
+                && (p.channels[1].g as f64 - 4.0 / 27.0).abs() < 1e-6
+        );
         assert_eq!(p.channels[2].sigma_s, 0.0);
     }
 

@@ -66,7 +66,8 @@ impl Convergence {
     /// (steps count from 1).
     pub fn wants_total(&self, step: usize) -> bool {
         let k = self.opts.check_every.max(1);
-        self.opts.tolerance > 0.0 && (step.is_multiple_of(k) || (step + 1).is_multiple_of(k) || step == self.cap)
+        self.opts.tolerance > 0.0
+            && (step.is_multiple_of(k) || (step + 1).is_multiple_of(k) || step == self.cap)
     }
 
     /// Records the total density after `step`; returns true when the solve
@@ -76,7 +77,9 @@ impl Convergence {
             && s + 1 == step
         {
             self.last_change = Some(if total > 0.0 { (total - prev).abs() / total } else { 0.0 });
-            if step.is_multiple_of(self.opts.check_every.max(1)) && self.last_change.is_some_and(|c| c < self.opts.tolerance) {
+            if step.is_multiple_of(self.opts.check_every.max(1))
+                && self.last_change.is_some_and(|c| c < self.opts.tolerance)
+            {
                 return true;
             }
         }
@@ -211,7 +214,8 @@ pub fn solve(
     for (c, (p, name)) in params.channels.iter().zip(CHANNELS).enumerate() {
         let span = tracing::info_span!("lb_channel", channel = name, solver = %solver.name());
         let _g = span.enter();
-        let s = solver.solve_channel(medium, p, &boundary, opts, &|step, cap| progress(c, step, cap))?;
+        let s = solver
+            .solve_channel(medium, p, &boundary, opts, &|step, cap| progress(c, step, cap))?;
         tracing::info!(steps = s.report.steps, change = ?s.report.final_change, "channel solved");
         channels.push(s);
     }

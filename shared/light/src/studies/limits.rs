@@ -84,7 +84,8 @@ pub fn optical_thickness_along_sun(medium: &MediumGrid, sigma_t: f32, sun: &Sun)
         // Interior box in node coordinates: [0.5, n − 1.5].
         let (lo, hi) = (0.5, |k: usize| size[k] as f64 - 1.5);
         let start = if w[axis] > 0.0 { lo } else { hi(axis) };
-        let (na, nb) = (((hi(a) - lo) / spacing).ceil() as usize, ((hi(b) - lo) / spacing).ceil() as usize);
+        let (na, nb) =
+            (((hi(a) - lo) / spacing).ceil() as usize, ((hi(b) - lo) / spacing).ceil() as usize);
         for ia in 0..na {
             for ib in 0..nb {
                 let mut p = [0.0; 3];
@@ -97,14 +98,16 @@ pub fn optical_thickness_along_sun(medium: &MediumGrid, sigma_t: f32, sun: &Sun)
                     if (0..3).any(|k| q[k] < lo || q[k] > hi(k)) {
                         break;
                     }
-                    let n: [usize; 3] = std::array::from_fn(|k| (q[k].round() as usize).clamp(1, size[k] - 2));
+                    let n: [usize; 3] =
+                        std::array::from_fn(|k| (q[k].round() as usize).clamp(1, size[k] - 2));
                     tau += medium.density[d.index(n[0], n[1], n[2])] as f64 * sigma_t as f64 * step;
                     for k in 0..3 {
                         p[k] += step * w[k];
                     }
                 }
                 if tau > 0.0 {
-                    let wt = ((hi(a) - lo) / na as f64) * ((hi(b) - lo) / nb as f64) * w[axis].abs();
+                    let wt =
+                        ((hi(a) - lo) / na as f64) * ((hi(b) - lo) / nb as f64) * w[axis].abs();
                     sum += wt * tau;
                     weight += wt;
                 }
@@ -181,8 +184,13 @@ pub fn lb_warnings(params: &LbParams, medium: &MediumGrid, sun: &Sun) -> Vec<LbW
 
     // Strong anisotropy (brown nodes use g = −1, which the lattice represents exactly).
     if non_brown {
-        let strong: Vec<(&str, f32)> =
-            params.channels.iter().zip(CHANNELS).filter(|(p, _)| p.g > MAX_FORWARD_G && p.g < 1.0).map(|(p, n)| (n, p.g)).collect();
+        let strong: Vec<(&str, f32)> = params
+            .channels
+            .iter()
+            .zip(CHANNELS)
+            .filter(|(p, _)| p.g > MAX_FORWARD_G && p.g < 1.0)
+            .map(|(p, n)| (n, p.g))
+            .collect();
         if !strong.is_empty() {
             let gs: Vec<String> = strong.iter().map(|(n, g)| format!("{n} g = {g}")).collect();
             out.push(LbWarning {
@@ -197,8 +205,13 @@ pub fn lb_warnings(params: &LbParams, medium: &MediumGrid, sun: &Sun) -> Vec<LbW
     }
 
     // Stability margin.
-    let ringing: Vec<(&str, f32)> =
-        params.channels.iter().zip(CHANNELS).map(|(p, n)| (n, max_rho * p.sigma_t())).filter(|&(_, s)| s > MAX_RHO_SIGMA_T).collect();
+    let ringing: Vec<(&str, f32)> = params
+        .channels
+        .iter()
+        .zip(CHANNELS)
+        .map(|(p, n)| (n, max_rho * p.sigma_t()))
+        .filter(|&(_, s)| s > MAX_RHO_SIGMA_T)
+        .collect();
     if !ringing.is_empty() {
         let worst = ringing.iter().map(|r| r.1).fold(0.0f32, f32::max);
         let names: Vec<&str> = ringing.iter().map(|r| r.0).collect();
@@ -243,9 +256,11 @@ fn small_grid(d: GridDims) -> LbWarning {
 }
 
 // The measured errors the messages quote (see the constants above).
-const THIN_ERROR: &str = "1–3 % against a Monte Carlo reference, but a constant ambient was within 3–7 % (τ = 0.1–0.25)";
+const THIN_ERROR: &str =
+    "1–3 % against a Monte Carlo reference, but a constant ambient was within 3–7 % (τ = 0.1–0.25)";
 const ANISOTROPY_ERROR: &str = "27 % at g = 0.8 against 40 % for a constant ambient";
-const STABILITY_ERROR: &str = "44 % at ρσ_t = 1.5, 87 % at 1.99 (a constant ambient: 93 %), against 28 % at 0.5";
+const STABILITY_ERROR: &str =
+    "44 % at ρσ_t = 1.5, 87 % at 1.99 (a constant ambient: 93 %), against 28 % at 0.5";
 const GRAZING_ERROR: &str = "25 % at 20°, 47 % at 5° (15 % overhead) on a canopy slab, too bright";
 const SMALL_GRID_ERROR: &str = "20 % at 8³ against 16 % at 12³ for the same ball";
 
@@ -354,9 +369,22 @@ pub struct Comparison {
 
 impl Comparison {
     /// LB and Monte Carlo on `medium` with `p` in every channel.
-    pub fn run(medium: &MediumGrid, p: &ChannelParams, sun: &Sun, photons: u64, seed: u64) -> anyhow::Result<Self> {
+    pub fn run(
+        medium: &MediumGrid,
+        p: &ChannelParams,
+        sun: &Sun,
+        photons: u64,
+        seed: u64,
+    ) -> anyhow::Result<Self> {
         let t = Instant::now();
-        let sol = solve(&mut CpuSolver, medium, &LbParams::grey(*p), sun, &converged_options(medium.dims), &|_, _, _| {})?;
+        let sol = solve(
+            &mut CpuSolver,
+            medium,
+            &LbParams::grey(*p),
+            sun,
+            &converged_options(medium.dims),
+            &|_, _, _| {},
+        )?;
         // Three identical channels were solved; charge one.
         let lb_ms = t.elapsed().as_secs_f64() * 1e3 / 3.0;
         let ch = sol.channels.into_iter().next().expect("three channels");
@@ -371,7 +399,13 @@ impl Comparison {
 
     /// Relative RMS error of the best constant (the masked MC mean).
     pub fn ambient_error(&self, mask: &[bool]) -> f64 {
-        let (s, c) = self.mc.values.iter().zip(mask).filter(|(_, m)| **m).fold((0.0f64, 0usize), |(s, c), (&v, _)| (s + v as f64, c + 1));
+        let (s, c) = self
+            .mc
+            .values
+            .iter()
+            .zip(mask)
+            .filter(|(_, m)| **m)
+            .fold((0.0f64, 0usize), |(s, c), (&v, _)| (s + v as f64, c + 1));
         let mean = if c > 0 { (s / c as f64) as f32 } else { 0.0 };
         let constant = vec![mean; self.mc.values.len()];
         montecarlo::relative_rms(&constant, &self.mc.values, mask)
@@ -417,7 +451,14 @@ fn overhead_sun() -> Sun {
     Sun::towards([0.0, 1.0, 0.0], 1.0).expect("valid sun")
 }
 
-fn point(x: f64, medium: &MediumGrid, p: ChannelParams, sun: &Sun, photons: u64, seed: u64) -> SweepPoint {
+fn point(
+    x: f64,
+    medium: &MediumGrid,
+    p: ChannelParams,
+    sun: &Sun,
+    photons: u64,
+    seed: u64,
+) -> SweepPoint {
     let warned = !lb_warnings(&LbParams::grey(p), medium, sun).is_empty();
     let c = Comparison::run(medium, &p, sun, photons, seed).expect("sweep scenes are valid");
     c.point(x, medium, warned)
@@ -440,7 +481,13 @@ pub enum SweepKind {
 
 impl SweepKind {
     /// Every sweep, in order.
-    pub const ALL: [SweepKind; 5] = [SweepKind::Thickness, SweepKind::Anisotropy, SweepKind::Stability, SweepKind::Elevation, SweepKind::GridSize];
+    pub const ALL: [SweepKind; 5] = [
+        SweepKind::Thickness,
+        SweepKind::Anisotropy,
+        SweepKind::Stability,
+        SweepKind::Elevation,
+        SweepKind::GridSize,
+    ];
 }
 
 /// Photons per Monte Carlo reference (noise ≈ 3 % RMS at 24³ when quick).
@@ -465,21 +512,49 @@ pub fn failure_sweep(kind: SweepKind, quick: bool) -> Sweep {
             let points = taus
                 .iter()
                 .enumerate()
-                .map(|(k, &tau)| point(tau, &slab_medium, channel((tau / thickness as f64) as f32, 0.0), &sun, photons, 100 + k as u64))
+                .map(|(k, &tau)| {
+                    point(
+                        tau,
+                        &slab_medium,
+                        channel((tau / thickness as f64) as f32, 0.0),
+                        &sun,
+                        photons,
+                        100 + k as u64,
+                    )
+                })
                 .collect();
-            Sweep { name: "optical thickness", x_label: "optical thickness τ of a slab lit from above", points }
+            Sweep {
+                name: "optical thickness",
+                x_label: "optical thickness τ of a slab lit from above",
+                points,
+            }
         }
         SweepKind::Anisotropy => {
             let s = Sun::from_elevation_azimuth(60.0, 30.0, 1.0).expect("valid sun");
             let sigma_t = (4.0 / radius) as f32;
             let gs = [0.0, 0.3, -0.3, 0.5, -0.5, 0.7, 0.8, -0.8, 0.9, -0.9, 0.95, -0.95];
-            let points = gs.iter().enumerate().map(|(k, &g)| point(g, &ball, channel(sigma_t, g as f32), &s, photons, 200 + k as u64)).collect();
-            Sweep { name: "anisotropy", x_label: "Henyey–Greenstein g (ball of optical radius 4, sun at 60°)", points }
+            let points = gs
+                .iter()
+                .enumerate()
+                .map(|(k, &g)| {
+                    point(g, &ball, channel(sigma_t, g as f32), &s, photons, 200 + k as u64)
+                })
+                .collect();
+            Sweep {
+                name: "anisotropy",
+                x_label: "Henyey–Greenstein g (ball of optical radius 4, sun at 60°)",
+                points,
+            }
         }
         SweepKind::Stability => {
             let sts = [0.5, 0.67, 0.8, 1.0, 1.2, 1.5, 1.7, 1.8, 1.9, 1.99];
-            let points =
-                sts.iter().enumerate().map(|(k, &st)| point(st, &slab_medium, channel(st as f32, 0.0), &sun, photons, 300 + k as u64)).collect();
+            let points = sts
+                .iter()
+                .enumerate()
+                .map(|(k, &st)| {
+                    point(st, &slab_medium, channel(st as f32, 0.0), &sun, photons, 300 + k as u64)
+                })
+                .collect();
             Sweep { name: "stability", x_label: "ρσ_t (slab lit from above)", points }
         }
         SweepKind::Elevation => {
@@ -494,20 +569,36 @@ pub fn failure_sweep(kind: SweepKind, quick: bool) -> Sweep {
                     point(e, &canopy, channel(sigma_t, 0.0), &s, photons, 400 + k as u64)
                 })
                 .collect();
-            Sweep { name: "sun elevation", x_label: "sun elevation in degrees (canopy slab, τ = 4 overhead, azimuth 30°)", points }
+            Sweep {
+                name: "sun elevation",
+                x_label: "sun elevation in degrees (canopy slab, τ = 4 overhead, azimuth 30°)",
+                points,
+            }
         }
         SweepKind::GridSize => {
-            let sizes: &[usize] = if quick { &[32, 24, 16, 12, 8] } else { &[48, 32, 24, 16, 12, 8] };
+            let sizes: &[usize] =
+                if quick { &[32, 24, 16, 12, 8] } else { &[48, 32, 24, 16, 12, 8] };
             let points = sizes
                 .iter()
                 .enumerate()
                 .map(|(k, &m)| {
                     let r = 0.35 * m as f64;
                     let ball = sphere(m, r, 1.0, NodeClass::Green);
-                    point(m as f64, &ball, channel((4.0 / r) as f32, 0.0), &sun, photons, 500 + k as u64)
+                    point(
+                        m as f64,
+                        &ball,
+                        channel((4.0 / r) as f32, 0.0),
+                        &sun,
+                        photons,
+                        500 + k as u64,
+                    )
                 })
                 .collect();
-            Sweep { name: "grid size", x_label: "grid edge in nodes (ball of radius 0.35 × edge, optical radius 4)", points }
+            Sweep {
+                name: "grid size",
+                x_label: "grid edge in nodes (ball of radius 0.35 × edge, optical radius 4)",
+                points,
+            }
         }
     }
 }

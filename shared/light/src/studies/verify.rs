@@ -32,8 +32,21 @@ pub struct Check {
 
 impl Check {
     /// A check that passes when `measured <= bound`.
-    pub fn new(id: &'static str, name: impl Into<String>, measured: f64, bound: f64, detail: String) -> Self {
-        Self { id, name: name.into(), measured, bound, pass: measured <= bound && measured.is_finite(), detail }
+    pub fn new(
+        id: &'static str,
+        name: impl Into<String>,
+        measured: f64,
+        bound: f64,
+        detail: String,
+    ) -> Self {
+        Self {
+            id,
+            name: name.into(),
+            measured,
+            bound,
+            pass: measured <= bound && measured.is_finite(),
+            detail,
+        }
     }
 }
 
@@ -47,12 +60,20 @@ pub fn column_sums() -> Check {
     for g in std::iter::once(0.0).chain(CHECKED_G) {
         for (sa, ss) in [(0.109, 0.891), (0.008, 0.792), (0.3, 1.2)] {
             let w = Omega::new(&ChannelParams { sigma_a: sa, sigma_s: ss, g });
-            let case = (0..Q).map(|j| (0..Q).map(|i| w.0[i][j] as f64).sum::<f64>().abs()).fold(0.0, f64::max);
+            let case = (0..Q)
+                .map(|j| (0..Q).map(|i| w.0[i][j] as f64).sum::<f64>().abs())
+                .fold(0.0, f64::max);
             worst = worst.max(case);
             cases.push(format!("g={g} σa={sa} σs={ss}: {case:.2e}"));
         }
     }
-    Check::new("a", "every column of Ω sums to 0", worst, 1e-6, format!("max |column sum| of the f32 Ω; {}", cases.join("; ")))
+    Check::new(
+        "a",
+        "every column of Ω sums to 0",
+        worst,
+        1e-6,
+        format!("max |column sum| of the f32 Ω; {}", cases.join("; ")),
+    )
 }
 
 /// The isotropic null vector v = (σ_a, 1/12 ×6, 1/24 ×12).
@@ -75,7 +96,13 @@ pub fn isotropic_null_vector() -> Check {
             worst = worst.max(r.abs());
         }
     }
-    Check::new("b", "isotropic Ω has null vector v = (σa, 1/12 ×6, 1/24 ×12)", worst, 1e-6, "max |(Ω v)_i| over three (σa, σs)".into())
+    Check::new(
+        "b",
+        "isotropic Ω has null vector v = (σa, 1/12 ×6, 1/24 ×12)",
+        worst,
+        1e-6,
+        "max |(Ω v)_i| over three (σa, σs)".into(),
+    )
 }
 
 /// (c) Σ_m v_m c_mα c_mβ = ½ δ_αβ.
@@ -89,7 +116,13 @@ pub fn second_moment() -> Check {
             worst = worst.max((s - want).abs());
         }
     }
-    Check::new("c", "Σ_m v_m c_mα c_mβ = ½ δ_αβ", worst, 1e-12, "max deviation over the 9 (α, β)".into())
+    Check::new(
+        "c",
+        "Σ_m v_m c_mα c_mβ = ½ δ_αβ",
+        worst,
+        1e-12,
+        "max deviation over the 9 (α, β)".into(),
+    )
 }
 
 /// Worst |1 − exit flux / entry flux| over the columns of a dense medium lit
@@ -103,7 +136,9 @@ pub fn beam_transmission(params: &ChannelParams, n: usize) -> f64 {
     for _ in 0..2 * n {
         lattice.step(false);
     }
-    let flux_z = |vals: &dyn Fn(usize) -> f32| (0..Q).map(|m| vals(m) as f64 * DIRECTIONS[m][2] as f64).sum::<f64>();
+    let flux_z = |vals: &dyn Fn(usize) -> f32| {
+        (0..Q).map(|m| vals(m) as f64 * DIRECTIONS[m][2] as f64).sum::<f64>()
+    };
     let entry = flux_z(&|m| boundary.values[m]);
     let state = lattice.state();
     let total = dims.len();
@@ -196,7 +231,10 @@ pub fn diffusion() -> Check {
         let got = measured_diffusion(&p, n, 40, 80);
         let err = (got / want - 1.0).abs();
         worst = worst.max(err);
-        cases.push(format!("σa={sa} σs={ss} ({n}³): D {got:.5} vs {want:.5} ({:+.2} %)", 100.0 * (got / want - 1.0)));
+        cases.push(format!(
+            "σa={sa} σs={ss} ({n}³): D {got:.5} vs {want:.5} ({:+.2} %)",
+            100.0 * (got / want - 1.0)
+        ));
     }
     Check::new(
         "e",
@@ -237,11 +275,20 @@ pub fn invalid_parameters() -> Check {
         failures.push(format!("the valid edge case {valid:?} was refused: {e}"));
     }
     let detail = if failures.is_empty() {
-        format!("{} invalid sets refused with named parameter and range; σt = 2, g = −1 accepted", cases.len())
+        format!(
+            "{} invalid sets refused with named parameter and range; σt = 2, g = −1 accepted",
+            cases.len()
+        )
     } else {
         failures.join("; ")
     };
-    Check::new("f", "invalid and unstable parameters are refused by name and range", failures.len() as f64, 0.0, detail)
+    Check::new(
+        "f",
+        "invalid and unstable parameters are refused by name and range",
+        failures.len() as f64,
+        0.0,
+        detail,
+    )
 }
 
 /// The maximum relative difference between two solutions of the same
@@ -257,7 +304,11 @@ pub fn max_relative_difference(candidate: &[f32], reference: &[f32]) -> f64 {
         .zip(reference)
         .map(|(&a, &b)| {
             let (a, b) = (a as f64, b as f64);
-            if a.is_nan() || b.is_nan() { f64::INFINITY } else { (a - b).abs() / b.abs().max(floor) }
+            if a.is_nan() || b.is_nan() {
+                f64::INFINITY
+            } else {
+                (a - b).abs() / b.abs().max(floor)
+            }
         })
         .fold(0.0, f64::max)
 }
@@ -281,14 +332,21 @@ pub fn random_medium(dims: GridDims, seed: u64) -> MediumGrid {
 /// Solves a random medium of `dims` for `steps` steps with the leaf preset
 /// on `candidate` and on the CPU reference; returns the maximum relative
 /// difference per channel.
-pub fn compare_with_reference(candidate: &mut dyn LightingSolver, dims: GridDims, steps: usize, seed: u64) -> anyhow::Result<[f64; 3]> {
+pub fn compare_with_reference(
+    candidate: &mut dyn LightingSolver,
+    dims: GridDims,
+    steps: usize,
+    seed: u64,
+) -> anyhow::Result<[f64; 3]> {
     let medium = random_medium(dims, seed);
     let params = LbParams::from_preset(Preset::Leaf);
     let sun = Sun::from_elevation_azimuth(50.0, 20.0, 1.0)?;
     let opts = SolveOptions::fixed_steps(steps);
     let got = solve(candidate, &medium, &params, &sun, &opts, &|_, _, _| {})?;
     let want = solve(&mut CpuSolver, &medium, &params, &sun, &opts, &|_, _, _| {})?;
-    Ok(std::array::from_fn(|c| max_relative_difference(&got.channels[c].total, &want.channels[c].total)))
+    Ok(std::array::from_fn(|c| {
+        max_relative_difference(&got.channels[c].total, &want.channels[c].total)
+    }))
 }
 
 /// (g) `candidate` (the GPU solver) matches the CPU reference within 1e-4
@@ -297,7 +355,13 @@ pub fn reference_check(candidate: &mut dyn LightingSolver) -> Check {
     let name = "GPU solver matches the CPU reference (32³ random medium, 64 steps, R/G/B)";
     match compare_with_reference(candidate, GridDims::cube(32), 64, 11) {
         Ok(d) => {
-            let detail = format!("max relative difference R {:.2e}, G {:.2e}, B {:.2e} on {}", d[0], d[1], d[2], candidate.name());
+            let detail = format!(
+                "max relative difference R {:.2e}, G {:.2e}, B {:.2e} on {}",
+                d[0],
+                d[1],
+                d[2],
+                candidate.name()
+            );
             Check::new("g", name, d.iter().copied().fold(0.0, f64::max), 1e-4, detail)
         }
         Err(e) => Check::new("g", name, f64::INFINITY, 1e-4, format!("could not run: {e:#}")),
@@ -306,7 +370,14 @@ pub fn reference_check(candidate: &mut dyn LightingSolver) -> Check {
 
 /// Checks (a)–(f), which need no GPU.
 pub fn model_checks() -> Vec<Check> {
-    vec![column_sums(), isotropic_null_vector(), second_moment(), pass_through(), diffusion(), invalid_parameters()]
+    vec![
+        column_sums(),
+        isotropic_null_vector(),
+        second_moment(),
+        pass_through(),
+        diffusion(),
+        invalid_parameters(),
+    ]
 }
 
 #[cfg(test)]
@@ -314,7 +385,11 @@ mod tests {
     use super::*;
 
     fn assert_pass(c: Check) {
-        assert!(c.pass, "check {} failed: {} — measured {} > bound {} ({})", c.id, c.name, c.measured, c.bound, c.detail);
+        assert!(
+            c.pass,
+            "check {} failed: {} — measured {} > bound {} ({})",
+            c.id, c.name, c.measured, c.bound, c.detail
+        );
     }
 
     #[test]

@@ -52,7 +52,8 @@ impl Bin {
         while !self.data.len().is_multiple_of(4) {
             self.data.push(0);
         }
-        let mut v = json!({ "buffer": 0, "byteOffset": self.data.len(), "byteLength": bytes.len() });
+        let mut v =
+            json!({ "buffer": 0, "byteOffset": self.data.len(), "byteLength": bytes.len() });
         if let Some(t) = target {
             v["target"] = t.into();
         }
@@ -63,7 +64,14 @@ impl Bin {
 
     /// A float accessor of `n`-component elements (`ty`: VEC2, VEC3, VEC4),
     /// with its bounds where glTF asks for them (positions).
-    fn floats(&mut self, values: &[f32], n: usize, ty: &str, bounds: bool, target: Option<u32>) -> usize {
+    fn floats(
+        &mut self,
+        values: &[f32],
+        n: usize,
+        ty: &str,
+        bounds: bool,
+        target: Option<u32>,
+    ) -> usize {
         let view = self.view(bytemuck::cast_slice(values), target);
         let mut a = json!({ "bufferView": view, "componentType": FLOAT, "count": values.len() / n, "type": ty });
         if bounds {
@@ -114,15 +122,25 @@ fn trs(m: &Affine3A) -> Option<(Vec3, Quat, Vec3)> {
 /// The scene as a binary glTF file, and what went in.
 pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
     let mut bin = Bin::default();
-    let (mut meshes, mut materials, mut images, mut textures, mut nodes) = (vec![], vec![], vec![], vec![], vec![]);
-    let mut summary = GltfSummary { meshes: 0, instances: 0, matrix_nodes: 0, triangles: 0, materials: 0, textures: 0, bytes: 0 };
+    let (mut meshes, mut materials, mut images, mut textures, mut nodes) =
+        (vec![], vec![], vec![], vec![], vec![]);
+    let mut summary = GltfSummary {
+        meshes: 0,
+        instances: 0,
+        matrix_nodes: 0,
+        triangles: 0,
+        materials: 0,
+        textures: 0,
+        bytes: 0,
+    };
     let mut scene_nodes = vec![];
     for (mi, m) in scene.models.iter().enumerate() {
         let model: &Model = &m.model;
         // Textures of this model, as PNG images in the file.
         let first_texture = textures.len();
         for t in &model.textures {
-            let img = image::RgbaImage::from_raw(t.width, t.height, t.rgba.clone()).context("a texture's size does not match its texels")?;
+            let img = image::RgbaImage::from_raw(t.width, t.height, t.rgba.clone())
+                .context("a texture's size does not match its texels")?;
             let mut png = std::io::Cursor::new(Vec::new());
             img.write_to(&mut png, image::ImageFormat::Png)?;
             let view = bin.view(&png.into_inner(), None);
@@ -147,11 +165,18 @@ pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
         let mut attributes = json!({ "POSITION": pos });
         if model.uvs.len() == model.positions.len() {
             let uvs: Vec<f32> = model.uvs.iter().flat_map(|u| u.to_array()).collect();
-            attributes["TEXCOORD_0"] = bin.floats(&uvs, 2, "VEC2", false, Some(ARRAY_BUFFER)).into();
+            attributes["TEXCOORD_0"] =
+                bin.floats(&uvs, 2, "VEC2", false, Some(ARRAY_BUFFER)).into();
         }
         let mut primitives = vec![];
         for k in 0..model.materials.len() {
-            let idx: Vec<u32> = model.triangles.iter().zip(&model.material).filter(|(_, mt)| **mt as usize == k).flat_map(|(t, _)| *t).collect();
+            let idx: Vec<u32> = model
+                .triangles
+                .iter()
+                .zip(&model.material)
+                .filter(|(_, mt)| **mt as usize == k)
+                .flat_map(|(t, _)| *t)
+                .collect();
             if !idx.is_empty() {
                 primitives.push(json!({ "attributes": attributes, "indices": bin.indices(&idx), "material": first_material + k, "mode": 4 }));
             }
@@ -194,22 +219,45 @@ pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
 
     // The ground: a square three times the stand's extent, at least 200 m.
     if let Some(g) = &scene.ground {
-        let (lo, hi) = scene.instances.iter().filter_map(|i| scene.models[i.model as usize].model.bounds().map(|b| (i, b))).fold(
-            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-            |(lo, hi), (i, (a, b))| {
-                let corners = [a, b, Vec3::new(a.x, a.y, b.z), Vec3::new(b.x, a.y, a.z)].map(|c| i.to_world.transform_point3(c));
-                corners.iter().fold((lo, hi), |(lo, hi), &c| (lo.min(c), hi.max(c)))
-            },
-        );
-        let (centre, half) =
-            if lo.is_finite() && hi.is_finite() { ((lo + hi) * 0.5, (1.5 * (hi - lo).max_element()).max(100.0)) } else { (Vec3::ZERO, 100.0) };
+        let (lo, hi) = scene
+            .instances
+            .iter()
+            .filter_map(|i| scene.models[i.model as usize].model.bounds().map(|b| (i, b)))
+            .fold(
+                (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+                |(lo, hi), (i, (a, b))| {
+                    let corners = [a, b, Vec3::new(a.x, a.y, b.z), Vec3::new(b.x, a.y, a.z)]
+                        .map(|c| i.to_world.transform_point3(c));
+                    corners.iter().fold((lo, hi), |(lo, hi), &c| (lo.min(c), hi.max(c)))
+                },
+            );
+        let (centre, half) = if lo.is_finite() && hi.is_finite() {
+            ((lo + hi) * 0.5, (1.5 * (hi - lo).max_element()).max(100.0))
+        } else {
+            (Vec3::ZERO, 100.0)
+        };
         let (cx, cz) = (centre.x, centre.z);
-        let quad = [cx - half, 0.0, cz - half, cx + half, 0.0, cz - half, cx + half, 0.0, cz + half, cx - half, 0.0, cz + half];
+        let quad = [
+            cx - half,
+            0.0,
+            cz - half,
+            cx + half,
+            0.0,
+            cz - half,
+            cx + half,
+            0.0,
+            cz + half,
+            cx - half,
+            0.0,
+            cz + half,
+        ];
         let pos = bin.floats(&quad, 3, "VEC3", true, Some(ARRAY_BUFFER));
         let idx = bin.indices(&[0, 2, 1, 0, 3, 2]);
         materials.push(json!({ "name": "ground", "pbrMetallicRoughness": { "baseColorFactor": [g.color[0], g.color[1], g.color[2], 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0 } }));
         meshes.push(json!({ "name": "ground", "primitives": [{ "attributes": { "POSITION": pos }, "indices": idx, "material": materials.len() - 1, "mode": 4 }] }));
-        nodes.push(json!({ "name": "ground", "mesh": meshes.len() - 1, "extras": { "sylva": "ground" } }));
+        nodes.push(
+            json!({ "name": "ground", "mesh": meshes.len() - 1, "extras": { "sylva": "ground" } }),
+        );
         scene_nodes.push(nodes.len() - 1);
     }
     summary.meshes = meshes.len();
@@ -219,7 +267,9 @@ pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
     let view = Mat4::look_to_rh(c.position, c.forward, c.up);
     let (_, rot, pos) = view.inverse().to_scale_rotation_translation();
     let yfov = 2.0 * c.tan_half_fov_y.atan();
-    let cameras = vec![json!({ "name": "camera", "type": "perspective", "perspective": { "yfov": yfov, "znear": 0.05 } })];
+    let cameras = vec![
+        json!({ "name": "camera", "type": "perspective", "perspective": { "yfov": yfov, "znear": 0.05 } }),
+    ];
     nodes.push(json!({ "name": "camera", "camera": 0, "translation": pos.to_array(), "rotation": rot.normalize().to_array() }));
     scene_nodes.push(nodes.len() - 1);
 
@@ -254,7 +304,8 @@ pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
     });
     if !textures.is_empty() {
         // Leaf textures tile; nearest texel, as the tracer reads them.
-        doc["samplers"] = json!([{ "magFilter": 9728, "minFilter": 9728, "wrapS": 10497, "wrapT": 10497 }]);
+        doc["samplers"] =
+            json!([{ "magFilter": 9728, "minFilter": 9728, "wrapS": 10497, "wrapT": 10497 }]);
         doc["images"] = images.into();
         doc["textures"] = textures.into();
     }
@@ -272,7 +323,8 @@ pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
 fn glb(json: &[u8], bin: &[u8]) -> anyhow::Result<Vec<u8>> {
     let pad = |n: usize| n.div_ceil(4) * 4;
     let total = 12 + 8 + pad(json.len()) + 8 + pad(bin.len());
-    let total32 = u32::try_from(total).context("the scene is over the 4 GiB a GLB file can hold")?;
+    let total32 =
+        u32::try_from(total).context("the scene is over the 4 GiB a GLB file can hold")?;
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(b"glTF");
     out.extend_from_slice(&2u32.to_le_bytes());

@@ -29,27 +29,36 @@ struct Gathered {
 /// names relative to `scene_dir`.
 pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFile> {
     let shown = gltf_path.display();
-    let gltf::Gltf { document: doc, blob } = gltf::Gltf::open(gltf_path).with_context(|| format!("{shown}: cannot read glTF"))?;
+    let gltf::Gltf { document: doc, blob } =
+        gltf::Gltf::open(gltf_path).with_context(|| format!("{shown}: cannot read glTF"))?;
     let folder = gltf_path.parent().unwrap_or(Path::new("."));
-    let buffers = gltf::import_buffers(&doc, Some(folder), blob).with_context(|| format!("{shown}: cannot read its buffers"))?;
-    let scene = doc.default_scene().or_else(|| doc.scenes().next()).with_context(|| format!("{shown}: no scene"))?;
+    let buffers = gltf::import_buffers(&doc, Some(folder), blob)
+        .with_context(|| format!("{shown}: cannot read its buffers"))?;
+    let scene = doc
+        .default_scene()
+        .or_else(|| doc.scenes().next())
+        .with_context(|| format!("{shown}: no scene"))?;
     let mut g = Gathered { placements: vec![Vec::new(); doc.meshes().len()], ..Default::default() };
-    let mut stack: Vec<(gltf::Node, Mat4, usize)> = scene.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect();
+    let mut stack: Vec<(gltf::Node, Mat4, usize)> =
+        scene.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect();
     let mut count = 0usize;
     while let Some((node, parent, depth)) = stack.pop() {
         if depth >= MAX_DEPTH {
             bail!("{shown}: the node hierarchy is deeper than {MAX_DEPTH}");
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-        let sylva_role = node.extras().as_ref().and_then(|r| serde_json::from_str::<Value>(r.get()).ok());
+        let sylva_role =
+            node.extras().as_ref().and_then(|r| serde_json::from_str::<Value>(r.get()).ok());
         if let Some(mesh) = node.mesh() {
-            if sylva_role.as_ref().and_then(|v| v.get("sylva")).and_then(Value::as_str) == Some("ground") {
+            if sylva_role.as_ref().and_then(|v| v.get("sylva")).and_then(Value::as_str)
+                == Some("ground")
+            {
                 g.ground = ground_colour(&mesh);
             } else {
                 let places = match node.extension_value("EXT_mesh_gpu_instancing") {
-                    Some(ext) => {
-                        instancing(&doc, &buffers, ext).with_context(|| format!("{shown}: node {}: EXT_mesh_gpu_instancing", node.index()))?
-                    }
+                    Some(ext) => instancing(&doc, &buffers, ext).with_context(|| {
+                        format!("{shown}: node {}: EXT_mesh_gpu_instancing", node.index())
+                    })?,
                     None => vec![Mat4::IDENTITY],
                 };
                 count += places.len();
@@ -66,17 +75,30 @@ pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFi
             g.camera = Some((world, p.yfov()));
         }
         if g.sun.is_none()
-            && let Some(light) = node.extension_value("KHR_lights_punctual").and_then(|v| v.get("light")).and_then(Value::as_u64)
-            && let Some(l) = doc.extension_value("KHR_lights_punctual").and_then(|v| v.get("lights")).and_then(|v| v.get(light as usize))
+            && let Some(light) = node
+                .extension_value("KHR_lights_punctual")
+                .and_then(|v| v.get("light"))
+                .and_then(Value::as_u64)
+            && let Some(l) = doc
+                .extension_value("KHR_lights_punctual")
+                .and_then(|v| v.get("lights"))
+                .and_then(|v| v.get(light as usize))
             && l.get("type").and_then(Value::as_str) == Some("directional")
         {
-            let colour = l.get("color").and_then(|c| serde_json::from_value::<[f32; 3]>(c.clone()).ok()).unwrap_or([1.0; 3]);
+            let colour = l
+                .get("color")
+                .and_then(|c| serde_json::from_value::<[f32; 3]>(c.clone()).ok())
+                .unwrap_or([1.0; 3]);
             let intensity = l.get("intensity").and_then(Value::as_f64).unwrap_or(1.0) as f32;
             g.sun = Some((world, colour, intensity));
         }
         stack.extend(node.children().map(|c| (c, world, depth + 1)));
     }
-    let extras = scene.extras().as_ref().and_then(|r| serde_json::from_str::<Value>(r.get()).ok()).and_then(|v| v.get("sylva").cloned());
+    let extras = scene
+        .extras()
+        .as_ref()
+        .and_then(|r| serde_json::from_str::<Value>(r.get()).ok())
+        .and_then(|v| v.get("sylva").cloned());
 
     // Models: one per mesh that is placed, named after the mesh.
     let file = pathdiff(gltf_path, scene_dir);
@@ -87,7 +109,10 @@ pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFi
             continue;
         }
         let Some(name) = mesh.name().filter(|n| !n.is_empty()) else {
-            bail!("{shown}: mesh {} has no name; a scene file names meshes to read them", mesh.index())
+            bail!(
+                "{shown}: mesh {} has no name; a scene file names meshes to read them",
+                mesh.index()
+            )
         };
         if doc.meshes().filter(|m| m.name() == Some(name)).count() > 1 {
             bail!("{shown}: two meshes are named {name:?}; a scene file names meshes to read them");
@@ -131,7 +156,12 @@ pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFi
     if let Some(sky) = extras.as_ref().and_then(|e| e.get("sky")) {
         out["sky"] = sky.clone();
     }
-    let ground = extras.as_ref().and_then(|e| e.get("ground")).filter(|v| !v.is_null()).cloned().or(g.ground.map(|c| json!(c)));
+    let ground = extras
+        .as_ref()
+        .and_then(|e| e.get("ground"))
+        .filter(|v| !v.is_null())
+        .cloned()
+        .or(g.ground.map(|c| json!(c)));
     if let Some(c) = ground {
         out["ground"] = json!({ "color": c });
     }
@@ -143,26 +173,38 @@ pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFi
 
 /// Placements of one `EXT_mesh_gpu_instancing` extension: translation,
 /// rotation and scale accessors (float, each optional, equal counts).
-fn instancing(doc: &gltf::Document, buffers: &[gltf::buffer::Data], ext: &Value) -> anyhow::Result<Vec<Mat4>> {
+fn instancing(
+    doc: &gltf::Document,
+    buffers: &[gltf::buffer::Data],
+    ext: &Value,
+) -> anyhow::Result<Vec<Mat4>> {
     let attrs = ext.get("attributes").and_then(Value::as_object).context("no attributes")?;
     let read = |name: &str, n: usize| -> anyhow::Result<Option<Vec<f32>>> {
         let Some(i) = attrs.get(name).and_then(Value::as_u64) else { return Ok(None) };
-        let a = doc.accessors().nth(i as usize).with_context(|| format!("{name}: no accessor {i}"))?;
+        let a =
+            doc.accessors().nth(i as usize).with_context(|| format!("{name}: no accessor {i}"))?;
         let dims = match n {
             3 => gltf::accessor::Dimensions::Vec3,
             _ => gltf::accessor::Dimensions::Vec4,
         };
-        if a.data_type() != gltf::accessor::DataType::F32 || a.dimensions() != dims || a.sparse().is_some() {
+        if a.data_type() != gltf::accessor::DataType::F32
+            || a.dimensions() != dims
+            || a.sparse().is_some()
+        {
             bail!("{name}: accessor {i} must be dense float {dims:?}");
         }
         let view = a.view().with_context(|| format!("{name}: accessor {i} has no buffer view"))?;
-        let data = buffers.get(view.buffer().index()).with_context(|| format!("{name}: no buffer"))?;
+        let data =
+            buffers.get(view.buffer().index()).with_context(|| format!("{name}: no buffer"))?;
         let stride = view.stride().unwrap_or(4 * n);
         let start = view.offset() + a.offset();
         let mut out = Vec::with_capacity(a.count() * n);
         for k in 0..a.count() {
             let at = start + k * stride;
-            let bytes = data.0.get(at..at + 4 * n).with_context(|| format!("{name}: accessor {i} runs past its buffer"))?;
+            let bytes = data
+                .0
+                .get(at..at + 4 * n)
+                .with_context(|| format!("{name}: accessor {i} runs past its buffer"))?;
             out.extend(bytes.as_chunks::<4>().0.iter().map(|b| f32::from_le_bytes(*b)));
         }
         if !out.iter().all(|v| v.is_finite()) {
@@ -171,7 +213,11 @@ fn instancing(doc: &gltf::Document, buffers: &[gltf::buffer::Data], ext: &Value)
         Ok(Some(out))
     };
     let (t, r, s) = (read("TRANSLATION", 3)?, read("ROTATION", 4)?, read("SCALE", 3)?);
-    let n = [t.as_ref().map(|v| v.len() / 3), r.as_ref().map(|v| v.len() / 4), s.as_ref().map(|v| v.len() / 3)];
+    let n = [
+        t.as_ref().map(|v| v.len() / 3),
+        r.as_ref().map(|v| v.len() / 4),
+        s.as_ref().map(|v| v.len() / 3),
+    ];
     let count = n.iter().flatten().copied().max().context("no TRANSLATION, ROTATION or SCALE")?;
     if n.iter().flatten().any(|&c| c != count) {
         bail!("the attributes' counts differ: {n:?}");
@@ -179,7 +225,9 @@ fn instancing(doc: &gltf::Document, buffers: &[gltf::buffer::Data], ext: &Value)
     Ok((0..count)
         .map(|k| {
             let tt = t.as_ref().map_or(Vec3::ZERO, |v| Vec3::from_slice(&v[3 * k..]));
-            let rr = r.as_ref().map_or(Quat::IDENTITY, |v| Quat::from_vec4(Vec4::from_slice(&v[4 * k..])).normalize());
+            let rr = r.as_ref().map_or(Quat::IDENTITY, |v| {
+                Quat::from_vec4(Vec4::from_slice(&v[4 * k..])).normalize()
+            });
             let ss = s.as_ref().map_or(Vec3::ONE, |v| Vec3::from_slice(&v[3 * k..]));
             Mat4::from_scale_rotation_translation(ss, rr, tt)
         })

@@ -44,12 +44,20 @@ const RESOLUTION: (u32, u32) = (896, 448);
 /// Writes `scene` as the pbrt-v4 file `out`, its meshes and images in the
 /// folder `<out without extension>_files` beside it.
 pub fn export_pbrt(scene: &Scene, out: &Path) -> anyhow::Result<PbrtSummary> {
-    let stem = out.file_stem().context("the output needs a file name")?.to_string_lossy().into_owned();
+    let stem =
+        out.file_stem().context("the output needs a file name")?.to_string_lossy().into_owned();
     let dir_name = format!("{stem}_files");
     let dir = out.with_file_name(&dir_name);
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     let mut s = String::new();
-    let mut summary = PbrtSummary { objects: 0, instances: 0, meshes: 0, images: 0, triangles: 0, folder: dir.display().to_string() };
+    let mut summary = PbrtSummary {
+        objects: 0,
+        instances: 0,
+        meshes: 0,
+        images: 0,
+        triangles: 0,
+        folder: dir.display().to_string(),
+    };
     let _ = writeln!(s, "# exported by Sylva {}", env!("CARGO_PKG_VERSION"));
 
     // pbrt's camera space is left-handed; Sylva's world is right-handed.
@@ -71,13 +79,20 @@ pub fn export_pbrt(scene: &Scene, out: &Path) -> anyhow::Result<PbrtSummary> {
 
     // The sun: a surface facing it receives π × its radiance scale.
     let e = scene.sun.radiance.map(|v| std::f32::consts::PI * v);
-    let _ = writeln!(s, "LightSource \"distant\" \"point3 from\" [ {} ] \"point3 to\" [ 0 0 0 ] \"rgb L\" [ {} ]", v3(scene.sun.towards), rgb(e));
+    let _ = writeln!(
+        s,
+        "LightSource \"distant\" \"point3 from\" [ {} ] \"point3 to\" [ 0 0 0 ] \"rgb L\" [ {} ]",
+        v3(scene.sun.towards),
+        rgb(e)
+    );
     // The sky: pbrt's infinite light takes an equal-area map whose +z is up.
     let sky = dir.join("sky.exr");
     write_sky(scene, &sky)?;
     summary.images += 1;
-    let _ =
-        writeln!(s, "AttributeBegin\n  Rotate -90 1 0 0\n  LightSource \"infinite\" \"string filename\" [ \"{dir_name}/sky.exr\" ]\nAttributeEnd");
+    let _ = writeln!(
+        s,
+        "AttributeBegin\n  Rotate -90 1 0 0\n  LightSource \"infinite\" \"string filename\" [ \"{dir_name}/sky.exr\" ]\nAttributeEnd"
+    );
 
     if let Some(g) = &scene.ground {
         let h = 1.0e4;
@@ -100,7 +115,14 @@ pub fn export_pbrt(scene: &Scene, out: &Path) -> anyhow::Result<PbrtSummary> {
         let name = format!("model{mi}-{}", sanitize(&m.name));
         let _ = writeln!(s, "ObjectBegin \"{name}\"");
         for (k, mat) in m.model.materials.iter().enumerate() {
-            let tris: Vec<[u32; 3]> = m.model.triangles.iter().zip(&m.model.material).filter(|(_, t)| **t as usize == k).map(|(t, _)| *t).collect();
+            let tris: Vec<[u32; 3]> = m
+                .model
+                .triangles
+                .iter()
+                .zip(&m.model.material)
+                .filter(|(_, t)| **t as usize == k)
+                .map(|(t, _)| *t)
+                .collect();
             if tris.is_empty() {
                 continue;
             }
@@ -109,9 +131,21 @@ pub fn export_pbrt(scene: &Scene, out: &Path) -> anyhow::Result<PbrtSummary> {
             summary.meshes += 1;
             summary.triangles += tris.len() as u64;
             let _ = writeln!(s, "  AttributeBegin");
-            let alpha = material(scene, &m.model, mat, &format!("{name}-{k}"), &dir, &dir_name, &mut s, &mut summary)?;
+            let alpha = material(
+                scene,
+                &m.model,
+                mat,
+                &format!("{name}-{k}"),
+                &dir,
+                &dir_name,
+                &mut s,
+                &mut summary,
+            )?;
             let alpha = alpha.map(|t| format!(" \"texture alpha\" \"{t}\"")).unwrap_or_default();
-            let _ = writeln!(s, "    Shape \"plymesh\" \"string filename\" [ \"{dir_name}/{ply}\" ]{alpha}");
+            let _ = writeln!(
+                s,
+                "    Shape \"plymesh\" \"string filename\" [ \"{dir_name}/{ply}\" ]{alpha}"
+            );
             let _ = writeln!(s, "  AttributeEnd");
         }
         let _ = writeln!(s, "ObjectEnd");
@@ -119,7 +153,11 @@ pub fn export_pbrt(scene: &Scene, out: &Path) -> anyhow::Result<PbrtSummary> {
         for inst in scene.instances.iter().filter(|i| i.model as usize == mi) {
             let m = Mat4::from(inst.to_world).to_cols_array();
             let nums: Vec<String> = m.iter().map(|v| v.to_string()).collect();
-            let _ = writeln!(s, "AttributeBegin\n  ConcatTransform [ {} ]\n  ObjectInstance \"{name}\"\nAttributeEnd", nums.join(" "));
+            let _ = writeln!(
+                s,
+                "AttributeBegin\n  ConcatTransform [ {} ]\n  ObjectInstance \"{name}\"\nAttributeEnd",
+                nums.join(" ")
+            );
             summary.instances += 1;
         }
     }
@@ -147,7 +185,10 @@ fn material(
     // transmitter has one reflectance and one transmittance.
     let leaf = |albedo: [f32; 3]| -> ([f32; 3], [f32; 3]) {
         let k: [[f32; 4]; 3] = std::array::from_fn(|c| optics.coefficients(albedo, c));
-        (std::array::from_fn(|c| 0.5 * (k[c][0] + k[c][1])), std::array::from_fn(|c| 0.5 * (k[c][2] + k[c][3])))
+        (
+            std::array::from_fn(|c| 0.5 * (k[c][0] + k[c][1])),
+            std::array::from_fn(|c| 0.5 * (k[c][2] + k[c][3])),
+        )
     };
     match (mat.surface, texture) {
         (Surface::Wood, None) => {
@@ -155,7 +196,12 @@ fn material(
         }
         (Surface::Leaf, None) => {
             let (r, t) = leaf(base);
-            let _ = writeln!(s, "    Material \"diffusetransmission\" \"rgb reflectance\" [ {} ] \"rgb transmittance\" [ {} ]", rgb(r), rgb(t));
+            let _ = writeln!(
+                s,
+                "    Material \"diffusetransmission\" \"rgb reflectance\" [ {} ] \"rgb transmittance\" [ {} ]",
+                rgb(r),
+                rgb(t)
+            );
         }
         (surface, Some(tex)) => {
             // Each texel's linear albedo through the same optics the tracer uses.
@@ -164,7 +210,8 @@ fn material(
             let mut trans = image::RgbImage::new(w, h);
             for (i, px) in tex.rgba.as_chunks::<4>().0.iter().enumerate() {
                 let albedo: [f32; 3] = std::array::from_fn(|c| base[c] * srgb8_to_linear(px[c]));
-                let (r, t) = if surface == Surface::Leaf { leaf(albedo) } else { (albedo, [0.0; 3]) };
+                let (r, t) =
+                    if surface == Surface::Leaf { leaf(albedo) } else { (albedo, [0.0; 3]) };
                 let (x, y) = (i as u32 % w, i as u32 / w);
                 refl.put_pixel(x, y, image::Rgb(r.map(linear_to_srgb8)));
                 trans.put_pixel(x, y, image::Rgb(t.map(linear_to_srgb8)));
@@ -183,10 +230,13 @@ fn material(
                     s,
                     "    Texture \"{name}-t\" \"spectrum\" \"imagemap\" \"string filename\" [ \"{dir_name}/{tf}\" ] \"string filter\" [ \"point\" ]"
                 );
-                let _ =
-                    writeln!(s, "    Material \"diffusetransmission\" \"texture reflectance\" \"{name}-r\" \"texture transmittance\" \"{name}-t\"");
+                let _ = writeln!(
+                    s,
+                    "    Material \"diffusetransmission\" \"texture reflectance\" \"{name}-r\" \"texture transmittance\" \"{name}-t\""
+                );
             } else {
-                let _ = writeln!(s, "    Material \"diffuse\" \"texture reflectance\" \"{name}-r\"");
+                let _ =
+                    writeln!(s, "    Material \"diffuse\" \"texture reflectance\" \"{name}-r\"");
             }
             if let Some(cut) = mat.alpha_cutoff {
                 // pbrt cuts where alpha is 0: the mask, thresholded as the tracer does.
@@ -287,5 +337,8 @@ fn rgb(c: [f32; 3]) -> String {
 
 /// A name safe inside pbrt's quoted strings and file names.
 fn sanitize(name: &str) -> String {
-    name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).take(64).collect()
+    name.chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '_' || c == '-' { c } else { '_' })
+        .take(64)
+        .collect()
 }

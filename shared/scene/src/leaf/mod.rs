@@ -40,7 +40,12 @@ pub struct LeafOptics {
 impl Default for LeafOptics {
     fn default() -> Self {
         let t = [0, 1, 2].map(|i| MEASURED_TRANSMITTED[i] / MEASURED_REFLECTED[i]);
-        Self { reflect_front: [1.0; 3], reflect_back: [1.0; 3], transmit_front: t, transmit_back: t }
+        Self {
+            reflect_front: [1.0; 3],
+            reflect_back: [1.0; 3],
+            transmit_front: t,
+            transmit_back: t,
+        }
     }
 }
 
@@ -50,8 +55,12 @@ impl LeafOptics {
     /// never scatters more than it receives (ρ_r + ρ_t ≤ 1 per side).
     pub fn coefficients(&self, albedo: [f32; 3], c: usize) -> [f32; 4] {
         let a = albedo[c];
-        let (mut rf, mut rb, mut tf, mut tb) =
-            (a * self.reflect_front[c], a * self.reflect_back[c], a * self.transmit_front[c], a * self.transmit_back[c]);
+        let (mut rf, mut rb, mut tf, mut tb) = (
+            a * self.reflect_front[c],
+            a * self.reflect_back[c],
+            a * self.transmit_front[c],
+            a * self.transmit_back[c],
+        );
         // Front face: light arriving on the front is reflected (ρ_rf) or transmitted (ρ_tf).
         let front = rf + tf;
         if front > 1.0 {
@@ -75,7 +84,9 @@ impl LeafOptics {
             ("transmit_back", self.transmit_back),
         ] {
             if v.iter().any(|x| !x.is_finite() || *x < 0.0) {
-                return Err(format!("leaf optics {name} = {v:?}: each must be a finite number ≥ 0"));
+                return Err(format!(
+                    "leaf optics {name} = {v:?}: each must be a finite number ≥ 0"
+                ));
             }
         }
         Ok(())

@@ -59,7 +59,9 @@ impl LeafShape {
                 let along = x * s + y * c;
                 let across = x * c - y * s;
                 let len = if i == 2 { 0.95 } else { 0.95 - 0.12 * (i as f32 - 2.0).abs() };
-                along > 0.0 && along < len && across.abs() < 0.2 * (std::f32::consts::PI * along / len).sin()
+                along > 0.0
+                    && along < len
+                    && across.abs() < 0.2 * (std::f32::consts::PI * along / len).sin()
             }),
         }
     }
@@ -89,9 +91,16 @@ mod tests {
 
     #[test]
     fn every_leaf_has_holes_and_blade() {
-        for shape in [LeafShape::Lobed, LeafShape::Palmate, LeafShape::Ovate, LeafShape::Cordate, LeafShape::Elliptic] {
+        for shape in [
+            LeafShape::Lobed,
+            LeafShape::Palmate,
+            LeafShape::Ovate,
+            LeafShape::Cordate,
+            LeafShape::Elliptic,
+        ] {
             let t = leaf_texture(shape, [80, 120, 40], 1);
-            let on = t.rgba.as_chunks::<4>().0.iter().filter(|p| p[3] == 255).count() as f32 / (t.width * t.height) as f32;
+            let on = t.rgba.as_chunks::<4>().0.iter().filter(|p| p[3] == 255).count() as f32
+                / (t.width * t.height) as f32;
             assert!(on > 0.15 && on < 0.8, "{shape:?} covers {on}");
         }
     }

@@ -62,7 +62,8 @@ pub fn generate(p: &TreeParams) -> Result<Model, TreeError> {
     // for small triangle counts.
     let wood_budget = (target / 4).max(trunk + per_branch);
     let branches = s.branches.min((wood_budget - trunk) / per_branch).max(1);
-    let twigs = s.twigs.min((wood_budget - trunk - branches * per_branch) / (branches * per_twig).max(1));
+    let twigs =
+        s.twigs.min((wood_budget - trunk - branches * per_branch) / (branches * per_twig).max(1));
 
     let mut rng = SplitMix64::new(p.seed ^ (p.species as u64) << 32);
     let mut m = Model::default();
@@ -98,7 +99,8 @@ pub fn generate(p: &TreeParams) -> Result<Model, TreeError> {
         let az = b as f32 * golden + rng.range(-0.3, 0.3);
         let pitch = (s.branch_pitch_deg + rng.range(-8.0, 8.0)).to_radians() * (1.0 - 0.35 * t);
         let dir = Vec3::new(pitch.sin() * az.cos(), pitch.cos(), pitch.sin() * az.sin());
-        let len = s.crown_radius * s.crown.profile(t) * rng.range(0.85, 1.1) / pitch.sin().max(0.35);
+        let len =
+            s.crown_radius * s.crown.profile(t) * rng.range(0.85, 1.1) / pitch.sin().max(0.35);
         let r0 = s.trunk_radius * (1.0 - 0.75 * y / trunk_top) * 0.55;
         let start = lean * y;
         let pts: Vec<(Vec3, f32)> = (0..=BRANCH_SEGMENTS)
@@ -156,15 +158,27 @@ fn along(pts: &[(Vec3, f32)], u: f32) -> Vec3 {
 /// One leaf near `at`, scattered within the twig's reach, facing mostly up
 /// and outwards.
 fn leaf_quad(m: &mut Model, rng: &mut SplitMix64, at: Vec3, reach: f32, size: f32, material: u32) {
-    let scatter = Vec3::new(rng.range(-1.0, 1.0), rng.range(-0.6, 1.0), rng.range(-1.0, 1.0)) * reach * 0.45;
+    let scatter =
+        Vec3::new(rng.range(-1.0, 1.0), rng.range(-0.6, 1.0), rng.range(-1.0, 1.0)) * reach * 0.45;
     let base = at + scatter;
     let outward = Vec3::new(base.x, 0.0, base.z).normalize_or(Vec3::X);
-    let normal = (Vec3::Y * 0.8 + outward * 0.5 + Vec3::new(rng.range(-0.6, 0.6), rng.range(-0.3, 0.3), rng.range(-0.6, 0.6))).normalize_or(Vec3::Y);
+    let normal = (Vec3::Y * 0.8
+        + outward * 0.5
+        + Vec3::new(rng.range(-0.6, 0.6), rng.range(-0.3, 0.3), rng.range(-0.6, 0.6)))
+    .normalize_or(Vec3::Y);
     let tip = normal.any_orthonormal_vector();
     let tip = Quat::from_axis_angle(normal, rng.range(0.0, std::f32::consts::TAU)) * tip;
     let across = normal.cross(tip);
     let (len, half) = (size * rng.range(0.8, 1.2), size * 0.5);
-    m.push_quad([base - across * half, base + across * half, base + across * half + tip * len, base - across * half + tip * len], material);
+    m.push_quad(
+        [
+            base - across * half,
+            base + across * half,
+            base + across * half + tip * len,
+            base - across * half + tip * len,
+        ],
+        material,
+    );
 }
 
 /// A tube through `pts` (centre, radius) with `sides` sides, open at both ends.
@@ -204,7 +218,11 @@ mod tests {
             for n in [500, 2_001, 40_000] {
                 let m = generate(&TreeParams { species: sp, triangles: Some(n), seed: 3 }).unwrap();
                 assert_eq!(m.triangle_count(), n as usize, "{sp:?}");
-                assert!(m.wood_triangles() > 0 && m.wood_triangles() <= n as usize / 2 + 200, "{sp:?} wood {}", m.wood_triangles());
+                assert!(
+                    m.wood_triangles() > 0 && m.wood_triangles() <= n as usize / 2 + 200,
+                    "{sp:?} wood {}",
+                    m.wood_triangles()
+                );
                 assert!(m.positions.iter().all(|p| p.is_finite()));
             }
         }
@@ -213,7 +231,8 @@ mod tests {
     #[test]
     fn species_differ_in_shape() {
         let extent = |sp| {
-            let m = generate(&TreeParams { species: sp, triangles: Some(20_000), seed: 1 }).unwrap();
+            let m =
+                generate(&TreeParams { species: sp, triangles: Some(20_000), seed: 1 }).unwrap();
             let (lo, hi) = m.bounds().unwrap();
             let e = hi - lo;
             e.y / e.x.max(e.z)

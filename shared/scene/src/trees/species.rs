@@ -79,7 +79,13 @@ pub struct SpeciesShape {
 
 impl Species {
     /// All five, in the paper's Table 2 order.
-    pub const ALL: [Species; 5] = [Species::RedMaple, Species::OhioBuckeye, Species::PaperBirch, Species::SouthernCatalpa, Species::AmericanBeech];
+    pub const ALL: [Species; 5] = [
+        Species::RedMaple,
+        Species::OhioBuckeye,
+        Species::PaperBirch,
+        Species::SouthernCatalpa,
+        Species::AmericanBeech,
+    ];
 
     /// The name scene files use.
     pub fn name(self) -> &'static str {

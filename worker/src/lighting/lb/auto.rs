@@ -35,14 +35,23 @@ pub fn choose_lb_grids(
     tolerance: f64,
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<Vec<GridChoice>> {
-    anyhow::ensure!(candidates.len() >= 2 && candidates.windows(2).all(|w| w[0] < w[1]), "auto grid candidates must be at least two, ascending");
+    anyhow::ensure!(
+        candidates.len() >= 2 && candidates.windows(2).all(|w| w[0] < w[1]),
+        "auto grid candidates must be at least two, ascending"
+    );
     let mut solver = GpuSolver::new(ctx.clone());
     let mut out = Vec::new();
     for m in &scene.models {
         let t = std::time::Instant::now();
-        let pts: Vec<glam::Vec3> =
-            m.model.triangles.iter().map(|t| t.iter().map(|&i| m.model.positions[i as usize]).sum::<glam::Vec3>() / 3.0).collect();
-        let light_at = |g: &LbGrid| -> Vec<f32> { pts.iter().map(|&p| g.sample(p).iter().sum::<f32>()).collect() };
+        let pts: Vec<glam::Vec3> = m
+            .model
+            .triangles
+            .iter()
+            .map(|t| t.iter().map(|&i| m.model.positions[i as usize]).sum::<glam::Vec3>() / 3.0)
+            .collect();
+        let light_at = |g: &LbGrid| -> Vec<f32> {
+            pts.iter().map(|&p| g.sample(p).iter().sum::<f32>()).collect()
+        };
         progress(&format!("choosing the LB grid of {} ({}³)", m.name, candidates[0]));
         let mut coarse = light_at(&solve_model(&mut solver, scene, m, candidates[0])?.0);
         let mut compared = Vec::new();
@@ -55,15 +64,35 @@ pub fn choose_lb_grids(
             let diff = if den > 0.0 { (num / den).sqrt() } else { 0.0 };
             compared.push((w[0], w[1], diff));
             if diff < tolerance {
-                chosen = Some((w[0], format!("{}³ differs from {}³ by {:.1} % < {:.1} %", w[0], w[1], 100.0 * diff, 100.0 * tolerance)));
+                chosen = Some((
+                    w[0],
+                    format!(
+                        "{}³ differs from {}³ by {:.1} % < {:.1} %",
+                        w[0],
+                        w[1],
+                        100.0 * diff,
+                        100.0 * tolerance
+                    ),
+                ));
                 break;
             }
             coarse = fine;
         }
         let last = *candidates.last().expect("two or more");
-        let (grid, reason) =
-            chosen.unwrap_or((last, format!("no grid up to {last}³ agreed with the next within {:.1} %: the finest was used", 100.0 * tolerance)));
-        out.push(GridChoice { model: m.name.clone(), grid, compared, reason, ms: t.elapsed().as_secs_f64() * 1e3 });
+        let (grid, reason) = chosen.unwrap_or((
+            last,
+            format!(
+                "no grid up to {last}³ agreed with the next within {:.1} %: the finest was used",
+                100.0 * tolerance
+            ),
+        ));
+        out.push(GridChoice {
+            model: m.name.clone(),
+            grid,
+            compared,
+            reason,
+            ms: t.elapsed().as_secs_f64() * 1e3,
+        });
     }
     Ok(out)
 }

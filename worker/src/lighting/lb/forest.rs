@@ -11,7 +11,10 @@ use crate::lb::GpuSolver;
 use crate::trace::GroundLight;
 use sylva_accel::Aabb;
 use sylva_accel::two_level::model_bounds;
-use sylva_light::lb::coarse::{ForestLight, ModelArea, Occupant, WorldGrid, crown_fill, crown_reach, forest_leaf_area, forest_medium};
+use sylva_light::lb::coarse::{
+    ForestLight, ModelArea, Occupant, WorldGrid, crown_fill, crown_reach, forest_leaf_area,
+    forest_medium,
+};
 use sylva_light::lb::{Illumination, LbGrid, LbParams, SolveOptions, solve, solve_indirect};
 use sylva_light::voxel::medium_from_leaf_area;
 use sylva_scene::format::Preset;
@@ -19,13 +22,22 @@ use sylva_scene::{ForestGridUse, Scene};
 
 /// Each instance's world box.
 fn instance_boxes(scene: &Scene) -> Vec<Aabb> {
-    scene.instances.iter().map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world)).collect()
+    scene
+        .instances
+        .iter()
+        .map(|i| model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world))
+        .collect()
 }
 
 /// The paper's forest grid: each instance's box filled by its crown's
 /// fill, lit by a unit sun; scales are the light at each box's centre
 /// over the best-lit instance's.
-pub fn paper(ctx: &GpuContext, scene: &Scene, grids: &[Option<LbGrid>], scales: &mut [f32]) -> anyhow::Result<ForestLight> {
+pub fn paper(
+    ctx: &GpuContext,
+    scene: &Scene,
+    grids: &[Option<LbGrid>],
+    scales: &mut [f32],
+) -> anyhow::Result<ForestLight> {
     let spec = scene.file.forest_grid;
     if spec.use_grid == ForestGridUse::Never {
         return Ok(ForestLight::unused("forest_grid.use is \"never\"".into(), None));
@@ -33,15 +45,29 @@ pub fn paper(ctx: &GpuContext, scene: &Scene, grids: &[Option<LbGrid>], scales: 
     if scene.instances.len() < 2 {
         return Ok(ForestLight::unused("a single instance has nothing to shade it".into(), None));
     }
-    let fills: Vec<f32> = grids.iter().zip(&scene.models).map(|(g, m)| g.as_ref().map_or(0.0, |g| crown_fill(g, &m.model))).collect();
-    let occupants: Vec<Occupant> =
-        instance_boxes(scene).into_iter().zip(&scene.instances).map(|(bounds, i)| Occupant { bounds, fill: fills[i.model as usize] }).collect();
+    let fills: Vec<f32> = grids
+        .iter()
+        .zip(&scene.models)
+        .map(|(g, m)| g.as_ref().map_or(0.0, |g| crown_fill(g, &m.model)))
+        .collect();
+    let occupants: Vec<Occupant> = instance_boxes(scene)
+        .into_iter()
+        .zip(&scene.instances)
+        .map(|(bounds, i)| Occupant { bounds, fill: fills[i.model as usize] })
+        .collect();
     let all = occupants.iter().fold(Aabb::EMPTY, |b, o| b.union(o.bounds));
     let grid = WorldGrid::around(all, spec.grid);
     let medium = forest_medium(&grid, &occupants);
     let sun = sun_of(scene)?;
     let mut solver = GpuSolver::new(ctx.clone());
-    let sol = solve(&mut solver, &medium, &LbParams::from_preset(Preset::Leaf), &sun, &SolveOptions::default(), &|_, _, _| {})?;
+    let sol = solve(
+        &mut solver,
+        &medium,
+        &LbParams::from_preset(Preset::Leaf),
+        &sun,
+        &SolveOptions::default(),
+        &|_, _, _| {},
+    )?;
     let free: f32 = sun.boundary().values.iter().sum();
     let light: Vec<f32> = occupants
         .iter()
@@ -69,8 +95,13 @@ pub fn grounded(
     scales: &mut [f32],
 ) -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
     let spec = scene.file.forest_grid;
-    if scene.instances.is_empty() || (spec.use_grid == ForestGridUse::Never && scene.ground.is_none()) {
-        return Ok((ForestLight::unused("forest_grid.use is \"never\" and there is no ground".into(), None), None));
+    if scene.instances.is_empty()
+        || (spec.use_grid == ForestGridUse::Never && scene.ground.is_none())
+    {
+        return Ok((
+            ForestLight::unused("forest_grid.use is \"never\" and there is no ground".into(), None),
+            None,
+        ));
     }
     let boxes = instance_boxes(scene);
     let all = boxes.iter().fold(Aabb::EMPTY, |b, o| b.union(*o));
@@ -80,7 +111,14 @@ pub fn grounded(
     let medium = medium_from_leaf_area(&area, d, grid.cell);
     let light = Illumination::of_scene(scene);
     let mut solver = GpuSolver::new(ctx.clone());
-    let sol = solve_indirect(&mut solver, &medium, &leaves.params(), &light, &SolveOptions::default(), &|_| {})?;
+    let sol = solve_indirect(
+        &mut solver,
+        &medium,
+        &leaves.params(),
+        &light,
+        &SolveOptions::default(),
+        &|_| {},
+    )?;
     let sun_y = scene.sun.towards.y.max(0.0);
     let ground = scene.ground.as_ref().map(|g| g.color).map(|albedo| GroundLight {
         origin: [grid.origin[0], grid.origin[2]],
@@ -103,10 +141,22 @@ pub fn grounded(
             .collect(),
     });
     if scene.instances.len() < 2 && spec.use_grid != ForestGridUse::Always {
-        return Ok((ForestLight::unused("a single instance has nothing to shade it; the grid lights the ground".into(), Some(grid)), ground));
+        return Ok((
+            ForestLight::unused(
+                "a single instance has nothing to shade it; the grid lights the ground".into(),
+                Some(grid),
+            ),
+            ground,
+        ));
     }
     if spec.use_grid == ForestGridUse::Never {
-        return Ok((ForestLight::unused("forest_grid.use is \"never\"; the grid lights the ground".into(), Some(grid)), ground));
+        return Ok((
+            ForestLight::unused(
+                "forest_grid.use is \"never\"; the grid lights the ground".into(),
+                Some(grid),
+            ),
+            ground,
+        ));
     }
     let free: f64 = light.free_fluence().iter().sum();
     let reach = crown_reach(&grid, &sol.total, free, scene.sun.towards, &boxes);
@@ -135,7 +185,9 @@ mod tests {
             "sun": { "elevation_deg": 50, "azimuth_deg": 30 },
             "ground": { "color": [0.2, 0.2, 0.2] }
         }"#;
-        let scene = Scene::build(parse(text, "forest.json").unwrap(), &std::env::temp_dir(), "forest.json").unwrap();
+        let scene =
+            Scene::build(parse(text, "forest.json").unwrap(), &std::env::temp_dir(), "forest.json")
+                .unwrap();
         let m = &scene.models[0];
         let mm = medium_of(&scene, m, 32).unwrap();
         let area = ModelArea { frame: mm.frame, dims: mm.medium.dims, area: mm.area.unwrap() };
@@ -150,7 +202,8 @@ mod tests {
                     if area.area.area[i] > 0.0 {
                         let a = effective_area(area.area.density[i], area.frame.cell) as f64;
                         model_total += a;
-                        model_height += a * (area.frame.origin[1] + (y as f32 + 0.5) * area.frame.cell) as f64;
+                        model_height +=
+                            a * (area.frame.origin[1] + (y as f32 + 0.5) * area.frame.cell) as f64;
                     }
                 }
             }
@@ -158,7 +211,10 @@ mod tests {
         model_height /= model_total;
         // Clumps stop less than their leaves' area spread evenly would.
         assert!(model_total < area.area.total_area, "{model_total} of {}", area.area.total_area);
-        let boxes = scene.instances.iter().map(|i| sylva_accel::two_level::model_bounds(&m.model).transformed(&i.to_world));
+        let boxes = scene
+            .instances
+            .iter()
+            .map(|i| sylva_accel::two_level::model_bounds(&m.model).transformed(&i.to_world));
         let grid = WorldGrid::around(boxes.fold(Aabb::EMPTY, |b, o| b.union(o)), 16);
         let (cells, _) = forest_leaf_area(&scene, &[Some(area)], &grid);
         // All of it arrives: the first instance's area plus 1.5² the second's.
@@ -173,7 +229,8 @@ mod tests {
         for z in 0..d.nz {
             for y in 0..d.ny {
                 for x in 0..d.nx {
-                    height += cells[d.index(x, y, z)] as f64 * (grid.origin[1] + (y as f32 + 0.5) * grid.cell) as f64;
+                    height += cells[d.index(x, y, z)] as f64
+                        * (grid.origin[1] + (y as f32 + 0.5) * grid.cell) as f64;
                 }
             }
         }
@@ -195,6 +252,9 @@ mod tests {
             })
             .sum::<f64>()
             / want;
-        assert!(height > even + 0.5 * grid.cell as f64, "mean height {height:.2} m, an even spread's {even:.2} m");
+        assert!(
+            height > even + 0.5 * grid.cell as f64,
+            "mean height {height:.2} m, an even spread's {even:.2} m"
+        );
     }
 }

@@ -17,7 +17,10 @@ use crate::trace::GroundLight;
 use serde::Serialize;
 use sylva_light::lb::coarse::{ForestLight, ModelArea};
 use sylva_light::lb::solver::PhaseTimer;
-use sylva_light::lb::{GridDims, Illumination, LbGrid, LbParams, MediumGrid, NodeClass, SolveOptions, Sun, solve, solve_indirect};
+use sylva_light::lb::{
+    GridDims, Illumination, LbGrid, LbParams, MediumGrid, NodeClass, SolveOptions, Sun, solve,
+    solve_indirect,
+};
 use sylva_light::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
 use sylva_scene::model::Model;
 use sylva_scene::{LbModel, LightingMode, Scene, SceneModel};
@@ -94,7 +97,11 @@ struct ModelMedium {
 /// Whether every instance of `m` has its grid's lower face within one
 /// cell of the ground plane y = 0.
 fn stands_on_ground(scene: &Scene, m: &SceneModel, frame: &GridFrame) -> bool {
-    let mut instances = scene.instances.iter().filter(|i| std::ptr::eq(&scene.models[i.model as usize], m)).peekable();
+    let mut instances = scene
+        .instances
+        .iter()
+        .filter(|i| std::ptr::eq(&scene.models[i.model as usize], m))
+        .peekable();
     scene.ground.is_some()
         && instances.peek().is_some()
         && instances.all(|i| {
@@ -109,7 +116,13 @@ fn stands_on_ground(scene: &Scene, m: &SceneModel, frame: &GridFrame) -> bool {
 /// vertical read the grid at turned points (`GpuInstance::to_lb`).
 fn lb_bounds(model: &Model) -> Option<(glam::Vec3, glam::Vec3)> {
     let (lo, hi) = model.bounds()?;
-    let r = model.triangles.iter().flatten().map(|&i| model.positions[i as usize]).map(|p| (p.x * p.x + p.z * p.z).sqrt()).fold(0.0f32, f32::max);
+    let r = model
+        .triangles
+        .iter()
+        .flatten()
+        .map(|&i| model.positions[i as usize])
+        .map(|p| (p.x * p.x + p.z * p.z).sqrt())
+        .fold(0.0f32, f32::max);
     Some((glam::Vec3::new(-r, lo.y, -r).min(lo), glam::Vec3::new(r, hi.y, r).max(hi)))
 }
 
@@ -118,7 +131,8 @@ fn lb_bounds(model: &Model) -> Option<(glam::Vec3, glam::Vec3)> {
 /// optics; a solid or a non-plant medium (the PMMA teapot) keeps its
 /// voxels and its preset in both models, only lit differently.
 fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMedium> {
-    let (lo, hi) = lb_bounds(&m.model).ok_or_else(|| anyhow::anyhow!("model {} has no triangles", m.name))?;
+    let (lo, hi) =
+        lb_bounds(&m.model).ok_or_else(|| anyhow::anyhow!("model {} has no triangles", m.name))?;
     let (frame, dims) = GridFrame::fit(lo, hi, n);
     let leaves = scene.file.lb_model == LbModel::Grounded && m.lb.preset.is_plant() && !m.lb.solid;
     let on_ground = stands_on_ground(scene, m, &frame);
@@ -126,7 +140,13 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
         true => {
             let area = leaf_area_in(&m.model, &scene.file.leaf_optics, frame, dims);
             let medium = medium_from_density(&area.density, dims);
-            Ok(ModelMedium { frame, medium, params: area.scattering.params(), area: Some(area), on_ground })
+            Ok(ModelMedium {
+                frame,
+                medium,
+                params: area.scattering.params(),
+                area: Some(area),
+                on_ground,
+            })
         }
         false => {
             let mut v = voxelize_in(&m.model, frame, dims)?;
@@ -134,10 +154,17 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
                 v.medium.class.iter_mut().for_each(|c| *c = NodeClass::Medium);
             }
             if m.lb.solid {
-                let class = if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
+                let class =
+                    if m.lb.preset.is_plant() { NodeClass::Green } else { NodeClass::Medium };
                 sylva_light::voxel::fill_interior(&mut v, class);
             }
-            Ok(ModelMedium { frame, medium: v.medium, params: LbParams::from_preset(m.lb.preset), area: None, on_ground })
+            Ok(ModelMedium {
+                frame,
+                medium: v.medium,
+                params: LbParams::from_preset(m.lb.preset),
+                area: None,
+                on_ground,
+            })
         }
     }
 }
@@ -145,11 +172,23 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
 /// Solves one model's medium. The grounded model keeps the light the
 /// tracer does not add (scattered sun, sky) in physical units; the paper
 /// model keeps the total density of a unit sun.
-fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &ModelMedium, n: usize) -> anyhow::Result<(LbGrid, ModelLight)> {
+fn solve_medium(
+    solver: &mut GpuSolver,
+    scene: &Scene,
+    m: &SceneModel,
+    mm: &ModelMedium,
+    n: usize,
+) -> anyhow::Result<(LbGrid, ModelLight)> {
     let opts = SolveOptions::default();
-    let (rgb, steps, converged, uncollided_steps): (Vec<f32>, [usize; 3], [bool; 3], Option<usize>) = match scene.file.lb_model {
+    let (rgb, steps, converged, uncollided_steps): (
+        Vec<f32>,
+        [usize; 3],
+        [bool; 3],
+        Option<usize>,
+    ) = match scene.file.lb_model {
         LbModel::Grounded => {
-            let light = Illumination { floor_reflects: mm.on_ground, ..Illumination::of_scene(scene) };
+            let light =
+                Illumination { floor_reflects: mm.on_ground, ..Illumination::of_scene(scene) };
             let s = solve_indirect(solver, &mm.medium, &mm.params, &light, &opts, &|_| {})?;
             let r = &s.reports;
             let mut rgb = s.indirect.concat();
@@ -158,19 +197,30 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
                 let n = area.readout.len();
                 rgb.iter_mut().enumerate().for_each(|(i, v)| *v *= area.readout[i % n]);
             }
-            (rgb, std::array::from_fn(|c| r[c].steps), std::array::from_fn(|c| r[c].converged), Some(r[3].steps))
+            (
+                rgb,
+                std::array::from_fn(|c| r[c].steps),
+                std::array::from_fn(|c| r[c].converged),
+                Some(r[3].steps),
+            )
         }
         LbModel::Paper => {
             let s = solve(solver, &mm.medium, &mm.params, &sun_of(scene)?, &opts, &|_, _, _| {})?;
             let r = |c: usize| &s.channels[c].report;
             let rgb = s.channels.iter().flat_map(|c| c.total.iter().copied()).collect();
-            (rgb, std::array::from_fn(|c| r(c).steps), std::array::from_fn(|c| r(c).converged), None)
+            (
+                rgb,
+                std::array::from_fn(|c| r(c).steps),
+                std::array::from_fn(|c| r(c).converged),
+                None,
+            )
         }
     };
-    let warnings = sylva_light::studies::limits::lb_warnings(&mm.params, &mm.medium, &sun_of(scene)?)
-        .into_iter()
-        .map(|w| format!("{}: {}", w.kind, w.message))
-        .collect();
+    let warnings =
+        sylva_light::studies::limits::lb_warnings(&mm.params, &mm.medium, &sun_of(scene)?)
+            .into_iter()
+            .map(|w| format!("{}: {}", w.kind, w.message))
+            .collect();
     let p = &mm.params.channels;
     let report = ModelLight {
         model: m.name.clone(),
@@ -190,11 +240,19 @@ fn solve_medium(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, mm: &Mode
         reflecting_floor: scene.file.lb_model == LbModel::Grounded && mm.on_ground,
         warnings,
     };
-    Ok((LbGrid { dims: mm.medium.dims, frame: mm.frame, rgb, occupancy: mm.medium.occupancy() }, report))
+    Ok((
+        LbGrid { dims: mm.medium.dims, frame: mm.frame, rgb, occupancy: mm.medium.occupancy() },
+        report,
+    ))
 }
 
 /// Builds and solves one model's grid of about `n³` nodes.
-pub(crate) fn solve_model(solver: &mut GpuSolver, scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<(LbGrid, ModelLight)> {
+pub(crate) fn solve_model(
+    solver: &mut GpuSolver,
+    scene: &Scene,
+    m: &SceneModel,
+    n: usize,
+) -> anyhow::Result<(LbGrid, ModelLight)> {
     solve_medium(solver, scene, m, &medium_of(scene, m, n)?, n)
 }
 
@@ -215,9 +273,20 @@ pub struct SceneLb {
 
 /// Voxelizes and solves every model, then the forest grid; times each
 /// phase ("voxelize", "lb", "forest lb") into `phases`.
-pub fn prepare(ctx: &GpuContext, scene: &Scene, phases: &mut PhaseTimer, progress: &dyn Fn(&str)) -> anyhow::Result<SceneLb> {
+pub fn prepare(
+    ctx: &GpuContext,
+    scene: &Scene,
+    phases: &mut PhaseTimer,
+    progress: &dyn Fn(&str),
+) -> anyhow::Result<SceneLb> {
     progress("voxelizing models");
-    let media = phases.time("voxelize", || scene.models.iter().map(|m| medium_of(scene, m, m.lb.grid)).collect::<anyhow::Result<Vec<_>>>())?;
+    let media = phases.time("voxelize", || {
+        scene
+            .models
+            .iter()
+            .map(|m| medium_of(scene, m, m.lb.grid))
+            .collect::<anyhow::Result<Vec<_>>>()
+    })?;
     let mut solver = GpuSolver::new(ctx.clone());
     let mut grids = Vec::new();
     let mut light = Vec::new();
@@ -233,16 +302,19 @@ pub fn prepare(ctx: &GpuContext, scene: &Scene, phases: &mut PhaseTimer, progres
         }
         Ok(())
     })?;
-    let areas: Vec<Option<ModelArea>> =
-        media.into_iter().map(|mm| mm.area.map(|area| ModelArea { frame: mm.frame, dims: mm.medium.dims, area })).collect();
+    let areas: Vec<Option<ModelArea>> = media
+        .into_iter()
+        .map(|mm| mm.area.map(|area| ModelArea { frame: mm.frame, dims: mm.medium.dims, area }))
+        .collect();
     let mut scales = vec![1.0f32; scene.instances.len()];
     progress("LB light of the whole forest");
-    let (forest, ground) = phases.time("forest lb", || -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
-        match scene.file.lb_model {
-            LbModel::Paper => Ok((forest::paper(ctx, scene, &grids, &mut scales)?, None)),
-            LbModel::Grounded => forest::grounded(ctx, scene, &areas, &mut scales),
-        }
-    })?;
+    let (forest, ground) =
+        phases.time("forest lb", || -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
+            match scene.file.lb_model {
+                LbModel::Paper => Ok((forest::paper(ctx, scene, &grids, &mut scales)?, None)),
+                LbModel::Grounded => forest::grounded(ctx, scene, &areas, &mut scales),
+            }
+        })?;
     Ok(SceneLb { grids, scales, ground, light, forest })
 }
 
@@ -250,7 +322,8 @@ impl SceneLb {
     /// Bytes of light it holds (the grids and the ground's), for caches.
     pub fn bytes(&self) -> u64 {
         let grids: usize = self.grids.iter().flatten().map(|g| g.rgb.len()).sum();
-        ((grids + self.ground.as_ref().map_or(0, |g| g.rgb.len())) * std::mem::size_of::<f32>() + self.scales.len() * 4) as u64
+        ((grids + self.ground.as_ref().map_or(0, |g| g.rgb.len())) * std::mem::size_of::<f32>()
+            + self.scales.len() * 4) as u64
     }
 }
 
