@@ -7,11 +7,11 @@ use image::RgbImage;
 use std::path::{Path, PathBuf};
 
 /// Widest contact sheet, pixels.
-const SHEET_WIDTH: u32 = 1600;
+pub const SHEET_WIDTH: u32 = 1600;
 /// Largest side of an animated preview's frame, pixels.
-const PREVIEW_SIDE: u32 = 480;
+pub const PREVIEW_SIDE: u32 = 480;
 /// Frames per second of the animated preview.
-const PREVIEW_FPS: u16 = 12;
+pub const PREVIEW_FPS: u16 = 12;
 
 /// Frame `i` of a sequence written to `out`: `out`'s stem, a dash, the
 /// frame number in four digits, and `ext` (`render.png` → `render-0007.png`).

@@ -1,5 +1,5 @@
 //! What a frame is made of, before any light is computed: the scene file
-//! ([`format`]) and its loading and checks ([`Scene`]), the file sandbox a
+//! ([`format`](mod@format)) and its loading and checks ([`Scene`]), the file sandbox a
 //! scene reads through ([`sandbox`]) and its size caps ([`caps`]), models
 //! ([`model`]: meshes, glTF) and procedural [`trees`] with their
 //! [`leaf`] optics and textures, the [`camera`], what one frame asks for

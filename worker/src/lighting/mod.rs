@@ -7,7 +7,7 @@
 //! - [`ambient`]: direct sun plus a constant matched to the LB light.
 //! - [`lb`]: direct sun plus the LB light of each species and of the forest.
 //! - [`boulanger`]: Boulanger et al. 2008's closed forms over leaf envelopes.
-//! - [`reference`]: the path tracer every method is measured against.
+//! - [`reference`](mod@reference): the path tracer every method is measured against.
 //! - [`clouds`]: the clouds' LB light, which the LB methods read and the
 //!   reference's clouds are drawn from.
 

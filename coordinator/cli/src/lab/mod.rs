@@ -1,5 +1,5 @@
 //! Studies rather than services: lighting methods against the reference
-//! ([`compare`]), speed ([`bench`], [`bench_sequence`]), the strip schedule
+//! ([`compare`]), speed ([`bench`](mod@bench), [`bench_sequence`]), the strip schedule
 //! in simulation ([`simulate`]) and the charts they draw ([`chart`]).
 
 pub mod bench;

@@ -231,7 +231,7 @@ impl Bvh {
 
     /// Builds a BVH over triangles with `bounds` (empty for those no ray
     /// can hit), splitting triangles at planes where that separates
-    /// overlapping children ([`spatial`]): a triangle may then be
+    /// overlapping children (`spatial`): a triangle may then be
     /// referenced by more than one leaf.
     pub fn build_spatial(bounds: &[Aabb], triangles: &[[glam::Vec3; 3]]) -> Self {
         Self::build_with(bounds, Some(triangles))
