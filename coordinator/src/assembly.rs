@@ -4,7 +4,7 @@
 //! (and re-rendered elsewhere) rather than panicking or corrupting the image.
 
 use crate::schedule::Strip;
-use sylva_scene::film::HdrImage;
+use sylva_scene::film::{HdrImage, RayCounts};
 
 /// A strip's pixels, decoded and checked.
 #[derive(Clone, Debug)]
@@ -15,8 +15,8 @@ pub struct StripPixels {
     pub rgb: Vec<[f32; 3]>,
     /// Per pixel, the fraction of samples that hit a model.
     pub coverage: Vec<f32>,
-    /// Rays: primary, shadow, transparent texels passed.
-    pub rays: [u64; 3],
+    /// Rays traced.
+    pub rays: RayCounts,
 }
 
 impl StripPixels {
@@ -62,8 +62,8 @@ pub struct Assembly {
     pub image: HdrImage,
     /// Per pixel, the fraction of samples that hit a model.
     pub coverage: Vec<f32>,
-    /// Rays: primary, shadow, transparent texels passed.
-    pub rays: [u64; 3],
+    /// Rays traced.
+    pub rays: RayCounts,
     /// Columns filled so far.
     filled: Vec<bool>,
 }
@@ -74,7 +74,7 @@ impl Assembly {
         Self {
             image: HdrImage::new(width, height),
             coverage: vec![0.0; (width * height) as usize],
-            rays: [0; 3],
+            rays: RayCounts::default(),
             filled: vec![false; width as usize],
         }
     }
@@ -96,9 +96,7 @@ impl Assembly {
             let at = (y * self.image.width + x0) as usize;
             self.coverage[at..at + w as usize].copy_from_slice(&s.coverage[row..row + w as usize]);
         }
-        for k in 0..3 {
-            self.rays[k] += s.rays[k];
-        }
+        self.rays.add(&s.rays);
         self.filled[x0 as usize..x1 as usize].fill(true);
         Ok(())
     }
@@ -119,7 +117,7 @@ mod tests {
             strip: (x0, x1),
             rgb: vec![[0.5; 3]; n],
             coverage: vec![1.0; n],
-            rays: [n as u64, 0, 0],
+            rays: RayCounts { primary: n as u64, ..RayCounts::default() },
         }
     }
 
@@ -131,8 +129,13 @@ mod tests {
         assert!(a.add(&short).is_err());
         assert!(a.add(&strip(5, 11, 4)).is_err(), "wider than the frame");
         assert!(
-            a.add(&StripPixels { strip: (3, 3), rgb: vec![], coverage: vec![], rays: [0; 3] })
-                .is_err(),
+            a.add(&StripPixels {
+                strip: (3, 3),
+                rgb: vec![],
+                coverage: vec![],
+                rays: RayCounts::default()
+            })
+            .is_err(),
             "zero width"
         );
         let mut nan = strip(0, 5, 4);
@@ -142,6 +145,6 @@ mod tests {
         a.add(&strip(0, 5, 4)).unwrap();
         a.add(&strip(5, 10, 4)).unwrap();
         assert!(a.complete());
-        assert_eq!(a.rays[0], 40);
+        assert_eq!(a.rays.primary, 40);
     }
 }

@@ -9,7 +9,7 @@
 
 use crate::assembly::{Assembly, StripPixels};
 use crate::executor::RenderedFrame;
-use crate::schedule::Strip;
+use crate::schedule::{Strip, StripTime};
 use serde::Serialize;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -17,12 +17,12 @@ use std::time::{Duration, Instant};
 use sylva_proto::pb;
 use sylva_proto::pb::worker_client::WorkerClient;
 use sylva_scene::bundle::SceneBundle;
+use sylva_scene::film::RayCounts;
 use sylva_scene::frame::FrameSettings;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig};
 
 /// A strip, its render time and its whole call's time, ms.
-type StripTime = (Strip, f64, f64);
 
 /// Failures after which a worker is dropped for the frame.
 pub const MAX_FAILURES: u32 = 3;
@@ -200,7 +200,11 @@ pub fn decode_reply(
         .map(|c| [f(&c[0..4]), f(&c[4..8]), f(&c[8..12])])
         .collect();
     let coverage = r.coverage_f32.as_chunks::<4>().0.iter().map(|c| f(c)).collect();
-    let rays = r.rays.as_ref().map_or([0; 3], |c| [c.primary, c.shadow, c.transparent]);
+    let rays = r.rays.as_ref().map_or(RayCounts::default(), |c| RayCounts {
+        primary: c.primary,
+        shadow: c.shadow,
+        transparent: c.transparent,
+    });
     let px = StripPixels { strip, rgb, coverage, rays };
     px.check(height)?;
     Ok(px)
@@ -550,20 +554,20 @@ pub async fn render_frames(
     for (frame, px, render_ms, rpc_ms) in &done {
         let (a, strips) = &mut assembled[*frame];
         a.add(px).map_err(|e| anyhow::anyhow!("assembling frame {frame}: {e}"))?;
-        strips.push((px.strip, *render_ms, *rpc_ms));
+        strips.push(StripTime { strip: px.strip, render_ms: *render_ms, call_ms: *rpc_ms });
     }
     assembled
         .into_iter()
         .enumerate()
-        .map(|(i, (a, mut strip_ms))| {
+        .map(|(i, (a, mut strip_times))| {
             anyhow::ensure!(a.complete(), "the strips do not cover frame {i}");
-            strip_ms.sort_by_key(|s| s.0);
+            strip_times.sort_by_key(|s| s.strip);
             Ok(RenderedFrame {
                 image: a.image,
                 coverage: a.coverage,
                 rays: a.rays,
                 workers: reports.clone(),
-                strip_ms,
+                strip_times,
                 upload_ms,
                 prepared: prepared.clone(),
             })

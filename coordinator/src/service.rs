@@ -17,10 +17,11 @@ use crate::schedule::{ScheduleKind, Strip, scheduler};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::pin::Pin;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::{Coordinator, CoordinatorServer};
+use sylva_proto::sync::lock;
 use sylva_scene::SceneLimits;
 use sylva_scene::bundle::{self, SceneBundle};
 use sylva_scene::film::{reinhard, reinhard_like};
@@ -99,12 +100,6 @@ impl Default for CoordinatorConfig {
             worker_tls: None,
         }
     }
-}
-
-/// Locks `m` whatever a panicking holder left: the maps behind these locks
-/// are whole between statements.
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 struct Job {
@@ -574,10 +569,10 @@ impl State {
             if costs.len() >= 1024 {
                 costs.clear();
             }
-            if rendered[0].strip_ms.len() > 1 {
+            if rendered[0].strip_times.len() > 1 {
                 costs.insert(
                     cost_key,
-                    crate::schedule::column_cost(frame.width, &rendered[0].strip_ms),
+                    crate::schedule::column_cost(frame.width, &rendered[0].strip_times),
                 );
             }
         }
@@ -585,8 +580,8 @@ impl State {
                          tone: &sylva_scene::film::ToneMapStats,
                          ms: f64| {
             serde_json::json!({
-                "strips": f.strip_ms.iter().map(|(s, ms, rpc)| serde_json::json!({ "x0": s.0, "x1": s.1, "render_ms": ms, "rpc_ms": rpc })).collect::<Vec<_>>(),
-                "rays": { "primary": f.rays[0], "shadow": f.rays[1], "transparent_passed": f.rays[2], "mrays_per_second": (f.rays[0] + f.rays[1]) as f64 / (ms / 1e3) / 1e6 },
+                "strips": f.strip_times.iter().map(|t| serde_json::json!({ "x0": t.strip.0, "x1": t.strip.1, "render_ms": t.render_ms, "rpc_ms": t.call_ms })).collect::<Vec<_>>(),
+                "rays": { "primary": f.rays.primary, "shadow": f.rays.shadow, "transparent_passed": f.rays.transparent, "mrays_per_second": f.rays.traced() as f64 / (ms / 1e3) / 1e6 },
                 "coverage": f.coverage.iter().map(|&c| c as f64).sum::<f64>() / f.coverage.len().max(1) as f64,
                 "tone_map": tone,
             })
@@ -609,7 +604,7 @@ impl State {
             stats["sequence"] = serde_json::json!({
                 "frames": rendered.len(),
                 "ms_per_frame": frame_ms / rendered.len() as f64,
-                "whole_frames_in_parallel": rendered[0].strip_ms.len() == 1,
+                "whole_frames_in_parallel": rendered[0].strip_times.len() == 1,
                 "per_frame": rendered.iter().zip(&encoded).map(|(f, e)| per_frame(f, &e.2, frame_ms / rendered.len() as f64)).collect::<Vec<_>>(),
             });
         }

@@ -2,6 +2,7 @@
 
 pub mod auth;
 pub mod convert;
+pub mod sync;
 pub mod tls;
 
 /// Package `sylva.v1`.

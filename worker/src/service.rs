@@ -11,12 +11,13 @@ use crate::trace::RenderSettings;
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use sylva_accel::AccelKind;
 use sylva_proto::pb;
 use sylva_proto::pb::worker_identity_server::{WorkerIdentity, WorkerIdentityServer};
 use sylva_proto::pb::worker_server::{Worker, WorkerServer};
+use sylva_proto::sync::lock;
 use sylva_scene::bundle;
 use sylva_scene::frame::FrameSettings;
 use sylva_scene::sequence::View;
@@ -25,13 +26,6 @@ use tokio_stream::StreamExt;
 use tonic::{Request, Response, Status, Streaming};
 
 pub use sylva_scene::frame::{MAX_SIDE, MAX_SPP};
-
-/// Locks `m`, whether or not a thread panicked while holding it: every
-/// value behind these locks is whole between statements, so one panic in
-/// `prepare` must not break the worker for good.
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-}
 
 /// How a worker runs.
 #[derive(Clone, Debug)]
@@ -574,9 +568,9 @@ impl Worker for WorkerService {
             rgb_f32: strip.pixels.iter().flatten().flat_map(|v| v.to_le_bytes()).collect(),
             coverage_f32: strip.coverage.iter().flat_map(|v| v.to_le_bytes()).collect(),
             rays: Some(pb::RayCounts {
-                primary: strip.rays.primary as u64,
-                shadow: strip.rays.shadow as u64,
-                transparent: strip.rays.transparent as u64,
+                primary: strip.rays.primary,
+                shadow: strip.rays.shadow,
+                transparent: strip.rays.transparent,
             }),
             render_ms,
             prepare_ms,

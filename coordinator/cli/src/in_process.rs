@@ -3,7 +3,7 @@
 use std::time::Instant;
 use sylva_coordinator::assembly::{Assembly, StripPixels};
 use sylva_coordinator::executor::{RenderedFrame, StripExecutor};
-use sylva_coordinator::schedule::Strip;
+use sylva_coordinator::schedule::{Strip, StripTime};
 use sylva_worker::GpuContext;
 use sylva_worker::trace::{RenderSettings, StripRenderer};
 
@@ -29,22 +29,17 @@ impl StripExecutor for InProcess<'_> {
     ) -> anyhow::Result<RenderedFrame> {
         let f = &self.settings;
         let mut frame = Assembly::new(f.width, f.height);
-        let mut strip_ms = Vec::with_capacity(plan.len());
+        let mut strip_times = Vec::with_capacity(plan.len());
         for &(x0, x1) in plan {
             let t = Instant::now();
             let s = self.renderer.render_strip(self.ctx, f, x0, x1)?;
             let ms = t.elapsed().as_secs_f64() * 1e3;
-            let r = s.rays;
-            let px = StripPixels {
-                strip: (x0, x1),
-                rgb: s.pixels,
-                coverage: s.coverage,
-                rays: [r.primary.into(), r.shadow.into(), r.transparent.into()],
-            };
+            let px =
+                StripPixels { strip: (x0, x1), rgb: s.pixels, coverage: s.coverage, rays: s.rays };
             frame.add(&px).map_err(|e| {
                 anyhow::anyhow!("the renderer returned a strip that does not fit: {e}")
             })?;
-            strip_ms.push(((x0, x1), ms, ms));
+            strip_times.push(StripTime { strip: (x0, x1), render_ms: ms, call_ms: ms });
             on_strip((x0, x1));
         }
         anyhow::ensure!(frame.complete(), "the plan does not cover the frame");
@@ -53,7 +48,7 @@ impl StripExecutor for InProcess<'_> {
             coverage: frame.coverage,
             rays: frame.rays,
             workers: Vec::new(),
-            strip_ms,
+            strip_times,
             upload_ms: 0.0,
             prepared: None,
         })

@@ -8,7 +8,7 @@ mod in_process;
 mod jobs;
 mod lab;
 mod lb;
-mod local;
+mod loopback;
 mod progress;
 mod render;
 mod scene;

@@ -475,7 +475,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let t = Instant::now();
     let rendered =
         InProcess::new(&ctx, &prepared.renderer, settings).render(&plan, &|_| bar.inc(1))?;
-    let [primary, shadow, transparent] = rendered.rays;
+    let sylva_scene::film::RayCounts { primary, shadow, transparent } = rendered.rays;
     let (frame, coverage) = (rendered.image, rendered.coverage);
     let trace_ms = ms(t);
     phases.push(("trace", trace_ms));
@@ -638,13 +638,13 @@ fn render_through_coordinator(
     accel: AccelKind,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
-    use super::local::LocalProcesses;
+    use crate::loopback::LoopbackProcesses;
     use sylva_proto::auth::random_token;
     let t = Instant::now();
     let bundle = sylva_scene::bundle::pack(&a.scene)?;
     phases.push(("bundle", ms(t)));
     let t = Instant::now();
-    let mut processes = LocalProcesses::default();
+    let mut processes = LoopbackProcesses::default();
     let mut flags = vec!["--strip-deadline-s".to_string(), a.strip_deadline_s.max(1).to_string()];
     let (workers, token) = if a.workers.is_empty() {
         // Other users of this machine must not be able to use our processes.

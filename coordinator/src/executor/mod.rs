@@ -4,9 +4,9 @@
 //! assembly ([`crate::assembly::Assembly`]) behind both, so a frame is put
 //! together and checked the same way whoever rendered it.
 
-mod farm;
+mod grpc;
 
-pub use farm::Farm;
+pub use grpc::Farm;
 
 use crate::farm::WorkerReport;
 use crate::schedule::Strip;
@@ -19,13 +19,13 @@ pub struct RenderedFrame {
     pub image: HdrImage,
     /// Per pixel, the fraction of samples that hit a model.
     pub coverage: Vec<f32>,
-    /// Rays: primary, shadow, transparent texels passed.
-    pub rays: [u64; 3],
+    /// Rays traced.
+    pub rays: sylva_scene::film::RayCounts,
     /// Per worker (empty in this process).
     pub workers: Vec<WorkerReport>,
     /// Every strip: its render time and the whole call's time as the
     /// executor saw it (render plus transfer), by strip.
-    pub strip_ms: Vec<(Strip, f64, f64)>,
+    pub strip_times: Vec<crate::schedule::StripTime>,
     /// Time to get the scene to the workers (0 in this process).
     pub upload_ms: f64,
     /// How the scene was prepared once for the farm, when it was.

@@ -1,15 +1,26 @@
 //! How a frame is cut into vertical strips for a set of workers.
 
 mod dynamic;
-mod fixed;
+mod r#static;
 
 pub use dynamic::Dynamic;
-pub use fixed::Static;
+pub use r#static::Static;
 
 use serde::{Deserialize, Serialize};
 
 /// A strip: columns `[x0, x1)`.
 pub type Strip = (u32, u32);
+
+/// How long one strip took.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StripTime {
+    /// The strip.
+    pub strip: Strip,
+    /// Its render time on the worker, ms.
+    pub render_ms: f64,
+    /// The whole call as the executor saw it (render plus transfer), ms.
+    pub call_ms: f64,
+}
 
 /// Which scheduler.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -34,9 +45,9 @@ pub trait Scheduler {
 /// Per-column cost of a frame from its strips' measured render times
 /// (`(strip, ms, …)`), each strip's time spread evenly over its columns;
 /// columns no strip covers cost nothing.
-pub fn column_cost(width: u32, strips: &[(Strip, f64, f64)]) -> Vec<f64> {
+pub fn column_cost(width: u32, strips: &[StripTime]) -> Vec<f64> {
     let mut cost = vec![0.0; width as usize];
-    for &((x0, x1), ms, _) in strips {
+    for &StripTime { strip: (x0, x1), render_ms: ms, .. } in strips {
         let x1 = x1.min(width);
         if x0 < x1 {
             cost[x0 as usize..x1 as usize].fill(ms / (x1 - x0) as f64);

@@ -118,6 +118,31 @@ pub fn write_png(path: &Path, width: u32, height: u32, pixels: &[[u8; 3]]) -> an
     img.save(path).with_context(|| format!("{}: cannot write PNG", path.display()))
 }
 
+/// Rays traced for a strip or a whole frame, by kind.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RayCounts {
+    /// Camera rays.
+    pub primary: u64,
+    /// Rays towards the sun.
+    pub shadow: u64,
+    /// Transparent texels a ray passed through and went on.
+    pub transparent: u64,
+}
+
+impl RayCounts {
+    /// Primary plus shadow rays.
+    pub fn traced(&self) -> u64 {
+        self.primary + self.shadow
+    }
+
+    /// Adds another strip's counts.
+    pub fn add(&mut self, o: &RayCounts) {
+        self.primary += o.primary;
+        self.shadow += o.shadow;
+        self.transparent += o.transparent;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,5 +14,5 @@ pub use gpu_scene::{
 };
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use render::MAX_BOUNCES;
-pub use render::{FrameUniform, RayCounts, RenderSettings, Strip, StripRenderer};
+pub use render::{FrameUniform, GpuRayCounts, RenderSettings, RenderedStrip, StripRenderer};
 pub use shaders::tracer_source;

@@ -7,6 +7,7 @@ use crate::gpu::GpuContext;
 use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
+use sylva_scene::film::RayCounts;
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
@@ -107,37 +108,32 @@ pub struct RenderSettings {
     pub view: View,
 }
 
-/// Rays traced, by kind.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Pod, Zeroable)]
+/// The GPU's ray counters for one strip: 32-bit atomics, as WGSL has them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 #[repr(C)]
-pub struct RayCounts {
+pub struct GpuRayCounts {
     /// Camera rays.
     pub primary: u32,
     /// Rays towards the sun.
     pub shadow: u32,
     /// Transparent texels a ray passed through and went on.
     pub transparent: u32,
-    #[serde(skip)]
     pad: u32,
 }
 
-impl RayCounts {
-    /// Primary plus shadow rays.
-    pub fn traced(&self) -> u64 {
-        self.primary as u64 + self.shadow as u64
-    }
-
-    /// Adds another strip's counts.
-    pub fn add(&mut self, o: &RayCounts) {
-        self.primary += o.primary;
-        self.shadow += o.shadow;
-        self.transparent += o.transparent;
+impl From<GpuRayCounts> for RayCounts {
+    fn from(c: GpuRayCounts) -> Self {
+        RayCounts {
+            primary: c.primary.into(),
+            shadow: c.shadow.into(),
+            transparent: c.transparent.into(),
+        }
     }
 }
 
-/// A rendered strip.
+/// A rendered strip: columns `[x0, x0 + width)` of the frame, linear HDR.
 #[derive(Clone, Debug)]
-pub struct Strip {
+pub struct RenderedStrip {
     /// First column.
     pub x0: u32,
     /// Columns.
@@ -247,7 +243,7 @@ impl StripRenderer {
         f: &RenderSettings,
         x0: u32,
         x1: u32,
-    ) -> anyhow::Result<Strip> {
+    ) -> anyhow::Result<RenderedStrip> {
         anyhow::ensure!(
             x0 < x1 && x1 <= f.width,
             "strip [{x0}, {x1}) is not inside a frame {} wide",
@@ -304,7 +300,7 @@ impl StripRenderer {
             });
             let counters = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("ray counters"),
-                contents: bytemuck::bytes_of(&RayCounts::default()),
+                contents: bytemuck::bytes_of(&GpuRayCounts::default()),
                 usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             });
             let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -346,8 +342,10 @@ impl StripRenderer {
             } else {
                 (all.to_vec(), Vec::new())
             };
-            let rays: RayCounts = *bytemuck::from_bytes(&ctx.read_back(&counters, size_of::<RayCounts>() as u64)?);
-            Ok(Strip {
+            let counts: GpuRayCounts =
+                *bytemuck::from_bytes(&ctx.read_back(&counters, size_of::<GpuRayCounts>() as u64)?);
+            let rays = RayCounts::from(counts);
+            Ok(RenderedStrip {
                 x0,
                 width: strip_width,
                 pixels: px.iter().map(|p| [p[0], p[1], p[2]]).collect(),

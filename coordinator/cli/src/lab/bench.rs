@@ -486,7 +486,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             let frame =
                 InProcess::new(&ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;
             let s = t.elapsed().as_secs_f64();
-            let [primary, shadow, transparent] = frame.rays;
+            let sylva_scene::film::RayCounts { primary, shadow, transparent } = frame.rays;
             frames.push(json!({
                 "accel": kind,
                 "spp": spp,
@@ -570,7 +570,7 @@ const PAPER_TABLE_4: [(usize, f64); 4] = [(2, 1.162), (4, 0.666), (8, 0.351), (1
 fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     use crate::lab::chart::{Series, line_chart};
     use crate::lab::simulate::FrameCost;
-    use crate::local::LocalProcesses;
+    use crate::loopback::LoopbackProcesses;
     use sylva_coordinator::executor::Farm;
     use sylva_coordinator::farm::Workers;
     use sylva_coordinator::schedule::{ScheduleKind, column_cost, scheduler};
@@ -607,7 +607,7 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     let deadline = std::time::Duration::from_secs(3600);
     // One worker profiles the frame: strips one at a time on one device.
     let token = sylva_proto::auth::random_token();
-    let mut profiler = LocalProcesses::default();
+    let mut profiler = LoopbackProcesses::default();
     let one = Workers {
         addrs: profiler.start_workers(1, &token)?,
         token: Some(token.clone()),
@@ -623,15 +623,15 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
         (0..n).map(|i| (i * a.width / n, (i + 1) * a.width / n)).filter(|s| s.0 < s.1).collect();
     let profile = Farm::new(&rt, one, &bundle, frame, deadline).render(&fine, &|_| {})?;
     drop(profiler);
-    let column_ms = column_cost(a.width, &profile.strip_ms);
+    let column_ms = column_cost(a.width, &profile.strip_times);
     let overhead: f64 =
-        profile.strip_ms.iter().map(|&(_, render, rpc)| (rpc - render).max(0.0)).sum();
+        profile.strip_times.iter().map(|t| (t.call_ms - t.render_ms).max(0.0)).sum();
     let t = Instant::now();
     let _ = reinhard(&single.image, 0.18);
     let assembly_ms = t.elapsed().as_secs_f64() * 1e3;
     let cost = FrameCost {
         column_ms,
-        per_strip_ms: overhead / profile.strip_ms.len().max(1) as f64,
+        per_strip_ms: overhead / profile.strip_times.len().max(1) as f64,
         assembly_ms,
     };
 
@@ -647,7 +647,7 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
             let measured =
                 if w <= a.real_workers.len() || (a.real_workers.is_empty() && w <= a.local_real) {
                     let (_local, workers) = if a.real_workers.is_empty() {
-                        let mut l = LocalProcesses::default();
+                        let mut l = LoopbackProcesses::default();
                         let ws = Workers {
                             addrs: l.start_workers(w, &token)?,
                             token: Some(token.clone()),
@@ -725,8 +725,8 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
             "paper_g80_s": "Geist & Steele Table 4, static strips on G80s; their one-GPU frame took 2.277 s",
         },
         "profile": {
-            "strips": profile.strip_ms.len(),
-            "render_ms_total": profile.strip_ms.iter().map(|s| s.1).sum::<f64>(),
+            "strips": profile.strip_times.len(),
+            "render_ms_total": profile.strip_times.iter().map(|t| t.render_ms).sum::<f64>(),
             "per_strip_overhead_ms": cost.per_strip_ms,
             "assembly_ms": cost.assembly_ms,
             "single_worker_frame_ms": single_ms,

@@ -9,7 +9,7 @@
 //!   sun against workers that keep only the sun they are on: the final
 //!   pass's per-frame cost and the LB solves each farm did.
 
-use crate::local::LocalProcesses;
+use crate::loopback::LoopbackProcesses;
 use crate::render::{ScheduleArg, job_spec};
 use anyhow::Context;
 use clap::Args;
@@ -66,7 +66,7 @@ fn angles(s: &str) -> anyhow::Result<SunAngles> {
 
 /// A farm of local processes for the benchmark.
 struct Farm {
-    _processes: LocalProcesses,
+    _processes: LoopbackProcesses,
     coordinator: String,
     workers: Vec<String>,
     token: String,
@@ -75,7 +75,7 @@ struct Farm {
 impl Farm {
     fn start(n: usize, worker_flags: &[String]) -> anyhow::Result<Self> {
         let token = sylva_proto::auth::random_token();
-        let mut p = LocalProcesses::default();
+        let mut p = LoopbackProcesses::default();
         let workers = p.start_workers_with(n, &token, worker_flags)?;
         let coordinator = p.start_coordinator(&workers, &token, &[])?;
         Ok(Self { _processes: p, coordinator, workers, token })

@@ -28,17 +28,17 @@ fn spawn_announcing(args: &[String], token: &str) -> anyhow::Result<(Child, Stri
 
 /// Processes started for one command, stopped when dropped.
 #[derive(Default)]
-pub struct LocalProcesses {
+pub struct LoopbackProcesses {
     children: Vec<Child>,
 }
 
-impl LocalProcesses {
+impl LoopbackProcesses {
     /// Starts `n` workers on loopback that require `token`; returns their addresses.
     pub fn start_workers(&mut self, n: usize, token: &str) -> anyhow::Result<Vec<String>> {
         self.start_workers_with(n, token, &[])
     }
 
-    /// [`LocalProcesses::start_workers`] with more worker flags.
+    /// [`LoopbackProcesses::start_workers`] with more worker flags.
     pub fn start_workers_with(
         &mut self,
         n: usize,
@@ -79,7 +79,7 @@ impl LocalProcesses {
     }
 }
 
-impl Drop for LocalProcesses {
+impl Drop for LoopbackProcesses {
     fn drop(&mut self) {
         for c in &mut self.children {
             let _ = c.kill();
