@@ -97,7 +97,11 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
     // The listing counts the frames; each frame's HDR image can be fetched.
     let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     let j = jobs.iter().find(|j| j.id == id).unwrap();
-    assert_eq!((j.state.as_str(), j.frames, j.frames_done), ("done", 4, 4), "{j:?}");
+    assert_eq!(
+        (sylva_coordinator::service::wire_name(j.state), j.frames, j.frames_done),
+        ("done", 4, 4),
+        "{j:?}"
+    );
     let mut frames = Vec::new();
     for i in 0..4 {
         let p = dir.join(format!("fetched-{i}.exr"));

@@ -1,7 +1,7 @@
 //! A client of the coordinator: submit a job, follow it with a progress
 //! bar, fetch its image.
 
-use crate::service::ended;
+use crate::service::{JobState, wire_ended, wire_name};
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::time::Duration;
@@ -86,18 +86,18 @@ pub async fn submit_and_follow(
         let ev = ev?;
         bar.set_length(ev.strips_total.max(1) as u64);
         bar.set_position(ev.strips_done as u64);
-        if !ev.message.is_empty() && !ended(&ev.state) {
+        if !ev.message.is_empty() && !wire_ended(ev.state) {
             tracing::warn!("{}", ev.message);
         }
-        if ended(&ev.state) {
+        if wire_ended(ev.state) {
             end = Some(ev);
             break;
         }
     }
     bar.finish_and_clear();
     let end = end.context("the coordinator closed the job's event stream early")?;
-    if end.state != "done" {
-        bail!("job {id} {}: {}", end.state, end.message);
+    if JobState::from_wire(end.state) != Some(JobState::Done) {
+        bail!("job {id} {}: {}", wire_name(end.state), end.message);
     }
     let frames = views.max(1) as u32;
     let mut fetch = async |format: &str| -> anyhow::Result<Vec<Vec<u8>>> {

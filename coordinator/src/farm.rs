@@ -22,8 +22,6 @@ use sylva_scene::frame::FrameSettings;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig};
 
-/// A strip, its render time and its whole call's time, ms.
-
 /// Failures after which a worker is dropped for the frame.
 pub const MAX_FAILURES: u32 = 3;
 /// Bytes per upload chunk.

@@ -199,7 +199,7 @@ pub async fn submit_and_wait(
     while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
         let ev = ev.unwrap();
         on_event(&ev);
-        if matches!(ev.state.as_str(), "done" | "failed" | "cancelled") {
+        if sylva_coordinator::service::wire_ended(ev.state) {
             return ev;
         }
     }

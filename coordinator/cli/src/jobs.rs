@@ -8,6 +8,7 @@ use clap::Args;
 use serde::Serialize;
 use std::path::PathBuf;
 use sylva_coordinator::client::{Client, connect, status_error};
+use sylva_coordinator::service::{JobState, wire_name};
 use sylva_proto::pb;
 
 /// Where the coordinator is and how to reach it.
@@ -37,8 +38,8 @@ pub struct JobsArgs {
     #[command(flatten)]
     pub at: CoordinatorArg,
     /// Only jobs in this state (queued, running, done, failed, cancelled).
-    #[arg(long)]
-    pub state: Option<String>,
+    #[arg(long, value_parser = job_state)]
+    pub state: Option<JobState>,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -124,6 +125,14 @@ struct JobRow {
     error: Option<String>,
 }
 
+/// A job state named on the command line.
+fn job_state(name: &str) -> Result<JobState, String> {
+    JobState::from_name(name).ok_or_else(|| {
+        let names: Vec<_> = JobState::ALL.iter().map(|s| s.name()).collect();
+        format!("one of {}", names.join(", "))
+    })
+}
+
 impl JobRow {
     fn of(j: pb::JobSummary, now_ms: u64) -> Self {
         let nz = |v: u64| (v > 0).then_some(v);
@@ -135,7 +144,7 @@ impl JobRow {
             running_s: start.map(|s| secs(s, end.unwrap_or(now_ms))),
             id: j.id,
             name: j.name,
-            state: j.state,
+            state: wire_name(j.state).to_string(),
             priority: j.priority,
             strips_done: j.strips_done,
             strips_total: j.strips_total,
@@ -226,7 +235,7 @@ pub fn run_jobs(a: JobsArgs) -> anyhow::Result<()> {
     let mut rows: Vec<JobRow> = list
         .into_iter()
         .map(|j| JobRow::of(j, now))
-        .filter(|j| a.state.as_ref().is_none_or(|s| &j.state == s))
+        .filter(|j| a.state.is_none_or(|s| j.state == s.name()))
         .collect();
     rows.sort_by_key(|j| j.submitted_unix_ms);
     if a.json {

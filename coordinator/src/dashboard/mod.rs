@@ -10,7 +10,7 @@
 //! (cancel, priority) needs the header, which another site's form cannot
 //! send, so a page elsewhere cannot act with the cookie.
 
-use crate::service::{CoordinatorService, ended};
+use crate::service::{CoordinatorService, wire_ended, wire_name};
 use axum::Router;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};
@@ -134,10 +134,10 @@ async fn snapshot(service: &CoordinatorService) -> Value {
         "now_unix_ms": now,
         "needs_token": service.needs_token(),
         "jobs": jobs.iter().map(|j| json!({
-            "id": j.id, "name": j.name, "state": j.state, "priority": j.priority,
+            "id": j.id, "name": j.name, "state": wire_name(j.state), "priority": j.priority,
             "strips_done": j.strips_done, "strips_total": j.strips_total, "retries": j.retries,
             "frames": j.frames, "frames_done": j.frames_done,
-            "submitter": j.submitter, "error": j.error, "ended": ended(&j.state),
+            "submitter": j.submitter, "error": j.error, "ended": wire_ended(j.state),
             "submitted_unix_ms": j.submitted_unix_ms, "started_unix_ms": j.started_unix_ms, "finished_unix_ms": j.finished_unix_ms,
         })).collect::<Vec<_>>(),
         "workers": workers.iter().map(|w| json!({
@@ -244,9 +244,8 @@ async fn cancel(
         return refused();
     }
     match service.cancel_job(Request::new(pb::JobId { id })).await {
-        Ok(r) => {
-            axum::Json(json!({ "id": r.get_ref().id, "state": r.get_ref().state })).into_response()
-        }
+        Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "state": wire_name(r.get_ref().state) }))
+            .into_response(),
         Err(s) => status_response(s),
     }
 }

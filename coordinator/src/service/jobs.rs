@@ -1,0 +1,297 @@
+//! Jobs as clients see them: submit (checked completely before it is
+//! queued), watch, fetch the result, cancel, list and re-prioritise.
+
+use super::*;
+
+impl CoordinatorService {
+    pub(super) async fn submit(
+        &self,
+        request: Request<Streaming<pb::SubmitChunk>>,
+    ) -> Result<Response<pb::JobId>, Status> {
+        let remote = request.remote_addr();
+        let mut stream = request.into_inner();
+        let first =
+            stream.next().await.ok_or_else(|| Status::invalid_argument("empty submission"))??;
+        let spec = first
+            .spec
+            .ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
+        let frame = FrameSettings::try_from(
+            spec.frame
+                .as_ref()
+                .ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?,
+        )?;
+        let schedule = schedule_from_wire(spec.schedule)?;
+        if spec.views.len() > MAX_FRAMES as usize {
+            return Err(Status::invalid_argument(format!(
+                "a sequence of {} frames: at most {MAX_FRAMES}",
+                spec.views.len()
+            )));
+        }
+        let views = spec
+            .views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                View::try_from(v)
+                    .map_err(|e| Status::invalid_argument(format!("frame {i}: {}", e.message())))
+            })
+            .collect::<Result<Vec<View>, Status>>()?;
+        if spec.name.len() > MAX_NAME {
+            return Err(Status::invalid_argument(format!(
+                "job name of {} bytes: at most {MAX_NAME}",
+                spec.name.len()
+            )));
+        }
+        if spec.submitter.len() > MAX_SUBMITTER || spec.submitter.chars().any(char::is_control) {
+            return Err(Status::invalid_argument(format!(
+                "submitter name: at most {MAX_SUBMITTER} bytes, no control characters"
+            )));
+        }
+        let from = remote.map(|a| a.ip().to_string()).unwrap_or_else(|| "local".into());
+        let submitter =
+            if spec.submitter.is_empty() { from } else { format!("{}@{from}", spec.submitter) };
+        let hash = first.hash.to_ascii_lowercase();
+        if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(Status::invalid_argument(format!(
+                "hash {:?} is not a 64-digit hex BLAKE3 hash",
+                clip(&first.hash)
+            )));
+        }
+        let limit = self.state.config.max_bundle_bytes;
+        if first.total_size > limit {
+            return Err(Status::resource_exhausted(format!(
+                "bundle of {} bytes is over the limit of {limit} bytes",
+                first.total_size
+            )));
+        }
+        // Counted as the bytes arrive, against the declared size (itself
+        // within the limit); nothing is reserved from the claim.
+        let mut bytes = first.data;
+        if bytes.len() as u64 > first.total_size {
+            return Err(Status::invalid_argument("upload is longer than its declared size"));
+        }
+        while let Some(c) = stream.next().await {
+            bytes.extend_from_slice(&c?.data);
+            if bytes.len() as u64 > first.total_size {
+                return Err(Status::invalid_argument("upload is longer than its declared size"));
+            }
+        }
+        if (bytes.len() as u64) != first.total_size {
+            return Err(Status::invalid_argument(format!(
+                "truncated upload: {} of {} bytes",
+                bytes.len(),
+                first.total_size
+            )));
+        }
+        if bundle::hash_of(&bytes) != hash {
+            return Err(Status::invalid_argument("the bundle's bytes do not match its hash"));
+        }
+        // Check the scene here, so a bad one fails its client, not a worker;
+        // its files are unpacked for the check alone and removed after it.
+        let seq = {
+            let mut n = lock(&self.state.next);
+            *n += 1;
+            *n - 1
+        };
+        let id = format!("job-{}-{seq}", self.state.prefix);
+        let dir = self.state.config.work_dir.join("check").join(&id);
+        let (check, limits) = (bytes.clone(), self.state.config.limits);
+        let checked = tokio::task::spawn_blocking(move || {
+            let r = bundle::unpack_with(&check, &dir, &limits).map(|_| ());
+            let _ = std::fs::remove_dir_all(&dir);
+            r
+        })
+        .await
+        .map_err(|_| Status::internal("the scene check failed unexpectedly"))?;
+        checked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
+        let (tx, _) = broadcast::channel(256);
+        let summary = pb::JobSummary {
+            id: id.clone(),
+            state: JobState::Queued.to_wire(),
+            name: spec.name.clone(),
+            priority: spec.priority,
+            submitter,
+            submitted_unix_ms: unix_ms(),
+            frames: views.len().max(1) as u32,
+            ..Default::default()
+        };
+        lock(&self.state.jobs).insert(
+            id.clone(),
+            Job {
+                seq,
+                state: JobState::Queued,
+                spec,
+                frame,
+                views,
+                schedule,
+                bundle: Some(Arc::new(SceneBundle { bytes, hash })),
+                summary,
+                events: tx,
+                task: None,
+                finished: None,
+                live: LiveFrame::default(),
+            },
+        );
+        self.state.wake.notify_one();
+        tracing::info!(%id, "job queued");
+        Ok(Response::new(pb::JobId { id }))
+    }
+
+    pub(super) async fn watch(
+        &self,
+        request: Request<pb::JobId>,
+    ) -> Result<Response<EventStream>, Status> {
+        let id = request.into_inner().id;
+        let id = job_id(&id)?.to_string();
+        let (mut rx, current) = {
+            let jobs = lock(&self.state.jobs);
+            let j = jobs.get(&id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            (j.events.subscribe(), j.summary.clone())
+        };
+        let (tx, out) = tokio::sync::mpsc::channel(64);
+        let state = self.state.clone();
+        tokio::spawn(async move {
+            let first = pb::JobEvent {
+                id: current.id.clone(),
+                state: current.state,
+                strips_done: current.strips_done,
+                strips_total: current.strips_total,
+                message: current.error.clone(),
+                ..Default::default()
+            };
+            if tx.send(Ok(first)).await.is_err() || wire_ended(current.state) {
+                return;
+            }
+            loop {
+                let ev = match rx.recv().await {
+                    Ok(ev) => ev,
+                    // A slow watcher missed events: it gets the job's state
+                    // now and goes on, rather than a stream that just ends.
+                    Err(broadcast::error::RecvError::Lagged(n)) => {
+                        let mut ev = state.event(&id);
+                        ev.message = format!(
+                            "{n} progress events skipped: this client reads slower than strips finish"
+                        );
+                        if wire_ended(ev.state) {
+                            ev.message = lock(&state.jobs)
+                                .get(&id)
+                                .map(|j| j.summary.error.clone())
+                                .unwrap_or_default();
+                        }
+                        ev
+                    }
+                    Err(broadcast::error::RecvError::Closed) => break,
+                };
+                let end = wire_ended(ev.state);
+                // A vanished client ends the forwarding.
+                if tx.send(Ok(ev)).await.is_err() || end {
+                    break;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(tokio_stream::wrappers::ReceiverStream::new(out))))
+    }
+
+    pub(super) async fn fetch(
+        &self,
+        request: Request<pb::FetchRequest>,
+    ) -> Result<Response<pb::FetchReply>, Status> {
+        let r = request.into_inner();
+        let id = job_id(&r.id)?;
+        let format = match r.format.as_str() {
+            "" | "png" => "png",
+            "exr" => "exr",
+            o => return Err(Status::invalid_argument(format!("format {:?}: png or exr", clip(o)))),
+        };
+        {
+            let jobs = lock(&self.state.jobs);
+            let j = jobs.get(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            if j.state != JobState::Done {
+                return Err(Status::failed_precondition(format!("job {id} is {}", j.state)));
+            }
+            if r.frame >= j.summary.frames.max(1) {
+                return Err(Status::out_of_range(format!(
+                    "job {id} has {} frame(s), from 0; no frame {}",
+                    j.summary.frames.max(1),
+                    r.frame
+                )));
+            }
+        }
+        let stored = lock(&self.state.results).get(id, r.frame as usize, format);
+        let data = match stored {
+            Some(s) => tokio::task::spawn_blocking(move || s.read())
+                .await
+                .map_err(|e| Status::internal(e.to_string()))?
+                .map_err(|e| Status::internal(format!("the stored result cannot be read: {e}")))?,
+            None => return Err(Status::not_found(format!("job {id}'s result is no longer kept"))),
+        };
+        Ok(Response::new(pb::FetchReply { data, format: format.into() }))
+    }
+
+    pub(super) async fn cancel(
+        &self,
+        request: Request<pb::JobId>,
+    ) -> Result<Response<pb::JobSummary>, Status> {
+        let id = request.into_inner().id;
+        let id = job_id(&id)?;
+        let (summary, tx) = {
+            let mut jobs = lock(&self.state.jobs);
+            let j = jobs.get_mut(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            if j.set_state(JobState::Cancelled).is_ok() {
+                if let Some(t) = j.task.take() {
+                    t.abort();
+                }
+                j.bundle = None;
+                j.finished = Some(Instant::now());
+                j.summary.finished_unix_ms = unix_ms();
+                j.live.preview = Vec::new();
+            }
+            (j.summary.clone(), j.events.clone())
+        };
+        let _ = tx.send(pb::JobEvent {
+            id: id.to_string(),
+            state: summary.state,
+            strips_done: summary.strips_done,
+            strips_total: summary.strips_total,
+            ..Default::default()
+        });
+        if wire_ended(summary.state) {
+            self.state.close_events(id);
+        }
+        Ok(Response::new(summary))
+    }
+
+    pub(super) async fn jobs(
+        &self,
+        _: Request<pb::ListJobsRequest>,
+    ) -> Result<Response<pb::JobList>, Status> {
+        let jobs = lock(&self.state.jobs).values().map(|j| j.summary.clone()).collect();
+        Ok(Response::new(pb::JobList { jobs }))
+    }
+
+    pub(super) async fn reprioritise(
+        &self,
+        request: Request<pb::SetPriorityRequest>,
+    ) -> Result<Response<pb::JobSummary>, Status> {
+        let r = request.into_inner();
+        let id = job_id(&r.id)?;
+        let summary = {
+            let mut jobs = lock(&self.state.jobs);
+            let j = jobs.get_mut(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            j.spec.priority = r.priority;
+            j.summary.priority = r.priority;
+            j.summary.clone()
+        };
+        tracing::info!(%id, priority = r.priority, "job re-prioritised");
+        Ok(Response::new(summary))
+    }
+}
+
+/// The schedule a wire number names.
+fn schedule_from_wire(v: i32) -> Result<ScheduleKind, Status> {
+    match pb::Schedule::try_from(v) {
+        Ok(pb::Schedule::Dynamic) => Ok(ScheduleKind::Dynamic),
+        Ok(pb::Schedule::Static) => Ok(ScheduleKind::Static),
+        Err(_) => Err(Status::invalid_argument(format!("schedule {v}: static or dynamic"))),
+    }
+}

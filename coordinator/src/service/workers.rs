@@ -1,0 +1,139 @@
+//! The workers the coordinator knows: named on its command line or
+//! registered (after proving they hold the farm's token), polled by
+//! heartbeats, listed for clients.
+
+use super::*;
+
+/// A worker the coordinator knows.
+pub(super) struct KnownWorker {
+    pub(super) info: pb::WorkerInfo,
+    /// Named on the command line: never forgotten.
+    pub(super) named: bool,
+    /// Last registration or answered heartbeat.
+    pub(super) seen: Instant,
+}
+
+impl CoordinatorService {
+    pub(super) async fn workers(
+        &self,
+        _: Request<pb::ListWorkersRequest>,
+    ) -> Result<Response<pb::WorkerList>, Status> {
+        let workers = lock(&self.state.workers).values().map(|w| w.info.clone()).collect();
+        Ok(Response::new(pb::WorkerList { workers }))
+    }
+
+    pub(super) async fn register(
+        &self,
+        request: Request<pb::RegisterWorkerRequest>,
+    ) -> Result<Response<pb::RegisterWorkerReply>, Status> {
+        let addr = request.into_inner().addr;
+        if addr.len() > MAX_ID
+            || addr.parse::<std::net::SocketAddr>().is_err() && !addr.contains(':')
+        {
+            return Err(Status::invalid_argument(format!(
+                "worker address {:?} is not host:port",
+                clip(&addr)
+            )));
+        }
+        let known = lock(&self.state.workers).get(&addr).is_some_and(|w| w.info.alive);
+        if !known {
+            // Nothing — not the token, not a bundle — goes to an address
+            // before it proves it is one of the farm's workers.
+            self.state.verify_worker(&addr).await?;
+        }
+        let mut w = lock(&self.state.workers);
+        let entry = w.entry(addr.clone()).or_insert_with(|| KnownWorker {
+            info: pb::WorkerInfo { addr: addr.clone(), ..Default::default() },
+            named: false,
+            seen: Instant::now(),
+        });
+        entry.info.alive = true;
+        entry.seen = Instant::now();
+        if !known {
+            tracing::info!(%addr, "worker registered");
+        }
+        Ok(Response::new(pb::RegisterWorkerReply {}))
+    }
+}
+
+impl State {
+    /// Polls every worker's status at once; a worker that does not answer
+    /// is not given new jobs until it does; registrations not renewed
+    /// within the TTL are forgotten, and so are finished jobs past their
+    /// retention.
+    pub(super) async fn heartbeat_loop(self: Arc<Self>) {
+        loop {
+            let addrs: Vec<String> = lock(&self.workers).keys().cloned().collect();
+            let config = &self.config;
+            let polls = addrs.into_iter().map(|a| async move {
+                let status = async {
+                    let mut c = farm::connect(&a, config.token.clone(), config.worker_tls.as_ref())
+                        .await
+                        .ok()?;
+                    let mut req = Request::new(pb::StatusRequest {});
+                    req.set_timeout(Duration::from_secs(5));
+                    c.status(req).await.ok().map(|r| r.into_inner())
+                }
+                .await;
+                (a, status)
+            });
+            for (a, status) in futures_util::future::join_all(polls).await {
+                if let Some(w) = lock(&self.workers).get_mut(&a) {
+                    match status {
+                        Some(s) => {
+                            w.info.alive = true;
+                            w.seen = Instant::now();
+                            // A worker's reply is bounded before it is kept and listed.
+                            w.info.adapter = clip(&s.adapter);
+                            w.info.gpu_memory_bytes = s.gpu_memory_bytes;
+                            w.info.cached_scenes =
+                                s.cached_scenes.iter().take(1024).map(|h| clip(h)).collect();
+                            w.info.busy_strips = s.busy_strips;
+                        }
+                        None => w.info.alive = false,
+                    }
+                }
+            }
+            let ttl = self.config.registration_ttl;
+            lock(&self.workers).retain(|addr, w| {
+                let keep = w.named || w.seen.elapsed() < ttl;
+                if !keep {
+                    tracing::info!(%addr, "forgot a worker whose registration expired");
+                }
+                keep
+            });
+            self.sweep();
+            tokio::time::sleep(self.config.heartbeat).await;
+        }
+    }
+
+    /// Checks that the worker at `addr` holds the farm's token: it must
+    /// answer a fresh nonce with the keyed hash only a token holder can make.
+    pub(super) async fn verify_worker(&self, addr: &str) -> Result<(), Status> {
+        let refused =
+            |why: &str| Status::permission_denied(format!("worker {}: {why}", clip(addr)));
+        let ch = sylva_proto::tls::connect(
+            addr,
+            self.config.worker_tls.as_ref(),
+            Duration::from_secs(5),
+        )
+        .await
+        .map_err(|_| refused("cannot be reached at that address from the coordinator"))?;
+        let nonce = sylva_proto::auth::random_bytes(32);
+        let mut c = pb::worker_identity_client::WorkerIdentityClient::new(ch);
+        let mut req = Request::new(pb::ProveRequest { nonce: nonce.clone() });
+        req.set_timeout(Duration::from_secs(5));
+        let proof = c
+            .prove(req)
+            .await
+            .map_err(|_| refused("does not answer the identity check (is it a Sylva worker?)"))?
+            .into_inner()
+            .proof;
+        if !sylva_proto::auth::check_proof(self.config.token.as_deref(), &nonce, &proof) {
+            return Err(refused(
+                "could not prove it holds the farm's token; start it with the coordinator's --token",
+            ));
+        }
+        Ok(())
+    }
+}
