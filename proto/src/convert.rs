@@ -6,8 +6,7 @@
 use crate::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::format::CameraSpec;
-use sylva_scene::frame::AccelKind;
-use sylva_scene::frame::FrameSettings;
+use sylva_scene::frame::{AccelKind, FrameSettings, ScheduleKind};
 use sylva_scene::sequence::View;
 use tonic::Status;
 
@@ -51,6 +50,23 @@ pub fn accel_from_wire(v: i32) -> Result<AccelKind, Status> {
         Err(_) => Err(Status::invalid_argument(format!(
             "accel {v}: not a structure this worker knows (bvh, kd)"
         ))),
+    }
+}
+
+/// The wire's schedule.
+pub fn schedule_to_wire(s: ScheduleKind) -> pb::Schedule {
+    match s {
+        ScheduleKind::Static => pb::Schedule::Static,
+        ScheduleKind::Dynamic => pb::Schedule::Dynamic,
+    }
+}
+
+/// The schedule a wire number names.
+pub fn schedule_from_wire(v: i32) -> Result<ScheduleKind, Status> {
+    match pb::Schedule::try_from(v) {
+        Ok(pb::Schedule::Dynamic) => Ok(ScheduleKind::Dynamic),
+        Ok(pb::Schedule::Static) => Ok(ScheduleKind::Static),
+        Err(_) => Err(Status::invalid_argument(format!("schedule {v}: static or dynamic"))),
     }
 }
 

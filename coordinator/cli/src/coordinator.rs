@@ -143,7 +143,7 @@ pub struct SubmitArgs {
     pub frame: super::render::FrameArgs,
     /// How the frame is cut into strips.
     #[arg(long, value_enum, default_value = "dynamic")]
-    pub schedule: super::render::ScheduleArg,
+    pub schedule: sylva_scene::frame::ScheduleKind,
     /// Higher runs first.
     #[arg(long, default_value_t = 0)]
     pub priority: i32,

@@ -6,7 +6,7 @@
 
 use crate::in_process::InProcess;
 use anyhow::{Context, bail};
-use clap::{Args, ValueEnum};
+use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -29,33 +29,6 @@ use sylva_worker::lighting::reference::MIN_BATCH_SPP;
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
 
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum AccelArg {
-    /// kd-tree, short-stack traversal.
-    Kd,
-    /// Bounding-volume hierarchy.
-    Bvh,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum LightingArg {
-    /// Direct sun light only.
-    Local,
-    /// Direct light plus a constant ambient matched to the LB image.
-    Ambient,
-    /// Direct light plus LB indirect light.
-    Lb,
-    /// The LB light alone.
-    LbVisualize,
-    /// The reference: path tracing with the leaf BSDF, sky, sun and clouds;
-    /// in this process it renders progressively until its own error
-    /// estimate is below --target-error.
-    Reference,
-    /// Boulanger et al. 2008: envelope distances per leaf, sky, sun and
-    /// one-bounce indirect light in closed form.
-    Boulanger,
-}
-
 /// What a frame asks for, as `render` and `submit` take it.
 #[derive(Debug, Args)]
 pub struct FrameArgs {
@@ -70,10 +43,10 @@ pub struct FrameArgs {
     pub spp: u32,
     /// Acceleration structure.
     #[arg(long, value_enum, default_value = "bvh")]
-    pub accel: AccelArg,
+    pub accel: AccelKind,
     /// Lighting method; default the scene's.
     #[arg(long, value_enum)]
-    pub lighting: Option<LightingArg>,
+    pub lighting: Option<LightingMode>,
     /// Seed of the per-pixel sample positions.
     #[arg(long, default_value_t = 1)]
     pub seed: u32,
@@ -116,8 +89,8 @@ impl FrameArgs {
             height: self.height,
             spp: self.spp,
             seed: self.seed,
-            lighting: self.lighting.map(Into::into),
-            accel: self.accel.into(),
+            lighting: self.lighting,
+            accel: self.accel,
             lb_strength: self.lb_strength,
             ambient: None,
             view: Default::default(),
@@ -193,7 +166,7 @@ pub struct RenderArgs {
     pub workers: Vec<String>,
     /// How the frame is cut into strips for the workers.
     #[arg(long, value_enum, default_value = "dynamic")]
-    pub schedule: ScheduleArg,
+    pub schedule: ScheduleKind,
     /// Seconds a worker may take over one strip before it is handed to another.
     #[arg(long, default_value_t = 600)]
     pub strip_deadline_s: u64,
@@ -210,51 +183,12 @@ pub struct RenderArgs {
     pub allow_files_outside_scene: bool,
 }
 
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum ScheduleArg {
-    /// One equal strip per worker.
-    Static,
-    /// More strips than workers, pulled by idle workers.
-    Dynamic,
-}
-
-impl From<AccelArg> for AccelKind {
-    fn from(a: AccelArg) -> Self {
-        match a {
-            AccelArg::Kd => AccelKind::Kd,
-            AccelArg::Bvh => AccelKind::Bvh,
-        }
-    }
-}
-
-impl From<LightingArg> for LightingMode {
-    fn from(l: LightingArg) -> Self {
-        match l {
-            LightingArg::Local => LightingMode::Local,
-            LightingArg::Ambient => LightingMode::Ambient,
-            LightingArg::Lb => LightingMode::Lb,
-            LightingArg::LbVisualize => LightingMode::LbVisualize,
-            LightingArg::Reference => LightingMode::Reference,
-            LightingArg::Boulanger => LightingMode::Boulanger,
-        }
-    }
-}
-
-impl From<ScheduleArg> for ScheduleKind {
-    fn from(s: ScheduleArg) -> Self {
-        match s {
-            ScheduleArg::Static => ScheduleKind::Static,
-            ScheduleArg::Dynamic => ScheduleKind::Dynamic,
-        }
-    }
-}
-
 /// A job for the coordinator: the frame (and a sequence's views), how to
 /// cut it, its priority and label.
 pub fn job_spec(
     frame: &FrameSettings,
     views: &[View],
-    schedule: ScheduleArg,
+    schedule: ScheduleKind,
     priority: i32,
     name: &str,
 ) -> sylva_proto::pb::JobSpec {
@@ -262,11 +196,7 @@ pub fn job_spec(
     sylva_proto::pb::JobSpec {
         views: views.iter().map(pb::FrameView::from).collect(),
         frame: Some(pb::FrameSettings::from(frame)),
-        schedule: match ScheduleKind::from(schedule) {
-            ScheduleKind::Static => pb::Schedule::Static,
-            ScheduleKind::Dynamic => pb::Schedule::Dynamic,
-        }
-        .into(),
+        schedule: sylva_proto::convert::schedule_to_wire(schedule).into(),
         priority,
         // The coordinator refuses names over MAX_NAME bytes: cut at a character.
         name: cut(name, MAX_NAME),

@@ -6,8 +6,6 @@ mod r#static;
 pub use dynamic::Dynamic;
 pub use r#static::Static;
 
-use serde::{Deserialize, Serialize};
-
 /// A strip: columns `[x0, x1)`.
 pub type Strip = (u32, u32);
 
@@ -22,17 +20,7 @@ pub struct StripTime {
     pub call_ms: f64,
 }
 
-/// Which scheduler.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ScheduleKind {
-    /// N equal strips, one per worker (the paper's way).
-    Static,
-    /// More strips than workers, pulled by idle workers, sized so the last
-    /// ones finish together.
-    #[default]
-    Dynamic,
-}
+pub use sylva_scene::frame::ScheduleKind;
 
 /// Cuts a frame into strips.
 pub trait Scheduler {

@@ -20,7 +20,7 @@ impl CoordinatorService {
                 .as_ref()
                 .ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?,
         )?;
-        let schedule = schedule_from_wire(spec.schedule)?;
+        let schedule = sylva_proto::convert::schedule_from_wire(spec.schedule)?;
         if spec.views.len() > MAX_FRAMES as usize {
             return Err(Status::invalid_argument(format!(
                 "a sequence of {} frames: at most {MAX_FRAMES}",
@@ -284,14 +284,5 @@ impl CoordinatorService {
         };
         tracing::info!(%id, priority = r.priority, "job re-prioritised");
         Ok(Response::new(summary))
-    }
-}
-
-/// The schedule a wire number names.
-fn schedule_from_wire(v: i32) -> Result<ScheduleKind, Status> {
-    match pb::Schedule::try_from(v) {
-        Ok(pb::Schedule::Dynamic) => Ok(ScheduleKind::Dynamic),
-        Ok(pb::Schedule::Static) => Ok(ScheduleKind::Static),
-        Err(_) => Err(Status::invalid_argument(format!("schedule {v}: static or dynamic"))),
     }
 }

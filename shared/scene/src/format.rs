@@ -175,6 +175,7 @@ pub struct GroundSpec {
 
 /// How the image's indirect light is computed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum LightingMode {
     /// Direct sun light only.

@@ -13,6 +13,7 @@ pub const MAX_SPP: u32 = 4_096;
 
 /// Which structure accelerates a render.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum AccelKind {
     /// kd-tree with short-stack traversal (the paper's).
@@ -20,6 +21,19 @@ pub enum AccelKind {
     /// Four-wide bounding-volume hierarchy.
     #[default]
     Bvh,
+}
+
+/// How a job's frames are cut into strips for the workers.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum ScheduleKind {
+    /// N equal strips, one per worker (the paper's way).
+    Static,
+    /// More strips than workers, pulled by idle workers, sized so the last
+    /// ones finish together.
+    #[default]
+    Dynamic,
 }
 
 /// A frame to render.

@@ -317,7 +317,7 @@ pub struct TraceBenchArgs {
     pub no_cpu: bool,
     /// Structures to measure, in order.
     #[arg(long, value_delimiter = ',', default_value = "kd,bvh")]
-    pub accel: Vec<crate::render::AccelArg>,
+    pub accel: Vec<sylva_scene::frame::AccelKind>,
     /// Skip the whole frames.
     #[arg(long)]
     pub no_frames: bool,
@@ -341,7 +341,7 @@ pub struct TraceBenchArgs {
 /// at 1 and 4 rays per pixel.
 fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     use rayon::prelude::*;
-    use sylva_accel::{AccelKind, Ray, SceneAccel};
+    use sylva_accel::{Ray, SceneAccel};
     use sylva_scene::table2::{ForestOptions, forest};
     use sylva_scene::{LightingMode, Scene};
     use sylva_worker::GpuContext;
@@ -380,7 +380,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     // Shadow rays toward the sun from the first structure's primary hits:
     // the same rays for every structure.
     let mut shadow: Option<(Vec<Ray>, Vec<GpuRay>)> = None;
-    for kind in a.accel.iter().map(|&k| AccelKind::from(k)) {
+    for kind in a.accel.iter().copied() {
         let t = Instant::now();
         let accel = SceneAccel::build(&scene, kind);
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -463,7 +463,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         }));
     }
     let mut frames = Vec::new();
-    for kind in a.accel.iter().filter(|_| !a.no_frames).map(|&k| AccelKind::from(k)) {
+    for kind in a.accel.iter().filter(|_| !a.no_frames).copied() {
         let prepared = prepare(&ctx, &scene, kind, LightingMode::Lb, &|_| {})?;
         for spp in [1u32, 4] {
             let f = RenderSettings {

@@ -10,7 +10,7 @@
 //!   pass's per-frame cost and the LB solves each farm did.
 
 use crate::loopback::LoopbackProcesses;
-use crate::render::{ScheduleArg, job_spec};
+use crate::render::job_spec;
 use anyhow::Context;
 use clap::Args;
 use serde_json::json;
@@ -20,6 +20,7 @@ use sylva_proto::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::bundle::SceneBundle;
 use sylva_scene::frame::FrameSettings;
+use sylva_scene::frame::ScheduleKind;
 use sylva_scene::sequence::{CameraKey, SequenceSpec, SunAngles, SunSweep, View};
 
 #[derive(Debug, Args)]
@@ -89,7 +90,7 @@ impl Farm {
         frame: &FrameSettings,
         views: &[View],
     ) -> anyhow::Result<f64> {
-        let spec = job_spec(frame, views, ScheduleArg::Dynamic, 0, "bench sequence");
+        let spec = job_spec(frame, views, ScheduleKind::Dynamic, 0, "bench sequence");
         let t = Instant::now();
         rt.block_on(submit_and_follow(
             &self.coordinator,
