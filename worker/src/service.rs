@@ -494,18 +494,8 @@ impl Worker for WorkerService {
         }
         let hash = normalize_hash(&r.scene_hash)?;
         let scene = self.state.scene(&hash)?;
-        let lighting = f.lighting_or(scene.lighting);
-        let accel = f.accel;
-        let settings = RenderSettings {
-            width: f.width,
-            height: f.height,
-            spp: f.spp,
-            seed: f.seed,
-            lighting,
-            ambient: f.ambient.unwrap_or([0.0; 3]),
-            lb_strength: f.lb_strength,
-            view: f.view,
-        };
+        let settings = RenderSettings::resolve(&f, scene.lighting);
+        let (lighting, accel) = (settings.lighting, f.accel);
         let view = f.view;
         let ambient_given = f.ambient.is_some();
         let cancelled = Arc::new(AtomicBool::new(false));

@@ -301,16 +301,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     for p in &prepared.phases.0 {
         phases.push((p.name, p.ms));
     }
-    let mut settings = RenderSettings {
-        width: a.frame.width,
-        height: a.frame.height,
-        spp: a.frame.spp,
-        seed: a.frame.seed,
-        lighting,
-        ambient: [0.0; 3],
-        lb_strength: a.frame.lb_strength,
-        view: Default::default(),
-    };
+    let mut settings = RenderSettings::resolve(&request, scene.lighting);
     if lighting == LightingMode::Ambient {
         bar.set_message("matching the ambient constant to the LB image");
         let t = Instant::now();

@@ -8,6 +8,7 @@ use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 use sylva_scene::film::RayCounts;
+use sylva_scene::frame::FrameSettings;
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
@@ -106,6 +107,26 @@ pub struct RenderSettings {
     /// The frame's camera and sun where they differ from the scene's.
     #[serde(skip)]
     pub view: View,
+}
+
+impl RenderSettings {
+    /// What `frame` asks of a scene whose own lighting method is
+    /// `scene_lighting`: the one way a frame's settings become render
+    /// settings (flags → [`FrameSettings`] → these), on a worker and in
+    /// this process alike. `ambient` stays 0 unless the frame gives it; the
+    /// `ambient` method matches it to the LB image before rendering.
+    pub fn resolve(frame: &FrameSettings, scene_lighting: LightingMode) -> Self {
+        RenderSettings {
+            width: frame.width,
+            height: frame.height,
+            spp: frame.spp,
+            seed: frame.seed,
+            lighting: frame.lighting_or(scene_lighting),
+            ambient: frame.ambient.unwrap_or([0.0; 3]),
+            lb_strength: frame.lb_strength,
+            view: frame.view,
+        }
+    }
 }
 
 /// The GPU's ray counters for one strip: 32-bit atomics, as WGSL has them.

@@ -15,6 +15,7 @@ use sylva_light::lb::solver::BYTES_PER_NODE_UPDATE;
 use sylva_light::lb::{GridDims, MediumGrid, NodeClass, SolveOptions, Sun, solve};
 use sylva_light::{shapes, voxel};
 use sylva_scene::format::Preset;
+use sylva_scene::frame::FrameSettings;
 use sylva_scene::rng::SplitMix64;
 
 #[derive(Debug, Subcommand)]
@@ -466,16 +467,14 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     for kind in a.accel.iter().filter(|_| !a.no_frames).copied() {
         let prepared = prepare(&ctx, &scene, kind, LightingMode::Lb, &|_| {})?;
         for spp in [1u32, 4] {
-            let f = RenderSettings {
+            let frame = FrameSettings {
                 width: a.width,
                 height: a.height,
                 spp,
-                seed: 1,
-                lighting: LightingMode::Lb,
-                ambient: [0.0; 3],
-                lb_strength: 0.35,
-                view: Default::default(),
+                lighting: Some(LightingMode::Lb),
+                ..FrameSettings::default()
             };
+            let f = RenderSettings::resolve(&frame, scene.lighting);
             prepared.renderer.render_strip(
                 &ctx,
                 &RenderSettings { width: 64, height: 32, ..f },

@@ -18,6 +18,7 @@ use sylva_accel::AccelKind;
 use sylva_coordinator::executor::StripExecutor;
 use sylva_scene::color::luminance;
 use sylva_scene::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
+use sylva_scene::frame::FrameSettings;
 use sylva_scene::{ForestGridUse, LbModel, LightingMode, Scene};
 use sylva_worker::GpuContext;
 use sylva_worker::lighting::lb::auto::choose_lb_grids;
@@ -155,16 +156,14 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     );
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let say = |m: &str| bar.set_message(m.to_string());
-    let settings = RenderSettings {
+    let frame = FrameSettings {
         width: a.width,
         height: a.height,
         spp: a.spp,
-        seed: 1,
-        lighting: LightingMode::Local,
-        ambient: [0.0; 3],
-        lb_strength: 0.35,
-        view: Default::default(),
+        lighting: Some(LightingMode::Local),
+        ..FrameSettings::default()
     };
+    let settings = RenderSettings::resolve(&frame, scene.lighting);
 
     // The reference first: every error is measured against it.
     say("reference: path tracing");
