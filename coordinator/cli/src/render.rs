@@ -16,7 +16,7 @@ use sylva_coordinator::executor::{StripExecutor, even_strips};
 use sylva_scene::film::{HdrImage, reinhard, write_png};
 use sylva_scene::{LightingMode, Scene};
 use sylva_worker::GpuContext;
-use sylva_worker::prepare::prepare;
+use sylva_worker::prepare::{PreparedScene, prepare};
 use sylva_worker::trace::RenderSettings;
 
 use sylva_coordinator::schedule::ScheduleKind;
@@ -275,6 +275,20 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             "a sequence renders on workers, frames and strips scheduled over them: leave out --local-workers 0"
         );
     }
+    render_here(&a, &request, scene, grid_choice.is_some(), phases)
+}
+
+/// The in-process pipeline: the scene prepared on this process's GPU, then
+/// traced as strips, or path traced until the reference's own error is low
+/// enough.
+fn render_here(
+    a: &RenderArgs,
+    request: &FrameSettings,
+    mut scene: Scene,
+    choose_grids: bool,
+    mut phases: Vec<(&'static str, f64)>,
+) -> anyhow::Result<()> {
+    let (lighting, accel) = (request.lighting_or(scene.lighting), request.accel);
     let bar = ProgressBar::new_spinner();
     bar.set_style(
         ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
@@ -282,7 +296,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let ctx = GpuContext::new()?;
     let mut choices = None;
-    if grid_choice.is_some() && lighting.needs_lb() {
+    if choose_grids && lighting.needs_lb() {
         let t = Instant::now();
         let c = sylva_worker::lighting::lb::auto::choose_lb_grids(
             &ctx,
@@ -301,7 +315,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     for p in &prepared.phases.0 {
         phases.push((p.name, p.ms));
     }
-    let mut settings = RenderSettings::resolve(&request, scene.lighting);
+    let mut settings = RenderSettings::resolve(request, scene.lighting);
     if lighting == LightingMode::Ambient {
         bar.set_message("matching the ambient constant to the LB image");
         let t = Instant::now();
@@ -312,79 +326,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
 
     if lighting == LightingMode::Reference {
-        anyhow::ensure!(
-            a.target_error.is_finite() && a.target_error > 0.0,
-            "--target-error {}: must be a finite number > 0",
-            a.target_error
-        );
-        anyhow::ensure!(
-            a.max_seconds.is_finite() && a.max_seconds > 0.0,
-            "--max-seconds {}: must be a finite number > 0",
-            a.max_seconds
-        );
-        let opts = sylva_worker::lighting::reference::ReferenceOptions {
-            batch_spp: a.frame.spp.max(MIN_BATCH_SPP),
-            target_error: a.target_error,
-            max_seconds: a.max_seconds,
-            max_batches: (MAX_SPP / a.frame.spp.max(MIN_BATCH_SPP)).max(4),
-            ..Default::default()
-        };
-        let bar = ProgressBar::new_spinner();
-        bar.set_style(
-            ProgressStyle::with_template("{spinner} reference: {msg} {elapsed}")
-                .expect("valid template"),
-        );
-        bar.enable_steady_tick(std::time::Duration::from_millis(200));
-        let t = Instant::now();
-        let r = sylva_worker::lighting::reference::render_reference(
-            &ctx,
-            &prepared.renderer,
-            &settings,
-            &opts,
-            &|s| {
-                bar.set_message(format!(
-                    "{} spp, relative error {:.4} (target {})",
-                    s.spp, s.relative_error, a.target_error
-                ))
-            },
-        )?;
-        phases.push(("trace", ms(t)));
-        bar.finish_and_clear();
-        let (tone, exr) = write_image(&a, &r.image, &mut phases)?;
-        // Beside the reference, what `local` shows along its own samples:
-        // the difference is its indirect light, without edge aliasing.
-        let local_exr = match &exr {
-            Some(p) => {
-                let l = p.with_extension("local.exr");
-                r.local.write_exr(&l)?;
-                Some(l.display().to_string())
-            }
-            None => None,
-        };
-        let stats = with_head(
-            &a,
-            exr,
-            accel,
-            lighting,
-            &phases,
-            json!({
-                "adapter": ctx.summary(),
-                "reference": r.stats,
-                "local_exr": local_exr,
-                "leaf_optics": scene.file.leaf_optics,
-                "max_bounces": sylva_worker::trace::MAX_BOUNCES,
-                "tone_map": tone,
-                "coverage": r.coverage.iter().map(|&c| c as f64).sum::<f64>() / r.coverage.len() as f64,
-            }),
-        );
-        let how = format!(
-            "{} spp in {:.0} ms, relative standard error {:.4}{}",
-            r.stats.spp,
-            r.stats.ms,
-            r.stats.relative_error,
-            if r.stats.converged { "" } else { " (not converged)" }
-        );
-        return report(&a, &stats, accel, lighting, &how);
+        return render_reference_here(a, &ctx, &scene, &prepared, &settings, accel, phases);
     }
     let plan = even_strips(a.frame.width, STRIP);
     let bar = ProgressBar::new(plan.len() as u64);
@@ -402,9 +344,9 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     phases.push(("trace", trace_ms));
     bar.finish_and_clear();
 
-    let (tone, exr) = write_image(&a, &frame, &mut phases)?;
+    let (tone, exr) = write_image(a, &frame, &mut phases)?;
     let stats = with_head(
-        &a,
+        a,
         exr,
         accel,
         lighting,
@@ -435,7 +377,94 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         trace_ms,
         (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6
     );
-    report(&a, &stats, accel, lighting, &how)
+    report(a, &stats, accel, lighting, &how)
+}
+
+/// The reference in this process: path traced in batches until its own
+/// relative standard error is below `--target-error`.
+fn render_reference_here(
+    a: &RenderArgs,
+    ctx: &GpuContext,
+    scene: &Scene,
+    prepared: &PreparedScene,
+    settings: &RenderSettings,
+    accel: AccelKind,
+    mut phases: Vec<(&'static str, f64)>,
+) -> anyhow::Result<()> {
+    let lighting = settings.lighting;
+    anyhow::ensure!(
+        a.target_error.is_finite() && a.target_error > 0.0,
+        "--target-error {}: must be a finite number > 0",
+        a.target_error
+    );
+    anyhow::ensure!(
+        a.max_seconds.is_finite() && a.max_seconds > 0.0,
+        "--max-seconds {}: must be a finite number > 0",
+        a.max_seconds
+    );
+    let opts = sylva_worker::lighting::reference::ReferenceOptions {
+        batch_spp: a.frame.spp.max(MIN_BATCH_SPP),
+        target_error: a.target_error,
+        max_seconds: a.max_seconds,
+        max_batches: (MAX_SPP / a.frame.spp.max(MIN_BATCH_SPP)).max(4),
+        ..Default::default()
+    };
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} reference: {msg} {elapsed}")
+            .expect("valid template"),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let t = Instant::now();
+    let r = sylva_worker::lighting::reference::render_reference(
+        ctx,
+        &prepared.renderer,
+        settings,
+        &opts,
+        &|s| {
+            bar.set_message(format!(
+                "{} spp, relative error {:.4} (target {})",
+                s.spp, s.relative_error, a.target_error
+            ))
+        },
+    )?;
+    phases.push(("trace", ms(t)));
+    bar.finish_and_clear();
+    let (tone, exr) = write_image(a, &r.image, &mut phases)?;
+    // Beside the reference, what `local` shows along its own samples:
+    // the difference is its indirect light, without edge aliasing.
+    let local_exr = match &exr {
+        Some(p) => {
+            let l = p.with_extension("local.exr");
+            r.local.write_exr(&l)?;
+            Some(l.display().to_string())
+        }
+        None => None,
+    };
+    let stats = with_head(
+        a,
+        exr,
+        accel,
+        lighting,
+        &phases,
+        json!({
+            "adapter": ctx.summary(),
+            "reference": r.stats,
+            "local_exr": local_exr,
+            "leaf_optics": scene.file.leaf_optics,
+            "max_bounces": sylva_worker::trace::MAX_BOUNCES,
+            "tone_map": tone,
+            "coverage": r.coverage.iter().map(|&c| c as f64).sum::<f64>() / r.coverage.len() as f64,
+        }),
+    );
+    let how = format!(
+        "{} spp in {:.0} ms, relative standard error {:.4}{}",
+        r.stats.spp,
+        r.stats.ms,
+        r.stats.relative_error,
+        if r.stats.converged { "" } else { " (not converged)" }
+    );
+    report(a, &stats, accel, lighting, &how)
 }
 
 /// Tone-maps the whole frame once and writes the PNG (and the EXR when asked).
