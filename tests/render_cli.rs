@@ -200,7 +200,7 @@ fn bad_render_requests_get_clear_errors() {
     assert!(fails(&["render", s, "--width", "20000"]).contains("each side must be in [1, 16384]"));
     assert!(
         fails(&["render", "/nonexistent/scene.json"])
-            .contains("/nonexistent/scene.json: (file): cannot read")
+            .contains("/nonexistent/scene.json: cannot read")
     );
     let text = std::fs::read_to_string(&scene).unwrap();
     let broken = dir.join("broken.json");

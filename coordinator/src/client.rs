@@ -70,22 +70,12 @@ pub async fn submit_and_follow(
             .map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }),
     );
     let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(status_error)?.into_inner().id;
-    let bar = ProgressBar::new(1);
-    let unit = if views > 1 { format!("strips of {views} frames") } else { "strips".into() };
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit} {{elapsed}}"
-        ))
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
-    bar.set_message(id.clone());
+    let mut progress = JobProgress::new(&id, views);
     let mut events = c.watch_job(pb::JobId { id: id.clone() }).await?.into_inner();
     let mut end = None;
     while let Some(ev) = events.next().await {
         let ev = ev?;
-        bar.set_length(ev.strips_total.max(1) as u64);
-        bar.set_position(ev.strips_done as u64);
+        progress.update(&ev);
         if !ev.message.is_empty() && !wire_ended(ev.state) {
             tracing::warn!("{}", ev.message);
         }
@@ -94,7 +84,7 @@ pub async fn submit_and_follow(
             break;
         }
     }
-    bar.finish_and_clear();
+    progress.finish();
     let end = end.context("the coordinator closed the job's event stream early")?;
     if JobState::from_wire(end.state) != Some(JobState::Done) {
         bail!("job {id} {}: {}", wire_name(end.state), end.message);
@@ -117,4 +107,64 @@ pub async fn submit_and_follow(
     let exrs = if exr { Some(fetch("exr").await?) } else { None };
     let stats = serde_json::from_str(&end.stats_json).unwrap_or(serde_json::Value::Null);
     Ok(FinishedJob { id, pngs, exrs, stats })
+}
+
+/// What a person sees of a job while it runs: on a terminal, a bar whose
+/// message names the stage (queued; the workers preparing the scene:
+/// structures, voxels, LB light, upload; tracing); elsewhere (a log, a
+/// pipe), one line per stage and per quarter of the strips.
+struct JobProgress {
+    id: String,
+    bar: ProgressBar,
+    stage: &'static str,
+    quarter: u32,
+}
+
+impl JobProgress {
+    fn new(id: &str, views: usize) -> Self {
+        let bar = ProgressBar::new_spinner();
+        let unit = if views > 1 { format!("strips of {views} frames") } else { "strips".into() };
+        bar.set_style(
+            ProgressStyle::with_template(&format!(
+                "{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit} {{elapsed}}"
+            ))
+            .expect("valid template")
+            .progress_chars("=> "),
+        );
+        bar.enable_steady_tick(Duration::from_millis(200));
+        Self { id: id.to_string(), bar, stage: "", quarter: 0 }
+    }
+
+    fn update(&mut self, ev: &pb::JobEvent) {
+        let state = JobState::from_wire(ev.state);
+        let stage = match state {
+            Some(JobState::Queued) => "queued",
+            Some(JobState::Running) if ev.strips_done == 0 => {
+                "workers preparing the scene (structures, voxels, LB light, upload)"
+            }
+            Some(JobState::Running) => "tracing",
+            _ => self.stage,
+        };
+        if ev.strips_total > 0 {
+            self.bar.set_length(ev.strips_total as u64);
+            self.bar.set_position(ev.strips_done as u64);
+        }
+        let hidden = self.bar.is_hidden();
+        if stage != self.stage {
+            self.stage = stage;
+            self.bar.set_message(format!("{} {stage}", self.id));
+            if hidden {
+                eprintln!("{}: {stage}", self.id);
+            }
+        }
+        let quarter = 4 * ev.strips_done / ev.strips_total.max(1);
+        if hidden && quarter > self.quarter && ev.strips_done < ev.strips_total {
+            eprintln!("{}: {}/{} strips", self.id, ev.strips_done, ev.strips_total);
+        }
+        self.quarter = self.quarter.max(quarter);
+    }
+
+    fn finish(&self) {
+        self.bar.finish_and_clear();
+    }
 }

@@ -64,7 +64,8 @@ enum Command {
     Fetch(jobs::FetchArgs),
     /// Serve the worker API: hold scenes, render strips on this machine's GPU.
     Worker(worker::WorkerArgs),
-    /// Scene files: the paper's forest.
+    /// Scene files: write the paper's forest, export to glTF or pbrt-v4,
+    /// import an instanced glTF scene.
     #[command(subcommand)]
     Scene(scene::SceneCommand),
     /// Render a scene with every lighting method and chart error against time.
@@ -93,6 +94,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// Whether log lines may carry colour codes: only on a terminal that
+/// shows them (not `TERM=dumb`) and unless `NO_COLOR` is set.
+fn colour_on_stderr() -> bool {
+    use std::io::IsTerminal;
+    std::io::stderr().is_terminal()
+        && std::env::var("TERM").is_ok_and(|t| t != "dumb")
+        && std::env::var_os("NO_COLOR").is_none()
+}
+
 fn main() {
     // SAFETY: the first thing the program does; no other thread exists yet.
     unsafe { sylva_worker::gpu::prefer_narrow_lavapipe_lanes() };
@@ -103,6 +113,7 @@ fn main() {
                 .unwrap_or_else(|_| args.log_filter().into()),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(colour_on_stderr())
         .init();
     if let Err(e) = run(args) {
         eprintln!("error: {e:#}");

@@ -1,4 +1,5 @@
-//! Progress bars for long solves (hidden when stderr is not a terminal).
+//! Progress for long work: bars on a terminal, plain lines on stderr
+//! elsewhere (a log file, CI), so a long render never runs silent.
 
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -19,5 +20,15 @@ pub fn lb_callback(bar: &ProgressBar) -> impl Fn(usize, usize, usize) + '_ {
     move |channel, step, cap| {
         bar.set_position((channel * cap + step) as u64);
         bar.set_message(format!("{} step {step}/{cap}", ["red", "green", "blue"][channel]));
+    }
+}
+
+/// Shows `m` as the stage `bar` is at: its message on a terminal, a line on
+/// stderr where the bar is hidden.
+pub fn stage(bar: &ProgressBar, m: &str) {
+    if bar.is_hidden() {
+        eprintln!("{m}");
+    } else {
+        bar.set_message(m.to_string());
     }
 }

@@ -5,6 +5,7 @@
 //! tone-mapped once and written with its stats.
 
 use crate::in_process::InProcess;
+use crate::progress;
 use anyhow::{Context, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -50,7 +51,9 @@ pub struct FrameArgs {
     /// Seed of the per-pixel sample positions.
     #[arg(long, default_value_t = 1)]
     pub seed: u32,
-    /// Weight of the LB light relative to the sun's.
+    /// The paper LB model's weight of LB light relative to the sun's
+    /// (scenes with `"lb_model": "paper"` only; the default grounded model
+    /// derives the LB light's scale and ignores this).
     #[arg(long, default_value_t = 0.35)]
     pub lb_strength: f32,
     /// Render a sequence of this many frames (with --sun-from/--sun-to, a
@@ -303,7 +306,7 @@ fn render_here(
             &scene,
             &[16, 32, 64, 128],
             a.lb_auto_tolerance,
-            &|m| bar.set_message(m.to_string()),
+            &|m| progress::stage(&bar, m),
         )?;
         for (m, c) in scene.models.iter_mut().zip(&c) {
             m.lb.grid = c.grid;
@@ -311,13 +314,13 @@ fn render_here(
         phases.push(("lb grid choice", ms(t)));
         choices = Some(c);
     }
-    let prepared = prepare(&ctx, &scene, accel, lighting, &|m| bar.set_message(m.to_string()))?;
+    let prepared = prepare(&ctx, &scene, accel, lighting, &|m| progress::stage(&bar, m))?;
     for p in &prepared.phases.0 {
         phases.push((p.name, p.ms));
     }
     let mut settings = RenderSettings::resolve(request, scene.lighting);
     if lighting == LightingMode::Ambient {
-        bar.set_message("matching the ambient constant to the LB image");
+        progress::stage(&bar, "matching the ambient constant to the LB image");
         let t = Instant::now();
         settings.ambient =
             sylva_worker::lighting::ambient::matched(&prepared.renderer, &ctx, &settings)?;
@@ -335,6 +338,7 @@ fn render_here(
             .expect("valid template")
             .progress_chars("=> "),
     );
+    progress::stage(&bar, &format!("tracing {} strips", plan.len()));
     let t = Instant::now();
     let rendered =
         InProcess::new(&ctx, &prepared.renderer, settings).render(&plan, &|_| bar.inc(1))?;

@@ -20,14 +20,23 @@ use std::sync::Arc;
 
 /// A scene file that cannot be used: the file, the field and what is wrong.
 #[derive(Debug, thiserror::Error)]
-#[error("{file}: {field}: {message}")]
 pub struct SceneError {
     /// The scene file.
     pub file: String,
-    /// Path of the field (`instances[3].scale`).
+    /// Path of the field (`instances[3].scale`); empty where the error is
+    /// the whole file's (it cannot be read, or is not JSON at its start).
     pub field: String,
     /// What is wrong.
     pub message: String,
+}
+
+impl std::fmt::Display for SceneError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.field.as_str() {
+            "" => write!(f, "{}: {}", self.file, self.message),
+            field => write!(f, "{}: {field}: {}", self.file, self.message),
+        }
+    }
 }
 
 /// A model as the scene holds it.
@@ -110,7 +119,7 @@ impl Scene {
         let label = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| SceneError {
             file: label.clone(),
-            field: "(file)".into(),
+            field: String::new(),
             message: format!("cannot read: {e}"),
         })?;
         let file = parse(&text, &label)?;
@@ -348,10 +357,13 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
 pub fn parse(text: &str, label: &str) -> Result<SceneFile, SceneError> {
     let de = &mut serde_json::Deserializer::from_str(text);
     serde_path_to_error::deserialize(de).map_err(|e| {
-        let field = e.path().to_string();
+        // A syntax error inside a field ends the path in "?" (the value
+        // that could not be read): the field is what the reader wants.
+        let path = e.path().to_string();
+        let field = path.strip_suffix(".?").or(path.strip_suffix("?")).unwrap_or(&path);
         SceneError {
             file: label.to_string(),
-            field: if field == "." { "(document)".into() } else { field },
+            field: if field == "." { String::new() } else { field.to_string() },
             message: e.into_inner().to_string(),
         }
     })

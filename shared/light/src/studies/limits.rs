@@ -171,6 +171,8 @@ pub fn lb_warnings(params: &LbParams, medium: &MediumGrid, sun: &Sun) -> Vec<LbW
     if !thin.is_empty() {
         let names: Vec<&str> = thin.iter().map(|t| t.0).collect();
         let tau = thin.iter().map(|t| t.1).fold(f64::INFINITY, f64::min);
+        // Rounded down, so the figure shown is below the threshold it is under.
+        let tau = (tau * 100.0).floor() / 100.0;
         out.push(LbWarning {
             kind: "thin",
             message: format!(
@@ -261,7 +263,8 @@ const THIN_ERROR: &str =
 const ANISOTROPY_ERROR: &str = "27 % at g = 0.8 against 40 % for a constant ambient";
 const STABILITY_ERROR: &str =
     "44 % at ρσ_t = 1.5, 87 % at 1.99 (a constant ambient: 93 %), against 28 % at 0.5";
-const GRAZING_ERROR: &str = "25 % at 20°, 47 % at 5° (15 % overhead) on a canopy slab, too bright";
+const GRAZING_ERROR: &str =
+    "25 % at 20°, 47 % at 5° (15 % with the sun overhead) on a canopy slab, too bright";
 const SMALL_GRID_ERROR: &str = "20 % at 8³ against 16 % at 12³ for the same ball";
 
 /// One point of a sweep.
