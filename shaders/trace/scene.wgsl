@@ -11,20 +11,9 @@
 // 0: BVH, 1: kd-tree. Set when the pipeline is built.
 override ACCEL_KIND: u32 = 0u;
 
-const MIN_DIRECTION: f32 = 1e-20;
-// Entries of the wide BVH's traversal stack, both levels together; the
-// upload refuses deeper trees (GPU_BVH_STACK in gpu_scene.rs).
-const BVH_STACK: u32 = 96u;
-// A wide BVH child reference: a leaf (its first record or prim slot), or empty.
-const BVH_LEAF: u32 = 0x80000000u;
-const BVH_EMPTY: u32 = 0xffffffffu;
-// A triangle record's coverage (shared/accel/src/coverage.rs): only mixed
-// triangles take the alpha test.
-const COVERAGE_MIXED: u32 = 1u;
-const SHORT_STACK: u32 = 5u;
-const KD_LEAF: u32 = 3u;
-const NO_TEXTURE: u32 = 0xffffffffu;
-const NO_HIT: u32 = 0xffffffffu;
+// MIN_DIRECTION, BVH_STACK, BVH_LEAF, BVH_EMPTY, COVERAGE_MIXED,
+// SHORT_STACK, KD_LEAF, NO_TEXTURE and NO_HIT come before this file,
+// generated from their Rust twins (worker/src/trace/shaders.rs).
 
 struct Material {
     base_color: vec4<f32>,

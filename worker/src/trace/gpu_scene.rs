@@ -11,8 +11,10 @@ use sylva_scene::Scene;
 use wgpu::util::DeviceExt;
 
 /// Stack entries of the GPU's BVH traversal, both levels together
-/// (`BVH_STACK` in scene.wgsl).
-const GPU_BVH_STACK: usize = 96;
+/// (`BVH_STACK` in the WGSL, generated from this).
+pub const GPU_BVH_STACK: usize = 96;
+/// A material's texture index when it has none (`NO_TEXTURE` in the WGSL).
+pub const NO_TEXTURE: u32 = u32::MAX;
 /// Entries (16 bytes) of one wide BVH node.
 const NODE_ENTRIES: u32 = (size_of::<BvhNode>() / 16) as u32;
 /// Entries of one triangle record (`test_record` in scene.wgsl reads three).
@@ -35,7 +37,7 @@ fn placed(reference: u32, base: u32, records_at: u32, stride: u32) -> u32 {
 pub struct GpuMaterial {
     /// Linear RGBA multiplier.
     pub base_color: [f32; 4],
-    /// Texture index, or `u32::MAX`.
+    /// Texture index, or [`NO_TEXTURE`].
     pub texture: u32,
     /// Alpha cutoff; negative for opaque.
     pub alpha_cutoff: f32,
@@ -350,7 +352,7 @@ impl GpuScene {
             );
             f.materials.extend(model.materials.iter().map(|mt| GpuMaterial {
                 base_color: mt.base_color,
-                texture: mt.texture.map_or(u32::MAX, |t| t + tex0),
+                texture: mt.texture.map_or(NO_TEXTURE, |t| t + tex0),
                 alpha_cutoff: mt.alpha_cutoff.unwrap_or(-1.0),
                 double_sided: mt.double_sided as u32,
                 surface: (mt.surface == sylva_scene::model::Surface::Wood) as u32,

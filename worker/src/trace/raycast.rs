@@ -20,7 +20,10 @@ pub struct GpuRay {
     pub t_max: f32,
 }
 
-/// A hit as `rays.wgsl` writes it; `triangle == u32::MAX` for a miss.
+/// A hit's triangle when the ray hit nothing (`NO_HIT` in the WGSL).
+pub const NO_HIT: u32 = u32::MAX;
+
+/// A hit as `rays.wgsl` writes it; `triangle == NO_HIT` for a miss.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct GpuHit {

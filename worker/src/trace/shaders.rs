@@ -6,9 +6,40 @@ const SCENE: &str = include_str!("../../../shaders/trace/scene.wgsl");
 const TRAVERSE: &str = include_str!("../../../shaders/trace/traverse.wgsl");
 const BVH: &str = include_str!("../../../shaders/trace/bvh.wgsl");
 
+/// The constants the tracer's WGSL shares with the Rust that builds and
+/// uploads what it reads, written from the Rust values so the two cannot
+/// drift apart.
+pub fn shared_constants() -> String {
+    use sylva_accel::coverage::Coverage;
+    use sylva_accel::{KdNode, MIN_DIRECTION, bvh, kdtree};
+    [
+        // Direction components smaller than this are replaced by it.
+        format!("const MIN_DIRECTION: f32 = {MIN_DIRECTION:e};"),
+        // Entries of the wide BVH's traversal stack, both levels together;
+        // the upload refuses deeper trees.
+        format!("const BVH_STACK: u32 = {}u;", super::gpu_scene::GPU_BVH_STACK),
+        // A wide BVH child reference: a leaf (its first record or prim
+        // slot), or empty.
+        format!("const BVH_LEAF: u32 = {}u;", bvh::LEAF),
+        format!("const BVH_EMPTY: u32 = {}u;", bvh::EMPTY),
+        // A triangle record's coverage: only mixed triangles take the alpha test.
+        format!("const COVERAGE_MIXED: u32 = {}u;", Coverage::Mixed as u32),
+        format!("const SHORT_STACK: u32 = {}u;", kdtree::SHORT_STACK),
+        format!("const KD_LEAF: u32 = {}u;", KdNode::LEAF),
+        format!("const NO_TEXTURE: u32 = {}u;", super::gpu_scene::NO_TEXTURE),
+        format!("const NO_HIT: u32 = {}u;", super::raycast::NO_HIT),
+    ]
+    .join("\n")
+        + "\n"
+}
+
 /// The full module for an entry-point file's source.
 pub fn tracer_source(entry: &str) -> String {
-    let mut s = String::with_capacity(SCENE.len() + 2 * TRAVERSE.len() + BVH.len() + entry.len());
+    let constants = shared_constants();
+    let mut s = String::with_capacity(
+        constants.len() + SCENE.len() + 2 * TRAVERSE.len() + BVH.len() + entry.len(),
+    );
+    s.push_str(&constants);
     s.push_str(SCENE);
     for level in ["top", "model"] {
         s.push('\n');
