@@ -80,7 +80,7 @@ struct Cached {
 /// A prepared scene's key: bundle hash, structure, what the lighting needs
 /// prepared, and the sun's bits where that depends on the sun (`None`: the
 /// scene's own sun, or a method the sun does not change).
-type PreparedKey = (String, AccelKind, &'static str, Option<[u32; 3]>);
+type PreparedKey = (String, AccelKind, crate::lighting::Needs, Option<[u32; 3]>);
 
 /// A scene's LB light's key: bundle hash and the sun's bits (`None`: the
 /// scene's own sun).
@@ -213,7 +213,7 @@ impl State {
     ) -> anyhow::Result<Arc<PreparedScene>> {
         let needs = crate::lighting::method(lighting).needs;
         let sun = if needs.lb || needs.clouds { view.sun_key() } else { None };
-        let key = (hash.to_string(), accel, lighting.preparation(), sun);
+        let key = (hash.to_string(), accel, crate::lighting::method(lighting).needs, sun);
         if let Some(p) = lock(&self.prepared).get_mut(&key) {
             p.stamp = self.tick();
             return Ok(p.value.clone());

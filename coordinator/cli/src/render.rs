@@ -299,7 +299,7 @@ fn render_here(
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let ctx = GpuContext::new()?;
     let mut choices = None;
-    if choose_grids && lighting.needs_lb() {
+    if choose_grids && sylva_worker::lighting::method(lighting).needs.lb {
         let t = Instant::now();
         let c = sylva_worker::lighting::lb::auto::choose_lb_grids(
             &ctx,

@@ -205,22 +205,6 @@ impl LightingMode {
         LightingMode::Reference,
     ];
 
-    /// Whether the method reads the LB light.
-    pub fn needs_lb(self) -> bool {
-        matches!(self, LightingMode::Ambient | LightingMode::Lb | LightingMode::LbVisualize)
-    }
-
-    /// What a scene must be prepared with for this method: scenes prepared
-    /// alike can be shared between methods.
-    pub fn preparation(self) -> &'static str {
-        match self {
-            LightingMode::Local => "geometry",
-            LightingMode::Ambient | LightingMode::Lb | LightingMode::LbVisualize => "lb",
-            LightingMode::Reference => "clouds",
-            LightingMode::Boulanger => "envelopes",
-        }
-    }
-
     /// The name scene files and the command line use.
     pub fn name(self) -> &'static str {
         match self {
