@@ -5,12 +5,13 @@
 use super::{Kernel, Method, Needs};
 use crate::gpu::GpuContext;
 use crate::trace::{RenderSettings, StripRenderer};
+use sylva_proto::pb;
 use sylva_scene::LightingMode;
 
 /// The method.
 pub const METHOD: Method = Method {
     mode: LightingMode::Ambient,
-    code: 1,
+    code: pb::Lighting::Ambient as u32,
     wgsl: "LIGHTING_AMBIENT",
     kernel: Kernel::Direct,
     needs: Needs { lb: true, envelopes: false, clouds: true },

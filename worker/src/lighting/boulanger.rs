@@ -7,12 +7,16 @@ use super::{Kernel, Method, Needs};
 use serde::Serialize;
 use std::sync::Arc;
 use sylva_light::boulanger::LeafEnvelope;
+use sylva_proto::pb;
 use sylva_scene::{LightingMode, Scene};
+
+/// The Boulanger et al. leaf shading, called from `render.wgsl`.
+pub const WGSL: &str = include_str!("../../../shaders/lighting/boulanger.wgsl");
 
 /// The method.
 pub const METHOD: Method = Method {
     mode: LightingMode::Boulanger,
-    code: 5,
+    code: pb::Lighting::Boulanger as u32,
     wgsl: "LIGHTING_BOULANGER",
     kernel: Kernel::Boulanger,
     needs: Needs { lb: false, envelopes: true, clouds: false },

@@ -3,12 +3,13 @@
 //! leaves. Nothing to prepare beyond the geometry.
 
 use super::{Kernel, Method, Needs};
+use sylva_proto::pb;
 use sylva_scene::LightingMode;
 
 /// The method.
 pub const METHOD: Method = Method {
     mode: LightingMode::Local,
-    code: 0,
+    code: pb::Lighting::Local as u32,
     wgsl: "LIGHTING_LOCAL",
     kernel: Kernel::Direct,
     needs: Needs { lb: false, envelopes: false, clouds: false },

@@ -64,7 +64,8 @@ pub struct Needs {
 pub struct Method {
     /// Which method.
     pub mode: LightingMode,
-    /// The value of `frame.lighting` the render kernel branches on.
+    /// The value of `frame.lighting` the render kernel branches on: the
+    /// method's number on the wire (`pb::Lighting`), so there is one numbering.
     pub code: u32,
     /// The WGSL constant naming `code`.
     pub wgsl: &'static str,
@@ -110,13 +111,16 @@ mod tests {
         assert_eq!(codes.len(), LightingMode::ALL.len(), "codes collide");
         for m in LightingMode::ALL {
             assert_eq!(method(m).mode, m);
+            assert_eq!(
+                method(m).code as i32,
+                sylva_proto::convert::lighting_to_wire(Some(m)) as i32
+            );
         }
         let w = wgsl_constants();
         assert!(
-            w.contains("const LIGHTING_REFERENCE: u32 = 4u;")
+            w.contains("const LIGHTING_REFERENCE: u32 = 5u;")
                 && w.contains("const KERNEL_BOULANGER: u32 = 2u;"),
             "{w}"
         );
     }
-
 }

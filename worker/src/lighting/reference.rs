@@ -1,4 +1,4 @@
-//! `reference`: the path tracer of `shaders/trace/reference.wgsl`, one
+//! `reference`: the path tracer of `shaders/lighting/reference.wgsl`, one
 //! path per invocation, run progressively: in
 //! batches with different seeds until the image's own error estimate is
 //! small enough. Each batch's mean is one independent sample of every
@@ -10,14 +10,18 @@ use crate::gpu::GpuContext;
 use crate::trace::{RenderSettings, StripRenderer};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
+use sylva_proto::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::color::luminance;
 use sylva_scene::film::HdrImage;
 
+/// The reference integrator, called from `render.wgsl`.
+pub const WGSL: &str = include_str!("../../../shaders/lighting/reference.wgsl");
+
 /// The method: it path-traces the clouds' density, so it prepares them.
 pub const METHOD: Method = Method {
     mode: LightingMode::Reference,
-    code: 4,
+    code: pb::Lighting::Reference as u32,
     wgsl: "LIGHTING_REFERENCE",
     kernel: Kernel::Reference,
     needs: Needs { lb: false, envelopes: false, clouds: true },

@@ -14,10 +14,6 @@ use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
 
 const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
-/// The reference integrator, called from render.wgsl.
-const REFERENCE: &str = include_str!("../../../shaders/trace/reference.wgsl");
-/// The Boulanger et al. leaf shading, called from render.wgsl.
-const BOULANGER: &str = include_str!("../../../shaders/trace/boulanger.wgsl");
 /// Longest path the reference integrator follows.
 pub const MAX_BOUNCES: u32 = 16;
 
@@ -381,7 +377,12 @@ impl StripRenderer {
 /// The whole render module: scene, traversal, the direct methods and the
 /// reference integrator.
 pub fn render_source() -> String {
-    tracer_source(&format!("{}\n{SOURCE}\n{REFERENCE}\n{BOULANGER}", lighting::wgsl_constants()))
+    tracer_source(&format!(
+        "{}\n{SOURCE}\n{}\n{}",
+        lighting::wgsl_constants(),
+        lighting::reference::WGSL,
+        lighting::boulanger::WGSL
+    ))
 }
 
 /// How far secondary rays start off the surface they leave: a millimetre,

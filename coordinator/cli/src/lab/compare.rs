@@ -457,7 +457,8 @@ fn render_method(
     if hdr {
         write_hdr(&file.with_extension("npy"), &image)?;
     }
-    let paper = scene.file.lb_model == LbModel::Paper && sylva_worker::lighting::method(lighting).needs.lb;
+    let paper =
+        scene.file.lb_model == LbModel::Paper && sylva_worker::lighting::method(lighting).needs.lb;
     let notes = json!({
         "lb_model": scene.file.lb_model.name(),
         // The paper model's strength is a knob, not physics: say so where it is used.

@@ -22,13 +22,14 @@ use sylva_light::lb::{
     solve_indirect,
 };
 use sylva_light::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
+use sylva_proto::pb;
 use sylva_scene::model::Model;
 use sylva_scene::{LbModel, LightingMode, Scene, SceneModel};
 
 /// `lb`: the direct sun plus the LB light.
 pub const METHOD: Method = Method {
     mode: LightingMode::Lb,
-    code: 2,
+    code: pb::Lighting::Lb as u32,
     wgsl: "LIGHTING_LB",
     kernel: Kernel::Direct,
     needs: Needs { lb: true, envelopes: false, clouds: true },
@@ -37,7 +38,7 @@ pub const METHOD: Method = Method {
 /// `lb-visualize`: the LB light alone, as the paper's figures show it.
 pub const VISUALIZE: Method = Method {
     mode: LightingMode::LbVisualize,
-    code: 3,
+    code: pb::Lighting::LbVisualize as u32,
     wgsl: "LIGHTING_LB_VISUALIZE",
     kernel: Kernel::Direct,
     needs: Needs { lb: true, envelopes: false, clouds: true },
