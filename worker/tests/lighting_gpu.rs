@@ -3,70 +3,22 @@
 //! bounces, their own 1/√spp convergence, and the CPU evaluation of the
 //! Boulanger terms.
 
+mod common;
+
+use common::{QUAD, TestMaterial, ctx, write_squares_gltf};
 use std::path::Path;
 use sylva_accel::AccelKind;
 use sylva_scene::color::luminance;
 use sylva_scene::{LightingMode, Scene, parse};
-use sylva_worker::GpuContext;
 use sylva_worker::lighting::reference::{ReferenceOptions, render_reference};
 use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
 
-fn ctx() -> GpuContext {
-    GpuContext::new()
-        .expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
-}
-
-/// A glTF file `name.gltf` (with `name.bin`) of squares of material
-/// `material` and colour `rgb`, each given by its four corners.
-fn write_squares_gltf(
-    dir: &Path,
-    name: &str,
-    material: &str,
-    rgb: [f32; 3],
-    squares: &[[glam::Vec3; 4]],
-) {
-    let positions: Vec<f32> =
-        squares.iter().flat_map(|q| q.iter().flat_map(|v| v.to_array())).collect();
-    let indices: Vec<u32> =
-        (0..squares.len() as u32).flat_map(|k| [0, 1, 2, 0, 2, 3].map(|i| 4 * k + i)).collect();
-    let (lo, hi) = positions.chunks(3).fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), p| {
-        (std::array::from_fn(|c| lo[c].min(p[c])), std::array::from_fn(|c| hi[c].max(p[c])))
-    });
-    let mut bytes: Vec<u8> = positions.iter().flat_map(|v| v.to_le_bytes()).collect();
-    let vertex_bytes = bytes.len();
-    bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
-    std::fs::write(dir.join(format!("{name}.bin")), &bytes).unwrap();
-    let gltf = format!(
-        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
-        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1,"material":0}}]}}],
-        "materials":[{{"name":"{material}","doubleSided":true,"pbrMetallicRoughness":{{"baseColorFactor":[{},{},{},1]}}}}],
-        "buffers":[{{"byteLength":{},"uri":"{name}.bin"}}],
-        "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":{vertex_bytes}}},{{"buffer":0,"byteOffset":{vertex_bytes},"byteLength":{}}}],
-        "accessors":[{{"bufferView":0,"componentType":5126,"count":{},"type":"VEC3","min":{lo:?},"max":{hi:?}}},
-                     {{"bufferView":1,"componentType":5125,"count":{},"type":"SCALAR"}}]}}"#,
-        rgb[0],
-        rgb[1],
-        rgb[2],
-        bytes.len(),
-        bytes.len() - vertex_bytes,
-        positions.len() / 3,
-        indices.len()
-    );
-    std::fs::write(dir.join(format!("{name}.gltf")), gltf).unwrap();
-}
-
-/// A glTF file holding one square of material `material` (grey 0.5), 2 × 2
-/// in the plane z = 0, facing +z.
+/// A glTF file `quad.gltf` holding one square of material `material` (grey
+/// 0.5, double-sided), 2 × 2 in the plane z = 0, facing +z.
 fn write_quad_gltf(dir: &Path, material: &str) {
-    use glam::Vec3;
-    let square = [
-        Vec3::new(-1.0, -1.0, 0.0),
-        Vec3::new(1.0, -1.0, 0.0),
-        Vec3::new(1.0, 1.0, 0.0),
-        Vec3::new(-1.0, 1.0, 0.0),
-    ];
-    write_squares_gltf(dir, "quad", material, [0.5; 3], &[square]);
+    let m = TestMaterial { name: material, rgb: [0.5; 3], double_sided: true };
+    write_squares_gltf(dir, "quad", m, &[QUAD]);
 }
 
 fn quad_scene(name: &str, material: &str, sky: &str, ground: &str) -> Scene {
@@ -346,7 +298,12 @@ fn the_lb_leaf_radiance_agrees_with_the_reference_on_a_ball_and_a_slab_of_leaves
         let dir = std::env::temp_dir()
             .join(format!("sylva-lb-vs-reference-{name}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        write_squares_gltf(&dir, "leaves", "leaf", green, leaves);
+        write_squares_gltf(
+            &dir,
+            "leaves",
+            TestMaterial { name: "leaf", rgb: green, double_sided: true },
+            leaves,
+        );
         let (lb, reference, pixels) =
             mean_indirect_against_the_reference(&leaves_scene(&dir, camera), frame);
         assert!(pixels > 400, "{name}: {pixels} fully covered pixels");

@@ -1,62 +1,20 @@
 //! The strip renderer on the machine's real adapter: an analytic image,
 //! determinism across strip splits, and holes in alpha-masked leaves.
 
+mod common;
+
+use common::{QUAD, TestMaterial, ctx, scratch, write_squares_gltf};
 use std::path::Path;
 use sylva_accel::AccelKind;
 use sylva_scene::{LightingMode, Scene, parse};
-use sylva_worker::GpuContext;
 use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
 
-fn ctx() -> GpuContext {
-    GpuContext::new()
-        .expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
-}
-
-/// A glTF file holding one opaque white square, 2 × 2 in the plane z = 0, facing +z.
+/// A glTF file `quad.gltf` holding one opaque grey (0.5) square, 2 × 2 in
+/// the plane z = 0, facing +z.
 fn write_quad_gltf(dir: &Path) -> std::path::PathBuf {
-    let positions: [f32; 12] = [-1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 1.0, 0.0];
-    let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];
-    let mut bytes: Vec<u8> = positions.iter().flat_map(|v| v.to_le_bytes()).collect();
-    bytes.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
-    let b64 = base64(&bytes);
-    let gltf = format!(
-        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
-        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1,"material":0}}]}}],
-        "materials":[{{"name":"bark","pbrMetallicRoughness":{{"baseColorFactor":[0.5,0.5,0.5,1]}}}}],
-        "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}],
-        "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":48}},{{"buffer":0,"byteOffset":48,"byteLength":12}}],
-        "accessors":[{{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[-1,-1,0],"max":[1,1,0]}},
-                     {{"bufferView":1,"componentType":5123,"count":6,"type":"SCALAR"}}]}}"#,
-        bytes.len()
-    );
-    let path = dir.join("quad.gltf");
-    std::fs::write(&path, gltf).unwrap();
-    path
-}
-
-fn base64(data: &[u8]) -> String {
-    const T: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut s = String::new();
-    for c in data.chunks(3) {
-        let n = (c[0] as u32) << 16
-            | (*c.get(1).unwrap_or(&0) as u32) << 8
-            | *c.get(2).unwrap_or(&0) as u32;
-        for i in 0..4 {
-            if i <= c.len() {
-                s.push(T[(n >> (18 - 6 * i) & 63) as usize] as char);
-            } else {
-                s.push('=');
-            }
-        }
-    }
-    s
-}
-
-fn scratch(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("sylva-render-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    let m = TestMaterial { name: "bark", rgb: [0.5; 3], double_sided: false };
+    write_squares_gltf(dir, "quad", m, &[QUAD])
 }
 
 #[test]
