@@ -1,7 +1,17 @@
-//! The coordinator: cuts frames into vertical strips ([`schedule`]), hands
-//! them to GPU workers over gRPC ([`farm`]) and assembles what comes back
-//! ([`assembly`]); the service that queues jobs ([`service`]) and its
-//! clients ([`client`]) and web page ([`dashboard`]); the worker's registration ([`registration`]); a sequence's outputs ([`sequence`]).
+//! The coordinator, which links no GPU stack: the job service
+//! ([`service`]: queue, runs, workers, live view, stats, job states) and its
+//! clients ([`client`]) and web page ([`dashboard`]); a frame cut into
+//! vertical strips ([`schedule`]), rendered by gRPC workers ([`farm`])
+//! behind one interface ([`executor`]) and put together ([`assembly`]);
+//! finished images ([`results`]), a sequence's outputs ([`sequence`]), the
+//! worker's registration ([`registration`]), Prometheus [`metrics`] and
+//! clean [`shutdown`].
+//!
+//! ```
+//! use sylva_coordinator::schedule::{Scheduler, Static};
+//! // The paper's schedule: one equal strip per worker.
+//! assert_eq!(Static.plan(896, 2, &[]), vec![(0, 448), (448, 896)]);
+//! ```
 
 pub mod assembly;
 pub mod client;

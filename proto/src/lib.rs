@@ -1,4 +1,15 @@
-//! Sylva's wire format, generated from `proto/sylva/v1/*.proto`.
+//! Sylva's wire format, generated from `proto/sylva/v1/*.proto` ([`pb`]):
+//! typed values converted to and from it in one place ([`convert`]), bearer
+//! tokens and the worker identity proof ([`auth`]), TLS ([`tls`]), and the
+//! lock both services share ([`sync`]).
+//!
+//! ```
+//! use sylva_proto::pb;
+//! use sylva_scene::frame::FrameSettings;
+//! let frame = FrameSettings::default();
+//! let wire = pb::FrameSettings::from(&frame);
+//! assert_eq!(FrameSettings::try_from(&wire).unwrap(), frame);
+//! ```
 
 pub mod auth;
 pub mod convert;

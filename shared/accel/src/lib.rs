@@ -6,6 +6,19 @@
 //! holes skip the alpha test ([`coverage`]). Node layouts are `#[repr(C)]` and uploaded to
 //! the GPU as they are; these CPU traversals are the reference the GPU
 //! tracer is tested against.
+//!
+//! ```
+//! use glam::Vec3;
+//! use sylva_accel::{Aabb, Bvh, Ray};
+//! let boxes = [Aabb::around(&[Vec3::ZERO, Vec3::ONE]), Aabb::around(&[Vec3::splat(3.0), Vec3::splat(4.0)])];
+//! let bvh = Bvh::build(&boxes);
+//! let ray = Ray::new(Vec3::new(3.5, 3.5, -1.0), Vec3::Z);
+//! // Each box stands for a primitive hit where the ray enters it.
+//! let hit = bvh.closest(&ray, 0.0, f32::MAX, &mut |p, t_max| {
+//!     boxes[p as usize].clip(&ray, 0.0, t_max).map(|(t_in, _)| t_in)
+//! });
+//! assert_eq!(hit.map(|(p, _)| p), Some(1));
+//! ```
 
 mod aabb;
 pub mod bvh;
