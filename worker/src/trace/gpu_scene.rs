@@ -37,7 +37,7 @@ fn placed(reference: u32, base: u32, records_at: u32, stride: u32) -> u32 {
 pub struct GpuMaterial {
     /// Linear RGBA multiplier.
     pub base_color: [f32; 4],
-    /// Texture index, or [`NO_TEXTURE`].
+    /// Texture index, or `NO_TEXTURE`.
     pub texture: u32,
     /// Alpha cutoff; negative for opaque.
     pub alpha_cutoff: f32,
