@@ -13,9 +13,9 @@
 //!
 //! By resource, as Flamenco's API is split: [`jobs`] (submit, watch,
 //! fetch, cancel, list, priority), [`workers`] (registration, heartbeats,
-//! listing), the [`queue`] that starts jobs, one job's [`run`] on the farm
+//! listing), the `queue` that starts jobs, one job's `run` on the farm
 //! and its [`stats`], the [`live`] view the dashboard reads, and the job
-//! [`state`] machine; [`grpc`] hands each call of the API to its resource.
+//! [`state`] machine; `grpc` hands each call of the API to its resource.
 
 mod grpc;
 pub mod jobs;
