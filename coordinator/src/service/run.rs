@@ -35,32 +35,8 @@ impl State {
         } else {
             views.iter().map(|v| FrameSettings { view: *v, ..frame }).collect()
         };
-        // A frame seen before is cut by its measured cost; a new one by
-        // guided self-scheduling alone, whose shrinking strips still let
-        // the last ones finish close together.
-        let cost_key = format!(
-            "{}/{}x{}/{}/{:?}/{:?}",
-            bundle.hash, frame.width, frame.height, frame.spp, frame.lighting, frame.accel
-        );
-        let cost = lock(&self.costs).get(&cost_key).cloned().unwrap_or_default();
-        let cost_source = if cost.is_empty() {
-            "uniform (first frame of this scene and size)"
-        } else {
-            "measured on the previous frame"
-        };
-        // A sequence with at least as many frames as workers renders whole
-        // frames side by side (no strip is worth cutting); a shorter one
-        // cuts each frame for its share of the workers.
-        let plans: Vec<Vec<Strip>> = if frames.len() > 1 && frames.len() >= addrs.len() {
-            vec![vec![(0, frame.width)]; frames.len()]
-        } else {
-            let plan = scheduler(schedule).plan(
-                frame.width,
-                addrs.len().div_ceil(frames.len()).max(1),
-                &cost,
-            );
-            vec![plan; frames.len()]
-        };
+        let (plans, cost_key, cost_source) =
+            self.plan(&bundle.hash, &frames, schedule, addrs.len());
         let total: usize = plans.iter().map(Vec::len).sum();
         if let Some(j) = lock(&self.jobs).get_mut(id) {
             j.summary.strips_total = total as u32;
@@ -78,64 +54,16 @@ impl State {
         let left: Mutex<Vec<usize>> = Mutex::new(plans.iter().map(Vec::len).collect());
         let started = Instant::now();
         let result = farm::render_frames(
-            &Workers { addrs: addrs.clone(), token: self.config.token.clone(), tls: self.config.worker_tls.clone() },
+            &Workers {
+                addrs: addrs.clone(),
+                token: self.config.token.clone(),
+                tls: self.config.worker_tls.clone(),
+            },
             &bundle,
             &frames,
             plans,
             self.config.strip_deadline,
-            move |e| {
-                let mut ev = me.event(&jid);
-                ev.state = JobState::Running.to_wire();
-                match e {
-                    FarmEvent::StripDone { frame, worker, ms, bytes, strip, preview } => {
-                        me.metrics.strip_done(ms / 1e3, bytes);
-                        if let Some(w) = lock(&me.workers).get_mut(&worker) {
-                            w.info.strips_done += 1;
-                        }
-                        let frame_done = {
-                            let mut left = lock(&left);
-                            left[frame] -= 1;
-                            left[frame] == 0
-                        };
-                        let mut jobs = lock(&me.jobs);
-                        if let Some(j) = jobs.get_mut(&jid) {
-                            j.summary.strips_done += 1;
-                            j.summary.frames_done += frame_done as u32;
-                            ev.strips_done = j.summary.strips_done;
-                            j.live.frame = j.live.frame.max(frame);
-                            j.live.paint(strip, &preview);
-                            j.live.strips.push(LiveStrip { frame, x0: strip.0, x1: strip.1, worker: worker.clone(), ms, error: String::new() });
-                        }
-                        ev.worker = worker;
-                        ev.strip_ms = ms;
-                        ev.frame = frame as u32;
-                    }
-                    FarmEvent::StripRetried { frame, worker, error, strip } => {
-                        me.metrics.strip_retried();
-                        if let Some(w) = lock(&me.workers).get_mut(&worker) {
-                            w.info.strips_failed += 1;
-                        }
-                        if let Some(j) = lock(&me.jobs).get_mut(&jid) {
-                            j.summary.retries += 1;
-                            j.live.strips.push(LiveStrip { frame, x0: strip.0, x1: strip.1, worker: worker.clone(), ms: 0.0, error: clip(&error) });
-                        }
-                        ev.message = format!("strip re-queued from {worker}: {error}");
-                        ev.frame = frame as u32;
-                    }
-                    FarmEvent::BundleSent { bytes, .. } => {
-                        me.metrics.bundle_sent(bytes);
-                        return;
-                    }
-                    FarmEvent::WorkerDropped { worker, error } => ev.message = format!("worker {worker} dropped: {error}"),
-                    FarmEvent::PreparedShared(p) => {
-                        // Not a notice for clients (their `message` is for
-                        // failures and retries): the job's stats carry it.
-                        tracing::info!(job = %jid, from = %p.from, to = p.to.len(), bytes = p.bytes, prepare_ms = p.prepare_ms, share_ms = p.share_ms, "scene prepared once and shared");
-                        return;
-                    }
-                }
-                let _ = tx2.send(ev);
-            },
+            move |e| me.on_farm_event(&jid, e, &left, &tx2),
         )
         .await;
         drop(bundle);
@@ -143,44 +71,12 @@ impl State {
             Ok(f) => f,
             Err(e) => return fail(format!("{e:#}")),
         };
-        // Tone mapping and encoding are CPU work: off the async runtime.
-        let images: Vec<sylva_scene::film::HdrImage> =
-            rendered.iter().map(|f| f.image.clone()).collect();
-        // A sequence keeps one exposure (its middle frame's), so a sun
-        // sweep shows the light change rather than the tone mapper's.
-        let encoded = tokio::task::spawn_blocking(move || {
-            let exposure = reinhard(&images[images.len() / 2], 0.18).1;
-            images
-                .iter()
-                .map(|image| {
-                    let (ldr, tone) = if images.len() == 1 {
-                        reinhard(image, 0.18)
-                    } else {
-                        (reinhard_like(image, &exposure), exposure)
-                    };
-                    Ok((encode_png(image.width, image.height, &ldr)?, encode_exr(image)?, tone))
-                })
-                .collect::<anyhow::Result<Vec<_>>>()
-        })
-        .await;
-        let encoded = match encoded {
-            Ok(Ok(e)) => e,
-            Ok(Err(e)) => return fail(format!("the frame could not be encoded: {e:#}")),
-            Err(e) => return fail(format!("the frame could not be encoded: {e}")),
+        let encoded = match encode_frames(&rendered).await {
+            Ok(e) => e,
+            Err(e) => return fail(format!("the frame could not be encoded: {e:#}")),
         };
         let frame_ms = started.elapsed().as_secs_f64() * 1e3;
-        {
-            let mut costs = lock(&self.costs);
-            if costs.len() >= 1024 {
-                costs.clear();
-            }
-            if rendered[0].strip_times.len() > 1 {
-                costs.insert(
-                    cost_key,
-                    crate::schedule::column_cost(frame.width, &rendered[0].strip_times),
-                );
-            }
-        }
+        self.remember_cost(cost_key, frame.width, &rendered[0]);
         let n = rendered.len();
         let sequence = (!views.is_empty()).then(|| stats::SequenceStats {
             frames: n,
@@ -215,6 +111,160 @@ impl State {
         let _ = tx.send(ev);
         self.close_events(id);
     }
+
+    /// Cuts a job's frames into strips for `workers` workers: a frame seen
+    /// before by its measured cost (the key it is remembered by is
+    /// returned), a new one by the schedule alone; and says which.
+    fn plan(
+        &self,
+        hash: &str,
+        frames: &[FrameSettings],
+        schedule: ScheduleKind,
+        workers: usize,
+    ) -> (Vec<Vec<Strip>>, String, &'static str) {
+        let frame = frames[0];
+        // A frame seen before is cut by its measured cost; a new one by
+        // guided self-scheduling alone, whose shrinking strips still let
+        // the last ones finish close together.
+        let cost_key = format!(
+            "{}/{}x{}/{}/{:?}/{:?}",
+            hash, frame.width, frame.height, frame.spp, frame.lighting, frame.accel
+        );
+        let cost = lock(&self.costs).get(&cost_key).cloned().unwrap_or_default();
+        let cost_source = if cost.is_empty() {
+            "uniform (first frame of this scene and size)"
+        } else {
+            "measured on the previous frame"
+        };
+        // A sequence with at least as many frames as workers renders whole
+        // frames side by side (no strip is worth cutting); a shorter one
+        // cuts each frame for its share of the workers.
+        let plans: Vec<Vec<Strip>> = if frames.len() > 1 && frames.len() >= workers {
+            vec![vec![(0, frame.width)]; frames.len()]
+        } else {
+            let plan =
+                scheduler(schedule).plan(frame.width, workers.div_ceil(frames.len()).max(1), &cost);
+            vec![plan; frames.len()]
+        };
+        (plans, cost_key, cost_source)
+    }
+
+    /// What one event of the farm does to the job: counts, the live view,
+    /// the workers' tallies, metrics, and an event for watchers.
+    fn on_farm_event(
+        &self,
+        jid: &str,
+        e: FarmEvent,
+        left: &Mutex<Vec<usize>>,
+        tx: &broadcast::Sender<pb::JobEvent>,
+    ) {
+        let mut ev = self.event(jid);
+        ev.state = JobState::Running.to_wire();
+        match e {
+            FarmEvent::StripDone { frame, worker, ms, bytes, strip, preview } => {
+                self.metrics.strip_done(ms / 1e3, bytes);
+                if let Some(w) = lock(&self.workers).get_mut(&worker) {
+                    w.info.strips_done += 1;
+                }
+                let frame_done = {
+                    let mut left = lock(left);
+                    left[frame] -= 1;
+                    left[frame] == 0
+                };
+                let mut jobs = lock(&self.jobs);
+                if let Some(j) = jobs.get_mut(jid) {
+                    j.summary.strips_done += 1;
+                    j.summary.frames_done += frame_done as u32;
+                    ev.strips_done = j.summary.strips_done;
+                    j.live.frame = j.live.frame.max(frame);
+                    j.live.paint(strip, &preview);
+                    j.live.strips.push(LiveStrip {
+                        frame,
+                        x0: strip.0,
+                        x1: strip.1,
+                        worker: worker.clone(),
+                        ms,
+                        error: String::new(),
+                    });
+                }
+                ev.worker = worker;
+                ev.strip_ms = ms;
+                ev.frame = frame as u32;
+            }
+            FarmEvent::StripRetried { frame, worker, error, strip } => {
+                self.metrics.strip_retried();
+                if let Some(w) = lock(&self.workers).get_mut(&worker) {
+                    w.info.strips_failed += 1;
+                }
+                if let Some(j) = lock(&self.jobs).get_mut(jid) {
+                    j.summary.retries += 1;
+                    j.live.strips.push(LiveStrip {
+                        frame,
+                        x0: strip.0,
+                        x1: strip.1,
+                        worker: worker.clone(),
+                        ms: 0.0,
+                        error: clip(&error),
+                    });
+                }
+                ev.message = format!("strip re-queued from {worker}: {error}");
+                ev.frame = frame as u32;
+            }
+            FarmEvent::BundleSent { bytes, .. } => {
+                self.metrics.bundle_sent(bytes);
+                return;
+            }
+            FarmEvent::WorkerDropped { worker, error } => {
+                ev.message = format!("worker {worker} dropped: {error}")
+            }
+            FarmEvent::PreparedShared(p) => {
+                // Not a notice for clients (their `message` is for
+                // failures and retries): the job's stats carry it.
+                tracing::info!(job = %jid, from = %p.from, to = p.to.len(), bytes = p.bytes, prepare_ms = p.prepare_ms, share_ms = p.share_ms, "scene prepared once and shared");
+                return;
+            }
+        }
+        let _ = tx.send(ev);
+    }
+
+    /// Remembers a frame's per-column cost (of a frame cut into strips) for
+    /// the next frame of the same scene and shape.
+    fn remember_cost(&self, key: String, width: u32, rendered: &crate::executor::RenderedFrame) {
+        let mut costs = lock(&self.costs);
+        if costs.len() >= 1024 {
+            costs.clear();
+        }
+        if rendered.strip_times.len() > 1 {
+            costs.insert(key, crate::schedule::column_cost(width, &rendered.strip_times));
+        }
+    }
+}
+
+/// Tone-maps and encodes every frame (PNG and EXR), off the async runtime.
+async fn encode_frames(
+    rendered: &[crate::executor::RenderedFrame],
+) -> anyhow::Result<Vec<(Vec<u8>, Vec<u8>, sylva_scene::film::ToneMapStats)>> {
+    // Tone mapping and encoding are CPU work: off the async runtime.
+    let images: Vec<sylva_scene::film::HdrImage> =
+        rendered.iter().map(|f| f.image.clone()).collect();
+    // A sequence keeps one exposure (its middle frame's), so a sun
+    // sweep shows the light change rather than the tone mapper's.
+    tokio::task::spawn_blocking(move || {
+        let exposure = reinhard(&images[images.len() / 2], 0.18).1;
+        images
+            .iter()
+            .map(|image| {
+                let (ldr, tone) = if images.len() == 1 {
+                    reinhard(image, 0.18)
+                } else {
+                    (reinhard_like(image, &exposure), exposure)
+                };
+                Ok((encode_png(image.width, image.height, &ldr)?, encode_exr(image)?, tone))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("{e}"))?
 }
 
 fn encode_png(w: u32, h: u32, px: &[[u8; 3]]) -> anyhow::Result<Vec<u8>> {
