@@ -370,6 +370,72 @@ pub async fn render_frames(
         frames.iter().all(|f| (f.width, f.height) == (frames[0].width, frames[0].height)),
         "a sequence's frames share one size"
     );
+    let (clients, reports, upload_ms) = upload_to_all(workers, bundle, &events).await;
+    let wires: Arc<Vec<pb::FrameSettings>> =
+        Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
+    let prepared =
+        match share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline).await {
+            Ok(Some(share)) => {
+                events(FarmEvent::PreparedShared(share.clone()));
+                Some(share)
+            }
+            Ok(None) => None,
+            Err(e) => {
+                // Not fatal: each worker then prepares the scene itself.
+                tracing::warn!("prepared data not shared: {e}");
+                None
+            }
+        };
+    let queue: VecDeque<(usize, Strip)> =
+        plans.iter().enumerate().flat_map(|(f, p)| p.iter().map(move |s| (f, *s))).collect();
+    let shared = Arc::new(Shared {
+        total: queue.len(),
+        queue: Mutex::new(queue),
+        done: Mutex::new(Vec::new()),
+    });
+    let events = Arc::new(events);
+    let mut tasks = Vec::new();
+    let n_workers = clients.len();
+    for (me, (client, report)) in clients.into_iter().zip(reports).enumerate() {
+        let (shared, events, wires, hash, height) =
+            (shared.clone(), events.clone(), wires.clone(), bundle.hash.clone(), frames[0].height);
+        tasks.push(tokio::spawn(async move {
+            pull_strips(
+                me, n_workers, client, report, &shared, &*events, &wires, &hash, height, deadline,
+            )
+            .await
+        }));
+    }
+    // Wait for the frames, or for every worker to be gone.
+    let mut reports = Vec::new();
+    for t in tasks {
+        reports.push(t.await?);
+    }
+    let done = std::mem::take(&mut *shared.done.lock().expect("lock"));
+    if done.len() < shared.total {
+        let why: Vec<String> = reports
+            .iter()
+            .filter(|r| r.dropped)
+            .map(|r| format!("{}: {}", r.worker, r.last_error.as_deref().unwrap_or("dropped")))
+            .collect();
+        let what = if frames.len() == 1 { "the frame" } else { "the sequence" };
+        anyhow::bail!(
+            "{what} failed: {} of {} strips rendered; no worker left that can finish it ({})",
+            done.len(),
+            shared.total,
+            why.join("; ")
+        );
+    }
+    assemble(frames, &done, &reports, upload_ms, &prepared)
+}
+
+/// Sends the bundle to every worker at once (a slow one delays only
+/// itself); a worker that cannot take it is reported and left out.
+async fn upload_to_all(
+    workers: &Workers,
+    bundle: &SceneBundle,
+    events: &(impl Fn(FarmEvent) + Send + Sync),
+) -> (Vec<Option<Client>>, Vec<WorkerReport>, f64) {
     let t = Instant::now();
     // Every worker gets the bundle at once; a slow one delays only itself.
     let uploads = workers.addrs.iter().map(|w| {
@@ -408,148 +474,121 @@ pub async fn render_frames(
         }
         reports.push(report);
     }
-    let wires: Arc<Vec<pb::FrameSettings>> =
-        Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
-    let prepared =
-        match share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline).await {
-            Ok(Some(share)) => {
-                events(FarmEvent::PreparedShared(share.clone()));
-                Some(share)
-            }
-            Ok(None) => None,
-            Err(e) => {
-                // Not fatal: each worker then prepares the scene itself.
-                tracing::warn!("prepared data not shared: {e}");
+    (clients, reports, upload_ms)
+}
+
+/// One worker's share of the frames: it pulls strips until none is left,
+/// puts back any it fails (and gives up after [`MAX_FAILURES`]), and says
+/// what it did.
+#[allow(clippy::too_many_arguments)]
+async fn pull_strips(
+    me: usize,
+    n_workers: usize,
+    client: Option<Client>,
+    mut report: WorkerReport,
+    shared: &Shared,
+    events: &(impl Fn(FarmEvent) + Send + Sync),
+    wires: &[pb::FrameSettings],
+    hash: &str,
+    height: u32,
+    deadline: Duration,
+) -> WorkerReport {
+    let Some(mut client) = client else { return report };
+    loop {
+        let next = {
+            // In a sequence each worker prefers the frames that
+            // are its own by number (frame mod workers), so a
+            // second pass over the same views meets the light it
+            // kept per sun; it takes any other when it has none left.
+            let mut q = shared.queue.lock().expect("lock");
+            let mine = if wires.len() > 1 {
+                q.iter().position(|(f, _)| f % n_workers == me)
+            } else {
                 None
-            }
+            };
+            mine.and_then(|i| q.remove(i)).or_else(|| q.pop_front())
         };
-    let queue: VecDeque<(usize, Strip)> =
-        plans.iter().enumerate().flat_map(|(f, p)| p.iter().map(move |s| (f, *s))).collect();
-    let shared = Arc::new(Shared {
-        total: queue.len(),
-        queue: Mutex::new(queue),
-        done: Mutex::new(Vec::new()),
-    });
-    let events = Arc::new(events);
-    let mut tasks = Vec::new();
-    let n_workers = clients.len();
-    for (me, (client, report)) in clients.into_iter().zip(reports).enumerate() {
-        let (shared, events, wires, hash, height) =
-            (shared.clone(), events.clone(), wires.clone(), bundle.hash.clone(), frames[0].height);
-        tasks.push(tokio::spawn(async move {
-            let mut report = report;
-            let Some(mut client) = client else { return report };
-            loop {
-                let next = {
-                    // In a sequence each worker prefers the frames that
-                    // are its own by number (frame mod workers), so a
-                    // second pass over the same views meets the light it
-                    // kept per sun; it takes any other when it has none left.
-                    let mut q = shared.queue.lock().expect("lock");
-                    let mine = if wires.len() > 1 {
-                        q.iter().position(|(f, _)| f % n_workers == me)
-                    } else {
-                        None
-                    };
-                    mine.and_then(|i| q.remove(i)).or_else(|| q.pop_front())
-                };
-                let Some((frame, strip)) = next else {
-                    if shared.done.lock().expect("lock").len() == shared.total {
-                        return report;
-                    }
-                    // Strips may still come back from failing workers.
-                    tokio::time::sleep(Duration::from_millis(5)).await;
-                    continue;
-                };
-                let mut req = tonic::Request::new(pb::RenderStripRequest {
-                    scene_hash: hash.clone(),
-                    frame: Some(wires[frame].clone()),
-                    x0: strip.0,
-                    x1: strip.1,
-                });
-                req.set_timeout(deadline);
-                let sent = Instant::now();
-                let outcome = match tokio::time::timeout(
-                    deadline + Duration::from_secs(1),
-                    client.render_strip(req),
-                )
+        let Some((frame, strip)) = next else {
+            if shared.done.lock().expect("lock").len() == shared.total {
+                return report;
+            }
+            // Strips may still come back from failing workers.
+            tokio::time::sleep(Duration::from_millis(5)).await;
+            continue;
+        };
+        let mut req = tonic::Request::new(pb::RenderStripRequest {
+            scene_hash: hash.to_string(),
+            frame: Some(wires[frame].clone()),
+            x0: strip.0,
+            x1: strip.1,
+        });
+        req.set_timeout(deadline);
+        let sent = Instant::now();
+        let outcome =
+            match tokio::time::timeout(deadline + Duration::from_secs(1), client.render_strip(req))
                 .await
-                {
-                    Ok(Ok(reply)) => {
-                        let r = reply.into_inner();
-                        decode_reply(&r, strip, height).map(|px| (r, px))
-                    }
-                    Ok(Err(status)) => Err(format!("{:?}: {}", status.code(), status.message())),
-                    Err(_) => Err("deadline passed".to_string()),
-                };
-                match outcome {
-                    Ok((r, px)) => {
-                        report.strips += 1;
-                        report.render_ms += r.render_ms;
-                        report.prepare_ms += r.prepare_ms;
-                        let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
-                        let preview = Arc::new(px.preview());
-                        events(FarmEvent::StripDone {
-                            frame,
-                            strip,
-                            worker: report.worker.clone(),
-                            ms: r.render_ms,
-                            bytes,
-                            preview,
-                        });
-                        shared.done.lock().expect("lock").push((
-                            frame,
-                            px,
-                            r.render_ms,
-                            sent.elapsed().as_secs_f64() * 1e3,
-                        ));
-                    }
-                    Err(error) => {
-                        shared.queue.lock().expect("lock").push_back((frame, strip));
-                        report.failures += 1;
-                        report.last_error = Some(error.clone());
-                        events(FarmEvent::StripRetried {
-                            frame,
-                            strip,
-                            worker: report.worker.clone(),
-                            error: error.clone(),
-                        });
-                        if report.failures >= MAX_FAILURES {
-                            report.dropped = true;
-                            events(FarmEvent::WorkerDropped {
-                                worker: report.worker.clone(),
-                                error,
-                            });
-                            return report;
-                        }
-                    }
+            {
+                Ok(Ok(reply)) => {
+                    let r = reply.into_inner();
+                    decode_reply(&r, strip, height).map(|px| (r, px))
+                }
+                Ok(Err(status)) => Err(format!("{:?}: {}", status.code(), status.message())),
+                Err(_) => Err("deadline passed".to_string()),
+            };
+        match outcome {
+            Ok((r, px)) => {
+                report.strips += 1;
+                report.render_ms += r.render_ms;
+                report.prepare_ms += r.prepare_ms;
+                let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
+                let preview = Arc::new(px.preview());
+                events(FarmEvent::StripDone {
+                    frame,
+                    strip,
+                    worker: report.worker.clone(),
+                    ms: r.render_ms,
+                    bytes,
+                    preview,
+                });
+                shared.done.lock().expect("lock").push((
+                    frame,
+                    px,
+                    r.render_ms,
+                    sent.elapsed().as_secs_f64() * 1e3,
+                ));
+            }
+            Err(error) => {
+                shared.queue.lock().expect("lock").push_back((frame, strip));
+                report.failures += 1;
+                report.last_error = Some(error.clone());
+                events(FarmEvent::StripRetried {
+                    frame,
+                    strip,
+                    worker: report.worker.clone(),
+                    error: error.clone(),
+                });
+                if report.failures >= MAX_FAILURES {
+                    report.dropped = true;
+                    events(FarmEvent::WorkerDropped { worker: report.worker.clone(), error });
+                    return report;
                 }
             }
-        }));
+        }
     }
-    // Wait for the frames, or for every worker to be gone.
-    let mut reports = Vec::new();
-    for t in tasks {
-        reports.push(t.await?);
-    }
-    let done = std::mem::take(&mut *shared.done.lock().expect("lock"));
-    if done.len() < shared.total {
-        let why: Vec<String> = reports
-            .iter()
-            .filter(|r| r.dropped)
-            .map(|r| format!("{}: {}", r.worker, r.last_error.as_deref().unwrap_or("dropped")))
-            .collect();
-        let what = if frames.len() == 1 { "the frame" } else { "the sequence" };
-        anyhow::bail!(
-            "{what} failed: {} of {} strips rendered; no worker left that can finish it ({})",
-            done.len(),
-            shared.total,
-            why.join("; ")
-        );
-    }
+}
+
+/// The frames put together from their checked strips, each with the
+/// job's worker reports, upload time and shared preparation.
+fn assemble(
+    frames: &[FrameSettings],
+    done: &[(usize, StripPixels, f64, f64)],
+    reports: &[WorkerReport],
+    upload_ms: f64,
+    prepared: &Option<PreparedShare>,
+) -> anyhow::Result<Vec<RenderedFrame>> {
     let mut assembled: Vec<(Assembly, Vec<StripTime>)> =
         frames.iter().map(|f| (Assembly::new(f.width, f.height), Vec::new())).collect();
-    for (frame, px, render_ms, rpc_ms) in &done {
+    for (frame, px, render_ms, rpc_ms) in done {
         let (a, strips) = &mut assembled[*frame];
         a.add(px).map_err(|e| anyhow::anyhow!("assembling frame {frame}: {e}"))?;
         strips.push(StripTime { strip: px.strip, render_ms: *render_ms, call_ms: *rpc_ms });
@@ -564,7 +603,7 @@ pub async fn render_frames(
                 image: a.image,
                 coverage: a.coverage,
                 rays: a.rays,
-                workers: reports.clone(),
+                workers: reports.to_vec(),
                 strip_times,
                 upload_ms,
                 prepared: prepared.clone(),

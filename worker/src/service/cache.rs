@@ -1,0 +1,275 @@
+//! What a worker keeps between requests: scene bundles by hash in a
+//! size-bounded LRU, prepared scenes per (bundle, structure, what the
+//! lighting needs, sun), acceleration structures across views, LB light per
+//! sun; and uploads counted against the limits as their bytes arrive.
+
+use super::*;
+
+/// A cached bundle.
+pub(super) struct Cached {
+    pub(super) scene: Arc<Scene>,
+    pub(super) bytes: u64,
+    pub(super) last_used: Instant,
+}
+
+/// A prepared scene's key: bundle hash, structure, what the lighting needs
+/// prepared, and the sun's bits where that depends on the sun (`None`: the
+/// scene's own sun, or a method the sun does not change).
+pub(super) type PreparedKey = (String, AccelKind, crate::lighting::Needs, Option<[u32; 3]>);
+
+/// A scene's LB light's key: bundle hash and the sun's bits (`None`: the
+/// scene's own sun).
+pub(super) type LbKey = (String, Option<[u32; 3]>);
+
+/// Sun variants of one scene kept prepared at once (the frame being
+/// rendered and the one before, as strips of two frames overlap).
+pub(super) const PREPARED_SUNS: usize = 2;
+
+/// What one frame of a loaded scene needs prepared.
+pub(super) struct Preparation {
+    pub(super) accel_key: (String, AccelKind),
+    pub(super) lb_key: LbKey,
+    pub(super) needs_lb: bool,
+    pub(super) scene: Arc<Scene>,
+    pub(super) frame: FrameSettings,
+    pub(super) lighting: LightingMode,
+}
+
+/// A value and when it was last used.
+pub(super) struct Used<T> {
+    pub(super) value: T,
+    pub(super) stamp: u64,
+}
+
+impl State {
+    /// Evicts least recently used bundles until `incoming` more bytes fit.
+    pub(super) fn make_room(&self, bundles: &mut HashMap<String, Cached>, incoming: u64) {
+        while bundles.values().map(|c| c.bytes).sum::<u64>() + incoming > self.config.cache_bytes
+            && !bundles.is_empty()
+        {
+            let oldest = bundles
+                .iter()
+                .min_by_key(|(_, c)| c.last_used)
+                .map(|(h, _)| h.clone())
+                .expect("not empty");
+            bundles.remove(&oldest);
+            lock(&self.prepared).retain(|k, _| k.0 != oldest);
+            lock(&self.accels).retain(|k, _| k.0 != oldest);
+            lock(&self.lbs).retain(|k, _| k.0 != oldest);
+            let _ = std::fs::remove_dir_all(self.config.cache_dir.join(&oldest));
+            tracing::info!(hash = %oldest, "evicted a scene bundle");
+        }
+    }
+}
+
+impl State {
+    pub(super) fn tick(&self) -> u64 {
+        self.clock.fetch_add(1, Ordering::Relaxed)
+    }
+
+    /// The scene prepared for a frame's structure, lighting and view: kept
+    /// from an earlier strip, or prepared now from the structures and the
+    /// LB light kept for this sun, building only what is missing.
+    pub(super) fn prepared_for(
+        &self,
+        scene: &Scene,
+        hash: &str,
+        accel: AccelKind,
+        lighting: LightingMode,
+        view: &View,
+    ) -> anyhow::Result<Arc<PreparedScene>> {
+        let needs = crate::lighting::method(lighting).needs;
+        let sun = if needs.lb || needs.clouds { view.sun_key() } else { None };
+        let key = (hash.to_string(), accel, crate::lighting::method(lighting).needs, sun);
+        if let Some(p) = lock(&self.prepared).get_mut(&key) {
+            p.stamp = self.tick();
+            return Ok(p.value.clone());
+        }
+        let lb_key = (hash.to_string(), sun);
+        let mut reuse = Reuse {
+            accel: lock(&self.accels).get(&(hash.to_string(), accel)).cloned(),
+            lb: if needs.lb {
+                lock(&self.lbs).get_mut(&lb_key).map(|l| {
+                    l.stamp = self.tick();
+                    l.value.clone()
+                })
+            } else {
+                None
+            },
+        };
+        let (solved_before, built_before) = (reuse.lb.is_some(), reuse.accel.is_some());
+        let scene = scene.with_view(view);
+        let p = Arc::new(prepare_reusing(&self.ctx, &scene, accel, lighting, &mut reuse, &|m| {
+            tracing::info!("{m}")
+        })?);
+        if let (Some(a), false) = (reuse.accel, built_before) {
+            self.accel_builds.fetch_add(1, Ordering::Relaxed);
+            lock(&self.accels).insert((hash.to_string(), accel), a);
+        }
+        if let (Some(lb), false) = (reuse.lb, solved_before) {
+            self.lb_solves.fetch_add(1, Ordering::Relaxed);
+            self.keep_lb(lb_key, lb);
+        }
+        let mut prepared = lock(&self.prepared);
+        prepared.insert(key.clone(), Used { value: p.clone(), stamp: self.tick() });
+        // Each sun variant holds the whole scene on the GPU: keep the
+        // newest few of this scene's.
+        loop {
+            let variants: Vec<(&PreparedKey, u64)> = prepared
+                .iter()
+                .filter(|(k, _)| (&k.0, k.1, k.2) == (&key.0, key.1, key.2))
+                .map(|(k, u)| (k, u.stamp))
+                .collect();
+            if variants.len() <= PREPARED_SUNS {
+                break;
+            }
+            let oldest =
+                variants.iter().min_by_key(|v| v.1).map(|v| v.0.clone()).expect("not empty");
+            prepared.remove(&oldest);
+        }
+        Ok(p)
+    }
+
+    /// Keeps `lb` for its scene and sun, dropping the least recently used
+    /// beyond the configured count and bytes.
+    pub(super) fn keep_lb(&self, key: LbKey, lb: Arc<SceneLb>) {
+        let mut lbs = lock(&self.lbs);
+        lbs.insert(key, Used { value: lb, stamp: self.tick() });
+        let keep = self.config.lb_cache_entries.max(1);
+        let bytes = |lbs: &HashMap<LbKey, Used<Arc<SceneLb>>>| {
+            lbs.values().map(|u| u.value.bytes()).sum::<u64>()
+        };
+        while lbs.len() > keep || (lbs.len() > 1 && bytes(&lbs) > self.config.lb_cache_bytes) {
+            let oldest =
+                lbs.iter().min_by_key(|(_, u)| u.stamp).map(|(k, _)| k.clone()).expect("not empty");
+            lbs.remove(&oldest);
+        }
+    }
+
+    /// A loaded scene by hash, marked used.
+    pub(super) fn scene(&self, hash: &str) -> Result<Arc<Scene>, Status> {
+        let mut bundles = lock(&self.bundles);
+        let c = bundles.get_mut(hash).ok_or_else(|| {
+            Status::not_found(format!("scene {hash} is not loaded here; LoadScene it first"))
+        })?;
+        c.last_used = Instant::now();
+        Ok(c.scene.clone())
+    }
+
+    /// What a frame of a loaded scene needs prepared: the scene, the keys
+    /// of its structures and LB light, and whether it needs the light.
+    pub(super) fn preparation(
+        &self,
+        scene_hash: &str,
+        frame: Option<&pb::FrameSettings>,
+    ) -> Result<Preparation, Status> {
+        let f = FrameSettings::try_from(
+            frame.ok_or_else(|| Status::invalid_argument("frame settings missing"))?,
+        )?;
+        let hash = normalize_hash(scene_hash)?;
+        let scene = self.scene(&hash)?;
+        let lighting = f.lighting_or(scene.lighting);
+        let needs = crate::lighting::method(lighting).needs;
+        let sun = if needs.lb || needs.clouds { f.view.sun_key() } else { None };
+        Ok(Preparation {
+            accel_key: (hash.clone(), f.accel),
+            lb_key: (hash, sun),
+            needs_lb: needs.lb,
+            scene,
+            frame: f,
+            lighting,
+        })
+    }
+
+    /// The structures and LB light held for `p`, if all it needs is held.
+    pub(super) fn held(
+        &self,
+        p: &Preparation,
+    ) -> Option<(Arc<sylva_accel::SceneAccel>, Option<Arc<SceneLb>>)> {
+        let accel = lock(&self.accels).get(&p.accel_key).cloned()?;
+        if !p.needs_lb {
+            return Some((accel, None));
+        }
+        let lb = lock(&self.lbs).get(&p.lb_key).map(|u| u.value.clone())?;
+        Some((accel, Some(lb)))
+    }
+
+    /// LB solves this worker has done.
+    pub fn lb_solves(&self) -> u64 {
+        self.lb_solves.load(Ordering::Relaxed)
+    }
+}
+
+/// Releases its share of the upload budget however the upload ends.
+pub(super) struct Reservation<'a> {
+    pub(super) incoming: &'a Mutex<u64>,
+    pub(super) bytes: u64,
+}
+
+impl Reservation<'_> {
+    /// Takes `more` bytes of `limit`, or says no.
+    pub(super) fn grow(&mut self, more: u64, limit: u64) -> bool {
+        let mut inc = lock(self.incoming);
+        if *inc + more > limit {
+            return false;
+        }
+        *inc += more;
+        self.bytes += more;
+        true
+    }
+}
+
+impl Drop for Reservation<'_> {
+    fn drop(&mut self) {
+        *lock(self.incoming) -= self.bytes;
+    }
+}
+
+impl State {
+    /// Receives a chunked upload of `what` (a bundle, prepared data) whose
+    /// first chunk declared `total` bytes and carried `first`. Nothing is
+    /// reserved from the sender's claim: bytes are counted as they arrive,
+    /// against the claim, `max_bundle_bytes` and the room all uploads in
+    /// progress share. Returns the bytes and their reservation, to be held
+    /// until they are kept.
+    pub(super) async fn receive<C>(
+        &self,
+        what: &str,
+        total: u64,
+        first: Vec<u8>,
+        rest: &mut Streaming<C>,
+        data: impl Fn(C) -> Vec<u8>,
+    ) -> Result<(Vec<u8>, Reservation<'_>), Status> {
+        let limit = self.config.max_bundle_bytes;
+        if total > limit {
+            return Err(Status::resource_exhausted(format!(
+                "{what} of {total} bytes is over this worker's limit of {limit} bytes"
+            )));
+        }
+        let mut held = Reservation { incoming: &self.incoming, bytes: 0 };
+        let mut bytes = Vec::new();
+        let mut chunk = Some(first);
+        while let Some(d) = chunk.take() {
+            let n = d.len() as u64;
+            if bytes.len() as u64 + n > total {
+                return Err(Status::invalid_argument(format!(
+                    "{what} is longer than its declared {total} bytes"
+                )));
+            }
+            if !held.grow(n, self.config.cache_bytes.max(limit)) {
+                return Err(Status::resource_exhausted(
+                    "this worker is receiving as many bytes as it can hold; try again",
+                ));
+            }
+            bytes.extend_from_slice(&d);
+            chunk = rest.next().await.transpose()?.map(&data);
+        }
+        if (bytes.len() as u64) < total {
+            return Err(Status::invalid_argument(format!(
+                "truncated {what}: {} of {total} bytes",
+                bytes.len()
+            )));
+        }
+        Ok((bytes, held))
+    }
+}

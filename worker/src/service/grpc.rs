@@ -1,0 +1,278 @@
+//! The `sylva.v1.Worker` API: load a bundle, render a strip, report status,
+//! prepare, and export or import prepared data.
+
+use super::*;
+
+/// Bytes per chunk of exported prepared data.
+const EXPORT_CHUNK: usize = 1 << 20;
+
+/// Sets its flag when dropped: a handler future dropped before it finished
+/// means the caller cancelled or went away.
+struct CancelOnDrop(Arc<AtomicBool>, bool);
+
+impl Drop for CancelOnDrop {
+    fn drop(&mut self) {
+        if !self.1 {
+            self.0.store(true, Ordering::SeqCst);
+        }
+    }
+}
+
+#[tonic::async_trait]
+impl Worker for WorkerService {
+    async fn load_scene(
+        &self,
+        request: Request<Streaming<pb::SceneChunk>>,
+    ) -> Result<Response<pb::LoadSceneReply>, Status> {
+        let mut stream = request.into_inner();
+        let first = stream
+            .next()
+            .await
+            .ok_or_else(|| Status::invalid_argument("empty upload: no chunk"))??;
+        let hash = normalize_hash(&first.hash)?;
+        if let Some(c) = lock(&self.state.bundles).get_mut(&hash) {
+            c.last_used = Instant::now();
+            return Ok(Response::new(pb::LoadSceneReply { hash, was_cached: true }));
+        }
+        let (bytes, held) = self
+            .state
+            .receive("bundle", first.total_size, first.data, &mut stream, |c| c.data)
+            .await?;
+        if bundle::hash_of(&bytes) != hash {
+            return Err(Status::invalid_argument("the bundle's bytes do not match its hash"));
+        }
+        let dir = self.state.config.cache_dir.join(&hash);
+        let limits = self.state.config.limits;
+        let unpacked = tokio::task::spawn_blocking(move || {
+            let r = bundle::unpack_with(&bytes, &dir, &limits);
+            if r.is_err() {
+                let _ = std::fs::remove_dir_all(&dir);
+            }
+            r
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?;
+        let scene = unpacked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
+        let size = held.bytes;
+        drop(held);
+        let mut bundles = lock(&self.state.bundles);
+        self.state.make_room(&mut bundles, size);
+        bundles.insert(
+            hash.clone(),
+            Cached { scene: Arc::new(scene), bytes: size, last_used: Instant::now() },
+        );
+        tracing::info!(%hash, bytes = size, "cached a scene bundle");
+        Ok(Response::new(pb::LoadSceneReply { hash, was_cached: false }))
+    }
+
+    async fn render_strip(
+        &self,
+        request: Request<pb::RenderStripRequest>,
+    ) -> Result<Response<pb::RenderStripReply>, Status> {
+        let r = request.into_inner();
+        let f = FrameSettings::try_from(
+            r.frame.as_ref().ok_or_else(|| Status::invalid_argument("frame settings missing"))?,
+        )?;
+        if r.x0 >= r.x1 || r.x1 > f.width {
+            return Err(Status::invalid_argument(format!(
+                "strip [{}, {}) is not inside a frame {} wide",
+                r.x0, r.x1, f.width
+            )));
+        }
+        let hash = normalize_hash(&r.scene_hash)?;
+        let scene = self.state.scene(&hash)?;
+        let settings = RenderSettings::resolve(&f, scene.lighting);
+        let (lighting, accel) = (settings.lighting, f.accel);
+        let view = f.view;
+        let ambient_given = f.ambient.is_some();
+        let cancelled = Arc::new(AtomicBool::new(false));
+        let mut guard = CancelOnDrop(cancelled.clone(), false);
+        let state = self.state.clone();
+        state.busy.fetch_add(1, Ordering::SeqCst);
+        let span = tracing::info_span!("strip", x0 = r.x0, x1 = r.x1, scene = %hash);
+        let result = tokio::task::spawn_blocking(move || {
+            let _g = span.enter();
+            let _gpu = lock(&state.gpu);
+            // Strips queue for the GPU; one whose caller left meanwhile is
+            // not worth starting.
+            anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
+            let t = Instant::now();
+            let prepared = state.prepared_for(&scene, &hash, accel, lighting, &view)?;
+            let mut settings = settings;
+            if lighting == LightingMode::Ambient && !ambient_given {
+                // Matched here, once per frame shape, so every client gets
+                // the paper's ambient without a round of its own.
+                let key = format!(
+                    "{hash}/{accel:?}/{}x{}/{}/{}/{:?}",
+                    settings.width, settings.height, settings.seed, settings.lb_strength, view
+                );
+                let known = lock(&state.ambient).get(&key).copied();
+                settings.ambient = match known {
+                    Some(a) => a,
+                    None => {
+                        let a = crate::lighting::ambient::matched(
+                            &prepared.renderer,
+                            &state.ctx,
+                            &settings,
+                        )?;
+                        lock(&state.ambient).insert(key, a);
+                        a
+                    }
+                };
+            }
+            let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
+            anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
+            let t = Instant::now();
+            let strip = prepared.renderer.render_strip(&state.ctx, &settings, r.x0, r.x1)?;
+            anyhow::Ok((strip, prepare_ms, t.elapsed().as_secs_f64() * 1e3))
+        })
+        .await;
+        guard.1 = true;
+        self.state.busy.fetch_sub(1, Ordering::SeqCst);
+        let (strip, prepare_ms, render_ms) = result
+            .map_err(|e| Status::internal(format!("the strip's render panicked: {e}")))?
+            .map_err(|e| {
+                if e.is::<Cancelled>() {
+                    Status::cancelled("the caller cancelled the strip")
+                } else {
+                    Status::internal(format!("{e:#}"))
+                }
+            })?;
+        Ok(Response::new(pb::RenderStripReply {
+            x0: strip.x0,
+            width: strip.width,
+            height: f.height,
+            rgb_f32: strip.pixels.iter().flatten().flat_map(|v| v.to_le_bytes()).collect(),
+            coverage_f32: strip.coverage.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            rays: Some(pb::RayCounts {
+                primary: strip.rays.primary,
+                shadow: strip.rays.shadow,
+                transparent: strip.rays.transparent,
+            }),
+            render_ms,
+            prepare_ms,
+        }))
+    }
+
+    async fn status(
+        &self,
+        _: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::WorkerStatus>, Status> {
+        let cached: Vec<String> = lock(&self.state.bundles).keys().cloned().collect();
+        let gpu_bytes =
+            lock(&self.state.prepared).values().map(|p| p.value.renderer.scene_bytes()).sum();
+        Ok(Response::new(pb::WorkerStatus {
+            adapter: self.state.ctx.adapter_name(),
+            gpu_memory_bytes: gpu_bytes,
+            cached_scenes: cached,
+            busy_strips: self.state.busy.load(Ordering::SeqCst),
+            lb_solves: self.state.lb_solves(),
+            accel_builds: self.state.accel_builds.load(Ordering::Relaxed),
+            prepared_imports: self.state.prepared_imports.load(Ordering::Relaxed),
+        }))
+    }
+
+    async fn prepare(
+        &self,
+        request: Request<pb::PrepareRequest>,
+    ) -> Result<Response<pb::PrepareReply>, Status> {
+        let r = request.into_inner();
+        let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
+        let t = Instant::now();
+        let held = self.state.held(&p).is_some();
+        if held || !r.build {
+            return Ok(Response::new(pb::PrepareReply { held, prepare_ms: 0.0 }));
+        }
+        let state = self.state.clone();
+        let span = tracing::info_span!("prepare", scene = %p.accel_key.0);
+        tokio::task::spawn_blocking(move || {
+            let _g = span.enter();
+            let _gpu = lock(&state.gpu);
+            state
+                .prepared_for(&p.scene, &p.accel_key.0, p.frame.accel, p.lighting, &p.frame.view)
+                .map(|_| ())
+        })
+        .await
+        .map_err(|e| Status::internal(format!("preparing panicked: {e}")))?
+        .map_err(|e| Status::internal(format!("{e:#}")))?;
+        Ok(Response::new(pb::PrepareReply {
+            held: true,
+            prepare_ms: t.elapsed().as_secs_f64() * 1e3,
+        }))
+    }
+
+    type ExportPreparedStream = std::pin::Pin<
+        Box<dyn tokio_stream::Stream<Item = Result<pb::PreparedChunk, Status>> + Send>,
+    >;
+
+    async fn export_prepared(
+        &self,
+        request: Request<pb::PrepareRequest>,
+    ) -> Result<Response<Self::ExportPreparedStream>, Status> {
+        let r = request.into_inner();
+        let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
+        let (accel, lb) = self.state.held(&p).ok_or_else(|| {
+            Status::not_found("this worker does not hold that frame's prepared data")
+        })?;
+        let out = tokio::task::spawn_blocking(move || crate::share::export(&accel, lb.as_deref()))
+            .await
+            .map_err(|e| Status::internal(format!("exporting panicked: {e}")))?
+            .map_err(|e| Status::internal(format!("{e:#}")))?;
+        let (total, hash, frame, scene_hash) =
+            (out.bytes.len() as u64, out.hash, r.frame, p.accel_key.0);
+        let chunks: Vec<Result<pb::PreparedChunk, Status>> = out
+            .bytes
+            .chunks(EXPORT_CHUNK)
+            .enumerate()
+            .map(|(i, c)| {
+                let first = i == 0;
+                Ok(pb::PreparedChunk {
+                    scene_hash: if first { scene_hash.clone() } else { String::new() },
+                    frame: if first { frame.clone() } else { None },
+                    content_hash: if first { hash.clone() } else { String::new() },
+                    total_size: if first { total } else { 0 },
+                    data: c.to_vec(),
+                })
+            })
+            .collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    async fn import_prepared(
+        &self,
+        request: Request<Streaming<pb::PreparedChunk>>,
+    ) -> Result<Response<pb::PrepareReply>, Status> {
+        let t = Instant::now();
+        let mut stream = request.into_inner();
+        let first = stream
+            .next()
+            .await
+            .ok_or_else(|| Status::invalid_argument("empty import: no chunk"))??;
+        let p = self.state.preparation(&first.scene_hash, first.frame.as_ref())?;
+        let content_hash = normalize_hash(&first.content_hash)?;
+        let (bytes, held) = self
+            .state
+            .receive("prepared data", first.total_size, first.data, &mut stream, |c| c.data)
+            .await?;
+        let (scene, kind, needs_lb) = (p.scene.clone(), p.frame.accel, p.needs_lb);
+        let (accel, lb) = tokio::task::spawn_blocking(move || {
+            crate::share::import(&bytes, &content_hash, &scene, kind, needs_lb)
+        })
+        .await
+        .map_err(|e| Status::internal(format!("importing panicked: {e}")))?
+        .map_err(|e| Status::invalid_argument(format!("prepared data refused: {e}")))?;
+        drop(held);
+        lock(&self.state.accels).entry(p.accel_key.clone()).or_insert_with(|| Arc::new(accel));
+        if let Some(lb) = lb
+            && !lock(&self.state.lbs).contains_key(&p.lb_key)
+        {
+            self.state.keep_lb(p.lb_key.clone(), Arc::new(lb));
+        }
+        self.state.prepared_imports.fetch_add(1, Ordering::Relaxed);
+        tracing::info!(scene = %p.accel_key.0, "took prepared data from another worker");
+        Ok(Response::new(pb::PrepareReply {
+            held: self.state.held(&p).is_some(),
+            prepare_ms: t.elapsed().as_secs_f64() * 1e3,
+        }))
+    }
+}

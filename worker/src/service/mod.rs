@@ -1,0 +1,233 @@
+//! The worker's gRPC service: bundles cached by hash in a size-bounded LRU,
+//! scenes prepared once per (bundle, structure, lighting) and strips
+//! rendered one at a time on the GPU. Uploads are counted as they arrive,
+//! against both their declared size and this worker's limits; a strip whose
+//! caller has gone is not started.
+//!
+//! `cache` holds the bundles, prepared scenes and LB light, and counts
+//! uploads; `grpc` answers the API's calls.
+
+mod cache;
+mod grpc;
+
+use cache::*;
+
+use crate::gpu::GpuContext;
+use crate::lighting::lb::SceneLb;
+use crate::prepare::{PreparedScene, Reuse, prepare_reusing};
+use crate::trace::RenderSettings;
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+use sylva_accel::AccelKind;
+use sylva_proto::pb;
+use sylva_proto::pb::worker_identity_server::{WorkerIdentity, WorkerIdentityServer};
+use sylva_proto::pb::worker_server::{Worker, WorkerServer};
+use sylva_proto::sync::lock;
+use sylva_scene::bundle;
+use sylva_scene::frame::FrameSettings;
+use sylva_scene::sequence::View;
+use sylva_scene::{LightingMode, Scene, SceneLimits};
+use tokio_stream::StreamExt;
+use tonic::{Request, Response, Status, Streaming};
+
+pub use sylva_scene::frame::{MAX_SIDE, MAX_SPP};
+
+/// How a worker runs.
+#[derive(Clone, Debug)]
+pub struct WorkerConfig {
+    /// Largest bundle accepted, in bytes.
+    pub max_bundle_bytes: u64,
+    /// Bundles kept, at most, in bytes (least recently used go first).
+    pub cache_bytes: u64,
+    /// Where bundles are unpacked.
+    pub cache_dir: PathBuf,
+    /// When set, every worker-API and reflection call needs it as a bearer
+    /// token (health checks stay open for orchestrators' probes).
+    pub token: Option<String>,
+    /// Serve over TLS with this identity.
+    pub tls: Option<tonic::transport::ServerTlsConfig>,
+    /// Per-scene caps on models, instances, triangles, texels and LB nodes.
+    pub limits: SceneLimits,
+    /// Keep `cache_dir` when the worker stops (default: removed).
+    pub keep_cache: bool,
+    /// LB light kept per scene and sun direction, so a sequence that comes
+    /// back to a sun (or a second pass over a sun sweep) solves it once;
+    /// 0: only the light of the sun being rendered is kept.
+    pub lb_cache_entries: usize,
+    /// Bytes of LB light kept at most, all suns together (the newest is
+    /// kept whatever its size): fine grids make the count alone no bound.
+    pub lb_cache_bytes: u64,
+}
+
+impl Default for WorkerConfig {
+    fn default() -> Self {
+        Self {
+            max_bundle_bytes: 1 << 30,
+            cache_bytes: 4 << 30,
+            cache_dir: std::env::temp_dir().join(format!("sylva-worker-{}", std::process::id())),
+            token: None,
+            tls: None,
+            limits: SceneLimits::default(),
+            keep_cache: false,
+            lb_cache_entries: 64,
+            lb_cache_bytes: 1 << 30,
+        }
+    }
+}
+
+/// What the service shares between requests.
+struct State {
+    ctx: GpuContext,
+    config: WorkerConfig,
+    bundles: Mutex<HashMap<String, Cached>>,
+    /// Prepared scenes by (hash, structure, what the lighting needs
+    /// prepared, sun).
+    prepared: Mutex<HashMap<PreparedKey, Used<Arc<PreparedScene>>>>,
+    /// Acceleration structures by (hash, structure): kept across views.
+    accels: Mutex<HashMap<(String, AccelKind), Arc<sylva_accel::SceneAccel>>>,
+    /// LB light by (hash, sun), least recently used dropped first.
+    lbs: Mutex<HashMap<LbKey, Used<Arc<SceneLb>>>>,
+    /// Use counter for the caches' recency.
+    clock: AtomicU64,
+    /// LB solves done, for status and benchmarks.
+    lb_solves: AtomicU64,
+    /// Acceleration structures built here.
+    accel_builds: AtomicU64,
+    /// Prepared data taken from other workers.
+    prepared_imports: AtomicU64,
+    /// Matched ambient constants by scene and frame shape.
+    ambient: Mutex<HashMap<String, [f32; 3]>>,
+    /// One GPU job at a time: strips queue here.
+    gpu: Mutex<()>,
+    /// Bytes of uploads in progress, so concurrent uploads share the limit.
+    incoming: Mutex<u64>,
+    busy: AtomicU32,
+}
+
+/// The `sylva.v1.Worker` service.
+#[derive(Clone)]
+pub struct WorkerService {
+    state: Arc<State>,
+}
+
+impl WorkerService {
+    /// A service rendering on `ctx`.
+    pub fn new(ctx: GpuContext, config: WorkerConfig) -> Self {
+        Self {
+            state: Arc::new(State {
+                ctx,
+                config,
+                bundles: Mutex::new(HashMap::new()),
+                prepared: Mutex::new(HashMap::new()),
+                accels: Mutex::new(HashMap::new()),
+                lbs: Mutex::new(HashMap::new()),
+                clock: AtomicU64::new(0),
+                lb_solves: AtomicU64::new(0),
+                accel_builds: AtomicU64::new(0),
+                prepared_imports: AtomicU64::new(0),
+                ambient: Mutex::new(HashMap::new()),
+                gpu: Mutex::new(()),
+                incoming: Mutex::new(0),
+                busy: AtomicU32::new(0),
+            }),
+        }
+    }
+
+    /// The tonic server wrapper, with messages up to the bundle limit.
+    pub fn into_server(self) -> WorkerServer<Self> {
+        let limit = (self.state.config.max_bundle_bytes as usize).max(64 << 20);
+        WorkerServer::new(self).max_decoding_message_size(limit).max_encoding_message_size(limit)
+    }
+}
+
+/// Why a strip was not rendered: its caller went away first.
+#[derive(Debug, thiserror::Error)]
+#[error("cancelled")]
+struct Cancelled;
+
+/// Answers a coordinator's identity challenge with this worker's token.
+struct Identity {
+    token: Option<String>,
+}
+
+#[tonic::async_trait]
+impl WorkerIdentity for Identity {
+    async fn prove(
+        &self,
+        request: Request<pb::ProveRequest>,
+    ) -> Result<Response<pb::ProveReply>, Status> {
+        let nonce = request.into_inner().nonce;
+        if nonce.len() < 16 || nonce.len() > 64 {
+            return Err(Status::invalid_argument("the nonce must be 16 to 64 bytes"));
+        }
+        Ok(Response::new(pb::ProveReply {
+            proof: sylva_proto::auth::prove(self.token.as_deref(), &nonce).to_vec(),
+        }))
+    }
+}
+
+/// Serves the worker API, health (SERVING once the GPU is open),
+/// reflection and the identity check on `listener` until `shutdown`
+/// resolves; then removes the bundle cache unless asked to keep it.
+pub async fn run(
+    listener: tokio::net::TcpListener,
+    ctx: GpuContext,
+    config: WorkerConfig,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> anyhow::Result<()> {
+    let (reporter, health) = tonic_health::server::health_reporter();
+    reporter.set_not_serving::<WorkerServer<WorkerService>>().await;
+    let (reflection, reflection_alpha) =
+        sylva_proto::reflection(&["sylva.v1.Worker", "sylva.v1.WorkerIdentity"])?;
+    let auth = sylva_proto::auth::require(config.token.clone());
+    let mut builder = tonic::transport::Server::builder();
+    if let Some(tls) = config.tls.clone() {
+        builder = builder.tls_config(tls)?;
+    }
+    let (cache_dir, keep) = (config.cache_dir.clone(), config.keep_cache);
+    let identity = Identity { token: config.token.clone() };
+    let service = WorkerService::new(ctx, config);
+    reporter.set_serving::<WorkerServer<WorkerService>>().await;
+    let served = builder
+        .add_service(health)
+        .add_service(WorkerIdentityServer::new(identity))
+        .add_service(tonic::service::interceptor::InterceptedService::new(reflection, auth.clone()))
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            reflection_alpha,
+            auth.clone(),
+        ))
+        .add_service(tonic::service::interceptor::InterceptedService::new(
+            service.into_server(),
+            auth,
+        ))
+        .serve_with_incoming_shutdown(
+            tokio_stream::wrappers::TcpListenerStream::new(listener),
+            shutdown,
+        )
+        .await;
+    if !keep && cache_dir.exists() {
+        match std::fs::remove_dir_all(&cache_dir) {
+            Ok(()) => tracing::info!(dir = %cache_dir.display(), "removed the bundle cache"),
+            Err(e) => {
+                tracing::warn!(dir = %cache_dir.display(), "cannot remove the bundle cache: {e}")
+            }
+        }
+    }
+    served?;
+    Ok(())
+}
+
+/// A hash as the cache keys it: 64 lower-case hex digits.
+fn normalize_hash(h: &str) -> Result<String, Status> {
+    let hash = h.to_ascii_lowercase();
+    if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return Err(Status::invalid_argument(format!(
+            "hash {:?} is not a 64-digit hex BLAKE3 hash",
+            sylva_scene::sandbox::clip(h)
+        )));
+    }
+    Ok(hash)
+}
