@@ -125,27 +125,7 @@ fn ms(t: Instant) -> f64 {
 }
 
 pub fn run(a: CompareArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        a.width >= 8 && a.height >= 8 && a.width <= 4096 && a.height <= 4096,
-        "image sides in [8, 4096]"
-    );
-    anyhow::ensure!((1..=256).contains(&a.spp), "--spp {}: valid range [1, 256]", a.spp);
-    anyhow::ensure!(a.grids.iter().all(|g| (4..=256).contains(g)), "--grids: each in [4, 256]");
-    let mut distinct = a.grids.clone();
-    distinct.sort_unstable();
-    distinct.dedup();
-    anyhow::ensure!(
-        distinct.len() >= 2,
-        "--grids needs two sizes or more: `lb auto` chooses between them"
-    );
-    anyhow::ensure!(
-        a.target_error.is_finite() && a.target_error > 0.0,
-        "--target-error must be > 0"
-    );
-    anyhow::ensure!(
-        a.auto_tolerance.is_finite() && a.auto_tolerance > 0.0,
-        "--auto-tolerance must be > 0"
-    );
+    let distinct = checked_grids(&a)?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("{}: cannot create folder", a.out.display()))?;
     let scene = Scene::load(&a.scene)?;
@@ -167,33 +147,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
 
     // The reference first: every error is measured against it.
     say("reference: path tracing");
-    let cache = a.out.join("reference.bin");
-    let key = reference_key(&a)?;
-    let cached =
-        if a.reuse_reference { load_reference(&cache, &key, a.width, a.height) } else { None };
-    let (r, build_ms, pre, reused) = match cached {
-        Some(r) => (r, 0.0, 0.0, true),
-        None => {
-            let t = Instant::now();
-            let prepared =
-                prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Reference, &|m| say(m))?;
-            let opts = ReferenceOptions {
-                target_error: a.target_error,
-                max_seconds: a.max_seconds,
-                ..Default::default()
-            };
-            let build_ms = prepared.phases.ms("build");
-            let pre = ms(t) - build_ms - prepared.phases.ms("upload");
-            let r = render_reference(&ctx, &prepared.renderer, &settings, &opts, &|s| {
-                bar.set_message(format!(
-                    "reference: {} spp, relative standard error {:.4} (target {})",
-                    s.spp, s.relative_error, a.target_error
-                ))
-            })?;
-            save_reference(&cache, &key, &r)?;
-            (r, build_ms, pre, false)
-        }
-    };
+    let (r, build_ms, pre, reused) = reference(&a, &ctx, &scene, &settings, &bar)?;
     let reference = r.image.clone();
     let lit: Vec<bool> = r
         .coverage
@@ -207,28 +161,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     );
     let (_, exposure) = reinhard(&reference, 0.18);
 
-    let mut methods: Vec<(String, LightingMode, Scene)> = vec![
-        ("local".into(), LightingMode::Local, scene.clone()),
-        ("ambient".into(), LightingMode::Ambient, scene.clone()),
-    ];
-    for &g in &a.grids {
-        methods.push((
-            format!("lb {g}³"),
-            LightingMode::Lb,
-            with_lb(&scene, Some(g), Some(ForestGridUse::Never)),
-        ));
-    }
-    let forest_grid = scene.models.first().map_or(32, |m| m.lb.grid);
-    methods.push((
-        format!("lb {forest_grid}³ + forest grid"),
-        LightingMode::Lb,
-        with_lb(&scene, None, Some(ForestGridUse::Always)),
-    ));
-    // The papers' model as written, beside the grounded one.
-    let mut paper = with_lb(&scene, None, Some(ForestGridUse::Always));
-    paper.file.lb_model = LbModel::Paper;
-    methods.push((format!("lb paper {forest_grid}³ + forest grid"), LightingMode::Lb, paper));
-    methods.push(("boulanger".into(), LightingMode::Boulanger, scene.clone()));
+    let methods = methods_to_compare(&scene, &a.grids);
 
     let mut rendered: Vec<Rendered> = Vec::new();
     for (name, lighting, s) in &methods {
@@ -339,25 +272,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&table)?);
     } else {
-        println!(
-            "{:<28} {:>12} {:>10} {:>9} {:>10} {:>10} {:>10} {:>13}",
-            "method", "pre-process", "frame", "RMSE", "rel. err", "indirect", "net", "noise r / m"
-        );
-        for m in &reports {
-            println!(
-                "{:<28} {:>9.0} ms {:>7.0} ms {:>9.4} {:>9.1} % {:>9.1} % {:>8.1} % {:>5.1} / {:>4.1} %",
-                m.name,
-                m.preprocess_ms,
-                m.frame_ms,
-                m.rmse,
-                100.0 * m.mean_relative_error,
-                100.0 * m.indirect_relative_error,
-                100.0 * m.indirect_error_net,
-                100.0 * m.indirect_noise_reference,
-                100.0 * m.indirect_noise_method
-            );
-        }
-        println!("{}", best);
+        print_table(&reports, &best);
         println!(
             "wrote {}, {} and {}",
             a.out.join("compare.json").display(),
@@ -366,6 +281,124 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Checks the flags; the distinct LB grid sizes `lb auto` chooses between.
+fn checked_grids(a: &CompareArgs) -> anyhow::Result<Vec<usize>> {
+    anyhow::ensure!(
+        a.width >= 8 && a.height >= 8 && a.width <= 4096 && a.height <= 4096,
+        "image sides in [8, 4096]"
+    );
+    anyhow::ensure!((1..=256).contains(&a.spp), "--spp {}: valid range [1, 256]", a.spp);
+    anyhow::ensure!(a.grids.iter().all(|g| (4..=256).contains(g)), "--grids: each in [4, 256]");
+    let mut distinct = a.grids.clone();
+    distinct.sort_unstable();
+    distinct.dedup();
+    anyhow::ensure!(
+        distinct.len() >= 2,
+        "--grids needs two sizes or more: `lb auto` chooses between them"
+    );
+    anyhow::ensure!(
+        a.target_error.is_finite() && a.target_error > 0.0,
+        "--target-error must be > 0"
+    );
+    anyhow::ensure!(
+        a.auto_tolerance.is_finite() && a.auto_tolerance > 0.0,
+        "--auto-tolerance must be > 0"
+    );
+    Ok(distinct)
+}
+
+/// The path-traced reference every method is measured against: the one
+/// saved for this scene, binary and flags when asked to reuse it, else
+/// traced now; with its build and pre-process times and whether it was reused.
+fn reference(
+    a: &CompareArgs,
+    ctx: &GpuContext,
+    scene: &Scene,
+    settings: &RenderSettings,
+    bar: &ProgressBar,
+) -> anyhow::Result<(ReferenceImage, f64, f64, bool)> {
+    let cache = a.out.join("reference.bin");
+    let key = reference_key(a)?;
+    let cached =
+        if a.reuse_reference { load_reference(&cache, &key, a.width, a.height) } else { None };
+    Ok(match cached {
+        Some(r) => (r, 0.0, 0.0, true),
+        None => {
+            let t = Instant::now();
+            let prepared = prepare(ctx, scene, AccelKind::Bvh, LightingMode::Reference, &|m| {
+                bar.set_message(m.to_string())
+            })?;
+            let opts = ReferenceOptions {
+                target_error: a.target_error,
+                max_seconds: a.max_seconds,
+                ..Default::default()
+            };
+            let build_ms = prepared.phases.ms("build");
+            let pre = ms(t) - build_ms - prepared.phases.ms("upload");
+            let r = render_reference(ctx, &prepared.renderer, settings, &opts, &|s| {
+                bar.set_message(format!(
+                    "reference: {} spp, relative standard error {:.4} (target {})",
+                    s.spp, s.relative_error, a.target_error
+                ))
+            })?;
+            save_reference(&cache, &key, &r)?;
+            (r, build_ms, pre, false)
+        }
+    })
+}
+
+/// The methods `compare` renders, by name: local, ambient, the LB at each
+/// grid size, with the forest grid, the papers' model as written, and
+/// Boulanger et al. (`lb auto` and the reference come apart).
+fn methods_to_compare(scene: &Scene, grids: &[usize]) -> Vec<(String, LightingMode, Scene)> {
+    let mut methods: Vec<(String, LightingMode, Scene)> = vec![
+        ("local".into(), LightingMode::Local, scene.clone()),
+        ("ambient".into(), LightingMode::Ambient, scene.clone()),
+    ];
+    for &g in grids {
+        methods.push((
+            format!("lb {g}³"),
+            LightingMode::Lb,
+            with_lb(scene, Some(g), Some(ForestGridUse::Never)),
+        ));
+    }
+    let forest_grid = scene.models.first().map_or(32, |m| m.lb.grid);
+    methods.push((
+        format!("lb {forest_grid}³ + forest grid"),
+        LightingMode::Lb,
+        with_lb(scene, None, Some(ForestGridUse::Always)),
+    ));
+    // The papers' model as written, beside the grounded one.
+    let mut paper = with_lb(scene, None, Some(ForestGridUse::Always));
+    paper.file.lb_model = LbModel::Paper;
+    methods.push((format!("lb paper {forest_grid}³ + forest grid"), LightingMode::Lb, paper));
+    methods.push(("boulanger".into(), LightingMode::Boulanger, scene.clone()));
+    methods
+}
+
+/// The methods as a table a person reads, then the summary.
+fn print_table(reports: &[MethodReport], best: &str) {
+    println!(
+        "{:<28} {:>12} {:>10} {:>9} {:>10} {:>10} {:>10} {:>13}",
+        "method", "pre-process", "frame", "RMSE", "rel. err", "indirect", "net", "noise r / m"
+    );
+    for m in reports {
+        println!(
+            "{:<28} {:>9.0} ms {:>7.0} ms {:>9.4} {:>9.1} % {:>9.1} % {:>8.1} % {:>5.1} / {:>4.1} %",
+            m.name,
+            m.preprocess_ms,
+            m.frame_ms,
+            m.rmse,
+            100.0 * m.mean_relative_error,
+            100.0 * m.indirect_relative_error,
+            100.0 * m.indirect_error_net,
+            100.0 * m.indirect_noise_reference,
+            100.0 * m.indirect_noise_method
+        );
+    }
+    println!("{}", best);
 }
 
 fn empty_report() -> MethodReport {
