@@ -12,4 +12,9 @@ RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --locked
 # Built, not run: a fuzz target that no longer compiles is found here, not
 # by the next person to fuzz (docs/fuzzing.md).
 cargo build --locked --manifest-path fuzz/Cargo.toml
+# The coordinator links no GPU stack (docs/architecture.md): keep it so.
+if cargo tree --locked -p sylva-coordinator -e normal --prefix none | grep -q '^wgpu'; then
+  echo "sylva-coordinator depends on wgpu; it must not (docs/architecture.md)" >&2
+  exit 1
+fi
 cargo test --workspace --locked "$@"
