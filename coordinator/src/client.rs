@@ -116,7 +116,8 @@ pub async fn submit_and_follow(
 struct JobProgress {
     id: String,
     bar: ProgressBar,
-    stage: &'static str,
+    stage: String,
+    farm_stage: String,
     quarter: u32,
 }
 
@@ -132,18 +133,33 @@ impl JobProgress {
             .progress_chars("=> "),
         );
         bar.enable_steady_tick(Duration::from_millis(200));
-        Self { id: id.to_string(), bar, stage: "", quarter: 0 }
+        Self {
+            id: id.to_string(),
+            bar,
+            stage: String::new(),
+            farm_stage: String::new(),
+            quarter: 0,
+        }
     }
 
     fn update(&mut self, ev: &pb::JobEvent) {
         let state = JobState::from_wire(ev.state);
+        if !ev.stage.is_empty() {
+            self.farm_stage.clone_from(&ev.stage);
+        }
         let stage = match state {
-            Some(JobState::Queued) => "queued",
-            Some(JobState::Running) if ev.strips_done == 0 => {
-                "workers preparing the scene (structures, voxels, LB light, upload)"
-            }
-            Some(JobState::Running) => "tracing",
-            _ => self.stage,
+            Some(JobState::Queued) => "queued".to_string(),
+            Some(JobState::Running) if ev.strips_done == 0 => match self.farm_stage.as_str() {
+                "" => "starting on the workers".to_string(),
+                // Strips are out; a worker that does not hold the prepared
+                // scene prepares it before its first one.
+                "tracing" => "tracing (a worker that does not hold the prepared scene prepares \
+                              it first: structures, voxels, LB light, upload)"
+                    .to_string(),
+                farm => farm.to_string(),
+            },
+            Some(JobState::Running) => "tracing".to_string(),
+            _ => self.stage.clone(),
         };
         if ev.strips_total > 0 {
             self.bar.set_length(ev.strips_total as u64);
@@ -151,11 +167,11 @@ impl JobProgress {
         }
         let hidden = self.bar.is_hidden();
         if stage != self.stage {
-            self.stage = stage;
             self.bar.set_message(format!("{} {stage}", self.id));
             if hidden {
                 eprintln!("{}: {stage}", self.id);
             }
+            self.stage = stage;
         }
         let quarter = 4 * ev.strips_done / ev.strips_total.max(1);
         if hidden && quarter > self.quarter && ev.strips_done < ev.strips_total {

@@ -52,6 +52,9 @@ pub enum FarmEvent {
     /// The scene's prepared data was made or found on one worker and sent
     /// to the others.
     PreparedShared(PreparedShare),
+    /// What the farm is doing now, in words: sending the scene, one worker
+    /// preparing it, sharing what it prepared, tracing.
+    Stage(String),
 }
 
 /// How a job's scene was prepared once for the farm.
@@ -221,6 +224,7 @@ async fn share_prepared(
     hash: &str,
     frame: &pb::FrameSettings,
     deadline: Duration,
+    stage: &(dyn Fn(String) + Sync),
 ) -> Result<Option<PreparedShare>, String> {
     let live: Vec<(usize, Client)> =
         clients.iter().enumerate().filter_map(|(i, c)| c.clone().map(|c| (i, c))).collect();
@@ -253,6 +257,10 @@ async fn share_prepared(
             Some(k) => (k, 0.0),
             None => {
                 let k = lacking[0];
+                stage(format!(
+                    "{} preparing the scene (structures, voxels, LB light)",
+                    addrs[live[k].0]
+                ));
                 let mut req = tonic::Request::new(ask(true));
                 req.set_timeout(deadline);
                 let r = live[k].1.clone().prepare(req).await.map_err(|s| {
@@ -263,9 +271,11 @@ async fn share_prepared(
             }
         };
         let from = addrs[live[source].0].clone();
+        let to: Vec<usize> = lacking.into_iter().filter(|&k| k != source).collect();
+        let plural = if to.len() == 1 { "" } else { "s" };
+        stage(format!("sharing the prepared scene from {from} with {} worker{plural}", to.len()));
         let chunks = Arc::new(export_from(&live[source].1, ask(false), &from).await?);
         let bytes = chunks.iter().map(|c| c.data.len() as u64).sum();
-        let to: Vec<usize> = lacking.into_iter().filter(|&k| k != source).collect();
         let imported = futures_util::future::join_all(to.iter().map(|&k| {
             let (mut c, chunks) = (live[k].1.clone(), chunks.clone());
             async move {
@@ -370,11 +380,16 @@ pub async fn render_frames(
         frames.iter().all(|f| (f.width, f.height) == (frames[0].width, frames[0].height)),
         "a sequence's frames share one size"
     );
+    events(FarmEvent::Stage(format!("sending the scene to {} workers", workers.addrs.len())));
     let (clients, reports, upload_ms) = upload_to_all(workers, bundle, &events).await;
     let wires: Arc<Vec<pb::FrameSettings>> =
         Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
     let prepared =
-        match share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline).await {
+        match share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline, &|s| {
+            events(FarmEvent::Stage(s))
+        })
+        .await
+        {
             Ok(Some(share)) => {
                 events(FarmEvent::PreparedShared(share.clone()));
                 Some(share)
@@ -393,6 +408,7 @@ pub async fn render_frames(
         queue: Mutex::new(queue),
         done: Mutex::new(Vec::new()),
     });
+    events(FarmEvent::Stage("tracing".into()));
     let events = Arc::new(events);
     let mut tasks = Vec::new();
     let n_workers = clients.len();

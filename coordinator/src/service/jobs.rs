@@ -130,6 +130,7 @@ impl CoordinatorService {
                 task: None,
                 finished: None,
                 live: LiveFrame::default(),
+                stage: String::new(),
             },
         );
         self.state.wake.notify_one();
@@ -143,10 +144,10 @@ impl CoordinatorService {
     ) -> Result<Response<EventStream>, Status> {
         let id = request.into_inner().id;
         let id = job_id(&id)?.to_string();
-        let (mut rx, current) = {
+        let (mut rx, current, stage) = {
             let jobs = lock(&self.state.jobs);
             let j = jobs.get(&id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
-            (j.events.subscribe(), j.summary.clone())
+            (j.events.subscribe(), j.summary.clone(), j.stage.clone())
         };
         let (tx, out) = tokio::sync::mpsc::channel(64);
         let state = self.state.clone();
@@ -157,6 +158,7 @@ impl CoordinatorService {
                 strips_done: current.strips_done,
                 strips_total: current.strips_total,
                 message: current.error.clone(),
+                stage,
                 ..Default::default()
             };
             if tx.send(Ok(first)).await.is_err() || wire_ended(current.state) {

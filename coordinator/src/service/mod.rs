@@ -137,6 +137,9 @@ struct Job {
     task: Option<tokio::task::AbortHandle>,
     finished: Option<Instant>,
     live: LiveFrame,
+    /// What the farm last said it is doing (a watcher that joins late
+    /// hears it first).
+    stage: String,
 }
 
 impl Job {

@@ -217,6 +217,12 @@ impl State {
             FarmEvent::WorkerDropped { worker, error } => {
                 ev.message = format!("worker {worker} dropped: {error}")
             }
+            FarmEvent::Stage(s) => {
+                if let Some(j) = lock(&self.jobs).get_mut(jid) {
+                    j.stage.clone_from(&s);
+                }
+                ev.stage = s;
+            }
             FarmEvent::PreparedShared(p) => {
                 // Not a notice for clients (their `message` is for
                 // failures and retries): the job's stats carry it.
