@@ -1,61 +1,12 @@
 //! `sylva coordinator --listen ADDR` and `sylva submit SCENE --coordinator ADDR`.
 
+use crate::flags::coordinator::*;
 use anyhow::Context;
-use clap::Args;
 use std::io::Write;
-use std::path::PathBuf;
 use std::time::Duration;
 use sylva_coordinator::client::submit_and_follow;
 use sylva_coordinator::results::Retention;
 use sylva_coordinator::service::{self, CoordinatorConfig};
-
-#[derive(Debug, Args)]
-pub struct CoordinatorArgs {
-    /// Address to listen on (port 0 picks one; the bound address is printed).
-    #[arg(long, default_value = "127.0.0.1:50150")]
-    pub listen: String,
-    /// Workers to use from the start (`host:port,…`); others register themselves.
-    #[arg(long, value_delimiter = ',')]
-    pub workers: Vec<String>,
-    /// Jobs rendered at the same time.
-    #[arg(long, default_value_t = 2)]
-    pub max_running: usize,
-    /// Largest scene bundle accepted, MiB.
-    #[arg(long, default_value_t = 1024)]
-    pub max_bundle_mib: u64,
-    /// Seconds one strip may take before it goes to another worker.
-    #[arg(long, default_value_t = 600)]
-    pub strip_deadline_s: u64,
-    /// The token clients must send, and workers are sent.
-    #[command(flatten)]
-    pub auth: super::security::TokenArgs,
-    #[command(flatten)]
-    pub tls: super::security::ServeTlsArgs,
-    /// How to reach the workers over TLS.
-    #[command(flatten)]
-    pub worker_tls: super::security::ConnectTlsArgs,
-    /// Serve Prometheus metrics on this address (`GET /metrics`).
-    #[arg(long)]
-    pub metrics: Option<String>,
-    /// Serve the web dashboard on this address (`http://ADDR/`).
-    #[arg(long)]
-    pub http: Option<String>,
-    #[command(flatten)]
-    pub limits: super::caps::LimitArgs,
-    /// Seconds a finished job (and its image) is kept for FetchResult.
-    #[arg(long, default_value_t = 3600)]
-    pub keep_results_s: u64,
-    /// Most finished jobs kept; the oldest are forgotten first.
-    #[arg(long, default_value_t = 1000)]
-    pub keep_jobs: usize,
-    /// Images kept in memory, MiB over all jobs; the rest go to disk.
-    #[arg(long, default_value_t = 256)]
-    pub results_memory_mib: u64,
-    /// Seconds after which a worker that registered itself and stopped
-    /// answering is forgotten.
-    #[arg(long, default_value_t = 30)]
-    pub registration_ttl_s: u64,
-}
 
 /// glibc gives each thread that allocates its own heap arena, and the scene
 /// checks run on the runtime's blocking threads, each leaving its arena at
@@ -127,33 +78,6 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
         std::io::stdout().flush()?;
         service::run(listener, config, sylva_coordinator::shutdown::signal()).await
     })
-}
-
-#[derive(Debug, Args)]
-pub struct SubmitArgs {
-    /// Scene file.
-    pub scene: PathBuf,
-    /// The coordinator, `host:port`.
-    #[arg(long)]
-    pub coordinator: String,
-    /// Output PNG (an EXR beside it with --exr).
-    #[arg(short, long, default_value = "sylva-out/render.png")]
-    pub out: PathBuf,
-    #[command(flatten)]
-    pub frame: super::render::FrameArgs,
-    /// How the frame is cut into strips.
-    #[arg(long, value_enum, default_value = "dynamic")]
-    pub schedule: sylva_scene::frame::ScheduleKind,
-    /// Higher runs first.
-    #[arg(long, default_value_t = 0)]
-    pub priority: i32,
-    /// Also fetch the linear HDR frame as OpenEXR.
-    #[arg(long)]
-    pub exr: bool,
-    #[command(flatten)]
-    pub auth: super::security::TokenArgs,
-    #[command(flatten)]
-    pub tls: super::security::ConnectTlsArgs,
 }
 
 pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {

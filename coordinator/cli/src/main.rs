@@ -1,9 +1,10 @@
-//! `sylva`: the command-line program. Parses flags and hands each
-//! subcommand to its module: the services and farm commands here, the
-//! studies (compare, bench, simulate) in [`lab`].
+//! `sylva`: the command-line program. Its flags are in [`flags`] (clap
+//! only); each command's module turns them into settings and runs it: the
+//! services and farm commands here, the studies (compare, bench, simulate)
+//! in [`lab`].
 
-mod caps;
 mod coordinator;
+mod flags;
 mod in_process;
 mod jobs;
 mod lab;
@@ -12,68 +13,10 @@ mod loopback;
 mod progress;
 mod render;
 mod scene;
-mod security;
 mod worker;
 
-use clap::{Parser, Subcommand};
-
-/// Sylva renders lit forests: a lattice-Boltzmann light-transport
-/// pre-process and a GPU ray tracer.
-#[derive(Debug, Parser)]
-#[command(name = "sylva", version, about)]
-pub struct Cli {
-    /// More logging (-v info, -vv debug); RUST_LOG overrides.
-    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
-    verbose: u8,
-    #[command(subcommand)]
-    command: Command,
-}
-
-impl Cli {
-    /// The tracing filter the verbosity asks for.
-    pub fn log_filter(&self) -> &'static str {
-        match self.verbose {
-            0 => "warn",
-            1 => "info",
-            _ => "debug",
-        }
-    }
-}
-
-#[derive(Debug, Subcommand)]
-enum Command {
-    /// Lattice-Boltzmann lighting: solve a model's light field, verify the solver.
-    #[command(subcommand)]
-    Lb(lb::LbCommand),
-    /// Render a scene to a PNG: through a coordinator and worker processes
-    /// started on loopback (default), running workers, or in this process.
-    Render(render::RenderArgs),
-    /// Serve the coordinator API: queue jobs, cut them into strips for workers.
-    Coordinator(coordinator::CoordinatorArgs),
-    /// Send a render job to a running coordinator and follow it.
-    Submit(coordinator::SubmitArgs),
-    /// List a coordinator's jobs.
-    Jobs(jobs::JobsArgs),
-    /// List a coordinator's workers.
-    Workers(jobs::WorkersArgs),
-    /// Cancel queued or running jobs.
-    Cancel(jobs::CancelArgs),
-    /// Set a job's priority (higher runs first).
-    Priority(jobs::PriorityArgs),
-    /// Fetch a finished job's image.
-    Fetch(jobs::FetchArgs),
-    /// Serve the worker API: hold scenes, render strips on this machine's GPU.
-    Worker(worker::WorkerArgs),
-    /// Scene files: write the paper's forest, export to glTF or pbrt-v4,
-    /// import an instanced glTF scene.
-    #[command(subcommand)]
-    Scene(scene::SceneCommand),
-    /// Render a scene with every lighting method and chart error against time.
-    Compare(lab::compare::CompareArgs),
-    /// Benchmarks that print JSON.
-    #[command(subcommand)]
-    Bench(lab::bench::BenchCommand),
-}
+use crate::flags::cli::*;
+use clap::Parser;
 
 /// Runs the parsed command.
 fn run(cli: Cli) -> anyhow::Result<()> {

@@ -4,10 +4,10 @@
 //! traces the scene in this process. Either way the whole frame is
 //! tone-mapped once and written with its stats.
 
+use crate::flags::render::*;
 use crate::in_process::InProcess;
 use crate::progress;
 use anyhow::{Context, bail};
-use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -22,169 +22,12 @@ use sylva_worker::trace::RenderSettings;
 
 use sylva_coordinator::schedule::ScheduleKind;
 use sylva_coordinator::service::MAX_NAME;
-use sylva_scene::format::SceneFile;
 use sylva_scene::frame::{FrameSettings, MAX_SPP};
-use sylva_scene::sequence::{SequenceSpec, SunAngles, SunSweep, View};
+use sylva_scene::sequence::View;
 use sylva_scene::{FileAccess, SceneLimits};
 use sylva_worker::lighting::reference::MIN_BATCH_SPP;
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
-
-/// What a frame asks for, as `render` and `submit` take it.
-#[derive(Debug, Args)]
-pub struct FrameArgs {
-    /// Image width.
-    #[arg(long, default_value_t = 896)]
-    pub width: u32,
-    /// Image height.
-    #[arg(long, default_value_t = 448)]
-    pub height: u32,
-    /// Rays per pixel.
-    #[arg(long, default_value_t = 1)]
-    pub spp: u32,
-    /// Acceleration structure.
-    #[arg(long, value_enum, default_value = "bvh")]
-    pub accel: AccelKind,
-    /// Lighting method; default the scene's.
-    #[arg(long, value_enum)]
-    pub lighting: Option<LightingMode>,
-    /// Seed of the per-pixel sample positions.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u32,
-    /// The paper LB model's weight of LB light relative to the sun's
-    /// (scenes with `"lb_model": "paper"` only; the default grounded model
-    /// derives the LB light's scale and ignores this).
-    #[arg(long, default_value_t = 0.35)]
-    pub lb_strength: f32,
-    /// Render a sequence of this many frames (with --sun-from/--sun-to, a
-    /// --camera-path, or the scene's own `sequence`).
-    #[arg(long)]
-    pub frames: Option<u32>,
-    /// A sun sweep's first position: ELEVATION,AZIMUTH in degrees.
-    #[arg(long, value_parser = sun_angles, requires = "sun_to")]
-    pub sun_from: Option<SunAngles>,
-    /// A sun sweep's last position: ELEVATION,AZIMUTH in degrees.
-    #[arg(long, value_parser = sun_angles, requires = "sun_from")]
-    pub sun_to: Option<SunAngles>,
-    /// Camera keyframes: a JSON file holding an array of
-    /// `{"frame", "position", "look_at", "up", "fov_y_deg"}`.
-    #[arg(long)]
-    pub camera_path: Option<PathBuf>,
-}
-
-/// `ELEVATION,AZIMUTH` in degrees.
-fn sun_angles(s: &str) -> Result<SunAngles, String> {
-    let v: Vec<f32> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f32>().map_err(|e| format!("{x:?}: {e}")))
-        .collect::<Result<_, _>>()?;
-    match v.as_slice() {
-        [e, a] => Ok(SunAngles { elevation_deg: *e, azimuth_deg: *a }),
-        _ => Err(format!("{s:?}: ELEVATION,AZIMUTH in degrees")),
-    }
-}
-
-impl FrameArgs {
-    /// The frame these flags ask for (checked by its user).
-    pub fn settings(&self) -> FrameSettings {
-        FrameSettings {
-            width: self.width,
-            height: self.height,
-            spp: self.spp,
-            seed: self.seed,
-            lighting: self.lighting,
-            accel: self.accel,
-            lb_strength: self.lb_strength,
-            ambient: None,
-            view: Default::default(),
-        }
-    }
-
-    /// The views of the sequence these flags (over the scene's own
-    /// `sequence`) ask for, one per frame; empty for a single frame.
-    pub fn views(&self, scene: &SceneFile) -> anyhow::Result<Vec<View>> {
-        let flags = self.frames.is_some() || self.sun_from.is_some() || self.camera_path.is_some();
-        let mut seq = match (&scene.sequence, flags) {
-            (None, false) => return Ok(Vec::new()),
-            (Some(s), _) => s.clone(),
-            (None, true) => SequenceSpec { frames: 0, sun: None, camera: Vec::new() },
-        };
-        if let Some(n) = self.frames {
-            seq.frames = n;
-        }
-        if let (Some(from), Some(to)) = (self.sun_from, self.sun_to) {
-            seq.sun = Some(SunSweep { from, to });
-        }
-        if let Some(p) = &self.camera_path {
-            let text = std::fs::read_to_string(p)
-                .with_context(|| format!("{}: cannot read", p.display()))?;
-            seq.camera = serde_json::from_str(&text).with_context(|| {
-                format!("{}: not a JSON array of camera keyframes", p.display())
-            })?;
-        }
-        if seq.frames == 0 {
-            bail!("a sequence needs --frames N (or the scene's sequence.frames)");
-        }
-        seq.views().map_err(anyhow::Error::msg)
-    }
-}
-
-#[derive(Debug, Args)]
-pub struct RenderArgs {
-    /// Scene file (JSON); see `sylva scene forest` and docs/scene-format.md.
-    pub scene: PathBuf,
-    /// Output PNG; stats go beside it as NAME.stats.json.
-    #[arg(short, long, default_value = "sylva-out/render.png")]
-    pub out: PathBuf,
-    #[command(flatten)]
-    pub frame: FrameArgs,
-    /// `--lighting reference` in this process: stop once the image's own
-    /// relative standard error is below this (each batch has --spp samples, at least 16).
-    #[arg(long, default_value_t = 0.02)]
-    pub target_error: f64,
-    /// `--lighting reference` in this process: stop after this many seconds.
-    #[arg(long, default_value_t = 600.0)]
-    pub max_seconds: f64,
-    /// LB grid of every model: a size, or `auto` (the smallest of 16, 32, 64,
-    /// 128 whose light differs from the next finer grid's by less than
-    /// --lb-auto-tolerance; the stats say what it chose and why). In this
-    /// process only (--local-workers 0).
-    #[arg(long)]
-    pub lb_grid: Option<String>,
-    /// `--lb-grid auto`: the largest relative difference accepted.
-    #[arg(long, default_value_t = 0.2)]
-    pub lb_auto_tolerance: f64,
-    /// Also write the linear HDR frame as OpenEXR beside the PNG.
-    #[arg(long)]
-    pub exr: bool,
-    /// Print the stats JSON on stdout.
-    #[arg(long)]
-    pub json: bool,
-    /// Worker processes to start on loopback for this render (0: render in
-    /// this process, without gRPC).
-    #[arg(long, default_value_t = 2)]
-    pub local_workers: usize,
-    /// Render on these running workers (`host:port,…`) instead of starting any.
-    #[arg(long, value_delimiter = ',')]
-    pub workers: Vec<String>,
-    /// How the frame is cut into strips for the workers.
-    #[arg(long, value_enum, default_value = "dynamic")]
-    pub schedule: ScheduleKind,
-    /// Seconds a worker may take over one strip before it is handed to another.
-    #[arg(long, default_value_t = 600)]
-    pub strip_deadline_s: u64,
-    /// The token the `--workers` require; local workers get a fresh random one.
-    #[command(flatten)]
-    pub auth: super::security::TokenArgs,
-    /// How to reach the `--workers` over TLS.
-    #[command(flatten)]
-    pub tls: super::security::ConnectTlsArgs,
-    /// Let the scene read model files outside its own folder (in this
-    /// process only: a bundle for workers always holds just the scene
-    /// folder's files).
-    #[arg(long)]
-    pub allow_files_outside_scene: bool,
-}
 
 /// A job for the coordinator: the frame (and a sequence's views), how to
 /// cut it, its priority and label.

@@ -2,11 +2,11 @@
 //! baseline measured in the same run (GPU against the CPU reference), since
 //! the machines are shared and noisy.
 
+use crate::flags::bench::*;
 use crate::in_process::InProcess;
-use crate::lb::{Backend, open_solver};
+use crate::lb::open_solver;
 use crate::progress;
 use anyhow::bail;
-use clap::{Args, Subcommand, ValueEnum};
 use serde_json::json;
 use std::time::Instant;
 use sylva_coordinator::executor::StripExecutor;
@@ -17,48 +17,6 @@ use sylva_light::{shapes, voxel};
 use sylva_scene::format::Preset;
 use sylva_scene::frame::FrameSettings;
 use sylva_scene::rng::SplitMix64;
-
-#[derive(Debug, Subcommand)]
-pub enum BenchCommand {
-    /// The LB solve on the CPU reference and on the GPU, in one run.
-    Lb(LbBenchArgs),
-    /// Ray traversal (kd-tree and BVH, GPU and CPU) and frame time on the forest.
-    Trace(TraceBenchArgs),
-    /// Strip-scaling speedup over worker counts, static against dynamic.
-    Scaling(ScalingBenchArgs),
-    /// Sequences: a camera path as one job against one job per frame, and
-    /// a sun sweep's second pass with the workers' LB cache against without.
-    Sequence(super::bench_sequence::SequenceBenchArgs),
-}
-
-/// What the benchmark solves.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum BenchMedium {
-    /// Every node holds leaf matter of random density: every node collides,
-    /// the plain D3Q19 step.
-    Dense,
-    /// The built-in plant voxelized: mostly empty space, as real models are.
-    Plant,
-}
-
-#[derive(Debug, Args)]
-pub struct LbBenchArgs {
-    /// Grid size N (N³ nodes).
-    #[arg(long, default_value_t = 64)]
-    pub grid: usize,
-    /// Medium to solve.
-    #[arg(long, value_enum, default_value = "dense")]
-    pub medium: BenchMedium,
-    /// Backends to run, in order.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "cpu,gpu")]
-    pub backends: Vec<Backend>,
-    /// Timed repetitions per backend (the median is reported).
-    #[arg(long, default_value_t = 1)]
-    pub repeat: usize,
-    /// Print JSON (the default output is also JSON; this flag is accepted for scripts).
-    #[arg(long)]
-    pub json: bool,
-}
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
@@ -299,44 +257,6 @@ pub(super) fn machine() -> serde_json::Value {
     })
 }
 
-#[derive(Debug, Args)]
-pub struct TraceBenchArgs {
-    /// Forest scale (instance count multiplier of the paper's Table 2).
-    #[arg(long, default_value_t = 0.05)]
-    pub scale: f64,
-    /// Triangle count multiplier per tree.
-    #[arg(long, default_value_t = 1.0)]
-    pub triangle_scale: f64,
-    /// Frame width.
-    #[arg(long, default_value_t = 896)]
-    pub width: u32,
-    /// Frame height.
-    #[arg(long, default_value_t = 448)]
-    pub height: u32,
-    /// Skip the CPU traversal (slow on big scenes).
-    #[arg(long)]
-    pub no_cpu: bool,
-    /// Structures to measure, in order.
-    #[arg(long, value_delimiter = ',', default_value = "kd,bvh")]
-    pub accel: Vec<sylva_scene::frame::AccelKind>,
-    /// Skip the whole frames.
-    #[arg(long)]
-    pub no_frames: bool,
-    /// Also write the rays (`rays.npy`: origin and direction per row) and
-    /// every instance's triangles that a ray can hit, flattened to world
-    /// space (`triangles.npy`), for `benchmarks/embree.py`.
-    #[arg(long)]
-    pub export: Option<std::path::PathBuf>,
-    /// Also time the CPU BVH over those flattened triangles, opaque, as
-    /// one level: the setup `benchmarks/embree.py` gives Embree (memory
-    /// grows with the instanced triangles: for small scales only).
-    #[arg(long)]
-    pub flat: bool,
-    /// Print JSON (always JSON; accepted for scripts).
-    #[arg(long)]
-    pub json: bool,
-}
-
 /// Traversal and frame-time benchmark on the forest: Mrays/s of kd-tree
 /// against BVH, GPU against CPU, on the same primary rays, then whole frames
 /// at 1 and 4 rays per pixel.
@@ -518,49 +438,6 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     });
     println!("{}", serde_json::to_string_pretty(&out)?);
     Ok(())
-}
-
-#[derive(Debug, Args)]
-pub struct ScalingBenchArgs {
-    /// Scene file.
-    pub scene: std::path::PathBuf,
-    /// Worker counts.
-    #[arg(long, value_delimiter = ',', default_value = "1,2,4,8,16")]
-    pub workers: Vec<usize>,
-    /// Schedules to compare.
-    #[arg(long, value_delimiter = ',', default_value = "static,dynamic")]
-    pub schedule: Vec<String>,
-    /// Frame width.
-    #[arg(long, default_value_t = 896)]
-    pub width: u32,
-    /// Frame height.
-    #[arg(long, default_value_t = 448)]
-    pub height: u32,
-    /// Rays per pixel.
-    #[arg(long, default_value_t = 1)]
-    pub spp: u32,
-    /// Running workers for measured wall times (`host:port,…`); without them
-    /// up to --local-real local workers are started for measured runs.
-    #[arg(long = "real-workers", value_delimiter = ',')]
-    pub real_workers: Vec<String>,
-    /// The token the `--real-workers` require.
-    #[command(flatten)]
-    pub auth: crate::security::TokenArgs,
-    /// How to reach the `--real-workers` over TLS.
-    #[command(flatten)]
-    pub tls: crate::security::ConnectTlsArgs,
-    /// Largest worker count measured with local worker processes.
-    #[arg(long, default_value_t = 2)]
-    pub local_real: usize,
-    /// Strips the frame is profiled in, one at a time.
-    #[arg(long, default_value_t = 64)]
-    pub profile_strips: u32,
-    /// Where to draw the chart (SVG).
-    #[arg(long, default_value = "sylva-out/scaling.svg")]
-    pub chart: std::path::PathBuf,
-    /// Print JSON (always JSON; accepted for scripts).
-    #[arg(long)]
-    pub json: bool,
 }
 
 /// The paper's Table 4: G80s, static strips, seconds per frame.

@@ -9,10 +9,10 @@
 //!   sun against workers that keep only the sun they are on: the final
 //!   pass's per-frame cost and the LB solves each farm did.
 
+use crate::flags::bench_sequence::*;
 use crate::loopback::LoopbackProcesses;
 use crate::render::job_spec;
 use anyhow::Context;
-use clap::Args;
 use serde_json::json;
 use std::time::Instant;
 use sylva_coordinator::client::submit_and_follow;
@@ -22,37 +22,6 @@ use sylva_scene::bundle::SceneBundle;
 use sylva_scene::frame::FrameSettings;
 use sylva_scene::frame::ScheduleKind;
 use sylva_scene::sequence::{CameraKey, SequenceSpec, SunAngles, SunSweep, View};
-
-#[derive(Debug, Args)]
-pub struct SequenceBenchArgs {
-    /// Scene file.
-    pub scene: std::path::PathBuf,
-    /// Frames in each sequence.
-    #[arg(long, default_value_t = 24)]
-    pub frames: u32,
-    /// Local worker processes.
-    #[arg(long, default_value_t = 2)]
-    pub workers: usize,
-    /// Frame width.
-    #[arg(long, default_value_t = 320)]
-    pub width: u32,
-    /// Frame height.
-    #[arg(long, default_value_t = 160)]
-    pub height: u32,
-    /// Rays per pixel of the camera path and of the sweep's final pass (its
-    /// preview pass has 1).
-    #[arg(long, default_value_t = 2)]
-    pub spp: u32,
-    /// The sun sweep: first position, ELEVATION,AZIMUTH in degrees.
-    #[arg(long, default_value = "15,90")]
-    pub sun_from: String,
-    /// The sun sweep: last position.
-    #[arg(long, default_value = "60,200")]
-    pub sun_to: String,
-    /// Print JSON (always JSON; accepted for scripts).
-    #[arg(long)]
-    pub json: bool,
-}
 
 /// `ELEVATION,AZIMUTH`.
 fn angles(s: &str) -> anyhow::Result<SunAngles> {

@@ -1,0 +1,79 @@
+//! `sylva coordinator` and `sylva submit`. Flags only (clap), and their conversion to settings.
+
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Debug, Args)]
+pub struct CoordinatorArgs {
+    /// Address to listen on (port 0 picks one; the bound address is printed).
+    #[arg(long, default_value = "127.0.0.1:50150")]
+    pub listen: String,
+    /// Workers to use from the start (`host:port,…`); others register themselves.
+    #[arg(long, value_delimiter = ',')]
+    pub workers: Vec<String>,
+    /// Jobs rendered at the same time.
+    #[arg(long, default_value_t = 2)]
+    pub max_running: usize,
+    /// Largest scene bundle accepted, MiB.
+    #[arg(long, default_value_t = 1024)]
+    pub max_bundle_mib: u64,
+    /// Seconds one strip may take before it goes to another worker.
+    #[arg(long, default_value_t = 600)]
+    pub strip_deadline_s: u64,
+    /// The token clients must send, and workers are sent.
+    #[command(flatten)]
+    pub auth: crate::flags::security::TokenArgs,
+    #[command(flatten)]
+    pub tls: crate::flags::security::ServeTlsArgs,
+    /// How to reach the workers over TLS.
+    #[command(flatten)]
+    pub worker_tls: crate::flags::security::ConnectTlsArgs,
+    /// Serve Prometheus metrics on this address (`GET /metrics`).
+    #[arg(long)]
+    pub metrics: Option<String>,
+    /// Serve the web dashboard on this address (`http://ADDR/`).
+    #[arg(long)]
+    pub http: Option<String>,
+    #[command(flatten)]
+    pub limits: crate::flags::caps::LimitArgs,
+    /// Seconds a finished job (and its image) is kept for FetchResult.
+    #[arg(long, default_value_t = 3600)]
+    pub keep_results_s: u64,
+    /// Most finished jobs kept; the oldest are forgotten first.
+    #[arg(long, default_value_t = 1000)]
+    pub keep_jobs: usize,
+    /// Images kept in memory, MiB over all jobs; the rest go to disk.
+    #[arg(long, default_value_t = 256)]
+    pub results_memory_mib: u64,
+    /// Seconds after which a worker that registered itself and stopped
+    /// answering is forgotten.
+    #[arg(long, default_value_t = 30)]
+    pub registration_ttl_s: u64,
+}
+
+#[derive(Debug, Args)]
+pub struct SubmitArgs {
+    /// Scene file.
+    pub scene: PathBuf,
+    /// The coordinator, `host:port`.
+    #[arg(long)]
+    pub coordinator: String,
+    /// Output PNG (an EXR beside it with --exr).
+    #[arg(short, long, default_value = "sylva-out/render.png")]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub frame: crate::flags::render::FrameArgs,
+    /// How the frame is cut into strips.
+    #[arg(long, value_enum, default_value = "dynamic")]
+    pub schedule: sylva_scene::frame::ScheduleKind,
+    /// Higher runs first.
+    #[arg(long, default_value_t = 0)]
+    pub priority: i32,
+    /// Also fetch the linear HDR frame as OpenEXR.
+    #[arg(long)]
+    pub exr: bool,
+    #[command(flatten)]
+    pub auth: crate::flags::security::TokenArgs,
+    #[command(flatten)]
+    pub tls: crate::flags::security::ConnectTlsArgs,
+}
