@@ -12,7 +12,7 @@ use glam::{Affine3A, Mat4, Quat, Vec3};
 use serde_json::{Value, json};
 
 /// What an export wrote.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct GltfSummary {
     /// Meshes (one per model, plus the ground).
     pub meshes: usize,
@@ -121,167 +121,18 @@ fn trs(m: &Affine3A) -> Option<(Vec3, Quat, Vec3)> {
 
 /// The scene as a binary glTF file, and what went in.
 pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
-    let mut bin = Bin::default();
-    let (mut meshes, mut materials, mut images, mut textures, mut nodes) =
-        (vec![], vec![], vec![], vec![], vec![]);
-    let mut summary = GltfSummary {
-        meshes: 0,
-        instances: 0,
-        matrix_nodes: 0,
-        triangles: 0,
-        materials: 0,
-        textures: 0,
-        bytes: 0,
-    };
-    let mut scene_nodes = vec![];
+    let mut p = Parts::default();
     for (mi, m) in scene.models.iter().enumerate() {
-        let model: &Model = &m.model;
-        // Textures of this model, as PNG images in the file.
-        let first_texture = textures.len();
-        for t in &model.textures {
-            let img = image::RgbaImage::from_raw(t.width, t.height, t.rgba.clone())
-                .context("a texture's size does not match its texels")?;
-            let mut png = std::io::Cursor::new(Vec::new());
-            img.write_to(&mut png, image::ImageFormat::Png)?;
-            let view = bin.view(&png.into_inner(), None);
-            images.push(json!({ "bufferView": view, "mimeType": "image/png" }));
-            textures.push(json!({ "source": images.len() - 1, "sampler": 0 }));
-        }
-        let first_material = materials.len();
-        for mat in &model.materials {
-            let mut pbr = json!({ "baseColorFactor": mat.base_color, "metallicFactor": 0.0, "roughnessFactor": 1.0 });
-            if let Some(t) = mat.texture {
-                pbr["baseColorTexture"] = json!({ "index": first_texture + t as usize });
-            }
-            let mut out = json!({ "name": surface_name(&mat.name, mat.surface), "pbrMetallicRoughness": pbr, "doubleSided": mat.double_sided });
-            if let Some(c) = mat.alpha_cutoff {
-                (out["alphaMode"], out["alphaCutoff"]) = ("MASK".into(), c.into());
-            }
-            materials.push(out);
-        }
-        // One position and one texture-coordinate accessor, one primitive per material.
-        let positions: Vec<f32> = model.positions.iter().flat_map(|p| p.to_array()).collect();
-        let pos = bin.floats(&positions, 3, "VEC3", true, Some(ARRAY_BUFFER));
-        let mut attributes = json!({ "POSITION": pos });
-        if model.uvs.len() == model.positions.len() {
-            let uvs: Vec<f32> = model.uvs.iter().flat_map(|u| u.to_array()).collect();
-            attributes["TEXCOORD_0"] =
-                bin.floats(&uvs, 2, "VEC2", false, Some(ARRAY_BUFFER)).into();
-        }
-        let mut primitives = vec![];
-        for k in 0..model.materials.len() {
-            let idx: Vec<u32> = model
-                .triangles
-                .iter()
-                .zip(&model.material)
-                .filter(|(_, mt)| **mt as usize == k)
-                .flat_map(|(t, _)| *t)
-                .collect();
-            if !idx.is_empty() {
-                primitives.push(json!({ "attributes": attributes, "indices": bin.indices(&idx), "material": first_material + k, "mode": 4 }));
-            }
-        }
-        if primitives.is_empty() {
-            bail!("model {} has no triangles", m.name);
-        }
-        summary.triangles += model.triangle_count() as u64;
-        meshes.push(json!({ "name": m.name, "primitives": primitives }));
-        // Its placements: instancing transforms, plain nodes for the rest.
-        let (mut t, mut r, mut s) = (vec![], vec![], vec![]);
-        for inst in scene.instances.iter().filter(|i| i.model as usize == mi) {
-            match trs(&inst.to_world) {
-                Some((tt, rr, ss)) => {
-                    t.extend(tt.to_array());
-                    r.extend(rr.normalize().to_array());
-                    s.extend(ss.to_array());
-                }
-                None => {
-                    let matrix = Mat4::from(inst.to_world).to_cols_array();
-                    nodes.push(json!({ "name": format!("{} (matrix)", m.name), "mesh": meshes.len() - 1, "matrix": matrix }));
-                    scene_nodes.push(nodes.len() - 1);
-                    summary.matrix_nodes += 1;
-                }
-            }
-        }
-        if !t.is_empty() {
-            summary.instances += t.len() / 3;
-            let attrs = json!({
-                "TRANSLATION": bin.floats(&t, 3, "VEC3", false, None),
-                "ROTATION": bin.floats(&r, 4, "VEC4", false, None),
-                "SCALE": bin.floats(&s, 3, "VEC3", false, None),
-            });
-            nodes.push(json!({ "name": m.name, "mesh": meshes.len() - 1, "extensions": { "EXT_mesh_gpu_instancing": { "attributes": attrs } } }));
-            scene_nodes.push(nodes.len() - 1);
-        }
+        add_model(&mut p, scene, mi, m)?;
     }
-    summary.materials = materials.len();
-    summary.textures = textures.len();
-
-    // The ground: a square three times the stand's extent, at least 200 m.
+    p.summary.materials = p.materials.len();
+    p.summary.textures = p.textures.len();
     if let Some(g) = &scene.ground {
-        let (lo, hi) = scene
-            .instances
-            .iter()
-            .filter_map(|i| scene.models[i.model as usize].model.bounds().map(|b| (i, b)))
-            .fold(
-                (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-                |(lo, hi), (i, (a, b))| {
-                    let corners = [a, b, Vec3::new(a.x, a.y, b.z), Vec3::new(b.x, a.y, a.z)]
-                        .map(|c| i.to_world.transform_point3(c));
-                    corners.iter().fold((lo, hi), |(lo, hi), &c| (lo.min(c), hi.max(c)))
-                },
-            );
-        let (centre, half) = if lo.is_finite() && hi.is_finite() {
-            ((lo + hi) * 0.5, (1.5 * (hi - lo).max_element()).max(100.0))
-        } else {
-            (Vec3::ZERO, 100.0)
-        };
-        let (cx, cz) = (centre.x, centre.z);
-        let quad = [
-            cx - half,
-            0.0,
-            cz - half,
-            cx + half,
-            0.0,
-            cz - half,
-            cx + half,
-            0.0,
-            cz + half,
-            cx - half,
-            0.0,
-            cz + half,
-        ];
-        let pos = bin.floats(&quad, 3, "VEC3", true, Some(ARRAY_BUFFER));
-        let idx = bin.indices(&[0, 2, 1, 0, 3, 2]);
-        materials.push(json!({ "name": "ground", "pbrMetallicRoughness": { "baseColorFactor": [g.color[0], g.color[1], g.color[2], 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0 } }));
-        meshes.push(json!({ "name": "ground", "primitives": [{ "attributes": { "POSITION": pos }, "indices": idx, "material": materials.len() - 1, "mode": 4 }] }));
-        nodes.push(
-            json!({ "name": "ground", "mesh": meshes.len() - 1, "extras": { "sylva": "ground" } }),
-        );
-        scene_nodes.push(nodes.len() - 1);
+        add_ground(&mut p, scene, g.color);
     }
-    summary.meshes = meshes.len();
-
-    // The camera: glTF cameras look down their node's −Z with +Y up.
-    let c = &scene.camera;
-    let view = Mat4::look_to_rh(c.position, c.forward, c.up);
-    let (_, rot, pos) = view.inverse().to_scale_rotation_translation();
-    let yfov = 2.0 * c.tan_half_fov_y.atan();
-    let cameras = vec![
-        json!({ "name": "camera", "type": "perspective", "perspective": { "yfov": yfov, "znear": 0.05 } }),
-    ];
-    nodes.push(json!({ "name": "camera", "camera": 0, "translation": pos.to_array(), "rotation": rot.normalize().to_array() }));
-    scene_nodes.push(nodes.len() - 1);
-
-    // The sun: a directional light shines down its node's −Z.
-    let sun = scene.sun;
-    let strength = sun.radiance.iter().copied().fold(0.0f32, f32::max);
-    let colour = if strength > 0.0 { sun.radiance.map(|v| v / strength) } else { [1.0; 3] };
-    let lights = json!({ "lights": [{ "name": "sun", "type": "directional", "color": colour, "intensity": strength }] });
-    let sun_rot = Quat::from_rotation_arc(Vec3::NEG_Z, -sun.towards.normalize());
-    nodes.push(json!({ "name": "sun", "rotation": sun_rot.normalize().to_array(), "extensions": { "KHR_lights_punctual": { "light": 0 } } }));
-    scene_nodes.push(nodes.len() - 1);
-
+    p.summary.meshes = p.meshes.len();
+    let (cameras, lights) = add_camera_and_sun(&mut p, scene);
+    let Parts { mut bin, meshes, materials, images, textures, nodes, scene_nodes, mut summary } = p;
     let file = &scene.file;
     let extras = json!({ "sylva": {
         "sky": { "zenith": scene.sky.zenith, "horizon": scene.sky.horizon },
@@ -316,6 +167,172 @@ pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
     let bytes = glb(&serde_json::to_vec(&doc)?, &bin.data)?;
     summary.bytes = bytes.len();
     Ok((bytes, summary))
+}
+
+/// The glTF document's arrays as they are filled, and the binary buffer.
+#[derive(Default)]
+struct Parts {
+    bin: Bin,
+    meshes: Vec<serde_json::Value>,
+    materials: Vec<serde_json::Value>,
+    images: Vec<serde_json::Value>,
+    textures: Vec<serde_json::Value>,
+    nodes: Vec<serde_json::Value>,
+    scene_nodes: Vec<usize>,
+    summary: GltfSummary,
+}
+
+/// A model: its textures as PNG images, its materials, one mesh (a
+/// primitive per material) and its placements, as one instancing node
+/// (`EXT_mesh_gpu_instancing`) plus a matrix node for each placement
+/// that is no translation, rotation and scale.
+fn add_model(p: &mut Parts, scene: &Scene, mi: usize, m: &crate::SceneModel) -> anyhow::Result<()> {
+    let model: &Model = &m.model;
+    // Textures of this model, as PNG p.images in the file.
+    let first_texture = p.textures.len();
+    for t in &model.textures {
+        let img = image::RgbaImage::from_raw(t.width, t.height, t.rgba.clone())
+            .context("a texture's size does not match its texels")?;
+        let mut png = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut png, image::ImageFormat::Png)?;
+        let view = p.bin.view(&png.into_inner(), None);
+        p.images.push(json!({ "bufferView": view, "mimeType": "image/png" }));
+        p.textures.push(json!({ "source": p.images.len() - 1, "sampler": 0 }));
+    }
+    let first_material = p.materials.len();
+    for mat in &model.materials {
+        let mut pbr = json!({ "baseColorFactor": mat.base_color, "metallicFactor": 0.0, "roughnessFactor": 1.0 });
+        if let Some(t) = mat.texture {
+            pbr["baseColorTexture"] = json!({ "index": first_texture + t as usize });
+        }
+        let mut out = json!({ "name": surface_name(&mat.name, mat.surface), "pbrMetallicRoughness": pbr, "doubleSided": mat.double_sided });
+        if let Some(c) = mat.alpha_cutoff {
+            (out["alphaMode"], out["alphaCutoff"]) = ("MASK".into(), c.into());
+        }
+        p.materials.push(out);
+    }
+    // One position and one texture-coordinate accessor, one primitive per material.
+    let positions: Vec<f32> = model.positions.iter().flat_map(|p| p.to_array()).collect();
+    let pos = p.bin.floats(&positions, 3, "VEC3", true, Some(ARRAY_BUFFER));
+    let mut attributes = json!({ "POSITION": pos });
+    if model.uvs.len() == model.positions.len() {
+        let uvs: Vec<f32> = model.uvs.iter().flat_map(|u| u.to_array()).collect();
+        attributes["TEXCOORD_0"] = p.bin.floats(&uvs, 2, "VEC2", false, Some(ARRAY_BUFFER)).into();
+    }
+    let mut primitives = vec![];
+    for k in 0..model.materials.len() {
+        let idx: Vec<u32> = model
+            .triangles
+            .iter()
+            .zip(&model.material)
+            .filter(|(_, mt)| **mt as usize == k)
+            .flat_map(|(t, _)| *t)
+            .collect();
+        if !idx.is_empty() {
+            primitives.push(json!({ "attributes": attributes, "indices": p.bin.indices(&idx), "material": first_material + k, "mode": 4 }));
+        }
+    }
+    if primitives.is_empty() {
+        bail!("model {} has no triangles", m.name);
+    }
+    p.summary.triangles += model.triangle_count() as u64;
+    p.meshes.push(json!({ "name": m.name, "primitives": primitives }));
+    // Its placements: instancing transforms, plain p.nodes for the rest.
+    let (mut t, mut r, mut s) = (vec![], vec![], vec![]);
+    for inst in scene.instances.iter().filter(|i| i.model as usize == mi) {
+        match trs(&inst.to_world) {
+            Some((tt, rr, ss)) => {
+                t.extend(tt.to_array());
+                r.extend(rr.normalize().to_array());
+                s.extend(ss.to_array());
+            }
+            None => {
+                let matrix = Mat4::from(inst.to_world).to_cols_array();
+                p.nodes.push(json!({ "name": format!("{} (matrix)", m.name), "mesh": p.meshes.len() - 1, "matrix": matrix }));
+                p.scene_nodes.push(p.nodes.len() - 1);
+                p.summary.matrix_nodes += 1;
+            }
+        }
+    }
+    if !t.is_empty() {
+        p.summary.instances += t.len() / 3;
+        let attrs = json!({
+            "TRANSLATION": p.bin.floats(&t, 3, "VEC3", false, None),
+            "ROTATION": p.bin.floats(&r, 4, "VEC4", false, None),
+            "SCALE": p.bin.floats(&s, 3, "VEC3", false, None),
+        });
+        p.nodes.push(json!({ "name": m.name, "mesh": p.meshes.len() - 1, "extensions": { "EXT_mesh_gpu_instancing": { "attributes": attrs } } }));
+        p.scene_nodes.push(p.nodes.len() - 1);
+    }
+    Ok(())
+}
+
+/// The ground: a square three times the stand's extent, at least 200 m.
+fn add_ground(p: &mut Parts, scene: &Scene, colour: [f32; 3]) {
+    let (lo, hi) = scene
+        .instances
+        .iter()
+        .filter_map(|i| scene.models[i.model as usize].model.bounds().map(|b| (i, b)))
+        .fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), (i, (a, b))| {
+                let corners = [a, b, Vec3::new(a.x, a.y, b.z), Vec3::new(b.x, a.y, a.z)]
+                    .map(|c| i.to_world.transform_point3(c));
+                corners.iter().fold((lo, hi), |(lo, hi), &c| (lo.min(c), hi.max(c)))
+            },
+        );
+    let (centre, half) = if lo.is_finite() && hi.is_finite() {
+        ((lo + hi) * 0.5, (1.5 * (hi - lo).max_element()).max(100.0))
+    } else {
+        (Vec3::ZERO, 100.0)
+    };
+    let (cx, cz) = (centre.x, centre.z);
+    let quad = [
+        cx - half,
+        0.0,
+        cz - half,
+        cx + half,
+        0.0,
+        cz - half,
+        cx + half,
+        0.0,
+        cz + half,
+        cx - half,
+        0.0,
+        cz + half,
+    ];
+    let pos = p.bin.floats(&quad, 3, "VEC3", true, Some(ARRAY_BUFFER));
+    let idx = p.bin.indices(&[0, 2, 1, 0, 3, 2]);
+    p.materials.push(json!({ "name": "ground", "pbrMetallicRoughness": { "baseColorFactor": [colour[0], colour[1], colour[2], 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0 } }));
+    p.meshes.push(json!({ "name": "ground", "primitives": [{ "attributes": { "POSITION": pos }, "indices": idx, "material": p.materials.len() - 1, "mode": 4 }] }));
+    p.nodes.push(
+        json!({ "name": "ground", "mesh": p.meshes.len() - 1, "extras": { "sylva": "ground" } }),
+    );
+    p.scene_nodes.push(p.nodes.len() - 1);
+}
+
+/// The camera node and the sun's light node; the cameras array.
+fn add_camera_and_sun(p: &mut Parts, scene: &Scene) -> (Vec<serde_json::Value>, serde_json::Value) {
+    // The camera: glTF cameras look down their node's −Z with +Y up.
+    let c = &scene.camera;
+    let view = Mat4::look_to_rh(c.position, c.forward, c.up);
+    let (_, rot, pos) = view.inverse().to_scale_rotation_translation();
+    let yfov = 2.0 * c.tan_half_fov_y.atan();
+    let cameras = vec![
+        json!({ "name": "camera", "type": "perspective", "perspective": { "yfov": yfov, "znear": 0.05 } }),
+    ];
+    p.nodes.push(json!({ "name": "camera", "camera": 0, "translation": pos.to_array(), "rotation": rot.normalize().to_array() }));
+    p.scene_nodes.push(p.nodes.len() - 1);
+
+    // The sun: a directional light shines down its node's −Z.
+    let sun = scene.sun;
+    let strength = sun.radiance.iter().copied().fold(0.0f32, f32::max);
+    let colour = if strength > 0.0 { sun.radiance.map(|v| v / strength) } else { [1.0; 3] };
+    let lights = json!({ "lights": [{ "name": "sun", "type": "directional", "color": colour, "intensity": strength }] });
+    let sun_rot = Quat::from_rotation_arc(Vec3::NEG_Z, -sun.towards.normalize());
+    p.nodes.push(json!({ "name": "sun", "rotation": sun_rot.normalize().to_array(), "extensions": { "KHR_lights_punctual": { "light": 0 } } }));
+    p.scene_nodes.push(p.nodes.len() - 1);
+    (cameras, lights)
 }
 
 /// The GLB container: a 12-byte header, the JSON chunk padded with spaces
