@@ -290,7 +290,7 @@ impl GpuScene {
         accel: &SceneAccel,
         light: &SceneLight,
     ) -> anyhow::Result<Self> {
-        let (lb, lb_scales) = (&light.models, &light.instance_scales);
+        let lb_scales = &light.instance_scales;
         let mut f = Flat::default();
         if let Accel::Bvh(top) = &accel.top {
             // The top level's entries, one part's remainder, then a model's.
@@ -320,130 +320,17 @@ impl GpuScene {
         let mut model_places = Vec::with_capacity(scene.models.len());
         let mut triangle_offsets = Vec::with_capacity(scene.models.len());
         for (m, sm) in scene.models.iter().enumerate() {
-            let model = &sm.model;
-            let (tri0, vert0) = (f.triangles.len() as u32, (f.positions.len() / 3) as u32);
-            let (mat0, tex0) = (f.materials.len() as u32, f.textures.len() as u32);
+            let (tri0, root, records_at) = push_model(&mut f, m, sm, accel, light)?;
             triangle_offsets.push(tri0);
-            let records: Vec<[u32; 4]> = accel
-                .records
-                .get(m)
-                .map_or(&[][..], |r| r.as_slice())
-                .iter()
-                .flat_map(|r| {
-                    let r = TriangleRecord {
-                        triangle: r.triangle + tri0,
-                        material: r.material + mat0,
-                        ..*r
-                    };
-                    bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
-                })
-                .collect();
-            let (root, records_at) =
-                f.push_accel(&accel.models[m], tri0, &records, RECORD_ENTRIES)?;
             model_places.push((root, records_at));
-            f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
-            f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
-            f.triangles.extend(
-                model
-                    .triangles
-                    .iter()
-                    .zip(&model.material)
-                    .map(|(t, &mat)| GpuTriangle { v: t.map(|i| i + vert0), material: mat + mat0 }),
-            );
-            f.materials.extend(model.materials.iter().map(|mt| GpuMaterial {
-                base_color: mt.base_color,
-                texture: mt.texture.map_or(NO_TEXTURE, |t| t + tex0),
-                alpha_cutoff: mt.alpha_cutoff.unwrap_or(-1.0),
-                double_sided: mt.double_sided as u32,
-                surface: (mt.surface == sylva_scene::model::Surface::Wood) as u32,
-            }));
-            for t in &model.textures {
-                f.textures.push(GpuTexture {
-                    offset: f.texels.len() as u32,
-                    width: t.width,
-                    height: t.height,
-                    pad: 0,
-                });
-                f.texels.extend(t.rgba.as_chunks::<4>().0.iter().map(|&p| u32::from_le_bytes(p)));
-            }
-            let mut gm = GpuModel { root, ..GpuModel::zeroed() };
-            if let Some(Some(g)) = lb.get(m) {
-                let d = g.dims;
-                anyhow::ensure!(
-                    d.nx >= 2 && d.ny >= 2 && d.nz >= 2 && g.rgb.len() == 3 * d.len(),
-                    "LB grid of model {} has the wrong size",
-                    sm.name
-                );
-                gm = GpuModel {
-                    root,
-                    lb_offset: f.lb.len() as u32,
-                    has_lb: 1,
-                    lb_origin: g.frame.origin,
-                    lb_cell: g.frame.cell,
-                    lb_dims: [d.nx as u32, d.ny as u32, d.nz as u32],
-                    ..GpuModel::zeroed()
-                };
-                f.lb.extend_from_slice(&g.rgb);
-            }
-            // Envelope distances are indexed by global triangle: eight per triangle.
-            if light.envelopes.iter().any(|e| e.is_some()) {
-                match light.envelopes.get(m).and_then(|e| e.as_ref()) {
-                    Some(e) => {
-                        anyhow::ensure!(
-                            e.s_max.len() == model.triangles.len(),
-                            "envelope of model {} has the wrong size",
-                            sm.name
-                        );
-                        (gm.tau, gm.leaf_density, gm.leaf_area, gm.has_envelope) =
-                            (e.tau, e.leaf_density, e.leaf_area, 1);
-                        f.envelope.extend(e.s_max.iter().flatten());
-                    }
-                    None => f.envelope.extend(std::iter::repeat_n(0.0, 8 * model.triangles.len())),
-                }
-            }
-            f.models.push(gm);
         }
         for k in 0..top_records.len() {
             let e = &mut f.nodes[parts_at as usize + k];
             let (root, records_at) = model_places[scene.instances[e[0] as usize].model as usize];
             e[1] = placed(e[1], root, records_at, RECORD_ENTRIES);
         }
-        for (i, inst) in scene.instances.iter().enumerate() {
-            let m = accel.to_model[i];
-            let c = [m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis];
-            let to_model = std::array::from_fn(|r| [c[0][r], c[1][r], c[2][r], m.translation[r]]);
-            // The instance's own orientation, scale removed.
-            let w = inst.to_world.matrix3;
-            let scale = w.determinant().abs().cbrt().max(f32::MIN_POSITIVE);
-            let wc = [w.x_axis / scale, w.y_axis / scale, w.z_axis / scale];
-            let to_lb = std::array::from_fn(|r| [wc[0][r], wc[1][r], wc[2][r], 0.0]);
-            let lb_scale = lb_scales.get(i).copied().unwrap_or(1.0);
-            f.instances.push(GpuInstance {
-                to_model,
-                to_lb,
-                model: inst.model,
-                lb_scale,
-                pad: [0; 2],
-            });
-        }
-        for c in &light.clouds {
-            anyhow::ensure!(
-                c.n >= 2 && c.density.len() == c.n.pow(3) && c.light.len() == 3 * c.n.pow(3),
-                "cloud grid has the wrong size"
-            );
-            f.clouds.push(GpuCloud {
-                min: c.min,
-                size: c.size,
-                n: c.n as u32,
-                offset: f.cloud_data.len() as u32,
-                extinction: c.sigma_t * c.n as f32 / c.size,
-                albedo: c.albedo,
-                g: c.g,
-                pad: [0; 3],
-            });
-            f.cloud_data.extend_from_slice(&c.density);
-            f.cloud_data.extend_from_slice(&c.light);
-        }
+        push_instances(&mut f, scene, accel, lb_scales);
+        push_clouds(&mut f, &light.clouds)?;
         let mut ground = ([0.0; 4], [0; 4]);
         if let Some(g) = &light.ground {
             anyhow::ensure!(
@@ -560,4 +447,134 @@ impl GpuScene {
             ground: ([0.0; 4], [0; 4]),
         })
     }
+}
+
+/// One model into the flat buffers: its structure (records placed after
+/// the triangles before it), vertices, triangles, materials, textures, LB
+/// grid and Boulanger envelope. Returns its first triangle, its structure's
+/// root and where its records start.
+fn push_model(
+    f: &mut Flat,
+    m: usize,
+    sm: &sylva_scene::SceneModel,
+    accel: &SceneAccel,
+    light: &SceneLight,
+) -> anyhow::Result<(u32, u32, u32)> {
+    let model = &sm.model;
+    let (tri0, vert0) = (f.triangles.len() as u32, (f.positions.len() / 3) as u32);
+    let (mat0, tex0) = (f.materials.len() as u32, f.textures.len() as u32);
+    let records: Vec<[u32; 4]> = accel
+        .records
+        .get(m)
+        .map_or(&[][..], |r| r.as_slice())
+        .iter()
+        .flat_map(|r| {
+            let r =
+                TriangleRecord { triangle: r.triangle + tri0, material: r.material + mat0, ..*r };
+            bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
+        })
+        .collect();
+    let (root, records_at) = f.push_accel(&accel.models[m], tri0, &records, RECORD_ENTRIES)?;
+    f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
+    f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
+    f.triangles.extend(
+        model
+            .triangles
+            .iter()
+            .zip(&model.material)
+            .map(|(t, &mat)| GpuTriangle { v: t.map(|i| i + vert0), material: mat + mat0 }),
+    );
+    f.materials.extend(model.materials.iter().map(|mt| GpuMaterial {
+        base_color: mt.base_color,
+        texture: mt.texture.map_or(NO_TEXTURE, |t| t + tex0),
+        alpha_cutoff: mt.alpha_cutoff.unwrap_or(-1.0),
+        double_sided: mt.double_sided as u32,
+        surface: (mt.surface == sylva_scene::model::Surface::Wood) as u32,
+    }));
+    for t in &model.textures {
+        f.textures.push(GpuTexture {
+            offset: f.texels.len() as u32,
+            width: t.width,
+            height: t.height,
+            pad: 0,
+        });
+        f.texels.extend(t.rgba.as_chunks::<4>().0.iter().map(|&p| u32::from_le_bytes(p)));
+    }
+    let mut gm = GpuModel { root, ..GpuModel::zeroed() };
+    if let Some(Some(g)) = light.models.get(m) {
+        let d = g.dims;
+        anyhow::ensure!(
+            d.nx >= 2 && d.ny >= 2 && d.nz >= 2 && g.rgb.len() == 3 * d.len(),
+            "LB grid of model {} has the wrong size",
+            sm.name
+        );
+        gm = GpuModel {
+            root,
+            lb_offset: f.lb.len() as u32,
+            has_lb: 1,
+            lb_origin: g.frame.origin,
+            lb_cell: g.frame.cell,
+            lb_dims: [d.nx as u32, d.ny as u32, d.nz as u32],
+            ..GpuModel::zeroed()
+        };
+        f.lb.extend_from_slice(&g.rgb);
+    }
+    // Envelope distances are indexed by global triangle: eight per triangle.
+    if light.envelopes.iter().any(|e| e.is_some()) {
+        match light.envelopes.get(m).and_then(|e| e.as_ref()) {
+            Some(e) => {
+                anyhow::ensure!(
+                    e.s_max.len() == model.triangles.len(),
+                    "envelope of model {} has the wrong size",
+                    sm.name
+                );
+                (gm.tau, gm.leaf_density, gm.leaf_area, gm.has_envelope) =
+                    (e.tau, e.leaf_density, e.leaf_area, 1);
+                f.envelope.extend(e.s_max.iter().flatten());
+            }
+            None => f.envelope.extend(std::iter::repeat_n(0.0, 8 * model.triangles.len())),
+        }
+    }
+    f.models.push(gm);
+    Ok((tri0, root, records_at))
+}
+
+/// Each instance's transforms (world to model, and its orientation for
+/// the LB grid) and the forest grid's scale of its light.
+fn push_instances(f: &mut Flat, scene: &Scene, accel: &SceneAccel, lb_scales: &[f32]) {
+    for (i, inst) in scene.instances.iter().enumerate() {
+        let m = accel.to_model[i];
+        let c = [m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis];
+        let to_model = std::array::from_fn(|r| [c[0][r], c[1][r], c[2][r], m.translation[r]]);
+        // The instance's own orientation, scale removed.
+        let w = inst.to_world.matrix3;
+        let scale = w.determinant().abs().cbrt().max(f32::MIN_POSITIVE);
+        let wc = [w.x_axis / scale, w.y_axis / scale, w.z_axis / scale];
+        let to_lb = std::array::from_fn(|r| [wc[0][r], wc[1][r], wc[2][r], 0.0]);
+        let lb_scale = lb_scales.get(i).copied().unwrap_or(1.0);
+        f.instances.push(GpuInstance { to_model, to_lb, model: inst.model, lb_scale, pad: [0; 2] });
+    }
+}
+
+/// The clouds' density and light grids, after checking their sizes.
+fn push_clouds(f: &mut Flat, clouds: &[CloudGrid]) -> anyhow::Result<()> {
+    for c in clouds {
+        anyhow::ensure!(
+            c.n >= 2 && c.density.len() == c.n.pow(3) && c.light.len() == 3 * c.n.pow(3),
+            "cloud grid has the wrong size"
+        );
+        f.clouds.push(GpuCloud {
+            min: c.min,
+            size: c.size,
+            n: c.n as u32,
+            offset: f.cloud_data.len() as u32,
+            extinction: c.sigma_t * c.n as f32 / c.size,
+            albedo: c.albedo,
+            g: c.g,
+            pad: [0; 3],
+        });
+        f.cloud_data.extend_from_slice(&c.density);
+        f.cloud_data.extend_from_slice(&c.light);
+    }
+    Ok(())
 }
