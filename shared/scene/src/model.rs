@@ -255,16 +255,7 @@ fn load_unguarded(
     budget: &mut GltfBudget,
     mesh: Option<&str>,
 ) -> anyhow::Result<Model> {
-    // Inside a bundle, name files as the bundle does: its folder is ours.
-    let shown = match access {
-        FileAccess::Inside(base) => path
-            .strip_prefix(base.canonicalize().unwrap_or_else(|_| base.clone()))
-            .or_else(|_| path.strip_prefix(base))
-            .unwrap_or(path),
-        FileAccess::Anywhere(_) => path,
-    }
-    .display()
-    .to_string();
+    let shown = shown_name(path, access);
     let bytes = std::fs::read(path)
         .with_context(|| format!("{shown}: cannot load glTF: cannot read the file"))?;
     let gltf::Gltf { document: doc, blob } =
@@ -272,22 +263,7 @@ fn load_unguarded(
     drop(bytes);
     let folder = path.parent().unwrap_or(Path::new("."));
     // Every file the document names must be one we may read, before any is.
-    let mut files = std::collections::HashMap::new();
-    let uris = doc.buffers().filter_map(|b| match b.source() {
-        gltf::buffer::Source::Uri(u) => Some(u),
-        gltf::buffer::Source::Bin => None,
-    });
-    let image_uris = doc.images().filter_map(|i| match i.source() {
-        gltf::image::Source::Uri { uri, .. } => Some(uri),
-        gltf::image::Source::View { .. } => None,
-    });
-    for uri in uris.chain(image_uris) {
-        if let Some(p) =
-            access.resolve_uri(folder, uri).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?
-        {
-            files.insert(uri.to_string(), p);
-        }
-    }
+    let files = files_named(&doc, access, folder, &shown)?;
     let scene = doc
         .default_scene()
         .or_else(|| doc.scenes().next())
@@ -311,20 +287,7 @@ fn load_unguarded(
     }
     let buffers = gltf::import_buffers(&doc, Some(folder), blob)
         .map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF buffers: {}", gltf_error(&e)))?;
-    // The images the read triangles can show: all of them, or the base
-    // colours of the named mesh's materials.
-    let wanted: Vec<bool> = match &only {
-        None => vec![true; doc.images().len()],
-        Some(m) => {
-            let mut w = vec![false; doc.images().len()];
-            for p in m.primitives() {
-                if let Some(t) = p.material().pbr_metallic_roughness().base_color_texture() {
-                    w[t.texture().source().index()] = true;
-                }
-            }
-            w
-        }
-    };
+    let wanted = wanted_images(&doc, only.as_ref());
     let mut texels = 0u64;
     for img in doc.images().filter(|i| wanted[i.index()]) {
         let (w, h) = image_size(&img, &files, &buffers)
@@ -352,6 +315,101 @@ fn load_unguarded(
     budget.texture_pixels -= texels;
     let path = Path::new(&shown);
     let mut model = Model::default();
+    add_textures_and_materials(&doc, &images, &mut model, &shown);
+    // The glTF default material, for primitives that name none.
+    let default_material = model.materials.len() as u32;
+    model.materials.push(Material {
+        name: "default".into(),
+        surface: Surface::Leaf,
+        base_color: [1.0; 4],
+        texture: None,
+        alpha_cutoff: None,
+        double_sided: false,
+    });
+    match &only {
+        Some(m) => {
+            add_mesh(m, Mat4::IDENTITY, &buffers, &mut model, path, default_material)?;
+            model.drop_unused_materials();
+        }
+        None => {
+            for node in scene.nodes() {
+                add_node(&node, Mat4::IDENTITY, &buffers, &mut model, path, default_material)?;
+            }
+        }
+    }
+    if model.triangles.is_empty() {
+        bail!("{}: the glTF scene has no triangles", path.display());
+    }
+    Ok(model)
+}
+
+/// A glTF file's name in messages: inside a bundle, as the bundle names it
+/// (its folder is ours), so no path outside the job shows.
+fn shown_name(path: &Path, access: &FileAccess) -> String {
+    match access {
+        FileAccess::Inside(base) => path
+            .strip_prefix(base.canonicalize().unwrap_or_else(|_| base.clone()))
+            .or_else(|_| path.strip_prefix(base))
+            .unwrap_or(path),
+        FileAccess::Anywhere(_) => path,
+    }
+    .display()
+    .to_string()
+}
+
+/// The files the document's buffers and images name, each checked against
+/// what the scene may read before any is read.
+fn files_named(
+    doc: &gltf::Document,
+    access: &FileAccess,
+    folder: &Path,
+    shown: &str,
+) -> anyhow::Result<std::collections::HashMap<String, std::path::PathBuf>> {
+    let mut files = std::collections::HashMap::new();
+    let uris = doc.buffers().filter_map(|b| match b.source() {
+        gltf::buffer::Source::Uri(u) => Some(u),
+        gltf::buffer::Source::Bin => None,
+    });
+    let image_uris = doc.images().filter_map(|i| match i.source() {
+        gltf::image::Source::Uri { uri, .. } => Some(uri),
+        gltf::image::Source::View { .. } => None,
+    });
+    for uri in uris.chain(image_uris) {
+        if let Some(p) =
+            access.resolve_uri(folder, uri).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?
+        {
+            files.insert(uri.to_string(), p);
+        }
+    }
+    Ok(files)
+}
+
+/// The images the read triangles can show: all of them, or the base
+/// colours of the named mesh's materials.
+fn wanted_images(doc: &gltf::Document, only: Option<&gltf::Mesh>) -> Vec<bool> {
+    match only {
+        None => vec![true; doc.images().len()],
+        Some(m) => {
+            let mut w = vec![false; doc.images().len()];
+            for p in m.primitives() {
+                if let Some(t) = p.material().pbr_metallic_roughness().base_color_texture() {
+                    w[t.texture().source().index()] = true;
+                }
+            }
+            w
+        }
+    }
+}
+
+/// The document's images decoded to RGBA8 as the model's textures, and its
+/// materials, after the glTF ones the default for primitives naming none
+/// is added by the caller.
+fn add_textures_and_materials(
+    doc: &gltf::Document,
+    images: &[Option<gltf::image::Data>],
+    model: &mut Model,
+    shown: &str,
+) {
     // glTF images decoded to RGBA8, as the textures of this model.
     let mut texture_of_image = vec![None; images.len()];
     for (i, img) in images.iter().enumerate().filter_map(|(i, d)| Some((i, d.as_ref()?))) {
@@ -399,31 +457,6 @@ fn load_unguarded(
             double_sided: m.double_sided(),
         });
     }
-    // The glTF default material, for primitives that name none.
-    let default_material = model.materials.len() as u32;
-    model.materials.push(Material {
-        name: "default".into(),
-        surface: Surface::Leaf,
-        base_color: [1.0; 4],
-        texture: None,
-        alpha_cutoff: None,
-        double_sided: false,
-    });
-    match &only {
-        Some(m) => {
-            add_mesh(m, Mat4::IDENTITY, &buffers, &mut model, path, default_material)?;
-            model.drop_unused_materials();
-        }
-        None => {
-            for node in scene.nodes() {
-                add_node(&node, Mat4::IDENTITY, &buffers, &mut model, path, default_material)?;
-            }
-        }
-    }
-    if model.triangles.is_empty() {
-        bail!("{}: the glTF scene has no triangles", path.display());
-    }
-    Ok(model)
 }
 
 /// Deepest node hierarchy read: glTF forbids cycles, and a file with one
