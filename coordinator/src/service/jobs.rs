@@ -15,38 +15,7 @@ impl CoordinatorService {
         let spec = first
             .spec
             .ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
-        let frame = FrameSettings::try_from(
-            spec.frame
-                .as_ref()
-                .ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?,
-        )?;
-        let schedule = sylva_proto::convert::schedule_from_wire(spec.schedule)?;
-        if spec.views.len() > MAX_FRAMES as usize {
-            return Err(Status::invalid_argument(format!(
-                "a sequence of {} frames: at most {MAX_FRAMES}",
-                spec.views.len()
-            )));
-        }
-        let views = spec
-            .views
-            .iter()
-            .enumerate()
-            .map(|(i, v)| {
-                View::try_from(v)
-                    .map_err(|e| Status::invalid_argument(format!("frame {i}: {}", e.message())))
-            })
-            .collect::<Result<Vec<View>, Status>>()?;
-        if spec.name.len() > MAX_NAME {
-            return Err(Status::invalid_argument(format!(
-                "job name of {} bytes: at most {MAX_NAME}",
-                spec.name.len()
-            )));
-        }
-        if spec.submitter.len() > MAX_SUBMITTER || spec.submitter.chars().any(char::is_control) {
-            return Err(Status::invalid_argument(format!(
-                "submitter name: at most {MAX_SUBMITTER} bytes, no control characters"
-            )));
-        }
+        let (frame, schedule, views) = checked_spec(&spec)?;
         let from = remote.map(|a| a.ip().to_string()).unwrap_or_else(|| "local".into());
         let submitter =
             if spec.submitter.is_empty() { from } else { format!("{}@{from}", spec.submitter) };
@@ -64,25 +33,7 @@ impl CoordinatorService {
                 first.total_size
             )));
         }
-        // Counted as the bytes arrive, against the declared size (itself
-        // within the limit); nothing is reserved from the claim.
-        let mut bytes = first.data;
-        if bytes.len() as u64 > first.total_size {
-            return Err(Status::invalid_argument("upload is longer than its declared size"));
-        }
-        while let Some(c) = stream.next().await {
-            bytes.extend_from_slice(&c?.data);
-            if bytes.len() as u64 > first.total_size {
-                return Err(Status::invalid_argument("upload is longer than its declared size"));
-            }
-        }
-        if (bytes.len() as u64) != first.total_size {
-            return Err(Status::invalid_argument(format!(
-                "truncated upload: {} of {} bytes",
-                bytes.len(),
-                first.total_size
-            )));
-        }
+        let bytes = receive_bundle(first.data, first.total_size, &mut stream).await?;
         if bundle::hash_of(&bytes) != hash {
             return Err(Status::invalid_argument("the bundle's bytes do not match its hash"));
         }
@@ -287,4 +238,72 @@ impl CoordinatorService {
         tracing::info!(%id, priority = r.priority, "job re-prioritised");
         Ok(Response::new(summary))
     }
+}
+
+/// A job spec's frame, schedule and sequence, each checked, and its name
+/// and submitter's sizes: INVALID_ARGUMENT with the reason otherwise.
+fn checked_spec(spec: &pb::JobSpec) -> Result<(FrameSettings, ScheduleKind, Vec<View>), Status> {
+    let frame = FrameSettings::try_from(
+        spec.frame
+            .as_ref()
+            .ok_or_else(|| Status::invalid_argument("job spec without frame settings"))?,
+    )?;
+    let schedule = sylva_proto::convert::schedule_from_wire(spec.schedule)?;
+    if spec.views.len() > MAX_FRAMES as usize {
+        return Err(Status::invalid_argument(format!(
+            "a sequence of {} frames: at most {MAX_FRAMES}",
+            spec.views.len()
+        )));
+    }
+    let views = spec
+        .views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            View::try_from(v)
+                .map_err(|e| Status::invalid_argument(format!("frame {i}: {}", e.message())))
+        })
+        .collect::<Result<Vec<View>, Status>>()?;
+    if spec.name.len() > MAX_NAME {
+        return Err(Status::invalid_argument(format!(
+            "job name of {} bytes: at most {MAX_NAME}",
+            spec.name.len()
+        )));
+    }
+    if spec.submitter.len() > MAX_SUBMITTER || spec.submitter.chars().any(char::is_control) {
+        return Err(Status::invalid_argument(format!(
+            "submitter name: at most {MAX_SUBMITTER} bytes, no control characters"
+        )));
+    }
+    Ok((frame, schedule, views))
+}
+
+/// The rest of a bundle's bytes, counted as they arrive against the size
+/// the client declared (itself within the limit): longer or shorter is
+/// refused, and nothing is reserved from the claim.
+async fn receive_bundle(
+    first: Vec<u8>,
+    total_size: u64,
+    stream: &mut Streaming<pb::SubmitChunk>,
+) -> Result<Vec<u8>, Status> {
+    // Counted as the bytes arrive, against the declared size (itself
+    // within the limit); nothing is reserved from the claim.
+    let mut bytes = first;
+    if bytes.len() as u64 > total_size {
+        return Err(Status::invalid_argument("upload is longer than its declared size"));
+    }
+    while let Some(c) = stream.next().await {
+        bytes.extend_from_slice(&c?.data);
+        if bytes.len() as u64 > total_size {
+            return Err(Status::invalid_argument("upload is longer than its declared size"));
+        }
+    }
+    if (bytes.len() as u64) != total_size {
+        return Err(Status::invalid_argument(format!(
+            "truncated upload: {} of {} bytes",
+            bytes.len(),
+            total_size
+        )));
+    }
+    Ok(bytes)
 }
