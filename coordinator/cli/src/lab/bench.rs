@@ -261,13 +261,11 @@ pub(super) fn machine() -> serde_json::Value {
 /// against BVH, GPU against CPU, on the same primary rays, then whole frames
 /// at 1 and 4 rays per pixel.
 fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
-    use rayon::prelude::*;
-    use sylva_accel::{Ray, SceneAccel};
+    use sylva_accel::Ray;
+    use sylva_scene::Scene;
     use sylva_scene::table2::{ForestOptions, forest};
-    use sylva_scene::{LightingMode, Scene};
     use sylva_worker::GpuContext;
-    use sylva_worker::prepare::prepare;
-    use sylva_worker::trace::{GpuRay, GpuScene, RayCaster, RenderSettings};
+    use sylva_worker::trace::GpuRay;
 
     let file = forest(&ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: 1 })
         .map_err(anyhow::Error::msg)?;
@@ -302,120 +300,17 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     // the same rays for every structure.
     let mut shadow: Option<(Vec<Ray>, Vec<GpuRay>)> = None;
     for kind in a.accel.iter().copied() {
-        let t = Instant::now();
-        let accel = SceneAccel::build(&scene, kind);
-        let build_ms = t.elapsed().as_secs_f64() * 1e3;
-        let gpu_scene = GpuScene::upload(&ctx, &scene, &accel, &Default::default())?;
-        let caster = RayCaster::new(&ctx, &gpu_scene)?;
-        caster.cast(&ctx, &gpu_scene, &gpu_rays[..gpu_rays.len().min(4096)])?; // warm-up: lavapipe compiles on first dispatch
-        let t = Instant::now();
-        let hits = caster.cast(&ctx, &gpu_scene, &gpu_rays)?;
-        let s = t.elapsed().as_secs_f64();
-        let gpu_hits = hits.iter().filter(|h| h.triangle != u32::MAX).count();
-        let gpu = json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": gpu_hits });
-        let (shadow_cpu, shadow_gpu) = shadow.get_or_insert_with(|| {
-            let towards = scene.sun.towards;
-            let cpu: Vec<Ray> = rays
-                .iter()
-                .zip(&hits)
-                .filter(|(_, h)| h.triangle != u32::MAX)
-                .map(|(r, h)| Ray::new(r.at(h.t), towards))
-                .collect();
-            let gpu = cpu
-                .iter()
-                .map(|r| GpuRay {
-                    origin: r.origin.to_array(),
-                    t_min: 1e-3,
-                    dir: r.dir.to_array(),
-                    t_max: f32::MAX,
-                })
-                .collect();
-            (cpu, gpu)
-        });
-        let shadow_caster = RayCaster::shadow(&ctx, &gpu_scene)?;
-        shadow_caster.cast(&ctx, &gpu_scene, &shadow_gpu[..shadow_gpu.len().min(4096)])?;
-        let t = Instant::now();
-        let blocked = shadow_caster.cast(&ctx, &gpu_scene, shadow_gpu)?;
-        let s = t.elapsed().as_secs_f64();
-        let gpu_shadow = json!({ "mrays_per_second": shadow_gpu.len() as f64 / s / 1e6, "ms": s * 1e3,
-                                 "blocked": blocked.iter().filter(|h| h.triangle != u32::MAX).count() });
-        let (cpu, cpu_opaque, cpu_shadow) = if a.no_cpu {
-            (serde_json::Value::Null, serde_json::Value::Null, serde_json::Value::Null)
-        } else {
-            let threads = rayon::current_num_threads();
-            let time = |alpha: bool| {
-                let t = Instant::now();
-                let hits = rays
-                    .par_iter()
-                    .filter(|r| {
-                        if alpha {
-                            accel.closest(&scene, r, 0.0, f32::MAX)
-                        } else {
-                            accel.closest_opaque(&scene, r, 0.0, f32::MAX)
-                        }
-                        .is_some()
-                    })
-                    .count();
-                let s = t.elapsed().as_secs_f64();
-                json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": threads })
-            };
-            let (cpu, cpu_opaque) = (time(true), time(false));
-            let t = Instant::now();
-            let blocked =
-                shadow_cpu.par_iter().filter(|r| accel.occluded(&scene, r, 1e-3, f32::MAX)).count();
-            let s = t.elapsed().as_secs_f64();
-            (
-                cpu,
-                cpu_opaque,
-                json!({ "mrays_per_second": shadow_cpu.len() as f64 / s / 1e6, "ms": s * 1e3, "blocked": blocked, "threads": threads }),
-            )
-        };
-        traversal.push(json!({
-            "accel": kind,
-            "build_ms": build_ms,
-            "bytes": accel.bytes(),
-            "bytes_per_triangle": accel.bytes() as f64 / scene.unique_triangles().max(1) as f64,
-            "cpu": cpu,
-            "cpu_opaque": cpu_opaque,
-            "gpu": gpu,
-            "shadow_rays": shadow_cpu.len(),
-            "cpu_shadow": cpu_shadow,
-            "gpu_shadow": gpu_shadow,
-        }));
+        traversal.push(trace_structure(
+            &ctx,
+            &scene,
+            kind,
+            &rays,
+            &gpu_rays,
+            &mut shadow,
+            a.no_cpu,
+        )?);
     }
-    let mut frames = Vec::new();
-    for kind in a.accel.iter().filter(|_| !a.no_frames).copied() {
-        let prepared = prepare(&ctx, &scene, kind, LightingMode::Lb, &|_| {})?;
-        for spp in [1u32, 4] {
-            let frame = FrameSettings {
-                width: a.width,
-                height: a.height,
-                spp,
-                lighting: Some(LightingMode::Lb),
-                ..FrameSettings::default()
-            };
-            let f = RenderSettings::resolve(&frame, scene.lighting);
-            prepared.renderer.render_strip(
-                &ctx,
-                &RenderSettings { width: 64, height: 32, ..f },
-                0,
-                64,
-            )?; // warm-up
-            let t = Instant::now();
-            let frame =
-                InProcess::new(&ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;
-            let s = t.elapsed().as_secs_f64();
-            let sylva_scene::film::RayCounts { primary, shadow, transparent } = frame.rays;
-            frames.push(json!({
-                "accel": kind,
-                "spp": spp,
-                "frame_ms": s * 1e3,
-                "rays": { "primary": primary, "shadow": shadow, "transparent": transparent },
-                "mrays_per_second": (primary + shadow) as f64 / s / 1e6,
-                "prepare_ms": prepared.phases,
-            }));
-        }
-    }
+    let frames = if a.no_frames { Vec::new() } else { bench_frames(&ctx, &scene, &a)? };
     let out = json!({
         "benchmark": "trace",
         "scene": { "scale": a.scale, "triangle_scale": a.triangle_scale, "instances": scene.instances.len(),
@@ -438,6 +333,151 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     });
     println!("{}", serde_json::to_string_pretty(&out)?);
     Ok(())
+}
+
+/// One structure's traversal figures: build, bytes, GPU and (unless
+/// `no_cpu`) CPU closest hits, and shadow rays toward the sun from the first
+/// structure's primary hits (kept in `shadow`, so every structure traces
+/// the same rays).
+fn trace_structure(
+    ctx: &sylva_worker::GpuContext,
+    scene: &sylva_scene::Scene,
+    kind: sylva_scene::frame::AccelKind,
+    rays: &[sylva_accel::Ray],
+    gpu_rays: &[sylva_worker::trace::GpuRay],
+    shadow: &mut Option<(Vec<sylva_accel::Ray>, Vec<sylva_worker::trace::GpuRay>)>,
+    no_cpu: bool,
+) -> anyhow::Result<serde_json::Value> {
+    use rayon::prelude::*;
+    use sylva_accel::{Ray, SceneAccel};
+    use sylva_worker::trace::{GpuRay, GpuScene, RayCaster};
+    let t = Instant::now();
+    let accel = SceneAccel::build(scene, kind);
+    let build_ms = t.elapsed().as_secs_f64() * 1e3;
+    let gpu_scene = GpuScene::upload(ctx, scene, &accel, &Default::default())?;
+    let caster = RayCaster::new(ctx, &gpu_scene)?;
+    caster.cast(ctx, &gpu_scene, &gpu_rays[..gpu_rays.len().min(4096)])?; // warm-up: lavapipe compiles on first dispatch
+    let t = Instant::now();
+    let hits = caster.cast(ctx, &gpu_scene, gpu_rays)?;
+    let s = t.elapsed().as_secs_f64();
+    let gpu_hits = hits.iter().filter(|h| h.triangle != u32::MAX).count();
+    let gpu =
+        json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": gpu_hits });
+    let (shadow_cpu, shadow_gpu) = shadow.get_or_insert_with(|| {
+        let towards = scene.sun.towards;
+        let cpu: Vec<Ray> = rays
+            .iter()
+            .zip(&hits)
+            .filter(|(_, h)| h.triangle != u32::MAX)
+            .map(|(r, h)| Ray::new(r.at(h.t), towards))
+            .collect();
+        let gpu = cpu
+            .iter()
+            .map(|r| GpuRay {
+                origin: r.origin.to_array(),
+                t_min: 1e-3,
+                dir: r.dir.to_array(),
+                t_max: f32::MAX,
+            })
+            .collect();
+        (cpu, gpu)
+    });
+    let shadow_caster = RayCaster::shadow(ctx, &gpu_scene)?;
+    shadow_caster.cast(ctx, &gpu_scene, &shadow_gpu[..shadow_gpu.len().min(4096)])?;
+    let t = Instant::now();
+    let blocked = shadow_caster.cast(ctx, &gpu_scene, shadow_gpu)?;
+    let s = t.elapsed().as_secs_f64();
+    let gpu_shadow = json!({ "mrays_per_second": shadow_gpu.len() as f64 / s / 1e6, "ms": s * 1e3,
+                             "blocked": blocked.iter().filter(|h| h.triangle != u32::MAX).count() });
+    let (cpu, cpu_opaque, cpu_shadow) = if no_cpu {
+        (serde_json::Value::Null, serde_json::Value::Null, serde_json::Value::Null)
+    } else {
+        let threads = rayon::current_num_threads();
+        let time = |alpha: bool| {
+            let t = Instant::now();
+            let hits = rays
+                .par_iter()
+                .filter(|r| {
+                    if alpha {
+                        accel.closest(scene, r, 0.0, f32::MAX)
+                    } else {
+                        accel.closest_opaque(scene, r, 0.0, f32::MAX)
+                    }
+                    .is_some()
+                })
+                .count();
+            let s = t.elapsed().as_secs_f64();
+            json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": hits, "threads": threads })
+        };
+        let (cpu, cpu_opaque) = (time(true), time(false));
+        let t = Instant::now();
+        let blocked =
+            shadow_cpu.par_iter().filter(|r| accel.occluded(scene, r, 1e-3, f32::MAX)).count();
+        let s = t.elapsed().as_secs_f64();
+        (
+            cpu,
+            cpu_opaque,
+            json!({ "mrays_per_second": shadow_cpu.len() as f64 / s / 1e6, "ms": s * 1e3, "blocked": blocked, "threads": threads }),
+        )
+    };
+    Ok(json!({
+        "accel": kind,
+        "build_ms": build_ms,
+        "bytes": accel.bytes(),
+        "bytes_per_triangle": accel.bytes() as f64 / scene.unique_triangles().max(1) as f64,
+        "cpu": cpu,
+        "cpu_opaque": cpu_opaque,
+        "gpu": gpu,
+        "shadow_rays": shadow_cpu.len(),
+        "cpu_shadow": cpu_shadow,
+        "gpu_shadow": gpu_shadow,
+    }))
+}
+
+/// Whole frames with LB lighting at 1 and 4 spp on each structure, after a
+/// warm-up dispatch.
+fn bench_frames(
+    ctx: &sylva_worker::GpuContext,
+    scene: &sylva_scene::Scene,
+    a: &TraceBenchArgs,
+) -> anyhow::Result<Vec<serde_json::Value>> {
+    use sylva_scene::LightingMode;
+    use sylva_worker::prepare::prepare;
+    use sylva_worker::trace::RenderSettings;
+    let mut frames = Vec::new();
+    for kind in a.accel.iter().copied() {
+        let prepared = prepare(ctx, scene, kind, LightingMode::Lb, &|_| {})?;
+        for spp in [1u32, 4] {
+            let frame = FrameSettings {
+                width: a.width,
+                height: a.height,
+                spp,
+                lighting: Some(LightingMode::Lb),
+                ..FrameSettings::default()
+            };
+            let f = RenderSettings::resolve(&frame, scene.lighting);
+            prepared.renderer.render_strip(
+                ctx,
+                &RenderSettings { width: 64, height: 32, ..f },
+                0,
+                64,
+            )?; // warm-up
+            let t = Instant::now();
+            let frame =
+                InProcess::new(ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;
+            let s = t.elapsed().as_secs_f64();
+            let sylva_scene::film::RayCounts { primary, shadow, transparent } = frame.rays;
+            frames.push(json!({
+                "accel": kind,
+                "spp": spp,
+                "frame_ms": s * 1e3,
+                "rays": { "primary": primary, "shadow": shadow, "transparent": transparent },
+                "mrays_per_second": (primary + shadow) as f64 / s / 1e6,
+                "prepare_ms": prepared.phases,
+            }));
+        }
+    }
+    Ok(frames)
 }
 
 /// The paper's Table 4: G80s, static strips, seconds per frame.
