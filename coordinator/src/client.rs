@@ -133,13 +133,7 @@ impl JobProgress {
             .progress_chars("=> "),
         );
         bar.enable_steady_tick(Duration::from_millis(200));
-        Self {
-            id: id.to_string(),
-            bar,
-            stage: String::new(),
-            farm_stage: String::new(),
-            quarter: 0,
-        }
+        Self { id: printable(id), bar, stage: String::new(), farm_stage: String::new(), quarter: 0 }
     }
 
     fn update(&mut self, ev: &pb::JobEvent) {
@@ -147,17 +141,13 @@ impl JobProgress {
         if !ev.stage.is_empty() {
             self.farm_stage.clone_from(&ev.stage);
         }
+        // Until the first strip is back, the farm's own word for its stage.
         let stage = match state {
             Some(JobState::Queued) => "queued".to_string(),
-            Some(JobState::Running) if ev.strips_done == 0 => match self.farm_stage.as_str() {
-                "" => "starting on the workers".to_string(),
-                // Strips are out; a worker that does not hold the prepared
-                // scene prepares it before its first one.
-                "tracing" => "tracing (a worker that does not hold the prepared scene prepares \
-                              it first: structures, voxels, LB light, upload)"
-                    .to_string(),
-                farm => farm.to_string(),
-            },
+            Some(JobState::Running) if ev.strips_done == 0 && self.farm_stage.is_empty() => {
+                "starting on the workers".to_string()
+            }
+            Some(JobState::Running) if ev.strips_done == 0 => printable(&self.farm_stage),
             Some(JobState::Running) => "tracing".to_string(),
             _ => self.stage.clone(),
         };
@@ -173,7 +163,7 @@ impl JobProgress {
             }
             self.stage = stage;
         }
-        let quarter = 4 * ev.strips_done / ev.strips_total.max(1);
+        let quarter = (4 * u64::from(ev.strips_done) / u64::from(ev.strips_total.max(1))) as u32;
         if hidden && quarter > self.quarter && ev.strips_done < ev.strips_total {
             eprintln!("{}: {}/{} strips", self.id, ev.strips_done, ev.strips_total);
         }
@@ -182,5 +172,33 @@ impl JobProgress {
 
     fn finish(&self) {
         self.bar.finish_and_clear();
+    }
+}
+
+/// `s` from the wire as it may reach a terminal: control characters (escape
+/// sequences, carriage returns) written as escapes, not obeyed.
+fn printable(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::printable;
+
+    #[test]
+    fn text_from_the_wire_cannot_drive_the_terminal() {
+        let hostile = "w\u{1b}]0;TITLE\u{7}\u{1b}[2J\rforged:1 preparing";
+        let shown = printable(hostile);
+        assert!(!shown.chars().any(char::is_control), "{shown:?}");
+        assert_eq!(shown, "w\\u{1b}]0;TITLE\\u{7}\\u{1b}[2J\\rforged:1 preparing");
+        assert_eq!(printable("127.0.0.1:5 préparant"), "127.0.0.1:5 préparant");
     }
 }

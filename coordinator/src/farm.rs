@@ -408,7 +408,11 @@ pub async fn render_frames(
         queue: Mutex::new(queue),
         done: Mutex::new(Vec::new()),
     });
-    events(FarmEvent::Stage("tracing".into()));
+    events(FarmEvent::Stage(
+        "tracing (a worker that does not hold the prepared scene prepares it first: \
+         structures, voxels, LB light, upload)"
+            .into(),
+    ));
     let events = Arc::new(events);
     let mut tasks = Vec::new();
     let n_workers = clients.len();
