@@ -30,6 +30,9 @@ done
 tests=0
 [ "${1:-}" = "--test" ] && tests=1
 if ((tests)); then
+  # The fuzz targets are built by the test command; libfuzzer-sys compiles
+  # libFuzzer's C++ sources.
+  dpkg-query -W -f='${Status}' g++ 2>/dev/null | grep -q "install ok installed" || missing+=(g++)
   command -v node >/dev/null 2>&1 || missing+=(nodejs)
   command -v npm >/dev/null 2>&1 || missing+=(npm)
   command -v chromium >/dev/null 2>&1 || missing+=(chromium)
