@@ -71,6 +71,7 @@ fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
         ambient: [0.0; 3],
         lb_strength: 0.35,
         view: Default::default(),
+        gather_bounces: 1,
     };
     p.renderer
         .render_strip(&ctx, &f, 0, 96)

@@ -65,6 +65,7 @@ fn frame() -> pb::FrameSettings {
         lb_strength: 0.35,
         ambient: vec![],
         view: None,
+        gather_bounces: 0,
     }
 }
 
@@ -130,6 +131,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
         ambient: [0.0; 3],
         lb_strength: 0.35,
         view: Default::default(),
+        gather_bounces: 1,
     };
     let local = p.renderer.render_strip(&ctx, &f, 0, 48).unwrap();
     let local: Vec<u32> = local.pixels.iter().flatten().map(|v| v.to_bits()).collect();

@@ -20,6 +20,8 @@ pub fn lighting_to_wire(l: Option<LightingMode>) -> pb::Lighting {
         Some(LightingMode::LbVisualize) => pb::Lighting::LbVisualize,
         Some(LightingMode::Reference) => pb::Lighting::Reference,
         Some(LightingMode::Boulanger) => pb::Lighting::Boulanger,
+        Some(LightingMode::Gather) => pb::Lighting::Gather,
+        Some(LightingMode::GatherAmbient) => pb::Lighting::GatherAmbient,
     }
 }
 
@@ -38,6 +40,8 @@ pub fn lighting_from_wire(v: i32) -> Result<Option<LightingMode>, Status> {
             pb::Lighting::LbVisualize => Some(LightingMode::LbVisualize),
             pb::Lighting::Reference => Some(LightingMode::Reference),
             pb::Lighting::Boulanger => Some(LightingMode::Boulanger),
+            pb::Lighting::Gather => Some(LightingMode::Gather),
+            pb::Lighting::GatherAmbient => Some(LightingMode::GatherAmbient),
         },
     )
 }
@@ -95,6 +99,11 @@ impl TryFrom<&pb::FrameSettings> for FrameSettings {
             lb_strength: f.lb_strength,
             ambient,
             view: f.view.as_ref().map(View::try_from).transpose()?.unwrap_or_default(),
+            gather_bounces: if f.gather_bounces == 0 {
+                sylva_scene::frame::DEFAULT_GATHER_BOUNCES
+            } else {
+                f.gather_bounces
+            },
         };
         frame.check().map_err(|e| Status::invalid_argument(e.to_string()))?;
         Ok(frame)
@@ -117,6 +126,7 @@ impl From<&FrameSettings> for pb::FrameSettings {
             lb_strength: f.lb_strength,
             ambient: f.ambient.map(|a| a.to_vec()).unwrap_or_default(),
             view: (f.view != View::default()).then(|| pb::FrameView::from(&f.view)),
+            gather_bounces: f.gather_bounces,
         }
     }
 }
@@ -172,11 +182,12 @@ mod tests {
 
     #[test]
     fn frames_round_trip_and_unknown_enums_are_refused() {
-        for lighting in [None, Some(LightingMode::Boulanger), Some(LightingMode::LbVisualize)] {
+        for lighting in [None, Some(LightingMode::Boulanger), Some(LightingMode::GatherAmbient)] {
             let f = FrameSettings {
                 lighting,
                 accel: AccelKind::Kd,
                 ambient: Some([0.1, 0.2, 0.3]),
+                gather_bounces: 2,
                 ..Default::default()
             };
             assert_eq!(FrameSettings::try_from(&pb::FrameSettings::from(&f)).unwrap(), f);
@@ -213,6 +224,12 @@ mod tests {
         wire.view.as_mut().unwrap().sun_towards = Vec::new();
         wire.view.as_mut().unwrap().camera.as_mut().unwrap().look_at = vec![1.0, 2.0, 3.0];
         assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("look_at"));
+        // A sender that never heard of the gather's depth gets the default.
+        let mut wire = pb::FrameSettings::from(&FrameSettings::default());
+        wire.gather_bounces = 0;
+        assert_eq!(FrameSettings::try_from(&wire).unwrap().gather_bounces, 1);
+        wire.gather_bounces = 9;
+        assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("gather_bounces"));
         let mut wire = pb::FrameSettings::from(&FrameSettings::default());
         wire.spp = 0;
         assert!(FrameSettings::try_from(&wire).unwrap_err().message().contains("spp 0"));

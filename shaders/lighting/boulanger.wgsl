@@ -82,8 +82,5 @@ fn boulanger_leaf(s: SurfacePoint, view: vec3<f32>) -> vec3<f32> {
     sky_light *= 4.0 * PI / f32(BL_N);
     indirect *= m.leaf_area;
     let sun_light = bl_bsdf(n, wo, c, sun) * exp(-sun_depth) * e_sun;
-    // The highlight the direct methods add, dimmed like the sun.
-    let nv = select(s.n, -s.n, dot(s.n, view) > 0.0);
-    let highlight = select(0.0, sun_highlight(nv, view, s.kind), dot(nv, frame.sun_towards) > 0.0) * exp(-sun_depth);
-    return sky_light + sun_light + indirect + frame.sun_radiance * highlight;
+    return sky_light + sun_light + indirect;
 }

@@ -5,10 +5,15 @@
 // and the ground are Lambertian; the sky is the same gradient; clouds are a
 // heterogeneous medium sampled by delta tracking with the Henyey–Greenstein
 // phase function, their transmittance towards the sun by ratio tracking.
-// The sun is sampled at every vertex (next-event estimation) with the same
-// highlight the direct methods add, so with no bounce the reference equals
-// `local`. Paths end by Russian roulette after three bounces, or at
-// `frame.max_bounces`. Appended to render.wgsl, which calls reference_pixel.
+// The sun is sampled at every vertex (next-event estimation), so with no
+// bounce the reference equals `local`. Paths end by Russian roulette after
+// three bounces, or at `frame.max_bounces`.
+//
+// The gathers (`gather`, `gather-ambient`) are these paths, truncated: at
+// the surface `frame.gather_bounces` bounces from the camera a path takes
+// its sun as every vertex does, adds what the lattice (or the matched
+// constant) says reaches that surface besides the sun, and ends. Appended
+// to render.wgsl, which calls reference_sample.
 
 const PI: f32 = 3.14159265;
 
@@ -162,6 +167,27 @@ fn mean3(v: vec3<f32>) -> f32 {
     return (v.x + v.y + v.z) / 3.0;
 }
 
+// Whether this frame is a gather (the reference's paths, truncated).
+fn gathering() -> bool {
+    return frame.lighting == LIGHTING_GATHER || frame.lighting == LIGHTING_GATHER_AMBIENT;
+}
+
+// What reaches surface `s` (n on the arriving ray's side) besides the
+// direct sun, as the radiance it sends back along that ray: the light of
+// the second and later bounces, from the LB (`gather`) or the constant
+// matched to it (`gather-ambient`), read as every direct method reads it
+// (docs/lighting.md, "A final gather over the LB").
+fn gather_far_end(s: SurfacePoint, n: vec3<f32>) -> vec3<f32> {
+    if s.kind == KIND_GROUND {
+        return s.albedo * ground_indirect(s.p);
+    }
+    if frame.lighting == LIGHTING_GATHER_AMBIENT {
+        return diffuse_albedo(s, n) * frame.ambient;
+    }
+    let inst = instances[s.instance];
+    return diffuse_albedo(s, n) * lb_indirect(inst, to_model_point(inst, s.p));
+}
+
 // Seeds the random numbers of sample `s` of pixel (x, y).
 fn seed_path(x: u32, y: u32, s: u32) {
     rng_state = pcg(x ^ pcg(y ^ pcg(s ^ pcg(frame.seed ^ 0x5bd1e995u))));
@@ -231,7 +257,7 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 2> {
             let cos_sun = dot(n, frame.sun_towards);
             if cos_sun > 0.0 {
                 sun_from = surf.p + n * frame.epsilon;
-                sun_light = beta * frame.sun_radiance * (reflect_c * cos_sun + vec3<f32>(sun_highlight(n, d, surf.kind)));
+                sun_light = beta * frame.sun_radiance * reflect_c * cos_sun;
             } else if cos_sun < 0.0 && surf.kind == KIND_LEAF {
                 sun_from = surf.p - n * frame.epsilon;
                 sun_light = beta * frame.sun_radiance * transmit_c * (-cos_sun);
@@ -240,10 +266,15 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 2> {
                 // What `local` adds on the ground: the open sky's irradiance.
                 first_light = surf.albedo * open_sky_on_ground();
             }
-            // Next: reflect or transmit, picked in proportion to how much each carries.
+            // Next: reflect or transmit, picked in proportion to how much
+            // each carries; or, at a gather's far end, the rest of the
+            // light from the lattice.
             let pr = mean3(reflect_c);
             let pt = mean3(transmit_c);
-            if pr + pt <= 0.0 {
+            if gathering() && depth >= frame.gather_bounces {
+                light += beta * gather_far_end(surf, n);
+                alive = false;
+            } else if pr + pt <= 0.0 {
                 alive = false;
             } else if rand() * (pr + pt) < pr {
                 beta *= reflect_c * ((pr + pt) / pr);

@@ -53,9 +53,14 @@ struct Frame {
     ground_dims: vec4<u32>,
     // 0: the grounded LB model (docs/lighting.md), 1: the papers' as written.
     lb_model: u32,
-    pad4: u32,
-    pad5: u32,
-    pad6: u32,
+    // The gather methods: bounces traced before the far end reads the
+    // lattice (or the matched constant).
+    gather_bounces: u32,
+    // The per-sample kernel's first sample in this dispatch (a frame's
+    // samples go out in batches that fit the adapter's output binding).
+    sample_base: u32,
+    // ... and how many samples it renders.
+    batch_spp: u32,
 }
 
 // Rays traced, by kind: primary, shadow, transparent texels passed.
@@ -83,7 +88,6 @@ override LIGHTING_FAMILY: u32 = 0u;
 // code at all (on lavapipe the reference's unused cloud loops, merely
 // present, made some primary rays miss geometry; see docs/lighting.md).
 override HAS_CLOUDS: bool = false;
-const SPECULAR_EXPONENT: f32 = 24.0;
 
 // PCG hash (Jarzynski & Olano 2020); shared/scene/src/sampler.rs mirrors it.
 fn pcg(v: u32) -> u32 {
@@ -184,10 +188,10 @@ fn diffuse_albedo(s: SurfacePoint, n: vec3<f32>) -> vec3<f32> {
     return c[1] + c[2];
 }
 
-// The sun's direct light on `s` seen along `view` (n faces the viewer):
+// The sun's direct light on `s` (n faces the viewer):
 // reflected when it lights the viewer's side, transmitted through a leaf
 // when it lights the other; shadow rays honour alpha.
-fn direct_sun(s: SurfacePoint, n: vec3<f32>, view: vec3<f32>) -> vec3<f32> {
+fn direct_sun(s: SurfacePoint, n: vec3<f32>) -> vec3<f32> {
     let n_dot_l = dot(n, frame.sun_towards);
     if n_dot_l > 0.0 {
         atomicAdd(&counters.shadow, 1u);
@@ -199,7 +203,7 @@ fn direct_sun(s: SurfacePoint, n: vec3<f32>, view: vec3<f32>) -> vec3<f32> {
             let c = leaf_coefficients(s.albedo);
             reflect_c = select(c[1], c[0], dot(s.n, n) >= 0.0);
         }
-        return frame.sun_radiance * (reflect_c * n_dot_l + vec3<f32>(sun_highlight(n, view, s.kind)));
+        return frame.sun_radiance * reflect_c * n_dot_l;
     }
     if n_dot_l < 0.0 && s.kind == KIND_LEAF && !paper_shading() {
         atomicAdd(&counters.shadow, 1u);
@@ -225,7 +229,7 @@ fn open_sky_on_ground() -> vec3<f32> {
 // (light from above only: E = φ/2); elsewhere, the open sky.
 fn ground_indirect(p: vec3<f32>) -> vec3<f32> {
     let d = frame.ground_dims;
-    if d.w == 0u || frame.lighting != LIGHTING_LB {
+    if d.w == 0u || (frame.lighting != LIGHTING_LB && frame.lighting != LIGHTING_GATHER) {
         return open_sky_on_ground();
     }
     let cell = frame.ground_grid.z;
@@ -403,18 +407,6 @@ fn leaf_coefficients(albedo: vec3<f32>) -> array<vec3<f32>, 4> {
     return array<vec3<f32>, 4>(rf / front, rb / back, tf / front, tb / back);
 }
 
-// The sun's specular highlight (the paper's ks (V·R)^24) seen along
-// `view` from a surface of normal `n` (facing the viewer) and `kind`.
-fn sun_highlight(n: vec3<f32>, view: vec3<f32>, kind: u32) -> f32 {
-    // The ground is Lambertian (as `local` shades it).
-    if kind == KIND_GROUND {
-        return 0.0;
-    }
-    let r = reflect(-frame.sun_towards, n);
-    let ks = select(0.12, 0.04, kind == KIND_WOOD);
-    return ks * pow(max(dot(-view, r), 0.0), SPECULAR_EXPONENT);
-}
-
 // Radiance of the first surface (or the sky) along a primary ray; alpha is
 // 1 where it hit a model.
 fn surface_radiance(ray: Ray) -> Surface {
@@ -441,7 +433,7 @@ fn surface_radiance(ray: Ray) -> Surface {
     if LIGHTING_FAMILY == KERNEL_BOULANGER && s.kind == KIND_LEAF && models[inst.model].has_envelope == 1u {
         return Surface(vec4<f32>(boulanger_leaf(s, ray.dir), 1.0), s.t);
     }
-    var color = direct_sun(s, n, ray.dir);
+    var color = direct_sun(s, n);
     if frame.lighting == LIGHTING_LB {
         color += diffuse_albedo(s, n) * lb_indirect(inst, p_model);
     } else if frame.lighting == LIGHTING_AMBIENT {
@@ -474,7 +466,7 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
     let lx = (li & 1u) | ((li >> 1u) & 2u) | ((li >> 2u) & 4u);
     let ly = ((li >> 1u) & 1u) | ((li >> 2u) & 2u) | ((li >> 3u) & 4u);
     let gid = vec3<u32>(wid.x * 8u + lx, wid.y * 8u + ly, wid.z);
-    if gid.x >= frame.strip_width || gid.y >= frame.height || gid.z >= select(1u, frame.spp, LIGHTING_FAMILY == KERNEL_REFERENCE) {
+    if gid.x >= frame.strip_width || gid.y >= frame.height || gid.z >= select(1u, frame.batch_spp, LIGHTING_FAMILY == KERNEL_REFERENCE) {
         return;
     }
     let x = frame.x0 + gid.x;
@@ -482,13 +474,14 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
     transparent_passed = 0u;
     let pixel = gid.x + gid.y * frame.strip_width;
     if LIGHTING_FAMILY == KERNEL_REFERENCE {
-        // The reference: one path per invocation, sample gid.z, in its own
-        // slot (the worker sums them); after all samples, what `local`
-        // shows along the same camera rays (reference.wgsl).
-        let r = reference_sample(x, y, gid.z);
+        // The reference and the gathers: one path per invocation, sample
+        // sample_base + gid.z of the frame's, in its own slot of this
+        // batch (the worker sums them); after the batch's samples, what
+        // `local` shows along the same camera rays (reference.wgsl).
+        let r = reference_sample(x, y, frame.sample_base + gid.z);
         let slots = frame.strip_width * frame.height;
         out_pixels[pixel + gid.z * slots] = r[0];
-        out_pixels[pixel + (frame.spp + gid.z) * slots] = r[1];
+        out_pixels[pixel + (frame.batch_spp + gid.z) * slots] = r[1];
         atomicAdd(&counters.transparent, transparent_passed);
         atomicAdd(&counters.primary, 1u);
         return;

@@ -173,6 +173,7 @@ pub fn spec(width: u32, height: u32) -> pb::JobSpec {
             lb_strength: 0.35,
             ambient: vec![],
             view: None,
+            gather_bounces: 0,
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,

@@ -44,6 +44,7 @@ fn a_lit_quad_matches_the_shading_formula() {
             ambient: [0.0; 3],
             lb_strength: 0.0,
             view: Default::default(),
+            gather_bounces: 1,
         };
         let s = p.renderer.render_strip(&ctx, &f, 0, 33).unwrap();
         let centre = s.pixels[16 * 33 + 16];
@@ -89,6 +90,7 @@ fn a_frame_is_bit_identical_however_it_is_split_and_repeated() {
         ambient: [0.0; 3],
         lb_strength: 0.35,
         view: Default::default(),
+        gather_bounces: 1,
     };
     let whole = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
     let again = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
@@ -119,6 +121,7 @@ fn leaves_have_holes_where_their_texture_is_transparent() {
         ambient: [0.0; 3],
         lb_strength: 0.35,
         view: Default::default(),
+        gather_bounces: 1,
     };
     let s = p.renderer.render_strip(&ctx, &f, 0, 96).unwrap();
     assert!(s.rays.transparent > 100, "rays passed {} transparent texels", s.rays.transparent);
@@ -153,6 +156,7 @@ fn a_cloud_dims_what_lies_behind_it_and_glows_where_lit() {
             ambient: [0.0; 3],
             lb_strength: 0.35,
             view: Default::default(),
+            gather_bounces: 1,
         };
         p.renderer.render_strip(&ctx, &f, 0, 32).unwrap()
     };

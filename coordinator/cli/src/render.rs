@@ -162,7 +162,7 @@ fn render_here(
         phases.push((p.name, p.ms));
     }
     let mut settings = RenderSettings::resolve(request, scene.lighting);
-    if lighting == LightingMode::Ambient {
+    if lighting.reads_matched_ambient() {
         progress::stage(&bar, "matching the ambient constant to the LB image");
         let t = Instant::now();
         settings.ambient =

@@ -192,16 +192,24 @@ pub enum LightingMode {
     /// Boulanger et al. 2008: per-leaf envelope distances, direct sky and
     /// sun and one-bounce indirect light in closed form.
     Boulanger,
+    /// A final gather over the LB: the first one or two bounces traced
+    /// through the real geometry, the rest read from the lattice.
+    Gather,
+    /// The same gather, its far end reading the matched constant instead
+    /// of the LB (what the lattice adds over a constant, measured).
+    GatherAmbient,
 }
 
 impl LightingMode {
     /// Every method, in the order `compare` lists them.
-    pub const ALL: [LightingMode; 6] = [
+    pub const ALL: [LightingMode; 8] = [
         LightingMode::Local,
         LightingMode::Ambient,
         LightingMode::Lb,
         LightingMode::LbVisualize,
         LightingMode::Boulanger,
+        LightingMode::Gather,
+        LightingMode::GatherAmbient,
         LightingMode::Reference,
     ];
 
@@ -214,7 +222,16 @@ impl LightingMode {
             LightingMode::LbVisualize => "lb-visualize",
             LightingMode::Reference => "reference",
             LightingMode::Boulanger => "boulanger",
+            LightingMode::Gather => "gather",
+            LightingMode::GatherAmbient => "gather-ambient",
         }
+    }
+
+    /// Whether the method reads the constant matched to the LB image
+    /// (`ambient`, and the gather whose far end reads it): whoever renders
+    /// it matches the constant first unless the frame gives one.
+    pub fn reads_matched_ambient(self) -> bool {
+        matches!(self, LightingMode::Ambient | LightingMode::GatherAmbient)
     }
 
     /// Parses a name.

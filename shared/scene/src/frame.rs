@@ -10,6 +10,15 @@ use serde::{Deserialize, Serialize};
 pub const MAX_SIDE: u32 = 16_384;
 /// Most rays per pixel a frame may ask for.
 pub const MAX_SPP: u32 = 4_096;
+/// Bounces the gather methods trace before reading the lattice, unless asked.
+pub const DEFAULT_GATHER_BOUNCES: u32 = 1;
+/// Most bounces a gather may trace before the lattice (beyond two, the
+/// reference's own paths cost no more).
+pub const MAX_GATHER_BOUNCES: u32 = 4;
+
+fn default_gather_bounces() -> u32 {
+    DEFAULT_GATHER_BOUNCES
+}
 
 /// Which structure accelerates a render.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -60,6 +69,10 @@ pub struct FrameSettings {
     /// frame of a sequence).
     #[serde(default)]
     pub view: crate::sequence::View,
+    /// The gather methods: bounces traced through the geometry before the
+    /// far end reads the lattice (or the matched constant).
+    #[serde(default = "default_gather_bounces")]
+    pub gather_bounces: u32,
 }
 
 impl Default for FrameSettings {
@@ -74,6 +87,7 @@ impl Default for FrameSettings {
             lb_strength: 0.35,
             ambient: None,
             view: Default::default(),
+            gather_bounces: DEFAULT_GATHER_BOUNCES,
         }
     }
 }
@@ -98,6 +112,12 @@ impl FrameSettings {
         }
         if !(self.lb_strength.is_finite() && self.lb_strength >= 0.0) {
             return bad(format!("lb_strength {}: must be a finite number ≥ 0", self.lb_strength));
+        }
+        if !(1..=MAX_GATHER_BOUNCES).contains(&self.gather_bounces) {
+            return bad(format!(
+                "gather_bounces {}: valid range [1, {MAX_GATHER_BOUNCES}]",
+                self.gather_bounces
+            ));
         }
         if let Some(a) = self.ambient
             && !a.iter().all(|v| v.is_finite() && *v >= 0.0)
@@ -125,6 +145,11 @@ mod tests {
             (FrameSettings { height: MAX_SIDE + 1, ..Default::default() }, "each side"),
             (FrameSettings { spp: 0, ..Default::default() }, "spp 0"),
             (FrameSettings { spp: MAX_SPP + 1, ..Default::default() }, "spp"),
+            (FrameSettings { gather_bounces: 0, ..Default::default() }, "gather_bounces 0"),
+            (
+                FrameSettings { gather_bounces: MAX_GATHER_BOUNCES + 1, ..Default::default() },
+                "gather_bounces",
+            ),
             (FrameSettings { lb_strength: f32::NAN, ..Default::default() }, "lb_strength NaN"),
             (
                 FrameSettings { ambient: Some([0.1, f32::INFINITY, 0.0]), ..Default::default() },

@@ -7,6 +7,8 @@
 //! - [`ambient`]: direct sun plus a constant matched to the LB light.
 //! - [`lb`]: direct sun plus the LB light of each species and of the forest.
 //! - [`boulanger`]: Boulanger et al. 2008's closed forms over leaf envelopes.
+//! - [`gather`]: a final gather over the LB: the first bounces traced, the
+//!   rest read from the lattice (or from the matched constant).
 //! - [`reference`](mod@reference): the path tracer every method is measured against.
 //! - [`clouds`]: the clouds' LB light, which the LB methods read and the
 //!   reference's clouds are drawn from.
@@ -14,6 +16,7 @@
 pub mod ambient;
 pub mod boulanger;
 pub mod clouds;
+pub mod gather;
 pub mod lb;
 pub mod local;
 pub mod reference;
@@ -27,7 +30,8 @@ use sylva_scene::LightingMode;
 pub enum Kernel {
     /// One pass of direct light plus a per-frame indirect term.
     Direct = 0,
-    /// One path per invocation, each sample to its own slot.
+    /// One path per invocation, each sample to its own slot: the
+    /// reference, and the gathers (its paths, truncated).
     Reference = 1,
     /// The direct kernel with Boulanger's envelope terms compiled in.
     Boulanger = 2,
@@ -84,6 +88,8 @@ pub fn method(mode: LightingMode) -> &'static Method {
         LightingMode::LbVisualize => &lb::VISUALIZE,
         LightingMode::Reference => &reference::METHOD,
         LightingMode::Boulanger => &boulanger::METHOD,
+        LightingMode::Gather => &gather::METHOD,
+        LightingMode::GatherAmbient => &gather::AMBIENT,
     }
 }
 

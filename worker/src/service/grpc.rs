@@ -99,7 +99,7 @@ impl Worker for WorkerService {
             let t = Instant::now();
             let prepared = state.prepared_for(&scene, &hash, accel, lighting, &view)?;
             let mut settings = settings;
-            if lighting == LightingMode::Ambient && !ambient_given {
+            if lighting.reads_matched_ambient() && !ambient_given {
                 // Matched here, once per frame shape, so every client gets
                 // the paper's ambient without a round of its own.
                 let key = format!(

@@ -58,7 +58,9 @@ pub struct FrameUniform {
     pub ground_grid: [f32; 4],
     pub ground_dims: [u32; 4],
     pub lb_model: u32,
-    pub pad4: [u32; 3],
+    pub gather_bounces: u32,
+    pub sample_base: u32,
+    pub batch_spp: u32,
 }
 
 impl FrameUniform {
@@ -103,6 +105,8 @@ pub struct RenderSettings {
     /// The frame's camera and sun where they differ from the scene's.
     #[serde(skip)]
     pub view: View,
+    /// The gather methods: bounces traced before the far end's lattice.
+    pub gather_bounces: u32,
 }
 
 impl RenderSettings {
@@ -121,6 +125,7 @@ impl RenderSettings {
             ambient: frame.ambient.unwrap_or([0.0; 3]),
             lb_strength: frame.lb_strength,
             view: frame.view,
+            gather_bounces: frame.gather_bounces,
         }
     }
 }
@@ -277,91 +282,67 @@ impl StripRenderer {
         if let Some(towards) = f.view.sun() {
             base.set_sun(towards)?;
         }
+        let uniform = FrameUniform {
+            aspect: f.width as f32 / f.height as f32,
+            width: f.width,
+            height: f.height,
+            x0,
+            strip_width,
+            spp: f.spp,
+            seed: f.seed,
+            ambient: f.ambient,
+            lighting: method.code,
+            lb_strength: f.lb_strength,
+            gather_bounces: f.gather_bounces,
+            batch_spp: 1,
+            ..base
+        };
+        let n = (strip_width * f.height) as usize;
+        let image_bytes = n as u64 * 16;
+        let limit = ctx.limits.max_storage_buffer_binding_size;
         ctx.checked("rendering a strip", || {
-            let device = &ctx.device;
-            let uniform = FrameUniform {
-                aspect: f.width as f32 / f.height as f32,
-                width: f.width,
-                height: f.height,
-                x0,
-                strip_width,
-                spp: f.spp,
-                seed: f.seed,
-                ambient: f.ambient,
-                lighting: method.code,
-                lb_strength: f.lb_strength,
-                ..base
-            };
-            let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("frame"),
-                contents: bytemuck::bytes_of(&uniform),
-                usage: wgpu::BufferUsages::UNIFORM,
-            });
-            let family = method.kernel as usize;
-            let reference = method.kernel == Kernel::Reference;
-            // The reference writes each sample to its own slot, then each
-            // sample's `local` light (`first_light`); the others one mean.
-            let images = if reference { 2 * f.spp as u64 } else { 1 };
-            let bytes = images * strip_width as u64 * f.height as u64 * 16;
-            anyhow::ensure!(
-                bytes <= ctx.limits.max_storage_buffer_binding_size,
-                "a strip of {strip_width}×{} at {} samples needs {bytes} bytes of output, more than the adapter binds",
-                f.height,
-                f.spp
-            );
-            let out = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("strip"),
-                size: bytes,
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            let counters = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("ray counters"),
-                contents: bytemuck::bytes_of(&GpuRayCounts::default()),
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            });
-            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("frame"),
-                layout: &self.layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: ubuf.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 2, resource: counters.as_entire_binding() },
-                ],
-            });
-            let mut enc = device.create_command_encoder(&Default::default());
-            {
-                let mut pass = enc.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.pipelines[family]);
-                pass.set_bind_group(0, &self.scene.bind_group, &[]);
-                pass.set_bind_group(1, &bg, &[]);
-                pass.dispatch_workgroups(strip_width.div_ceil(8), f.height.div_ceil(8), if reference { f.spp } else { 1 });
+            if method.kernel != Kernel::Reference {
+                let (px, counts) = self.dispatch(ctx, method.kernel, &uniform, image_bytes, 1)?;
+                return Ok(RenderedStrip {
+                    x0,
+                    width: strip_width,
+                    pixels: px.iter().map(|p| [p[0], p[1], p[2]]).collect(),
+                    coverage: px.iter().map(|p| p[3]).collect(),
+                    first_light: Vec::new(),
+                    rays: counts.into(),
+                });
             }
-            ctx.queue.submit([enc.finish()]);
-            let raw = ctx.read_back(&out, bytes)?;
-            let all: &[[f32; 4]] = bytemuck::cast_slice(&raw);
-            let n = (strip_width * f.height) as usize;
-            let (px, first) = if reference {
-                // The mean of each pixel's sample slots, of both images.
-                let mean = |image: &[[f32; 4]]| -> Vec<[f32; 4]> {
-                    let mut m = vec![[0.0f32; 4]; n];
+            // One path per invocation, each sample to its own slot, then
+            // each sample's `local` light (`first_light`): as many samples
+            // per dispatch as the adapter binds.
+            let batch = (limit / (2 * image_bytes)).min(f.spp as u64) as u32;
+            anyhow::ensure!(
+                batch >= 1,
+                "a strip of {strip_width}×{} needs {} bytes of output per sample, more than the adapter binds",
+                f.height,
+                2 * image_bytes
+            );
+            let mut sums = vec![[0.0f32; 4]; 2 * n];
+            let mut rays = RayCounts::default();
+            for base in (0..f.spp).step_by(batch as usize) {
+                let batch_spp = batch.min(f.spp - base);
+                let u = FrameUniform { sample_base: base, batch_spp, ..uniform };
+                let (all, counts) =
+                    self.dispatch(ctx, method.kernel, &u, 2 * batch_spp as u64 * image_bytes, batch_spp)?;
+                let (paths, locals) = all.split_at(n * batch_spp as usize);
+                for (image, sum) in [paths, locals].into_iter().zip(sums.chunks_exact_mut(n)) {
                     for slot in image.chunks_exact(n) {
-                        for (a, v) in m.iter_mut().zip(slot) {
+                        for (a, v) in sum.iter_mut().zip(slot) {
                             for c in 0..4 {
                                 a[c] += v[c];
                             }
                         }
                     }
-                    m.iter().map(|a| a.map(|v| v / f.spp as f32)).collect()
-                };
-                let (paths, locals) = all.split_at(n * f.spp as usize);
-                (mean(paths), mean(locals))
-            } else {
-                (all.to_vec(), Vec::new())
-            };
-            let counts: GpuRayCounts =
-                *bytemuck::from_bytes(&ctx.read_back(&counters, size_of::<GpuRayCounts>() as u64)?);
-            let rays = RayCounts::from(counts);
+                }
+                rays.add(&RayCounts::from(counts));
+            }
+            let mean: Vec<[f32; 4]> = sums.iter().map(|a| a.map(|v| v / f.spp as f32)).collect();
+            let (px, first) = mean.split_at(n);
             Ok(RenderedStrip {
                 x0,
                 width: strip_width,
@@ -371,6 +352,69 @@ impl StripRenderer {
                 rays,
             })
         })
+    }
+
+    /// One dispatch of the method's kernel with `uniform`, `depth` samples
+    /// deep (the per-sample kernel's z), into `bytes` of output: what it
+    /// wrote and the rays it counted.
+    fn dispatch(
+        &self,
+        ctx: &GpuContext,
+        kernel: Kernel,
+        uniform: &FrameUniform,
+        bytes: u64,
+        depth: u32,
+    ) -> anyhow::Result<(Vec<[f32; 4]>, GpuRayCounts)> {
+        let device = &ctx.device;
+        let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("frame"),
+            contents: bytemuck::bytes_of(uniform),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        anyhow::ensure!(
+            bytes <= ctx.limits.max_storage_buffer_binding_size,
+            "a strip of {}×{} at {} samples needs {bytes} bytes of output, more than the adapter binds",
+            uniform.strip_width,
+            uniform.height,
+            uniform.spp
+        );
+        let out = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("strip"),
+            size: bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let counters = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("ray counters"),
+            contents: bytemuck::bytes_of(&GpuRayCounts::default()),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        });
+        let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("frame"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: ubuf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: counters.as_entire_binding() },
+            ],
+        });
+        let mut enc = device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.pipelines[kernel as usize]);
+            pass.set_bind_group(0, &self.scene.bind_group, &[]);
+            pass.set_bind_group(1, &bg, &[]);
+            pass.dispatch_workgroups(
+                uniform.strip_width.div_ceil(8),
+                uniform.height.div_ceil(8),
+                depth,
+            );
+        }
+        ctx.queue.submit([enc.finish()]);
+        let raw = ctx.read_back(&out, bytes)?;
+        let counts: GpuRayCounts =
+            *bytemuck::from_bytes(&ctx.read_back(&counters, size_of::<GpuRayCounts>() as u64)?);
+        Ok((bytemuck::cast_slice(&raw).to_vec(), counts))
     }
 }
 

@@ -19,6 +19,10 @@ pub struct CompareArgs {
     /// LB grid sizes to compare.
     #[arg(long, value_delimiter = ',', default_value = "16,32,64,128")]
     pub grids: Vec<usize>,
+    /// Gather rays per pixel of the final gathers (each a variant, one and
+    /// two bounces deep).
+    #[arg(long, value_delimiter = ',', default_value = "4,16")]
+    pub gather_rays: Vec<u32>,
     /// `lb auto`: the largest relative difference from the next finer grid it accepts.
     #[arg(long, default_value_t = 0.2)]
     pub auto_tolerance: f64,

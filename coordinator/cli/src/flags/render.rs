@@ -37,6 +37,10 @@ pub struct FrameArgs {
     /// derives the LB light's scale and ignores this).
     #[arg(long, default_value_t = 0.35)]
     pub lb_strength: f32,
+    /// The gather methods: bounces traced through the geometry before the
+    /// far end reads the lattice (1 or 2; each ray per pixel is one gather ray).
+    #[arg(long, default_value_t = sylva_scene::frame::DEFAULT_GATHER_BOUNCES)]
+    pub gather_bounces: u32,
     /// Render a sequence of this many frames (with --sun-from/--sun-to, a
     /// --camera-path, or the scene's own `sequence`).
     #[arg(long)]
@@ -78,6 +82,7 @@ impl FrameArgs {
             lb_strength: self.lb_strength,
             ambient: None,
             view: Default::default(),
+            gather_bounces: self.gather_bounces,
         }
     }
 

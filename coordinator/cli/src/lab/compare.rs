@@ -6,7 +6,6 @@
 //! Carlo reference of the same medium), each as a chart.
 
 use crate::flags::compare::*;
-use crate::in_process::InProcess;
 use crate::lab::chart::{Series, line_chart};
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -15,12 +14,12 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use sylva_accel::AccelKind;
-use sylva_coordinator::executor::StripExecutor;
 use sylva_scene::color::luminance;
 use sylva_scene::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
 use sylva_scene::frame::FrameSettings;
 use sylva_scene::{ForestGridUse, LbModel, LightingMode, Scene};
 use sylva_worker::GpuContext;
+use sylva_worker::lighting::Needs;
 use sylva_worker::lighting::lb::auto::choose_lb_grids;
 use sylva_worker::lighting::reference::{ReferenceImage, ReferenceOptions, render_reference};
 use sylva_worker::prepare::prepare;
@@ -69,6 +68,11 @@ struct Rendered {
     /// A second render with other seeds: beside `local`'s, the spread of
     /// the two renders' indirect light is the method's sampling noise.
     again: HdrImage,
+    /// The per-sample kernels (the gathers): what `local` shows along the
+    /// same camera samples, for both renders. Their indirect light is the
+    /// image minus this, as the reference's is, so edges sampled
+    /// differently from `local`'s rays do not count as indirect light.
+    own_local: Option<(HdrImage, HdrImage)>,
 }
 
 fn ms(t: Instant) -> f64 {
@@ -112,22 +116,28 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     );
     let (_, exposure) = reinhard(&reference, 0.18);
 
-    let methods = methods_to_compare(&scene, &a.grids);
+    let methods = methods_to_compare(&scene, &a.grids, &a.gather_rays);
 
     let mut rendered: Vec<Rendered> = Vec::new();
-    for (name, lighting, s) in &methods {
-        say(name);
-        rendered.push(render_method(
-            &ctx,
-            name,
-            *lighting,
-            s,
-            &settings,
-            &a.out,
-            &exposure,
-            a.hdr,
-            &|m| say(m),
-        )?);
+    // Candidates of one group share a scene: those whose methods need the
+    // same preparation share one (the LB solve is not repeated per variant).
+    let mut last: Option<(usize, Needs, Preparation)> = None;
+    for c in &methods {
+        say(&c.name);
+        let needs = sylva_worker::lighting::method(c.lighting).needs;
+        let reuse = matches!(&last, Some((g, n, _)) if *g == c.group && *n == needs);
+        if !reuse {
+            drop(last.take());
+            last =
+                Some((c.group, needs, Preparation::new(&ctx, &c.scene, c.lighting, &|m| say(m))?));
+        }
+        let (_, _, prepared) = last.as_ref().expect("prepared above");
+        let f = RenderSettings {
+            spp: c.spp.unwrap_or(settings.spp),
+            gather_bounces: c.gather_bounces,
+            ..settings
+        };
+        rendered.push(render_method(&ctx, c, prepared, &f, &a.out, &exposure, a.hdr, &|m| say(m))?);
     }
     // `--lb-grid auto`: the smallest grid per species that agrees with the next finer one.
     say("lb auto: choosing grids");
@@ -138,11 +148,12 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     for (m, c) in auto_scene.models.iter_mut().zip(&choices) {
         m.lb.grid = c.grid;
     }
+    let auto_candidate = Candidate::new("lb auto", LightingMode::Lb, auto_scene, 0);
+    let prepared = Preparation::new(&ctx, &auto_candidate.scene, LightingMode::Lb, &|m| say(m))?;
     let mut auto = render_method(
         &ctx,
-        "lb auto",
-        LightingMode::Lb,
-        &auto_scene,
+        &auto_candidate,
+        &prepared,
         &settings,
         &a.out,
         &exposure,
@@ -159,7 +170,11 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     let (local, local_again) = (rendered[0].image.clone(), rendered[0].again.clone());
     for m in &mut rendered {
         (m.report.rmse, m.report.mean_relative_error) = errors(&m.image, &reference, &lit);
-        let ind = IndirectError::measure([&m.image, &m.again], [&local, &local_again], &r, &lit);
+        let l = match &m.own_local {
+            Some((a, b)) => [a, b],
+            None => [&local, &local_again],
+        };
+        let ind = IndirectError::measure([&m.image, &m.again], l, &r, &lit);
         m.report.indirect_relative_error = ind.raw;
         m.report.indirect_error_net = ind.net;
         m.report.indirect_noise_reference = ind.reference_noise;
@@ -242,6 +257,10 @@ fn checked_grids(a: &CompareArgs) -> anyhow::Result<Vec<usize>> {
     );
     anyhow::ensure!((1..=256).contains(&a.spp), "--spp {}: valid range [1, 256]", a.spp);
     anyhow::ensure!(a.grids.iter().all(|g| (4..=256).contains(g)), "--grids: each in [4, 256]");
+    anyhow::ensure!(
+        a.gather_rays.iter().all(|k| (1..=1024).contains(k)),
+        "--gather-rays: each in [1, 1024]"
+    );
     let mut distinct = a.grids.clone();
     distinct.sort_unstable();
     distinct.dedup();
@@ -300,33 +319,111 @@ fn reference(
     })
 }
 
-/// The methods `compare` renders, by name: local, ambient, the LB at each
-/// grid size, with the forest grid, the papers' model as written, and
-/// Boulanger et al. (`lb auto` and the reference come apart).
-fn methods_to_compare(scene: &Scene, grids: &[usize]) -> Vec<(String, LightingMode, Scene)> {
-    let mut methods: Vec<(String, LightingMode, Scene)> = vec![
-        ("local".into(), LightingMode::Local, scene.clone()),
-        ("ambient".into(), LightingMode::Ambient, scene.clone()),
+/// One method `compare` renders: a lighting method on a variant of the
+/// scene, with its own rays per pixel and gather depth where it differs.
+struct Candidate {
+    name: String,
+    lighting: LightingMode,
+    scene: Scene,
+    /// Candidates of one group have the same scene, so methods with the
+    /// same needs share its preparation.
+    group: usize,
+    /// Rays per pixel; `None`: `--spp`.
+    spp: Option<u32>,
+    gather_bounces: u32,
+}
+
+impl Candidate {
+    fn new(name: &str, lighting: LightingMode, scene: Scene, group: usize) -> Self {
+        Candidate {
+            name: name.into(),
+            lighting,
+            scene,
+            group,
+            spp: None,
+            gather_bounces: sylva_scene::frame::DEFAULT_GATHER_BOUNCES,
+        }
+    }
+}
+
+/// The methods `compare` renders: local, ambient, the LB at each grid
+/// size, with the forest grid, the papers' model as written, Boulanger et
+/// al., and the final gathers over the scene's own LB (at each count of
+/// gather rays, one and two bounces deep, and reading the matched constant
+/// at their far end instead); `lb auto` and the reference come apart.
+fn methods_to_compare(scene: &Scene, grids: &[usize], gather_rays: &[u32]) -> Vec<Candidate> {
+    let mut methods = vec![
+        Candidate::new("local", LightingMode::Local, scene.clone(), 0),
+        Candidate::new("ambient", LightingMode::Ambient, scene.clone(), 0),
     ];
     for &g in grids {
-        methods.push((
-            format!("lb {g}³"),
-            LightingMode::Lb,
-            with_lb(scene, Some(g), Some(ForestGridUse::Never)),
-        ));
+        let s = with_lb(scene, Some(g), Some(ForestGridUse::Never));
+        methods.push(Candidate::new(&format!("lb {g}³"), LightingMode::Lb, s, methods.len()));
     }
     let forest_grid = scene.models.first().map_or(32, |m| m.lb.grid);
-    methods.push((
-        format!("lb {forest_grid}³ + forest grid"),
-        LightingMode::Lb,
-        with_lb(scene, None, Some(ForestGridUse::Always)),
-    ));
+    let s = with_lb(scene, None, Some(ForestGridUse::Always));
+    let name = format!("lb {forest_grid}³ + forest grid");
+    methods.push(Candidate::new(&name, LightingMode::Lb, s, methods.len()));
     // The papers' model as written, beside the grounded one.
     let mut paper = with_lb(scene, None, Some(ForestGridUse::Always));
     paper.file.lb_model = LbModel::Paper;
-    methods.push((format!("lb paper {forest_grid}³ + forest grid"), LightingMode::Lb, paper));
-    methods.push(("boulanger".into(), LightingMode::Boulanger, scene.clone()));
+    let name = format!("lb paper {forest_grid}³ + forest grid");
+    methods.push(Candidate::new(&name, LightingMode::Lb, paper, methods.len()));
+    methods.push(Candidate::new("boulanger", LightingMode::Boulanger, scene.clone(), 0));
+    let most = gather_rays.iter().copied().max();
+    for bounces in [1, 2] {
+        for &k in gather_rays {
+            methods.push(Candidate {
+                spp: Some(k),
+                gather_bounces: bounces,
+                ..Candidate::new(
+                    &format!("gather {bounces}b {k} rays"),
+                    LightingMode::Gather,
+                    scene.clone(),
+                    0,
+                )
+            });
+        }
+        if let Some(k) = most {
+            methods.push(Candidate {
+                spp: Some(k),
+                gather_bounces: bounces,
+                ..Candidate::new(
+                    &format!("gather-ambient {bounces}b {k} rays"),
+                    LightingMode::GatherAmbient,
+                    scene.clone(),
+                    0,
+                )
+            });
+        }
+    }
     methods
+}
+
+/// One preparation of a scene for a method, and the time its lighting's
+/// own pre-process took (voxelize, LB, forest LB, clouds, Boulanger).
+struct Preparation {
+    prepared: sylva_worker::prepare::PreparedScene,
+    preprocess_ms: f64,
+}
+
+impl Preparation {
+    fn new(
+        ctx: &GpuContext,
+        scene: &Scene,
+        lighting: LightingMode,
+        say: &dyn Fn(&str),
+    ) -> anyhow::Result<Self> {
+        let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
+        let preprocess_ms = prepared
+            .phases
+            .0
+            .iter()
+            .filter(|p| !matches!(p.name, "build" | "upload"))
+            .map(|p| p.ms)
+            .sum::<f64>();
+        Ok(Self { prepared, preprocess_ms })
+    }
 }
 
 /// The methods as a table a person reads, then the summary.
@@ -386,30 +483,22 @@ fn with_lb(scene: &Scene, grid: Option<usize>, forest: Option<ForestGridUse>) ->
     s
 }
 
-/// Prepares and renders one method, writes its image with the reference's exposure.
+/// Renders one method on its preparation, writes its image with the reference's exposure.
 #[allow(clippy::too_many_arguments)]
 fn render_method(
     ctx: &GpuContext,
-    name: &str,
-    lighting: LightingMode,
-    scene: &Scene,
+    c: &Candidate,
+    p: &Preparation,
     f: &RenderSettings,
     out: &Path,
     exposure: &ToneMapStats,
     hdr: bool,
     say: &dyn Fn(&str),
 ) -> anyhow::Result<Rendered> {
-    let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
-    let mut pre: f64 = prepared
-        .phases
-        .0
-        .iter()
-        .filter(|p| !matches!(p.name, "build" | "upload"))
-        .map(|p| p.ms)
-        .sum::<f64>()
-        + 0.0;
+    let (name, lighting, scene, prepared) = (c.name.as_str(), c.lighting, &c.scene, &p.prepared);
+    let mut pre = p.preprocess_ms;
     let mut settings = RenderSettings { lighting, ..*f };
-    if lighting == LightingMode::Ambient {
+    if lighting.reads_matched_ambient() {
         let t = Instant::now();
         settings.ambient =
             sylva_worker::lighting::ambient::matched(&prepared.renderer, ctx, &settings)?;
@@ -424,19 +513,17 @@ fn render_method(
         8,
     )?;
     let t = Instant::now();
-    let image =
-        InProcess::new(ctx, &prepared.renderer, settings).render(&[(0, f.width)], &|_| {})?.image;
+    let (image, own_local) = render_whole(ctx, prepared, &settings)?;
     let frame_ms = ms(t);
     // The same frame with other seeds (untimed): with `local`'s second
-    // render, the spread of the two tells the method's own sampling noise.
-    let again = InProcess::new(
+    // render (or its own, below), the spread of the two tells the method's
+    // own sampling noise.
+    let (again, own_local_again) = render_whole(
         ctx,
-        &prepared.renderer,
-        RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings },
-    )
-    .render(&[(0, f.width)], &|_| {})?
-    .image;
-    let file = out.join(format!("{}.png", name.replace(['³', ' ', '+'], "").replace("lb", "lb-")));
+        prepared,
+        &RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings },
+    )?;
+    let file = out.join(format!("{}.png", file_stem(name)));
     write_png(&file, f.width, f.height, &reinhard_like(&image, exposure))?;
     if hdr {
         write_hdr(&file.with_extension("npy"), &image)?;
@@ -451,6 +538,8 @@ fn render_method(
         "forest_grid": prepared.forest,
         "boulanger": prepared.boulanger,
         "ambient": settings.ambient,
+        "spp": settings.spp,
+        "gather_bounces": if sylva_worker::lighting::method(lighting).kernel == sylva_worker::lighting::Kernel::Reference { json!(settings.gather_bounces) } else { serde_json::Value::Null },
         "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
     });
     Ok(Rendered {
@@ -473,7 +562,26 @@ fn render_method(
         },
         image,
         again,
+        own_local: own_local.zip(own_local_again),
     })
+}
+
+/// The whole frame as one strip: the image and, from the per-sample
+/// kernels (the gathers), what `local` shows along the same camera samples.
+fn render_whole(
+    ctx: &GpuContext,
+    prepared: &sylva_worker::prepare::PreparedScene,
+    f: &RenderSettings,
+) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
+    let s = prepared.renderer.render_strip(ctx, f, 0, f.width)?;
+    let image = |pixels: Vec<[f32; 3]>| HdrImage { width: f.width, height: f.height, pixels };
+    let local = (!s.first_light.is_empty()).then(|| image(s.first_light));
+    Ok((image(s.pixels), local))
+}
+
+/// A method's name as a file name: `lb 32³ + forest grid` → `lb-32-forest-grid`.
+fn file_stem(name: &str) -> String {
+    name.replace(['³', '+'], "").split_whitespace().collect::<Vec<_>>().join("-")
 }
 
 /// (RMSE, mean relative error) over lit pixels of method image `m` against

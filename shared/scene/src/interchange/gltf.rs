@@ -2,8 +2,10 @@
 //! one mesh per model with `EXT_mesh_gpu_instancing` for its placements,
 //! alpha-masked leaf textures, the camera, the sun as a `KHR_lights_punctual`
 //! directional light, the ground as a large quad. What glTF has no place
-//! for (the sky's colours, the sun's strength in Sylva's units) rides in
-//! the scene's `extras.sylva`, which [`super::import`] reads back.
+//! for (the sky's colours, the sun's strength in Sylva's units, the
+//! leaves' transmittance as multipliers of their colour: the one leaf BSDF,
+//! docs/lighting.md) rides in the scene's `extras.sylva`, which
+//! [`super::import`] reads back and `scripts/cycles-check.py` builds from.
 
 use crate::Scene;
 use crate::model::{Model, Surface, classify_material};
@@ -136,8 +138,9 @@ pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
     let file = &scene.file;
     let extras = json!({ "sylva": {
         "sky": { "zenith": scene.sky.zenith, "horizon": scene.sky.horizon },
-        "sun": { "temperature_k": file.sun.temperature_k, "intensity": file.sun.intensity },
+        "sun": { "temperature_k": file.sun.temperature_k, "intensity": file.sun.intensity, "radiance": scene.sun.radiance },
         "ground": scene.ground.as_ref().map(|g| g.color),
+        "leaf_optics": file.leaf_optics,
         "lighting": file.lighting,
     } });
     let mut doc = json!({
@@ -205,7 +208,10 @@ fn add_model(p: &mut Parts, scene: &Scene, mi: usize, m: &crate::SceneModel) -> 
         if let Some(t) = mat.texture {
             pbr["baseColorTexture"] = json!({ "index": first_texture + t as usize });
         }
-        let mut out = json!({ "name": surface_name(&mat.name, mat.surface), "pbrMetallicRoughness": pbr, "doubleSided": mat.double_sided });
+        // The surface is also said plainly, for tools that build Sylva's
+        // leaf BSDF from the export (scripts/cycles-check.py).
+        let surface = if mat.surface == Surface::Wood { "wood" } else { "leaf" };
+        let mut out = json!({ "name": surface_name(&mat.name, mat.surface), "pbrMetallicRoughness": pbr, "doubleSided": mat.double_sided, "extras": { "sylva": { "surface": surface } } });
         if let Some(c) = mat.alpha_cutoff {
             (out["alphaMode"], out["alphaCutoff"]) = ("MASK".into(), c.into());
         }
@@ -303,7 +309,7 @@ fn add_ground(p: &mut Parts, scene: &Scene, colour: [f32; 3]) {
     ];
     let pos = p.bin.floats(&quad, 3, "VEC3", true, Some(ARRAY_BUFFER));
     let idx = p.bin.indices(&[0, 2, 1, 0, 3, 2]);
-    p.materials.push(json!({ "name": "ground", "pbrMetallicRoughness": { "baseColorFactor": [colour[0], colour[1], colour[2], 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0 } }));
+    p.materials.push(json!({ "name": "ground", "pbrMetallicRoughness": { "baseColorFactor": [colour[0], colour[1], colour[2], 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0 }, "extras": { "sylva": { "surface": "ground" } } }));
     p.meshes.push(json!({ "name": "ground", "primitives": [{ "attributes": { "POSITION": pos }, "indices": idx, "material": p.materials.len() - 1, "mode": 4 }] }));
     p.nodes.push(
         json!({ "name": "ground", "mesh": p.meshes.len() - 1, "extras": { "sylva": "ground" } }),

@@ -168,6 +168,9 @@ pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFi
     if let Some(l) = extras.as_ref().and_then(|e| e.get("lighting")) {
         out["lighting"] = l.clone();
     }
+    if let Some(o) = extras.as_ref().and_then(|e| e.get("leaf_optics")) {
+        out["leaf_optics"] = o.clone();
+    }
     serde_json::from_value(out).context("the imported scene is not a valid scene file")
 }
 
