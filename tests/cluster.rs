@@ -72,6 +72,7 @@ fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
         lb_strength: 0.35,
         view: Default::default(),
         gather_bounces: 1,
+        gather_filter: 0,
     };
     p.renderer
         .render_strip(&ctx, &f, 0, 96)

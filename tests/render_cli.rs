@@ -279,6 +279,12 @@ fn compare_lists_every_method_with_its_time_and_error() {
             "8,12",
             "--target-error",
             "0.1",
+            "--gather-rays",
+            "2",
+            "--gather-filters",
+            "0,2",
+            "--budget",
+            "60",
             "--out",
             out,
             "--json",
@@ -299,6 +305,12 @@ fn compare_lists_every_method_with_its_time_and_error() {
             "lb 12³ + forest grid",
             "lb paper 12³ + forest grid",
             "boulanger",
+            "gather 1b r0 2 rays",
+            "gather 1b r2 2 rays",
+            "gather-ambient 1b r3 2 rays",
+            "gather 2b r0 2 rays",
+            "gather 2b r2 2 rays",
+            "gather-ambient 2b r3 2 rays",
             "lb auto",
             "reference"
         ]
@@ -319,7 +331,7 @@ fn compare_lists_every_method_with_its_time_and_error() {
     }
     assert!(v["reference"]["converged"].as_bool().unwrap(), "{}", v["reference"]);
     // The grid choice says what it chose and why.
-    let choice = &methods[7]["notes"]["grid_choice"][0];
+    let choice = &methods[13]["notes"]["grid_choice"][0];
     assert!(
         [8, 12].contains(&choice["grid"].as_u64().unwrap())
             && !choice["reason"].as_str().unwrap().is_empty(),
@@ -339,8 +351,30 @@ fn compare_lists_every_method_with_its_time_and_error() {
     for f in ["figure2.svg", "compare.svg", "compare.json", "reference.png"] {
         assert!(out.join(f).exists(), "{f}");
     }
+    // The gathers say how deep they trace and how they filter.
+    assert_eq!(methods[10]["notes"]["gather_bounces"], 2);
+    assert_eq!(methods[11]["notes"]["gather_filter"], 2);
+    assert!(methods[10]["notes"]["gather_filter"].is_null(), "{}", methods[10]["notes"]);
+    assert_eq!(methods[10]["notes"]["spp"], 2);
+    // The chart is a Pareto front over every method and the progressive
+    // path tracer, whose error falls as it runs; the front names the best
+    // method for the budget asked.
     let chart = std::fs::read_to_string(out.join("compare.svg")).unwrap();
-    assert_eq!(chart.matches("<circle").count(), 8, "one point per method but the reference");
+    assert!(chart.contains("Pareto front") && chart.contains("progressive path tracer"));
+    assert!(out.join("compare-net.svg").exists());
+    let pt = v["progressive"].as_array().unwrap();
+    assert_eq!(pt.len(), 5, "{pt:?}");
+    let raw = |p: &Value| p["raw"].as_f64().unwrap();
+    assert!(raw(&pt[4]) < raw(&pt[0]), "{pt:?}");
+    assert!(pt.windows(2).all(|w| w[1]["ms"].as_f64() >= w[0]["ms"].as_f64()), "{pt:?}");
+    let front = v["front"].as_array().unwrap();
+    assert!(!front.is_empty() && front.windows(2).all(|w| raw(&w[1]) < raw(&w[0])), "{front:?}");
+    assert!(v["budget"].as_str().unwrap().starts_with("best within 60 s: "), "{}", v["budget"]);
+    // Per crown: both maples are in view, each with its reference and method light.
+    let crowns = &v["crowns"];
+    assert_eq!(crowns["rows"].as_array().unwrap().len(), 2, "{crowns}");
+    assert_eq!(crowns["rows"][0]["methods"].as_array().unwrap().len(), names.len() - 2);
+    assert!(out.join("instances.png").exists() && out.join("crowns.md").exists());
     // The noise of both images is measured and taken out of the net error:
     // local's indirect light is zero on both its renders, a method's at two
     // jittered rays per pixel is not; no net error exceeds the raw one by more than noise allows.

@@ -66,6 +66,7 @@ fn frame() -> pb::FrameSettings {
         ambient: vec![],
         view: None,
         gather_bounces: 0,
+        gather_filter: None,
     }
 }
 
@@ -132,6 +133,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
         lb_strength: 0.35,
         view: Default::default(),
         gather_bounces: 1,
+        gather_filter: 0,
     };
     let local = p.renderer.render_strip(&ctx, &f, 0, 48).unwrap();
     let local: Vec<u32> = local.pixels.iter().flatten().map(|v| v.to_bits()).collect();

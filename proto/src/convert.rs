@@ -104,6 +104,7 @@ impl TryFrom<&pb::FrameSettings> for FrameSettings {
             } else {
                 f.gather_bounces
             },
+            gather_filter: f.gather_filter.unwrap_or(sylva_scene::frame::DEFAULT_GATHER_FILTER),
         };
         frame.check().map_err(|e| Status::invalid_argument(e.to_string()))?;
         Ok(frame)
@@ -127,6 +128,7 @@ impl From<&FrameSettings> for pb::FrameSettings {
             ambient: f.ambient.map(|a| a.to_vec()).unwrap_or_default(),
             view: (f.view != View::default()).then(|| pb::FrameView::from(&f.view)),
             gather_bounces: f.gather_bounces,
+            gather_filter: Some(f.gather_filter),
         }
     }
 }
@@ -188,6 +190,7 @@ mod tests {
                 accel: AccelKind::Kd,
                 ambient: Some([0.1, 0.2, 0.3]),
                 gather_bounces: 2,
+                gather_filter: 0,
                 ..Default::default()
             };
             assert_eq!(FrameSettings::try_from(&pb::FrameSettings::from(&f)).unwrap(), f);

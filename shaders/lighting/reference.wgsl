@@ -202,7 +202,7 @@ fn seed_path(x: u32, y: u32, s: u32) {
 // One path per invocation: on lavapipe (Mesa 22.3) a loop over samples
 // around the loop over bounces silently dropped samples of lanes whose paths
 // ended early (up to 20 % of the samples of a forest frame).
-fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 2> {
+fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 3> {
     var depth = 0u;
     var ray = camera_ray(x, y, s);
     seed_path(x, y, s);
@@ -210,6 +210,11 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 2> {
     var light = vec3<f32>(0.0);
     var coverage = 0.0;
     var first_light = vec3<f32>(0.0);
+    // The first surface's distance and the albedo a diffuse field sees
+    // there: the gathers' filter demodulates and edge-stops with them.
+    var first_depth = 0.0;
+    var first_albedo = vec3<f32>(0.0);
+    var first_surface_hit = 0.0;
     var alive = true;
     loop {
         if !alive || depth > frame.max_bounces {
@@ -252,6 +257,11 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 2> {
                 let o = leaf_optics(surf.n, wo, surf.albedo);
                 reflect_c = o[0];
                 transmit_c = o[1];
+            }
+            if depth == 0u {
+                first_depth = surf.t;
+                first_albedo = reflect_c + transmit_c;
+                first_surface_hit = 1.0;
             }
             // The sun: reflected when it lights the viewer's side, transmitted when the other.
             let cos_sun = dot(n, frame.sun_towards);
@@ -301,5 +311,5 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 2> {
         }
         depth += 1u;
     }
-    return array<vec4<f32>, 2>(vec4<f32>(light, coverage), vec4<f32>(first_light, 0.0));
+    return array<vec4<f32>, 3>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit));
 }

@@ -477,11 +477,13 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         // The reference and the gathers: one path per invocation, sample
         // sample_base + gid.z of the frame's, in its own slot of this
         // batch (the worker sums them); after the batch's samples, what
-        // `local` shows along the same camera rays (reference.wgsl).
+        // `local` shows along the same camera rays and the first hit's
+        // distance, then its albedo (reference.wgsl).
         let r = reference_sample(x, y, frame.sample_base + gid.z);
         let slots = frame.strip_width * frame.height;
         out_pixels[pixel + gid.z * slots] = r[0];
         out_pixels[pixel + (frame.batch_spp + gid.z) * slots] = r[1];
+        out_pixels[pixel + (2u * frame.batch_spp + gid.z) * slots] = r[2];
         atomicAdd(&counters.transparent, transparent_passed);
         atomicAdd(&counters.primary, 1u);
         return;

@@ -174,6 +174,7 @@ pub fn spec(width: u32, height: u32) -> pb::JobSpec {
             ambient: vec![],
             view: None,
             gather_bounces: 0,
+            gather_filter: None,
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,

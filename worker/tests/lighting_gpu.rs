@@ -48,6 +48,7 @@ fn frame(w: u32, h: u32) -> RenderSettings {
         lb_strength: 0.35,
         view: Default::default(),
         gather_bounces: 1,
+        gather_filter: 0,
     }
 }
 

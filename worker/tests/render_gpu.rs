@@ -45,6 +45,7 @@ fn a_lit_quad_matches_the_shading_formula() {
             lb_strength: 0.0,
             view: Default::default(),
             gather_bounces: 1,
+            gather_filter: 0,
         };
         let s = p.renderer.render_strip(&ctx, &f, 0, 33).unwrap();
         let centre = s.pixels[16 * 33 + 16];
@@ -91,6 +92,7 @@ fn a_frame_is_bit_identical_however_it_is_split_and_repeated() {
         lb_strength: 0.35,
         view: Default::default(),
         gather_bounces: 1,
+        gather_filter: 0,
     };
     let whole = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
     let again = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
@@ -122,6 +124,7 @@ fn leaves_have_holes_where_their_texture_is_transparent() {
         lb_strength: 0.35,
         view: Default::default(),
         gather_bounces: 1,
+        gather_filter: 0,
     };
     let s = p.renderer.render_strip(&ctx, &f, 0, 96).unwrap();
     assert!(s.rays.transparent > 100, "rays passed {} transparent texels", s.rays.transparent);
@@ -157,6 +160,7 @@ fn a_cloud_dims_what_lies_behind_it_and_glows_where_lit() {
             lb_strength: 0.35,
             view: Default::default(),
             gather_bounces: 1,
+            gather_filter: 0,
         };
         p.renderer.render_strip(&ctx, &f, 0, 32).unwrap()
     };

@@ -16,6 +16,15 @@ pub const DEFAULT_GATHER_BOUNCES: u32 = 1;
 /// reference's own paths cost no more).
 pub const MAX_GATHER_BOUNCES: u32 = 4;
 
+/// Radius in pixels of the gathers' filter over their indirect light, unless asked.
+pub const DEFAULT_GATHER_FILTER: u32 = 3;
+/// Largest filter radius a frame may ask for.
+pub const MAX_GATHER_FILTER: u32 = 16;
+
+fn default_gather_filter() -> u32 {
+    DEFAULT_GATHER_FILTER
+}
+
 fn default_gather_bounces() -> u32 {
     DEFAULT_GATHER_BOUNCES
 }
@@ -73,6 +82,10 @@ pub struct FrameSettings {
     /// far end reads the lattice (or the matched constant).
     #[serde(default = "default_gather_bounces")]
     pub gather_bounces: u32,
+    /// The gather methods: radius in pixels of the filter over their
+    /// indirect light, within one crown (docs/lighting.md); 0: none.
+    #[serde(default = "default_gather_filter")]
+    pub gather_filter: u32,
 }
 
 impl Default for FrameSettings {
@@ -88,6 +101,7 @@ impl Default for FrameSettings {
             ambient: None,
             view: Default::default(),
             gather_bounces: DEFAULT_GATHER_BOUNCES,
+            gather_filter: DEFAULT_GATHER_FILTER,
         }
     }
 }
@@ -117,6 +131,12 @@ impl FrameSettings {
             return bad(format!(
                 "gather_bounces {}: valid range [1, {MAX_GATHER_BOUNCES}]",
                 self.gather_bounces
+            ));
+        }
+        if self.gather_filter > MAX_GATHER_FILTER {
+            return bad(format!(
+                "gather_filter {}: valid range [0, {MAX_GATHER_FILTER}]",
+                self.gather_filter
             ));
         }
         if let Some(a) = self.ambient

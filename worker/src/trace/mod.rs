@@ -14,5 +14,7 @@ pub use gpu_scene::{
 };
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use render::MAX_BOUNCES;
-pub use render::{FrameUniform, GpuRayCounts, RenderSettings, RenderedStrip, StripRenderer};
+pub use render::{
+    FrameUniform, GpuRayCounts, RenderSettings, RenderedStrip, SampleMeans, StripRenderer,
+};
 pub use shaders::tracer_source;

@@ -107,6 +107,9 @@ pub struct RenderSettings {
     pub view: View,
     /// The gather methods: bounces traced before the far end's lattice.
     pub gather_bounces: u32,
+    /// The gather methods: radius in pixels of the filter over their
+    /// indirect light (0: none).
+    pub gather_filter: u32,
 }
 
 impl RenderSettings {
@@ -126,6 +129,7 @@ impl RenderSettings {
             lb_strength: frame.lb_strength,
             view: frame.view,
             gather_bounces: frame.gather_bounces,
+            gather_filter: frame.gather_filter,
         }
     }
 }
@@ -172,6 +176,22 @@ pub struct RenderedStrip {
     pub rays: RayCounts,
 }
 
+/// Per pixel, the means over its samples of the per-sample kernel's three
+/// images (`reference.wgsl`'s `reference_sample`).
+pub struct SampleMeans {
+    /// The paths' radiance, and the fraction of samples that hit a model.
+    pub paths: Vec<[f32; 4]>,
+    /// What `local` shows along the same camera rays, and the first
+    /// surface's distance (0 for samples that see the sky).
+    pub first: Vec<[f32; 4]>,
+    /// The albedo a diffuse field sees at the first surface, and the
+    /// fraction of samples that hit a surface (model or ground).
+    pub guide: Vec<[f32; 4]>,
+    /// Per channel, the variance of the mean of `paths − first` (the
+    /// indirect light) from its samples' spread; 0 with one sample.
+    pub indirect_variance: Vec<[f32; 3]>,
+}
+
 /// The render pipeline over one uploaded scene.
 pub struct StripRenderer {
     scene: GpuScene,
@@ -180,6 +200,8 @@ pub struct StripRenderer {
     pipelines: [wgpu::ComputePipeline; 3],
     layout: wgpu::BindGroupLayout,
     base: FrameUniform,
+    /// The gathers' filter: the depth range of one crown, metres.
+    crown_depth: f32,
 }
 
 impl StripRenderer {
@@ -250,7 +272,8 @@ impl StripRenderer {
         };
         base.set_camera(&scene.camera);
         base.set_sun(scene.sun.towards).expect("the scene checked its sun");
-        Self { scene: gpu_scene, pipelines, layout, base }
+        let crown_depth = lighting::gather::crown_depth(scene);
+        Self { scene: gpu_scene, pipelines, layout, base, crown_depth }
     }
 
     /// Bytes of scene data on the GPU.
@@ -282,12 +305,17 @@ impl StripRenderer {
         if let Some(towards) = f.view.sun() {
             base.set_sun(towards)?;
         }
+        // The gathers' filter reads `radius` columns beyond the strip on
+        // each side (the same samples whichever strip renders them), so a
+        // frame is the same however it is cut.
+        let radius = if lighting::gather::filtered(f) { f.gather_filter } else { 0 };
+        let (a0, a1) = (x0.saturating_sub(radius), (x1 + radius).min(f.width));
         let uniform = FrameUniform {
             aspect: f.width as f32 / f.height as f32,
             width: f.width,
             height: f.height,
-            x0,
-            strip_width,
+            x0: a0,
+            strip_width: a1 - a0,
             spp: f.spp,
             seed: f.seed,
             ambient: f.ambient,
@@ -297,12 +325,11 @@ impl StripRenderer {
             batch_spp: 1,
             ..base
         };
-        let n = (strip_width * f.height) as usize;
-        let image_bytes = n as u64 * 16;
-        let limit = ctx.limits.max_storage_buffer_binding_size;
         ctx.checked("rendering a strip", || {
             if method.kernel != Kernel::Reference {
-                let (px, counts) = self.dispatch(ctx, method.kernel, &uniform, image_bytes, 1)?;
+                let n = (strip_width * f.height) as usize;
+                let (px, counts) =
+                    self.dispatch(ctx, method.kernel, &uniform, n as u64 * 16, 1)?;
                 return Ok(RenderedStrip {
                     x0,
                     width: strip_width,
@@ -312,37 +339,24 @@ impl StripRenderer {
                     rays: counts.into(),
                 });
             }
-            // One path per invocation, each sample to its own slot, then
-            // each sample's `local` light (`first_light`): as many samples
-            // per dispatch as the adapter binds.
-            let batch = (limit / (2 * image_bytes)).min(f.spp as u64) as u32;
-            anyhow::ensure!(
-                batch >= 1,
-                "a strip of {strip_width}×{} needs {} bytes of output per sample, more than the adapter binds",
-                f.height,
-                2 * image_bytes
-            );
-            let mut sums = vec![[0.0f32; 4]; 2 * n];
-            let mut rays = RayCounts::default();
-            for base in (0..f.spp).step_by(batch as usize) {
-                let batch_spp = batch.min(f.spp - base);
-                let u = FrameUniform { sample_base: base, batch_spp, ..uniform };
-                let (all, counts) =
-                    self.dispatch(ctx, method.kernel, &u, 2 * batch_spp as u64 * image_bytes, batch_spp)?;
-                let (paths, locals) = all.split_at(n * batch_spp as usize);
-                for (image, sum) in [paths, locals].into_iter().zip(sums.chunks_exact_mut(n)) {
-                    for slot in image.chunks_exact(n) {
-                        for (a, v) in sum.iter_mut().zip(slot) {
-                            for c in 0..4 {
-                                a[c] += v[c];
-                            }
-                        }
-                    }
-                }
-                rays.add(&RayCounts::from(counts));
+            let (mut means, rays) = self.sample_means(ctx, method.kernel, &uniform)?;
+            if radius > 0 {
+                lighting::gather::filter_indirect(
+                    &mut means,
+                    (a1 - a0) as usize,
+                    radius as usize,
+                    self.crown_depth,
+                );
             }
-            let mean: Vec<[f32; 4]> = sums.iter().map(|a| a.map(|v| v / f.spp as f32)).collect();
-            let (px, first) = mean.split_at(n);
+            // The strip's own columns.
+            let aw = (a1 - a0) as usize;
+            let crop = |image: &[[f32; 4]]| -> Vec<[f32; 4]> {
+                image
+                    .chunks_exact(aw)
+                    .flat_map(|row| row[(x0 - a0) as usize..(x1 - a0) as usize].iter().copied())
+                    .collect()
+            };
+            let (px, first) = (crop(&means.paths), crop(&means.first));
             Ok(RenderedStrip {
                 x0,
                 width: strip_width,
@@ -352,6 +366,77 @@ impl StripRenderer {
                 rays,
             })
         })
+    }
+
+    /// The per-sample kernel over the columns `uniform` names, every
+    /// sample of the frame: each pixel's mean of its three images. As many
+    /// samples per dispatch as the adapter binds.
+    fn sample_means(
+        &self,
+        ctx: &GpuContext,
+        kernel: Kernel,
+        uniform: &FrameUniform,
+    ) -> anyhow::Result<(SampleMeans, RayCounts)> {
+        let n = (uniform.strip_width * uniform.height) as usize;
+        let image_bytes = n as u64 * 16;
+        let spp = uniform.spp;
+        let batch = (ctx.limits.max_storage_buffer_binding_size / (3 * image_bytes))
+            .min(spp as u64) as u32;
+        anyhow::ensure!(
+            batch >= 1,
+            "a strip of {}×{} needs {} bytes of output per sample, more than the adapter binds",
+            uniform.strip_width,
+            uniform.height,
+            3 * image_bytes
+        );
+        let mut sums = vec![[0.0f32; 4]; 3 * n];
+        // Per pixel and channel, Σ (path − first)² over its samples: the
+        // spread of its indirect light, which the gathers' filter weighs.
+        let mut ind_sq = vec![[0.0f64; 3]; n];
+        let mut rays = RayCounts::default();
+        for base in (0..spp).step_by(batch as usize) {
+            let batch_spp = batch.min(spp - base);
+            let u = FrameUniform { sample_base: base, batch_spp, ..*uniform };
+            let (all, counts) =
+                self.dispatch(ctx, kernel, &u, 3 * batch_spp as u64 * image_bytes, batch_spp)?;
+            // Three images, each `batch_spp` slots of `n` pixels.
+            let (paths, rest) = all.split_at(n * batch_spp as usize);
+            for (path, first) in paths.chunks_exact(n).zip(rest.chunks_exact(n)) {
+                for ((a, p), f) in ind_sq.iter_mut().zip(path).zip(first) {
+                    for c in 0..3 {
+                        a[c] += ((p[c] - f[c]) as f64).powi(2);
+                    }
+                }
+            }
+            for (image, sum) in
+                all.chunks_exact(n * batch_spp as usize).zip(sums.chunks_exact_mut(n))
+            {
+                for slot in image.chunks_exact(n) {
+                    for (a, v) in sum.iter_mut().zip(slot) {
+                        for c in 0..4 {
+                            a[c] += v[c];
+                        }
+                    }
+                }
+            }
+            rays.add(&RayCounts::from(counts));
+        }
+        let mut mean = sums.into_iter().map(|a| a.map(|v| v / spp as f32));
+        let mut take = || (&mut mean).take(n).collect::<Vec<_>>();
+        let (paths, first, guide) = (take(), take(), take());
+        // The variance of each pixel's mean indirect light, from its samples' spread.
+        let k = spp as f64;
+        let indirect_variance = ind_sq
+            .iter()
+            .zip(paths.iter().zip(&first))
+            .map(|(sq, (p, f))| {
+                std::array::from_fn(|c| {
+                    let mean = (p[c] - f[c]) as f64;
+                    if spp < 2 { 0.0 } else { ((sq[c] / k - mean * mean).max(0.0) / (k - 1.0)) as f32 }
+                })
+            })
+            .collect();
+        Ok((SampleMeans { paths, first, guide, indirect_variance }, rays))
     }
 
     /// One dispatch of the method's kernel with `uniform`, `depth` samples

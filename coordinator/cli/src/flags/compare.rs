@@ -23,6 +23,13 @@ pub struct CompareArgs {
     /// two bounces deep).
     #[arg(long, value_delimiter = ',', default_value = "4,16")]
     pub gather_rays: Vec<u32>,
+    /// Filter radii (pixels) of the final gathers, each a variant (0: unfiltered).
+    #[arg(long, value_delimiter = ',', default_value = "0,3")]
+    pub gather_filters: Vec<u32>,
+    /// Also say which method is the most accurate within this many seconds
+    /// of pre-process and frame (the Pareto front says it for every budget).
+    #[arg(long)]
+    pub budget: Option<f64>,
     /// `lb auto`: the largest relative difference from the next finer grid it accepts.
     #[arg(long, default_value_t = 0.2)]
     pub auto_tolerance: f64,

@@ -41,6 +41,10 @@ pub struct FrameArgs {
     /// far end reads the lattice (1 or 2; each ray per pixel is one gather ray).
     #[arg(long, default_value_t = sylva_scene::frame::DEFAULT_GATHER_BOUNCES)]
     pub gather_bounces: u32,
+    /// The gather methods: radius in pixels of the filter over their
+    /// indirect light, within one crown (0: none).
+    #[arg(long, default_value_t = sylva_scene::frame::DEFAULT_GATHER_FILTER)]
+    pub gather_filter: u32,
     /// Render a sequence of this many frames (with --sun-from/--sun-to, a
     /// --camera-path, or the scene's own `sequence`).
     #[arg(long)]
@@ -83,6 +87,7 @@ impl FrameArgs {
             ambient: None,
             view: Default::default(),
             gather_bounces: self.gather_bounces,
+            gather_filter: self.gather_filter,
         }
     }
 

@@ -7,6 +7,8 @@
 
 use crate::flags::compare::*;
 use crate::lab::chart::{Series, line_chart};
+use crate::lab::crowns;
+use crate::lab::pareto;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
@@ -29,6 +31,8 @@ use sylva_worker::trace::RenderSettings;
 #[derive(Debug, Serialize)]
 struct MethodReport {
     name: String,
+    /// Its curve on the time–error chart.
+    family: String,
     lighting: LightingMode,
     /// LB grid per model (empty: none).
     lb_grids: Vec<usize>,
@@ -116,7 +120,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     );
     let (_, exposure) = reinhard(&reference, 0.18);
 
-    let methods = methods_to_compare(&scene, &a.grids, &a.gather_rays);
+    let methods = methods_to_compare(&scene, &a.grids, &a.gather_rays, &a.gather_filters);
 
     let mut rendered: Vec<Rendered> = Vec::new();
     // Candidates of one group share a scene: those whose methods need the
@@ -135,6 +139,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         let f = RenderSettings {
             spp: c.spp.unwrap_or(settings.spp),
             gather_bounces: c.gather_bounces,
+            gather_filter: c.gather_filter,
             ..settings
         };
         rendered.push(render_method(&ctx, c, prepared, &f, &a.out, &exposure, a.hdr, &|m| say(m))?);
@@ -163,6 +168,8 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     auto.report.preprocess_ms += choose_ms;
     auto.report.notes["grid_choice"] = serde_json::to_value(&choices)?;
     rendered.push(auto);
+    say("progressive path tracer");
+    let progressive = progressive_path_tracer(&ctx, &scene, &settings, &r, &lit, &|m| say(m))?;
     bar.finish_and_clear();
 
     // Errors against the reference; the indirect part (method − local)
@@ -180,6 +187,26 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         m.report.indirect_noise_reference = ind.reference_noise;
         m.report.indirect_noise_method = ind.method_noise;
     }
+    // Per crown: each instance's mean indirect light, reference and methods.
+    let ids = crowns::instance_ids(&scene, a.width, a.height);
+    crowns::write_id_image(&a.out.join("instances.png"), a.width, a.height, &ids)?;
+    let indirect = |img: &HdrImage, loc: &HdrImage, i: usize| -> [f32; 3] {
+        std::array::from_fn(|c| img.pixels[i][c] - loc.pixels[i][c])
+    };
+    let columns: Vec<(String, Box<dyn Fn(usize) -> [f32; 3] + '_>)> = rendered
+        .iter()
+        .filter(|m| m.report.lighting != LightingMode::Local)
+        .map(|m| {
+            let own = m.own_local.as_ref().map(|(l, _)| l).unwrap_or(&local);
+            let f: Box<dyn Fn(usize) -> [f32; 3] + '_> =
+                Box::new(move |i| indirect(&m.image, own, i));
+            (m.report.name.clone(), f)
+        })
+        .collect();
+    let crown_table =
+        crowns::table(&scene, &ids, &lit, &|i| indirect(&r.image, &r.local, i), &columns);
+    drop(columns);
+    std::fs::write(a.out.join("crowns.md"), crowns::markdown(&crown_table))?;
     let ref_png = a.out.join("reference.png");
     write_png(&ref_png, a.width, a.height, &reinhard_like(&reference, &exposure))?;
     if a.hdr {
@@ -200,6 +227,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         rendered.iter_mut().map(|m| std::mem::replace(&mut m.report, empty_report())).collect();
     reports.push(MethodReport {
         name: "reference".into(),
+        family: "reference".into(),
         lighting: LightingMode::Reference,
         lb_grids: vec![],
         forest_grid: None,
@@ -216,9 +244,37 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         notes: json!({ "reused": reused, "spp": r.stats.spp, "batches": r.stats.batches, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "max_bounces": sylva_worker::trace::MAX_BOUNCES, "leaf_optics": scene.file.leaf_optics }),
     });
 
+    // The time–error chart: every method and the progressive path tracer.
+    let mut points: Vec<pareto::Point> = reports
+        .iter()
+        .filter(|m| m.lighting != LightingMode::Reference)
+        .map(|m| pareto::Point {
+            name: m.name.clone(),
+            family: m.family.clone(),
+            ms: m.preprocess_ms + m.frame_ms,
+            raw: m.indirect_relative_error,
+            net: Some(m.indirect_error_net),
+        })
+        .collect();
+    points.extend(progressive.iter().cloned());
+    let front = pareto::front(&points);
     let chart = a.chart.clone().unwrap_or_else(|| a.out.join("compare.svg"));
-    std::fs::write(&chart, error_chart(&reports))
+    std::fs::write(&chart, pareto::chart(&points, false))
         .with_context(|| format!("{}: cannot write", chart.display()))?;
+    std::fs::write(a.out.join("compare-net.svg"), pareto::chart(&points, true))?;
+    let budget = a.budget.map(|b| {
+        pareto::best_within(&front, b * 1e3).map_or_else(
+            || format!("no method fits {b} s"),
+            |p| {
+                format!(
+                    "best within {b} s: {} ({:.1} % raw indirect error, {:.1} s)",
+                    p.name,
+                    100.0 * p.raw,
+                    p.ms / 1e3
+                )
+            },
+        )
+    });
     let sweeps = if a.sweeps { Some(write_sweeps(&a.out)?) } else { None };
     let best = winner(&reports);
     let table = json!({
@@ -233,12 +289,21 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         "figure": grid_svg,
         "chart": chart,
         "sweeps": sweeps,
+        "crowns": crown_table,
+        "progressive": progressive,
+        "front": front,
+        "budget": budget,
+        "instance_image": a.out.join("instances.png"),
     });
     std::fs::write(a.out.join("compare.json"), serde_json::to_string_pretty(&table)? + "\n")?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&table)?);
     } else {
         print_table(&reports, &best);
+        println!("Pareto front (raw indirect error against time):\n{}", pareto::describe(&front));
+        if let Some(b) = &budget {
+            println!("{b}");
+        }
         println!(
             "wrote {}, {} and {}",
             a.out.join("compare.json").display(),
@@ -261,6 +326,14 @@ fn checked_grids(a: &CompareArgs) -> anyhow::Result<Vec<usize>> {
         a.gather_rays.iter().all(|k| (1..=1024).contains(k)),
         "--gather-rays: each in [1, 1024]"
     );
+    anyhow::ensure!(
+        a.gather_filters.iter().all(|r| *r <= sylva_scene::frame::MAX_GATHER_FILTER),
+        "--gather-filters: each in [0, {}]",
+        sylva_scene::frame::MAX_GATHER_FILTER
+    );
+    if let Some(b) = a.budget {
+        anyhow::ensure!(b.is_finite() && b > 0.0, "--budget {b}: seconds > 0");
+    }
     let mut distinct = a.grids.clone();
     distinct.sort_unstable();
     distinct.dedup();
@@ -331,6 +404,10 @@ struct Candidate {
     /// Rays per pixel; `None`: `--spp`.
     spp: Option<u32>,
     gather_bounces: u32,
+    gather_filter: u32,
+    /// The curve it belongs to on the time–error chart (its variants
+    /// differ by rays, grid or filter).
+    family: String,
 }
 
 impl Candidate {
@@ -342,6 +419,8 @@ impl Candidate {
             group,
             spp: None,
             gather_bounces: sylva_scene::frame::DEFAULT_GATHER_BOUNCES,
+            gather_filter: 0,
+            family: name.into(),
         }
     }
 }
@@ -351,14 +430,20 @@ impl Candidate {
 /// al., and the final gathers over the scene's own LB (at each count of
 /// gather rays, one and two bounces deep, and reading the matched constant
 /// at their far end instead); `lb auto` and the reference come apart.
-fn methods_to_compare(scene: &Scene, grids: &[usize], gather_rays: &[u32]) -> Vec<Candidate> {
+fn methods_to_compare(
+    scene: &Scene,
+    grids: &[usize],
+    gather_rays: &[u32],
+    gather_filters: &[u32],
+) -> Vec<Candidate> {
     let mut methods = vec![
         Candidate::new("local", LightingMode::Local, scene.clone(), 0),
         Candidate::new("ambient", LightingMode::Ambient, scene.clone(), 0),
     ];
     for &g in grids {
         let s = with_lb(scene, Some(g), Some(ForestGridUse::Never));
-        methods.push(Candidate::new(&format!("lb {g}³"), LightingMode::Lb, s, methods.len()));
+        let c = Candidate::new(&format!("lb {g}³"), LightingMode::Lb, s, methods.len());
+        methods.push(Candidate { family: "lb".into(), ..c });
     }
     let forest_grid = scene.models.first().map_or(32, |m| m.lb.grid);
     let s = with_lb(scene, None, Some(ForestGridUse::Always));
@@ -371,25 +456,34 @@ fn methods_to_compare(scene: &Scene, grids: &[usize], gather_rays: &[u32]) -> Ve
     methods.push(Candidate::new(&name, LightingMode::Lb, paper, methods.len()));
     methods.push(Candidate::new("boulanger", LightingMode::Boulanger, scene.clone(), 0));
     let most = gather_rays.iter().copied().max();
+    let filter = sylva_scene::frame::DEFAULT_GATHER_FILTER;
     for bounces in [1, 2] {
-        for &k in gather_rays {
-            methods.push(Candidate {
-                spp: Some(k),
-                gather_bounces: bounces,
-                ..Candidate::new(
-                    &format!("gather {bounces}b {k} rays"),
-                    LightingMode::Gather,
-                    scene.clone(),
-                    0,
-                )
-            });
+        for &r in gather_filters {
+            for &k in gather_rays {
+                let family = format!("gather {bounces}b r{r}");
+                methods.push(Candidate {
+                    spp: Some(k),
+                    gather_bounces: bounces,
+                    gather_filter: r,
+                    family: family.clone(),
+                    ..Candidate::new(
+                        &format!("{family} {k} rays"),
+                        LightingMode::Gather,
+                        scene.clone(),
+                        0,
+                    )
+                });
+            }
         }
         if let Some(k) = most {
+            let family = format!("gather-ambient {bounces}b r{filter}");
             methods.push(Candidate {
                 spp: Some(k),
                 gather_bounces: bounces,
+                gather_filter: filter,
+                family: family.clone(),
                 ..Candidate::new(
-                    &format!("gather-ambient {bounces}b {k} rays"),
+                    &format!("{family} {k} rays"),
                     LightingMode::GatherAmbient,
                     scene.clone(),
                     0,
@@ -452,6 +546,7 @@ fn print_table(reports: &[MethodReport], best: &str) {
 fn empty_report() -> MethodReport {
     MethodReport {
         name: String::new(),
+        family: String::new(),
         lighting: LightingMode::Local,
         lb_grids: vec![],
         forest_grid: None,
@@ -539,12 +634,14 @@ fn render_method(
         "boulanger": prepared.boulanger,
         "ambient": settings.ambient,
         "spp": settings.spp,
+        "gather_filter": if sylva_worker::lighting::gather::filtered(&settings) { json!(settings.gather_filter) } else { serde_json::Value::Null },
         "gather_bounces": if sylva_worker::lighting::method(lighting).kernel == sylva_worker::lighting::Kernel::Reference { json!(settings.gather_bounces) } else { serde_json::Value::Null },
         "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
     });
     Ok(Rendered {
         report: MethodReport {
             name: name.into(),
+            family: c.family.clone(),
             lighting,
             lb_grids: prepared.light.iter().map(|l| l.grid).collect(),
             forest_grid: prepared.forest.as_ref().map(|f| f.used),
@@ -583,6 +680,69 @@ fn render_whole(
 fn file_stem(name: &str) -> String {
     name.replace(['³', '+'], "").split_whitespace().collect::<Vec<_>>().join("-")
 }
+
+/// The fractions of the reference's time at which the progressive path
+/// tracer's error is measured.
+const PROGRESSIVE_FRACTIONS: [f64; 5] = [0.01, 0.02, 0.05, 0.1, 0.2];
+
+/// The reference's path tracer run progressively as a method of its own,
+/// with other seeds, one sample per pixel per pass: its raw indirect error
+/// against the reference (indirect light along its own samples, as the
+/// reference's) at 1, 2, 5, 10 and 20 % of the reference's time. What
+/// brute force reaches at the cost of each fast method.
+fn progressive_path_tracer(
+    ctx: &GpuContext,
+    scene: &Scene,
+    f: &RenderSettings,
+    r: &ReferenceImage,
+    lit: &[bool],
+    say: &dyn Fn(&str),
+) -> anyhow::Result<Vec<pareto::Point>> {
+    let prepared = prepare(ctx, scene, AccelKind::Bvh, LightingMode::Reference, say)?;
+    let n = (f.width * f.height) as usize;
+    let (mut sum, mut local) = (vec![[0.0f64; 3]; n], vec![[0.0f64; 3]; n]);
+    let mut points = Vec::new();
+    let t = Instant::now();
+    let mut passes = 0u32;
+    for &fraction in &PROGRESSIVE_FRACTIONS {
+        let until = fraction * r.stats.ms;
+        while passes == 0 || ms(t) < until {
+            let settings = RenderSettings {
+                spp: 1,
+                seed: (f.seed ^ PROGRESSIVE_SEED).wrapping_add(passes.wrapping_mul(0x9E37_79B9)),
+                lighting: LightingMode::Reference,
+                ..*f
+            };
+            let s = prepared.renderer.render_strip(ctx, &settings, 0, f.width)?;
+            for i in 0..n {
+                for c in 0..3 {
+                    sum[i][c] += s.pixels[i][c] as f64;
+                    local[i][c] += s.first_light[i][c] as f64;
+                }
+            }
+            passes += 1;
+        }
+        let mean = |v: &[[f64; 3]]| HdrImage {
+            width: f.width,
+            height: f.height,
+            pixels: v.iter().map(|p| p.map(|x| (x / passes as f64) as f32)).collect(),
+        };
+        let (image, own) = (mean(&sum), mean(&local));
+        let e = IndirectError::measure([&image, &image], [&own, &own], r, lit);
+        say(&format!("progressive path tracer: {passes} spp, {:.1} %", 100.0 * e.raw));
+        points.push(pareto::Point {
+            name: format!("path tracer {passes} spp"),
+            family: "progressive path tracer".into(),
+            ms: ms(t),
+            raw: e.raw,
+            net: None,
+        });
+    }
+    Ok(points)
+}
+
+/// The seed bits of the progressive path tracer's samples.
+const PROGRESSIVE_SEED: u32 = 0x5EED_0003;
 
 /// (RMSE, mean relative error) over lit pixels of method image `m` against
 /// the reference `r`: whole images ([`IndirectError`] takes the indirect part).
@@ -764,39 +924,6 @@ fn winner(reports: &[MethodReport]) -> String {
         None => s += &format!("; no method beats constant ambient ({:.1} %) here", 100.0 * ambient),
     }
     s
-}
-
-const COLORS: [&str; 12] = [
-    "#444444", "#999999", "#1f77b4", "#2ca02c", "#17becf", "#9467bd", "#8c564b", "#d62728",
-    "#ff7f0e", "#e377c2", "#bcbd22", "#000000",
-];
-
-/// Mean relative error against log10 of pre-process + frame time, every method a point.
-fn error_chart(reports: &[MethodReport]) -> String {
-    let series: Vec<Series> = reports
-        .iter()
-        .filter(|m| m.lighting != LightingMode::Reference)
-        .enumerate()
-        .map(|(i, m)| Series {
-            name: m.name.clone(),
-            color: COLORS[i % COLORS.len()],
-            dashed: false,
-            points: vec![(
-                (m.preprocess_ms + m.frame_ms).max(1.0).log10(),
-                100.0 * m.mean_relative_error,
-            )],
-        })
-        .collect();
-    let hi = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0f64, f64::max).ceil()
-        as i32;
-    let ticks: Vec<f64> = (0..=hi).map(f64::from).collect();
-    line_chart(
-        "Error against time (reference = path tracer)",
-        "log10 of pre-process + frame time, ms",
-        "mean relative error over lit pixels, %",
-        &ticks,
-        &series,
-    )
 }
 
 /// Figure 2 of the forest paper as an SVG of PNG tiles: full (LB), local,
