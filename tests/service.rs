@@ -292,6 +292,8 @@ async fn submit_raw(
             lb_strength: 0.35,
             ambient: vec![],
             view: None,
+            gather_bounces: 0,
+            gather_filter: None,
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,

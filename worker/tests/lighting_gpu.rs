@@ -429,3 +429,78 @@ fn every_reference_sample_counts_and_its_local_light_is_the_local_image() {
     }
     assert_eq!(reference.rays.primary, 40 * 32 * 16, "one camera ray per sample");
 }
+
+#[test]
+fn at_a_low_sun_the_ground_under_the_stand_meets_the_open_ground_without_a_step() {
+    // examples/tree.json's maple at 15° of sun elevation: the forest grid's
+    // read-out of the ground once left a hard-edged patch around the trunk
+    // (issue 26), where the renderer switches to the open ground's exact
+    // sky irradiance at the grid's edge.
+    let dir = std::env::temp_dir().join(format!("sylva-ground-edge-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 20000, "seed": 1 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 0] } ],
+        "camera": { "position": [0, 8, -32], "look_at": [0, 10, 0], "fov_y_deg": 45 },
+        "sun": { "elevation_deg": 15, "azimuth_deg": 110, "intensity": 3.0 },
+        "sky": { "zenith": [0.25, 0.45, 0.85], "horizon": [0.75, 0.82, 0.9] },
+        "ground": { "color": [0.1, 0.08, 0.05] },
+        "lb": { "grid": 16 }
+    }"#;
+    let scene = Scene::build(parse(text, "low-sun.json").unwrap(), &dir, "low-sun.json").unwrap();
+    let ctx = ctx();
+    let mut phases = sylva_light::lb::solver::PhaseTimer::default();
+    let lb = sylva_worker::lighting::lb::prepare(&ctx, &scene, &mut phases, &|_| {}).unwrap();
+    let g = lb.ground.expect("the forest grid lights the ground");
+    let open = [0, 1, 2]
+        .map(|c| std::f32::consts::PI * (0.2 * [0.75, 0.82, 0.9][c] + 0.8 * [0.25, 0.45, 0.85][c]));
+    let plane = g.nx * g.nz;
+    let mut edge = Vec::new();
+    for z in 0..g.nz {
+        for x in 0..g.nx {
+            if x == 0 || z == 0 || x == g.nx - 1 || z == g.nz - 1 {
+                edge.extend((0..3).map(|c| g.rgb[c * plane + z * g.nx + x] / open[c]));
+            }
+        }
+    }
+    let worst = edge.iter().fold(0.0f32, |w, r| w.max((r - 1.0).abs()));
+    assert!(worst < 0.01, "the grid's edge reads {worst:.3} off the open ground's irradiance");
+}
+
+#[test]
+fn boulangers_tree_is_never_darker_than_its_direct_light_alone() {
+    // Its octants' attenuation was once a mean optical depth, e^(−mean τs):
+    // at a crown's surface far below the mean transmittance, and the whole
+    // tree came out darker than `local` (issue 26).
+    let dir = std::env::temp_dir().join(format!("sylva-boulanger-tree-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 20000, "seed": 1 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 0] } ],
+        "camera": { "position": [0, 8, -26], "look_at": [0, 9, 0], "fov_y_deg": 40 },
+        "sun": { "elevation_deg": 42, "azimuth_deg": 110, "intensity": 3.0 },
+        "sky": { "zenith": [0.25, 0.45, 0.85], "horizon": [0.75, 0.82, 0.9] }
+    }"#;
+    let scene = Scene::build(parse(text, "tree.json").unwrap(), &dir, "tree.json").unwrap();
+    let ctx = ctx();
+    let f = RenderSettings { spp: 4, ..frame(64, 64) };
+    let mean = |lighting| {
+        let p = prepare(&ctx, &scene, AccelKind::Bvh, lighting, &|_| {}).unwrap();
+        let s = p.renderer.render_strip(&ctx, &RenderSettings { lighting, ..f }, 0, 64).unwrap();
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        // Pixels with some tree in them; both methods trace the same camera rays.
+        for (px, &c) in s.pixels.iter().zip(&s.coverage) {
+            if c > 0.0 {
+                sum += luminance(*px) as f64;
+                n += 1;
+            }
+        }
+        assert!(n > 200, "{n} tree pixels");
+        sum / n as f64
+    };
+    let (local, boulanger) = (mean(LightingMode::Local), mean(LightingMode::Boulanger));
+    assert!(
+        boulanger >= local,
+        "Boulanger's tree {boulanger:.4} against its direct light alone {local:.4}"
+    );
+}

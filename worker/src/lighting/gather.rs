@@ -119,8 +119,9 @@ pub fn filter_indirect(
                             continue;
                         }
                         let q = qy as usize * width + qx as usize;
-                        // NaN (no surface) fails the test too.
-                        if !((depth[q] - depth[p]).abs() <= crown_depth) {
+                        // No surface (NaN) is never within a crown's depth.
+                        let near = (depth[q] - depth[p]).abs() <= crown_depth;
+                        if !near {
                             continue;
                         }
                         if let Some((vq, sq)) = irr[q][c]
@@ -180,8 +181,8 @@ mod tests {
     fn light_that_differs_by_more_than_the_noise_is_kept() {
         let mut m = strip(&IND, &ALB, &DEPTH, 0.0);
         filter_indirect(&mut m, 8, 16, 2.0);
-        for i in 0..8 {
-            assert!((m.paths[i][0] - (0.1 + IND[i])).abs() < 1e-6, "{i}: {:?}", m.paths[i]);
+        for (i, ind) in IND.iter().enumerate() {
+            assert!((m.paths[i][0] - (0.1 + ind)).abs() < 1e-6, "{i}: {:?}", m.paths[i]);
         }
         // σ² 0.001: 2√0.002 ≈ 0.089, so pixel 0 (0.3) and pixel 2 (0.2)
         // each average with 0.25 only, and pixel 1 (0.1) with pixel 4 (0.1).

@@ -328,8 +328,7 @@ impl StripRenderer {
         ctx.checked("rendering a strip", || {
             if method.kernel != Kernel::Reference {
                 let n = (strip_width * f.height) as usize;
-                let (px, counts) =
-                    self.dispatch(ctx, method.kernel, &uniform, n as u64 * 16, 1)?;
+                let (px, counts) = self.dispatch(ctx, method.kernel, &uniform, n as u64 * 16, 1)?;
                 return Ok(RenderedStrip {
                     x0,
                     width: strip_width,
@@ -380,8 +379,8 @@ impl StripRenderer {
         let n = (uniform.strip_width * uniform.height) as usize;
         let image_bytes = n as u64 * 16;
         let spp = uniform.spp;
-        let batch = (ctx.limits.max_storage_buffer_binding_size / (3 * image_bytes))
-            .min(spp as u64) as u32;
+        let batch =
+            (ctx.limits.max_storage_buffer_binding_size / (3 * image_bytes)).min(spp as u64) as u32;
         anyhow::ensure!(
             batch >= 1,
             "a strip of {}×{} needs {} bytes of output per sample, more than the adapter binds",
@@ -432,7 +431,11 @@ impl StripRenderer {
             .map(|(sq, (p, f))| {
                 std::array::from_fn(|c| {
                     let mean = (p[c] - f[c]) as f64;
-                    if spp < 2 { 0.0 } else { ((sq[c] / k - mean * mean).max(0.0) / (k - 1.0)) as f32 }
+                    if spp < 2 {
+                        0.0
+                    } else {
+                        ((sq[c] / k - mean * mean).max(0.0) / (k - 1.0)) as f32
+                    }
                 })
             })
             .collect();

@@ -193,13 +193,12 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     let indirect = |img: &HdrImage, loc: &HdrImage, i: usize| -> [f32; 3] {
         std::array::from_fn(|c| img.pixels[i][c] - loc.pixels[i][c])
     };
-    let columns: Vec<(String, Box<dyn Fn(usize) -> [f32; 3] + '_>)> = rendered
+    let columns: Vec<(String, crowns::PixelLight<'_>)> = rendered
         .iter()
         .filter(|m| m.report.lighting != LightingMode::Local)
         .map(|m| {
             let own = m.own_local.as_ref().map(|(l, _)| l).unwrap_or(&local);
-            let f: Box<dyn Fn(usize) -> [f32; 3] + '_> =
-                Box::new(move |i| indirect(&m.image, own, i));
+            let f: crowns::PixelLight<'_> = Box::new(move |i| indirect(&m.image, own, i));
             (m.report.name.clone(), f)
         })
         .collect();
@@ -686,7 +685,10 @@ fn file_stem(name: &str) -> String {
 const PROGRESSIVE_FRACTIONS: [f64; 5] = [0.01, 0.02, 0.05, 0.1, 0.2];
 
 /// The reference's path tracer run progressively as a method of its own,
-/// with other seeds, one sample per pixel per pass: its raw indirect error
+/// with other seeds, [`PROGRESSIVE_PASS_SPP`] samples per pixel per pass
+/// (jittered over the pixel as the reference's are: a single sample sits at
+/// the pixel's centre, and centre samples alone would count edge aliasing
+/// as error that never falls): its raw indirect error
 /// against the reference (indirect light along its own samples, as the
 /// reference's) at 1, 2, 5, 10 and 20 % of the reference's time. What
 /// brute force reaches at the cost of each fast method.
@@ -708,7 +710,7 @@ fn progressive_path_tracer(
         let until = fraction * r.stats.ms;
         while passes == 0 || ms(t) < until {
             let settings = RenderSettings {
-                spp: 1,
+                spp: PROGRESSIVE_PASS_SPP,
                 seed: (f.seed ^ PROGRESSIVE_SEED).wrapping_add(passes.wrapping_mul(0x9E37_79B9)),
                 lighting: LightingMode::Reference,
                 ..*f
@@ -731,7 +733,7 @@ fn progressive_path_tracer(
         let e = IndirectError::measure([&image, &image], [&own, &own], r, lit);
         say(&format!("progressive path tracer: {passes} spp, {:.1} %", 100.0 * e.raw));
         points.push(pareto::Point {
-            name: format!("path tracer {passes} spp"),
+            name: format!("path tracer {} spp", passes * PROGRESSIVE_PASS_SPP),
             family: "progressive path tracer".into(),
             ms: ms(t),
             raw: e.raw,
@@ -740,6 +742,9 @@ fn progressive_path_tracer(
     }
     Ok(points)
 }
+
+/// Samples per pixel of one pass of the progressive path tracer (2 × 2 strata).
+const PROGRESSIVE_PASS_SPP: u32 = 4;
 
 /// The seed bits of the progressive path tracer's samples.
 const PROGRESSIVE_SEED: u32 = 0x5EED_0003;

@@ -12,6 +12,9 @@ use sylva_scene::Scene;
 use sylva_scene::color::luminance;
 use sylva_scene::film::write_png;
 
+/// A method's indirect light at a pixel, by the pixel's index.
+pub type PixelLight<'a> = Box<dyn Fn(usize) -> [f32; 3] + 'a>;
+
 /// Crowns with fewer pixels than this are left out of the table: their
 /// means are edge pixels and noise.
 pub const MIN_PIXELS: usize = 20;
@@ -92,7 +95,7 @@ pub fn table(
     ids: &[Option<u32>],
     lit: &[bool],
     reference: &dyn Fn(usize) -> [f32; 3],
-    methods: &[(String, Box<dyn Fn(usize) -> [f32; 3] + '_>)],
+    methods: &[(String, PixelLight<'_>)],
 ) -> CrownTable {
     let n = scene.instances.len();
     let mut sums = vec![(0usize, [0.0f64; 3], vec![[0.0f64; 3]; methods.len()]); n];
@@ -103,14 +106,12 @@ pub fn table(
         }
         let s = &mut sums[id as usize];
         s.0 += 1;
-        let r = reference(i);
-        for c in 0..3 {
-            s.1[c] += r[c] as f64;
+        for (acc, v) in s.1.iter_mut().zip(reference(i)) {
+            *acc += v as f64;
         }
         for (k, (_, f)) in methods.iter().enumerate() {
-            let v = f(i);
-            for c in 0..3 {
-                s.2[k][c] += v[c] as f64;
+            for (acc, v) in s.2[k].iter_mut().zip(f(i)) {
+                *acc += v as f64;
             }
         }
     }
@@ -129,7 +130,7 @@ pub fn table(
             }
         })
         .collect();
-    rows.sort_by(|a, b| b.pixels.cmp(&a.pixels));
+    rows.sort_by_key(|r| std::cmp::Reverse(r.pixels));
     let summary =
         methods.iter().enumerate().map(|(k, (name, _))| summarize(name, k, &rows)).collect();
     CrownTable { methods: methods.iter().map(|(n, _)| n.clone()).collect(), rows, summary }
@@ -147,8 +148,8 @@ fn summarize(name: &str, k: usize, rows: &[CrownRow]) -> CrownSummary {
         .filter(|p| p.0 > 0.0)
         .collect();
     let w: f64 = pairs.iter().map(|p| p.2).sum::<f64>().max(1.0);
-    let crown_error = (pairs.iter().map(|p| p.2 * ((p.1 - p.0) / p.0).powi(2)).sum::<f64>() / w)
-        .sqrt();
+    let crown_error =
+        (pairs.iter().map(|p| p.2 * ((p.1 - p.0) / p.0).powi(2)).sum::<f64>() / w).sqrt();
     let mean_ratio = pairs.iter().map(|p| p.2 * p.1 / p.0).sum::<f64>() / w;
     let logs: Vec<(f64, f64)> =
         pairs.iter().filter(|p| p.1 > 0.0).map(|p| (p.0.log10(), p.1.log10())).collect();
@@ -177,7 +178,12 @@ fn spread_and_correlation(v: &[(f64, f64)]) -> (f64, f64) {
 
 /// The instance-id image: each crown a colour of its own (hashed from its
 /// index), the sky and ground black.
-pub fn write_id_image(path: &Path, width: u32, height: u32, ids: &[Option<u32>]) -> anyhow::Result<()> {
+pub fn write_id_image(
+    path: &Path,
+    width: u32,
+    height: u32,
+    ids: &[Option<u32>],
+) -> anyhow::Result<()> {
     let px: Vec<[u8; 3]> = ids
         .iter()
         .map(|id| match id {

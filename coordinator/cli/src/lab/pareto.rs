@@ -49,7 +49,12 @@ pub fn describe(front: &[Point]) -> String {
     front
         .iter()
         .map(|p| {
-            format!("from {:.1} s: {} ({:.1} % raw indirect error)", p.ms / 1e3, p.name, 100.0 * p.raw)
+            format!(
+                "from {:.1} s: {} ({:.1} % raw indirect error)",
+                p.ms / 1e3,
+                p.name,
+                100.0 * p.raw
+            )
         })
         .collect::<Vec<_>>()
         .join("\n")
@@ -79,7 +84,9 @@ pub fn chart(points: &[Point], net: bool) -> String {
         let mut pts: Vec<(f64, f64)> = Vec::new();
         for p in points.iter().filter(|p| p.family == *f) {
             match value(p) {
-                Some(v) if 100.0 * v <= CHART_CEILING => pts.push((p.ms.max(1.0).log10(), 100.0 * v)),
+                Some(v) if 100.0 * v <= CHART_CEILING => {
+                    pts.push((p.ms.max(1.0).log10(), 100.0 * v))
+                }
                 Some(_) => left_off.push(p.name.clone()),
                 None => {}
             }
@@ -100,7 +107,12 @@ pub fn chart(points: &[Point], net: bool) -> String {
             .filter(|p| 100.0 * p.raw <= CHART_CEILING)
             .map(|p| (p.ms.max(1.0).log10(), 100.0 * p.raw))
             .collect();
-        series.push(Series { name: "Pareto front".into(), color: "#000000", dashed: true, points: pts });
+        series.push(Series {
+            name: "Pareto front".into(),
+            color: "#000000",
+            dashed: true,
+            points: pts,
+        });
     }
     let hi = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0f64, f64::max).ceil()
         as i32;

@@ -15,7 +15,9 @@ use sylva_light::lb::coarse::{
     ForestLight, ModelArea, Occupant, WorldGrid, crown_fill, crown_reach, forest_leaf_area,
     forest_medium,
 };
-use sylva_light::lb::{Illumination, LbGrid, LbParams, SolveOptions, solve, solve_indirect};
+use sylva_light::lb::{
+    GridDims, Illumination, IndirectSolution, LbGrid, LbParams, SolveOptions, solve, solve_indirect,
+};
 use sylva_light::voxel::medium_from_leaf_area;
 use sylva_scene::format::Preset;
 use sylva_scene::{ForestGridUse, Scene};
@@ -120,26 +122,46 @@ pub fn grounded(
         &|_| {},
     )?;
     let sun_y = scene.sun.towards.y.max(0.0);
-    let ground = scene.ground.as_ref().map(|g| g.color).map(|albedo| GroundLight {
-        origin: [grid.origin[0], grid.origin[2]],
-        cell: grid.cell,
-        nx: d.nx,
-        nz: d.nz,
-        // The first layer above the floor, read as isotropic halves: the
-        // downward half brings E = φ↓/2, the upward half is what the ground
-        // sends back of it and of the direct sun, φ↑ = 2a(E + E_sun). So
-        // E = (φ_indirect/2 − a E_sun) / (1 + a), with E_sun = sin(elevation) ×
-        // the uncollided beam's fluence (docs/lighting.md, "The ground").
-        rgb: (0..3)
-            .flat_map(|c| (0..d.nz).flat_map(move |z| (0..d.nx).map(move |x| (c, x, z))))
-            .map(|(c, x, z)| {
-                let i = d.index(x, 1, z);
+    let ground = match scene.ground.as_ref().map(|g| g.color) {
+        None => None,
+        Some(albedo) => {
+            // The first layer above the floor, read as isotropic halves: the
+            // downward half brings E = φ↓/2, the upward half is what the
+            // ground sends back of it and of the direct sun, φ↑ = 2a(E +
+            // E_sun). So E = (φ_indirect/2 − a E_sun) / (1 + a), with E_sun =
+            // sin(elevation) × the uncollided beam's fluence.
+            let read = |sol: &IndirectSolution, c: usize, i: usize| {
                 let a = albedo[c];
                 let e_sun = sun_y * (sol.total[c][i] - sol.indirect[c][i]).max(0.0);
                 ((sol.indirect[c][i] / 2.0 - a * e_sun) / (1.0 + a)).max(0.0)
+            };
+            // That read-out is biased (an anisotropic sky is not φ/2; a low
+            // sun crosses the lattice between its directions), and the open
+            // ground outside the grid gets the exact cosine-weighted sky: a
+            // step at the grid's edge. So the ground under the stand is the
+            // open ground's exact irradiance times the fraction the lattice
+            // lets through, each node's read-out over the same read-out of
+            // an empty lattice under the same sky (docs/lighting.md, "The
+            // forest grid, the ground and the trunks under the stand").
+            let open = open_floor(&mut solver, &leaves.params(), &light, grid.cell)?;
+            let exact = light.sky_irradiance_horizontal();
+            let middle = GridDims { nx: OPEN, ny: OPEN, nz: OPEN }.index(OPEN / 2, 1, OPEN / 2);
+            let scale: [f32; 3] = std::array::from_fn(|c| {
+                let e = read(&open, c, middle);
+                if e > 0.0 { exact[c] as f32 / e } else { 0.0 }
+            });
+            Some(GroundLight {
+                origin: [grid.origin[0], grid.origin[2]],
+                cell: grid.cell,
+                nx: d.nx,
+                nz: d.nz,
+                rgb: (0..3)
+                    .flat_map(|c| (0..d.nz).flat_map(move |z| (0..d.nx).map(move |x| (c, x, z))))
+                    .map(|(c, x, z)| read(&sol, c, d.index(x, 1, z)) * scale[c])
+                    .collect(),
             })
-            .collect(),
-    });
+        }
+    };
     if scene.instances.len() < 2 && spec.use_grid != ForestGridUse::Always {
         return Ok((
             ForestLight::unused(
@@ -164,6 +186,22 @@ pub fn grounded(
     // above the open field's; the species grid is already lit by that field.
     let what = ("the light reaching the crowns", "all get the open field's");
     Ok((ForestLight::decide(spec, grid, &reach, what, |r| r.min(1.0), scales), ground))
+}
+
+/// Nodes per side of the empty lattice [`open_floor`] solves.
+const OPEN: usize = 8;
+
+/// An empty lattice of the forest grid's cell under the same sun, sky and
+/// reflecting ground: the open field as the lattice holds it.
+fn open_floor(
+    solver: &mut GpuSolver,
+    params: &LbParams,
+    light: &Illumination,
+    cell: f32,
+) -> anyhow::Result<IndirectSolution> {
+    let dims = GridDims { nx: OPEN, ny: OPEN, nz: OPEN };
+    let empty = medium_from_leaf_area(&vec![0.0; OPEN * OPEN * OPEN], dims, cell);
+    solve_indirect(solver, &empty, params, light, &SolveOptions::default(), &|_| {})
 }
 
 #[cfg(test)]
