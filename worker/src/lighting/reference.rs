@@ -124,11 +124,10 @@ pub fn render_reference(
         converged: false,
         ms: 0.0,
     };
-    // Each sample of a batch has its own output slot (two images of 16
-    // bytes per pixel): as many samples and columns per dispatch as the
-    // adapter binds, with a margin.
+    // Each sample of a batch has its own output slot: as many samples and
+    // columns per dispatch as the adapter binds, with a margin.
     let budget = (ctx.limits.max_storage_buffer_binding_size / 2).max(1 << 20);
-    let per_sample_column = 32 * f.height as u64;
+    let per_sample_column = crate::trace::render::SAMPLE_BYTES_PER_PIXEL * f.height as u64;
     let batch_spp =
         (opts.batch_spp as u64).min((budget / (per_sample_column * f.width as u64)).max(1)) as u32;
     let columns = ((budget / (per_sample_column * batch_spp as u64)).max(1) as u32).min(f.width);

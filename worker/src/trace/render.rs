@@ -14,6 +14,10 @@ use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
 
 const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
+/// Bytes one sample of the per-sample kernel writes per pixel: three
+/// images of four floats (the path, `local` along it and the first
+/// surface's guides; `reference.wgsl`'s `reference_sample`).
+pub const SAMPLE_BYTES_PER_PIXEL: u64 = 3 * 16;
 /// Longest path the reference integrator follows.
 pub const MAX_BOUNCES: u32 = 16;
 
@@ -377,16 +381,16 @@ impl StripRenderer {
         uniform: &FrameUniform,
     ) -> anyhow::Result<(SampleMeans, RayCounts)> {
         let n = (uniform.strip_width * uniform.height) as usize;
-        let image_bytes = n as u64 * 16;
+        let sample_bytes = n as u64 * SAMPLE_BYTES_PER_PIXEL;
         let spp = uniform.spp;
         let batch =
-            (ctx.limits.max_storage_buffer_binding_size / (3 * image_bytes)).min(spp as u64) as u32;
+            (ctx.limits.max_storage_buffer_binding_size / sample_bytes).min(spp as u64) as u32;
         anyhow::ensure!(
             batch >= 1,
             "a strip of {}×{} needs {} bytes of output per sample, more than the adapter binds",
             uniform.strip_width,
             uniform.height,
-            3 * image_bytes
+            sample_bytes
         );
         let mut sums = vec![[0.0f32; 4]; 3 * n];
         // Per pixel and channel, Σ (path − first)² over its samples: the
@@ -397,7 +401,7 @@ impl StripRenderer {
             let batch_spp = batch.min(spp - base);
             let u = FrameUniform { sample_base: base, batch_spp, ..*uniform };
             let (all, counts) =
-                self.dispatch(ctx, kernel, &u, 3 * batch_spp as u64 * image_bytes, batch_spp)?;
+                self.dispatch(ctx, kernel, &u, batch_spp as u64 * sample_bytes, batch_spp)?;
             // Three images, each `batch_spp` slots of `n` pixels.
             let (paths, rest) = all.split_at(n * batch_spp as usize);
             for (path, first) in paths.chunks_exact(n).zip(rest.chunks_exact(n)) {

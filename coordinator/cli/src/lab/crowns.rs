@@ -209,7 +209,9 @@ pub fn markdown(t: &CrownTable) -> String {
     s += &"---|".repeat(t.methods.len());
     s += "\n";
     for r in &t.rows {
-        s += &format!("| {} | {} | {} | {:.4} |", r.instance, r.model, r.pixels, lum(r.reference));
+        // A model's name comes from the scene file: a `|` in it would cut the row.
+        let model = r.model.replace('|', "\\|");
+        s += &format!("| {} | {model} | {} | {:.4} |", r.instance, r.pixels, lum(r.reference));
         for m in &r.methods {
             s += &format!(" {:.2} |", lum(*m) / lum(r.reference));
         }
