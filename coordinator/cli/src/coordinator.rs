@@ -81,6 +81,10 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
 }
 
 pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !a.frame.auto(),
+        "--lighting auto runs its pilot on this machine's GPU: `sylva render --local-workers 0 --lighting auto …`"
+    );
     let token = a.auth.load()?;
     let tls = a.tls.load()?;
     let bundle = sylva_scene::bundle::pack(&a.scene)?;

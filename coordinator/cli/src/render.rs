@@ -6,6 +6,7 @@
 
 use crate::flags::render::*;
 use crate::in_process::InProcess;
+use crate::lab::pilot::{self, Goal};
 use crate::progress;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -74,6 +75,7 @@ fn submitter_name() -> String {
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let request = a.frame.settings();
     request.check()?;
+    let goal = a.goal()?;
     let mut phases: Vec<(&str, f64)> = Vec::new();
     let t = Instant::now();
     let folder = a.scene.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -113,6 +115,11 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let lighting = request.lighting_or(scene.lighting);
     let accel = request.accel;
     let views = a.frame.views(&scene.file)?;
+    if goal.is_some() && (remote || grid_choice.is_some() || a.lb_grid.is_some()) {
+        bail!(
+            "--lighting auto runs its pilot and the frame in this process and picks the LB grid itself: add --local-workers 0, leave out --lb-grid"
+        );
+    }
     if remote {
         return render_through_coordinator(&a, &request, &views, &scene, lighting, accel, phases);
     }
@@ -121,7 +128,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             "a sequence renders on workers, frames and strips scheduled over them: leave out --local-workers 0"
         );
     }
-    render_here(&a, &request, scene, grid_choice.is_some(), phases)
+    render_here(&a, &request, scene, grid_choice.is_some(), goal, phases)
 }
 
 /// The in-process pipeline: the scene prepared on this process's GPU, then
@@ -132,15 +139,32 @@ fn render_here(
     request: &FrameSettings,
     mut scene: Scene,
     choose_grids: bool,
+    goal: Option<Goal>,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
-    let (lighting, accel) = (request.lighting_or(scene.lighting), request.accel);
     let bar = ProgressBar::new_spinner();
     bar.set_style(
         ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
     );
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let ctx = GpuContext::new()?;
+    let (request, prepared, auto) = match goal {
+        Some(goal) => {
+            // The pilot prepares every grid it tries; the chosen one's
+            // preparation is the frame's.
+            let t = Instant::now();
+            let plan = even_strips(a.frame.width, STRIP);
+            let c =
+                pilot::choose(&ctx, &scene, request, &plan, goal, &|m| progress::stage(&bar, m))?;
+            phases.push(("pilot", ms(t)));
+            tracing::info!(chosen = %c.report.chosen.name, "--lighting auto: {}", c.report.why);
+            scene = c.scene;
+            (c.frame, Some(c.prepared), Some(c.report))
+        }
+        None => (*request, None, None),
+    };
+    let request = &request;
+    let (lighting, accel) = (request.lighting_or(scene.lighting), request.accel);
     let mut choices = None;
     if choose_grids && sylva_worker::lighting::method(lighting).needs.lb {
         let t = Instant::now();
@@ -157,10 +181,16 @@ fn render_here(
         phases.push(("lb grid choice", ms(t)));
         choices = Some(c);
     }
-    let prepared = prepare(&ctx, &scene, accel, lighting, &|m| progress::stage(&bar, m))?;
-    for p in &prepared.phases.0 {
-        phases.push((p.name, p.ms));
-    }
+    let prepared = match prepared {
+        Some(p) => p,
+        None => {
+            let p = prepare(&ctx, &scene, accel, lighting, &|m| progress::stage(&bar, m))?;
+            for p in &p.phases.0 {
+                phases.push((p.name, p.ms));
+            }
+            p
+        }
+    };
     let mut settings = RenderSettings::resolve(request, scene.lighting);
     if lighting.reads_matched_ambient() {
         progress::stage(&bar, "matching the ambient constant to the LB image");
@@ -171,7 +201,9 @@ fn render_here(
     }
     bar.finish_and_clear();
 
-    if lighting == LightingMode::Reference {
+    // The reference converges by its own error; `auto`'s path tracer
+    // takes the samples the pilot chose, as a frame of strips.
+    if lighting == LightingMode::Reference && auto.is_none() {
         return render_reference_here(a, &ctx, &scene, &prepared, &settings, accel, phases);
     }
     let plan = even_strips(a.frame.width, STRIP);
@@ -192,7 +224,7 @@ fn render_here(
     bar.finish_and_clear();
 
     let (tone, exr) = write_image(a, &frame, &mut phases)?;
-    let stats = with_head(
+    let mut stats = with_head(
         a,
         exr,
         accel,
@@ -219,11 +251,18 @@ fn render_here(
             "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
         }),
     );
-    let how = format!(
+    let mut how = format!(
         "in {:.0} ms of tracing, {:.2} Mrays/s",
         trace_ms,
         (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6
     );
+    if let Some(r) = &auto {
+        stats["spp"] = json!(request.spp);
+        stats["gather_bounces"] = json!(request.gather_bounces);
+        stats["gather_filter"] = json!(request.gather_filter);
+        stats["auto"] = serde_json::to_value(r)?;
+        how += &format!("; --lighting auto chose {}", r.why);
+    }
     report(a, &stats, accel, lighting, &how)
 }
 
@@ -402,7 +441,7 @@ fn report_wrote(
             a.scene.display(),
             a.frame.width,
             a.frame.height,
-            a.frame.spp,
+            stats["spp"],
             wrote,
             path.display()
         );

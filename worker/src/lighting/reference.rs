@@ -104,12 +104,31 @@ pub fn render_reference(
     opts: &ReferenceOptions,
     progress: &dyn Fn(&ReferenceStats),
 ) -> anyhow::Result<ReferenceImage> {
+    render_reference_columns(ctx, renderer, f, &[(0, f.width)], opts, progress)
+}
+
+/// [`render_reference`] of some of the frame's columns only: the ranges
+/// `[x0, x1)` side by side, as one image as wide as they are together
+/// (what `render --lighting auto`'s pilot measures against).
+pub fn render_reference_columns(
+    ctx: &GpuContext,
+    renderer: &StripRenderer,
+    f: &RenderSettings,
+    ranges: &[(u32, u32)],
+    opts: &ReferenceOptions,
+    progress: &dyn Fn(&ReferenceStats),
+) -> anyhow::Result<ReferenceImage> {
     anyhow::ensure!(
         opts.batch_spp > 0 && opts.max_batches >= opts.min_batches.max(2),
         "reference batches: need batch_spp ≥ 1 and max_batches ≥ 2"
     );
+    anyhow::ensure!(
+        !ranges.is_empty() && ranges.iter().all(|&(x0, x1)| x0 < x1 && x1 <= f.width),
+        "reference columns: need ranges inside the frame"
+    );
     let t = Instant::now();
-    let n = (f.width * f.height) as usize;
+    let width: u32 = ranges.iter().map(|(x0, x1)| x1 - x0).sum();
+    let n = (width * f.height) as usize;
     let mut sum = vec![[0.0f64; 3]; n];
     let mut lum_sq = vec![0.0f64; n];
     // Per batch, the batch mean's indirect light squared: its spread
@@ -129,8 +148,18 @@ pub fn render_reference(
     let budget = (ctx.limits.max_storage_buffer_binding_size / 2).max(1 << 20);
     let per_sample_column = crate::trace::render::SAMPLE_BYTES_PER_PIXEL * f.height as u64;
     let batch_spp =
-        (opts.batch_spp as u64).min((budget / (per_sample_column * f.width as u64)).max(1)) as u32;
+        (opts.batch_spp as u64).min((budget / (per_sample_column * width as u64)).max(1)) as u32;
     let columns = ((budget / (per_sample_column * batch_spp as u64)).max(1) as u32).min(f.width);
+    // Each range cut into dispatches of at most `columns`, each with the
+    // output column its first goes to.
+    let mut chunks = Vec::new();
+    let mut out_x = 0;
+    for &(x0, x1) in ranges {
+        for c0 in (x0..x1).step_by(columns as usize) {
+            chunks.push((c0, (c0 + columns).min(x1), out_x + c0 - x0));
+        }
+        out_x += x1 - x0;
+    }
     let mut batch = 0u32;
     loop {
         // Seeds far apart, so no batch repeats another's samples.
@@ -140,11 +169,10 @@ pub fn render_reference(
             lighting: LightingMode::Reference,
             ..*f
         };
-        for x0 in (0..f.width).step_by(columns as usize) {
-            let x1 = (x0 + columns).min(f.width);
+        for &(x0, x1, out) in &chunks {
             let s = renderer.render_strip(ctx, &settings, x0, x1)?;
             for (k, p) in s.pixels.iter().enumerate() {
-                let i = (k as u32 / s.width * f.width + x0 + k as u32 % s.width) as usize;
+                let i = (k as u32 / s.width * width + out + k as u32 % s.width) as usize;
                 for c in 0..3 {
                     sum[i][c] += p[c] as f64;
                     local[i][c] += s.first_light[k][c] as f64;
@@ -178,7 +206,7 @@ pub fn render_reference(
     }
     let b = batch as f64;
     let image = HdrImage {
-        width: f.width,
+        width,
         height: f.height,
         pixels: sum.iter().map(|s| s.map(|v| (v / b) as f32)).collect(),
     };
@@ -197,7 +225,7 @@ pub fn render_reference(
         })
         .collect();
     let local = HdrImage {
-        width: f.width,
+        width,
         height: f.height,
         pixels: local.iter().map(|s| s.map(|v| (v / b) as f32)).collect(),
     };

@@ -26,9 +26,11 @@ pub struct FrameArgs {
     /// Acceleration structure.
     #[arg(long, value_enum, default_value = "bvh")]
     pub accel: AccelKind,
-    /// Lighting method; default the scene's.
+    /// Lighting method; default the scene's. `auto` (`render` in this
+    /// process only) picks one with its parameters from a short pilot on
+    /// the scene, for --time-budget or --max-error.
     #[arg(long, value_enum)]
-    pub lighting: Option<LightingMode>,
+    pub lighting: Option<LightingChoice>,
     /// Seed of the per-pixel sample positions.
     #[arg(long, default_value_t = 1)]
     pub seed: u32,
@@ -61,6 +63,39 @@ pub struct FrameArgs {
     pub camera_path: Option<PathBuf>,
 }
 
+/// `--lighting`: a method, or `auto`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LightingChoice {
+    /// Picked by a pilot on the scene (`render --lighting auto`).
+    Auto,
+    /// This method.
+    Method(LightingMode),
+}
+
+impl clap::ValueEnum for LightingChoice {
+    fn value_variants<'a>() -> &'a [Self] {
+        use LightingMode::*;
+        &[
+            LightingChoice::Auto,
+            LightingChoice::Method(Local),
+            LightingChoice::Method(Ambient),
+            LightingChoice::Method(Lb),
+            LightingChoice::Method(LbVisualize),
+            LightingChoice::Method(Boulanger),
+            LightingChoice::Method(Gather),
+            LightingChoice::Method(GatherAmbient),
+            LightingChoice::Method(Reference),
+        ]
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        match self {
+            LightingChoice::Auto => Some(clap::builder::PossibleValue::new("auto")),
+            LightingChoice::Method(m) => m.to_possible_value(),
+        }
+    }
+}
+
 /// `ELEVATION,AZIMUTH` in degrees.
 pub(crate) fn sun_angles(s: &str) -> Result<SunAngles, String> {
     let v: Vec<f32> = s
@@ -81,7 +116,10 @@ impl FrameArgs {
             height: self.height,
             spp: self.spp,
             seed: self.seed,
-            lighting: self.lighting,
+            lighting: match self.lighting {
+                Some(LightingChoice::Method(m)) => Some(m),
+                _ => None,
+            },
             accel: self.accel,
             lb_strength: self.lb_strength,
             ambient: None,
@@ -89,6 +127,11 @@ impl FrameArgs {
             gather_bounces: self.gather_bounces,
             gather_filter: self.gather_filter,
         }
+    }
+
+    /// Whether `--lighting auto` was asked for.
+    pub fn auto(&self) -> bool {
+        self.lighting == Some(LightingChoice::Auto)
     }
 
     /// The views of the sequence these flags (over the scene's own
@@ -145,6 +188,14 @@ pub struct RenderArgs {
     /// `--lb-grid auto`: the largest relative difference accepted.
     #[arg(long, default_value_t = 0.2)]
     pub lb_auto_tolerance: f64,
+    /// `--lighting auto`: the most accurate method whose lighting
+    /// pre-process and frame are predicted to fit this many seconds.
+    #[arg(long, conflicts_with = "max_error")]
+    pub time_budget: Option<f64>,
+    /// `--lighting auto`: the fastest method whose indirect error (RMS,
+    /// relative to the indirect light's) is predicted at most this (0.1: 10 %).
+    #[arg(long)]
+    pub max_error: Option<f64>,
     /// Also write the linear HDR frame as OpenEXR beside the PNG.
     #[arg(long)]
     pub exr: bool,
@@ -175,4 +226,26 @@ pub struct RenderArgs {
     /// folder's files).
     #[arg(long)]
     pub allow_files_outside_scene: bool,
+}
+
+impl RenderArgs {
+    /// `--lighting auto`'s goal (checked), `None` without auto; its flags
+    /// without auto are refused.
+    pub fn goal(&self) -> anyhow::Result<Option<crate::lab::pilot::Goal>> {
+        use crate::lab::pilot::Goal;
+        let positive = |name: &str, v: f64| -> anyhow::Result<f64> {
+            anyhow::ensure!(v.is_finite() && v > 0.0, "{name} {v}: must be a finite number > 0");
+            Ok(v)
+        };
+        match (self.frame.auto(), self.time_budget, self.max_error) {
+            (false, None, None) => Ok(None),
+            (false, _, _) => bail!("--time-budget and --max-error go with --lighting auto"),
+            (true, Some(s), None) => Ok(Some(Goal::TimeBudget(positive("--time-budget", s)?))),
+            (true, None, Some(e)) => Ok(Some(Goal::MaxError(positive("--max-error", e)?))),
+            (true, None, None) => {
+                bail!("--lighting auto needs a goal: --time-budget SECONDS or --max-error E")
+            }
+            (true, Some(_), Some(_)) => bail!("--time-budget and --max-error: one or the other"),
+        }
+    }
 }

@@ -8,6 +8,7 @@
 use crate::flags::compare::*;
 use crate::lab::chart::{Series, line_chart};
 use crate::lab::crowns;
+use crate::lab::error::{IndirectError, lit_pixels};
 use crate::lab::pareto;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -108,12 +109,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     say("reference: path tracing");
     let (r, build_ms, pre, reused) = reference(&a, &ctx, &scene, &settings, &bar)?;
     let reference = r.image.clone();
-    let lit: Vec<bool> = r
-        .coverage
-        .iter()
-        .zip(&reference.pixels)
-        .map(|(&c, &p)| c >= 0.5 && luminance(p) > 0.0)
-        .collect();
+    let lit = lit_pixels(&r);
     anyhow::ensure!(
         lit.iter().any(|&l| l),
         "no pixel of the frame shows a lit model: nothing to compare"
@@ -774,59 +770,6 @@ fn write_hdr(path: &Path, img: &HdrImage) -> anyhow::Result<()> {
 
 /// The seed bits that give a method's second render other samples.
 const SECOND_SEED: u32 = 0x5EED_0002;
-
-/// The indirect error of a method: its indirect part (method − `local`
-/// on the same samples) against the reference's (its estimate minus
-/// `local` along its own samples), so leaf edges against the sky, sampled
-/// differently by the two, do not count as indirect light; raw, and with
-/// each image's own sampling noise taken out.
-///
-/// A squared difference of two noisy estimates is, in expectation, the
-/// squared difference of their means plus both variances. The reference
-/// knows its variance per pixel (the spread of its batches); a method's
-/// comes from rendering it twice with other seeds: E[(a − b)²] = 2σ².
-/// Subtracting both leaves the error of the method's expected image
-/// against the reference's, which is what the lighting method controls:
-/// the 4-ray edge aliasing and the reference's finite samples are not.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct IndirectError {
-    /// √(Σ d² / Σ i_r²) over lit pixels and channels.
-    raw: f64,
-    /// √(max(0, Σ d² − Σ σ_m² − Σ σ_r²) / (Σ i_r² − Σ σ_r²)).
-    net: f64,
-    /// √(Σ σ_r²) over the reference's noise-free indirect RMS.
-    reference_noise: f64,
-    /// √(Σ σ_m²) over the same.
-    method_noise: f64,
-}
-
-impl IndirectError {
-    /// `m` and `l`: the method and `local`, each rendered with two seeds
-    /// (the first pair on the same samples, the second pair too).
-    fn measure(m: [&HdrImage; 2], l: [&HdrImage; 2], r: &ReferenceImage, lit: &[bool]) -> Self {
-        let (mut d2, mut r2, mut var_r, mut var_m) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
-        for (i, _) in lit.iter().enumerate().filter(|(_, lit)| **lit) {
-            for c in 0..3 {
-                let ind = |k: usize| (m[k].pixels[i][c] - l[k].pixels[i][c]) as f64;
-                let ind_r = (r.image.pixels[i][c] - r.local.pixels[i][c]) as f64;
-                d2 += (ind(0) - ind_r).powi(2);
-                r2 += ind_r.powi(2);
-                var_r += r.indirect_variance[i][c] as f64;
-                var_m += (ind(0) - ind(1)).powi(2) / 2.0;
-            }
-        }
-        if r2 <= 0.0 {
-            return Self { raw: 0.0, net: 0.0, reference_noise: 0.0, method_noise: 0.0 };
-        }
-        let signal = (r2 - var_r).max(f64::MIN_POSITIVE);
-        Self {
-            raw: (d2 / r2).sqrt(),
-            net: ((d2 - var_m - var_r).max(0.0) / signal).sqrt(),
-            reference_noise: (var_r / signal).sqrt(),
-            method_noise: (var_m / signal).sqrt(),
-        }
-    }
-}
 
 /// What a saved reference was made for: the scene's bundle (the scene
 /// file and every model file it names, as `sylva submit` packs it), the
