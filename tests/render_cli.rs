@@ -222,6 +222,123 @@ fn bad_render_requests_get_clear_errors() {
     assert!(!dir.join("cmp").join("reference.bin").exists());
 }
 
+/// `--lighting auto` on a scene: the stats JSON, with what it chose and why.
+fn auto(dir: &Path, name: &str, scene: &str, goal: &[&str]) -> Value {
+    let path = dir.join(format!("{name}.json"));
+    std::fs::write(&path, scene).unwrap();
+    let out = dir.join(format!("{name}.png"));
+    let mut args = vec![
+        "render",
+        path.to_str().unwrap(),
+        "--local-workers",
+        "0",
+        "--width",
+        "160",
+        "--height",
+        "80",
+        "--lighting",
+        "auto",
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ];
+    args.extend_from_slice(goal);
+    let v: Value = serde_json::from_str(&ok(&args)).unwrap();
+    assert_eq!(png_size(&out), (160, 80));
+    v
+}
+
+#[test]
+fn lighting_auto_picks_for_the_scene_and_says_why() {
+    let dir = scratch("auto");
+    let scene = |instances: &str, camera: &str| {
+        format!(
+            r#"{{
+            "models": {{ "maple": {{ "tree": {{ "species": "red_maple", "triangles": 6000, "seed": 3 }} }} }},
+            "instances": [ {instances} ],
+            "camera": {camera},
+            "sun": {{ "elevation_deg": 45, "azimuth_deg": 120 }},
+            "ground": {{ "color": [0.1, 0.08, 0.05] }},
+            "lb": {{ "grid": 12, "preset": "leaf" }}
+        }}"#
+        )
+    };
+    let tree = scene(
+        r#"{ "model": "maple", "position": [0, 0, 0] }"#,
+        r#"{ "position": [0, 5, -9], "look_at": [0, 5, 0], "fov_y_deg": 45 }"#,
+    );
+    // Twenty maples 3.2 m apart, the camera among the first row's crowns.
+    let stand: Vec<String> = (-2..3)
+        .flat_map(|i: i32| (0..4).map(move |j: i32| (i, j)))
+        .map(|(i, j)| {
+            let (x, z) = (i as f32 * 3.2 + (j % 2) as f32 * 1.6, j as f32 * 3.2);
+            let turn = (i * 37 + j * 71).rem_euclid(360);
+            format!(r#"{{ "model": "maple", "position": [{x}, 0, {z}], "rotate_y_deg": {turn} }}"#)
+        })
+        .collect();
+    let stand = scene(
+        &stand.join(", "),
+        r#"{ "position": [0, 4, -9], "look_at": [0, 4, 4], "fov_y_deg": 45 }"#,
+    );
+    let goal = ["--max-error", "0.1"];
+    let (t, s) = (auto(&dir, "tree", &tree, &goal), auto(&dir, "stand", &stand, &goal));
+    for v in [&t, &s] {
+        let a = &v["auto"];
+        let chosen = &a["chosen"];
+        // The frame is what was chosen, and the choice meets the goal on the pilot.
+        assert_eq!(v["lighting"], chosen["lighting"], "{a}");
+        assert_eq!(v["spp"], chosen["spp"], "{a}");
+        assert!(chosen["error"].as_f64().unwrap() <= 0.1, "{a}");
+        let why = a["why"].as_str().unwrap();
+        assert!(
+            why.contains("within 10.0 % error") && why.contains(chosen["name"].as_str().unwrap()),
+            "{why}"
+        );
+        let names: Vec<&str> = a["candidates"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c["name"].as_str().unwrap())
+            .collect();
+        for n in [
+            "local",
+            "ambient",
+            "lb",
+            "path tracer 16 rays",
+            "gather 1b 4 rays",
+            "gather 2b 16 rays",
+        ] {
+            assert!(names.contains(&n), "{n} missing from {names:?}");
+        }
+        assert!(v["phases_ms"].as_array().unwrap().iter().any(|p| p["phase"] == "pilot"));
+    }
+    // A lone tree: few paths stay among its leaves, so path tracing needs
+    // no pre-process and few samples. A stand: paths bounce between crowns,
+    // so brute force is noisy, and the gather over the lattice pays.
+    assert_eq!(t["auto"]["chosen"]["lighting"], "reference", "{}", t["auto"]["why"]);
+    assert_eq!(s["auto"]["chosen"]["lighting"], "gather", "{}", s["auto"]["why"]);
+    // A budget: the most accurate that fits.
+    let b = auto(&dir, "stand-budget", &stand, &["--time-budget", "0.3"]);
+    let chosen = &b["auto"]["chosen"];
+    assert!(chosen["predicted_ms"].as_f64().unwrap() <= 300.0, "{}", b["auto"]);
+    assert!(b["auto"]["why"].as_str().unwrap().contains("the most accurate within 0.3 s"));
+
+    // Wrong uses are refused with what to do instead.
+    let path = dir.join("tree.json");
+    let p = path.to_str().unwrap();
+    let err = fails(&["render", p, "--lighting", "auto", "--local-workers", "0"]);
+    assert!(err.contains("--time-budget SECONDS or --max-error E"), "{err}");
+    let err = fails(&["render", p, "--lighting", "auto", "--max-error", "0.1"]);
+    assert!(err.contains("add --local-workers 0"), "{err}");
+    let err = fails(&["render", p, "--time-budget", "3", "--local-workers", "0"]);
+    assert!(err.contains("go with --lighting auto"), "{err}");
+    let err =
+        fails(&["render", p, "--lighting", "auto", "--max-error", "NaN", "--local-workers", "0"]);
+    assert!(err.contains("--max-error NaN: must be a finite number > 0"), "{err}");
+    let err = fails(&["submit", p, "--coordinator", "127.0.0.1:9", "--lighting", "auto"]);
+    assert!(err.contains("--lighting auto runs its pilot on this machine"), "{err}");
+}
+
 #[test]
 fn the_fern_example_renders() {
     let dir = scratch("fern");

@@ -91,7 +91,11 @@ pub fn filter_indirect(
             std::array::from_fn(|c| {
                 let a = m.guide[i][c] as f64;
                 (m.guide[i][3] > 0.0 && a > 1e-6).then(|| {
-                    let y = (m.paths[i][c] - m.first[i][c]) as f64 / a;
+                    // Indirect light is never negative: a difference
+                    // below zero is the two f32 means' rounding, which the
+                    // division by a small albedo (a leaf's edge, one
+                    // sample of a dark channel) would make large.
+                    let y = ((m.paths[i][c] - m.first[i][c]) as f64 / a).max(0.0);
                     (y, m.indirect_variance[i][c] as f64 / (a * a))
                 })
             })
@@ -192,5 +196,20 @@ mod tests {
         assert!((m.paths[1][0] - (0.1 + 0.025)).abs() < 1e-6, "{:?}", m.paths[1]);
         let want = (0.2 + 0.25) / 2.0;
         assert!((m.paths[2][0] - (0.1 + 0.25 * want)).abs() < 1e-6, "{:?}", m.paths[2]);
+    }
+
+    #[test]
+    fn rounding_below_zero_under_a_small_albedo_never_makes_light_negative() {
+        // Pixel 1: its path mean 1e-6 under its first light, albedo 1e-4
+        // (one dark sample among many): −0.01 irradiance without the floor.
+        let mut m = strip(&[0.0, 0.0, 0.0], &[0.5, 1e-4, 0.5], &[10.0; 3], 0.01);
+        m.paths[1] = [0.1 - 1e-6; 4];
+        filter_indirect(&mut m, 3, 1, 2.0);
+        for p in &m.paths {
+            assert!(p[..3].iter().all(|&v| v >= 0.1 - 1e-6), "{:?}", m.paths);
+        }
+        for p in [0, 2] {
+            assert!(m.paths[p][0] >= 0.1, "{:?}", m.paths);
+        }
     }
 }

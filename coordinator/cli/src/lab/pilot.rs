@@ -495,7 +495,7 @@ fn pick(candidates: &[Measured], goal: Goal, lit: usize) -> (&Measured, String) 
     let front = pareto::front(&points);
     let said = |c: &Measured| {
         format!(
-            "{} ({:.1} % indirect error on the pilot, {:.1} s predicted{})",
+            "{} ({:.1} % indirect error on the pilot, {:.2} s predicted{})",
             c.name,
             100.0 * c.error,
             c.predicted_ms / 1e3,
