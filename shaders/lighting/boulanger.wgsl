@@ -2,10 +2,10 @@
 // carries its envelope distances s_max along eight directions (precomputed
 // by shared/light/src/boulanger.rs, whose `shade` is the CPU reference of this
 // code); light reaching it is attenuated as e^(−τ s) by the foliage in
-// between. Direct sky (eq. 6) over the eight directions, direct sun with
-// the cosine-lobe s_max of eq. 7 (eq. 8), and one bounce of sun light off
-// the neighbouring leaves in closed form (eqs. 11, 23–25). Work is in the
-// model's frame, where the distances were measured. Appended to render.wgsl.
+// between. Direct sky (eq. 6) over the eight directions and one bounce of
+// sun light off the neighbouring leaves in closed form (eqs. 11, 23–25),
+// added to the tracer's direct sun. Work is in the model's frame, where
+// the distances were measured. Appended to render.wgsl.
 
 const BL_XI: f32 = 0.57735027;
 const BL_N: u32 = 8u;
@@ -29,8 +29,43 @@ fn bl_bsdf(n: vec3<f32>, wo: vec3<f32>, c: array<vec3<f32>, 4>, w: vec3<f32>) ->
     return (c[2] * max(cw, 0.0) + c[1] * max(-cw, 0.0)) / PI;
 }
 
-// Outgoing radiance of a leaf: sky + sun + indirect sun (eq. 2).
-fn boulanger_leaf(s: SurfacePoint, view: vec3<f32>) -> vec3<f32> {
+// The model-frame direction `m` in the world: instances are similarities
+// (a turn and a uniform scale), so the transpose of `to_model`'s linear
+// part points the same way as its inverse.
+fn bl_to_world(inst: Instance, m: vec3<f32>) -> vec3<f32> {
+    return normalize(inst.to_model[0].xyz * m.x + inst.to_model[1].xyz * m.y + inst.to_model[2].xyz * m.z);
+}
+
+// The sun's share of the ground's radiance seen along octant ω (model
+// frame) from leaf point s: eq. 6 takes whatever radiance arrives from
+// each direction, and below the horizon that is the ground's, which the
+// sun lights as well as the sky (`bl_sky` holds the sky's part). The
+// ground point the octant's axis meets is tested with one shadow ray, so
+// the crown's own shadow and its neighbours' count.
+fn ground_sun(s: SurfacePoint, inst: Instance, w: vec3<f32>) -> vec3<f32> {
+    let d = bl_to_world(inst, w);
+    if frame.has_ground == 0u || d.y > -1.0e-3 || frame.sun_towards.y <= 0.0 {
+        return vec3<f32>(0.0);
+    }
+    let g = s.p + d * (-s.p.y / d.y);
+    atomicAdd(&counters.shadow, 1u);
+    if in_shadow(vec3<f32>(g.x, frame.epsilon, g.z)) {
+        return vec3<f32>(0.0);
+    }
+    return frame.ground_color * frame.sun_radiance * frame.sun_towards.y;
+}
+
+// The light Boulanger et al. add to a leaf or to wood beyond the direct
+// sun, which the tracer's shadow ray gives as it does for every method:
+// the sky (eq. 6, the ground below the horizon lit by sky and sun) and one
+// bounce of sun light off the neighbouring leaves (eqs. 11, 23–25). The
+// paper's own sun term (eq. 8, attenuated by eq. 7's interpolated
+// thickness) is what a renderer without rays needs;
+// `sylva_light::boulanger::shade` still computes it. Wood is Lambertian
+// on the side the viewer sees, its neighbours the model's leaves of their
+// mean albedo (`shade_wood`); a leaf's neighbours are leaves like it, as
+// in the paper.
+fn boulanger_light(s: SurfacePoint, view: vec3<f32>) -> vec3<f32> {
     let inst = instances[s.instance];
     let m = models[inst.model];
     // Model-frame normal (as the triangle winds), viewer and sun directions.
@@ -39,7 +74,10 @@ fn boulanger_leaf(s: SurfacePoint, view: vec3<f32>) -> vec3<f32> {
     let n = normalize(cross(position(tri.v.y) - a, position(tri.v.z) - a));
     let wo = normalize(to_model_vector(inst, -view));
     let sun = normalize(to_model_vector(inst, frame.sun_towards));
-    let c = leaf_coefficients(s.albedo);
+    let wood = s.kind == KIND_WOOD;
+    // The neighbours' coefficients (G1), and the wood's normal facing the viewer.
+    let c = leaf_coefficients(select(s.albedo, m.leaf_albedo, wood));
+    let n_seen = select(n, -n, dot(n, wo) < 0.0);
     var smax: array<f32, 8>;
     var mw: array<f32, 8>;
     var msum = 0.0;
@@ -62,8 +100,11 @@ fn boulanger_leaf(s: SurfacePoint, view: vec3<f32>) -> vec3<f32> {
     var indirect = vec3<f32>(0.0);
     for (var j = 0u; j < BL_N; j++) {
         let wj = bl_direction(j);
-        let f = bl_bsdf(n, wo, c, wj);
-        sky_light += f * exp(-m.tau * smax[j]) * frame.bl_sky[j].rgb;
+        var f = bl_bsdf(n, wo, c, wj);
+        if wood {
+            f = s.albedo * max(dot(n_seen, wj), 0.0) / PI;
+        }
+        sky_light += f * exp(-m.tau * smax[j]) * (frame.bl_sky[j].rgb + ground_sun(s, inst, wj));
         // G1 (eq. 18), G3 (eq. 25) and Lo_sample (eq. 23).
         let cos_a = clamp(dot(sun, wj), -1.0, 1.0);
         let alpha = acos(cos_a);
@@ -81,6 +122,5 @@ fn boulanger_leaf(s: SurfacePoint, view: vec3<f32>) -> vec3<f32> {
     }
     sky_light *= 4.0 * PI / f32(BL_N);
     indirect *= m.leaf_area;
-    let sun_light = bl_bsdf(n, wo, c, sun) * exp(-sun_depth) * e_sun;
-    return sky_light + sun_light + indirect;
+    return sky_light + indirect;
 }

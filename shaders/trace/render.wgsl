@@ -430,10 +430,10 @@ fn surface_radiance(ray: Ray) -> Surface {
     if frame.lighting == LIGHTING_LB_VISUALIZE {
         return Surface(vec4<f32>(lb_indirect(inst, p_model), 1.0), s.t);
     }
-    if LIGHTING_FAMILY == KERNEL_BOULANGER && s.kind == KIND_LEAF && models[inst.model].has_envelope == 1u {
-        return Surface(vec4<f32>(boulanger_leaf(s, ray.dir), 1.0), s.t);
-    }
     var color = direct_sun(s, n);
+    if LIGHTING_FAMILY == KERNEL_BOULANGER && models[inst.model].has_envelope == 1u {
+        return Surface(vec4<f32>(color + boulanger_light(s, ray.dir), 1.0), s.t);
+    }
     if frame.lighting == LIGHTING_LB {
         color += diffuse_albedo(s, n) * lb_indirect(inst, p_model);
     } else if frame.lighting == LIGHTING_AMBIENT {

@@ -64,6 +64,9 @@ struct Model {
     leaf_density: f32,
     leaf_area: f32,
     has_envelope: u32,
+    // Its leaves' mean albedo: the neighbours that light its wood.
+    leaf_albedo: vec3<f32>,
+    pad2: u32,
 }
 
 // Wide BVH nodes take four entries (the grid's origin and exponents, the

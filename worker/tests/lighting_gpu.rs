@@ -149,9 +149,16 @@ fn the_reference_error_falls_as_one_over_root_spp_and_it_says_so() {
 
 #[test]
 fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
+    // A leaf, and bark: the wood receives the same sky and bounce terms.
+    for material in ["leaf", "bark"] {
+        boulanger_square_matches_the_cpu(material);
+    }
+}
+
+fn boulanger_square_matches_the_cpu(material: &str) {
     let scene = quad_scene(
-        "boulanger",
-        "leaf",
+        &format!("boulanger-{material}"),
+        material,
         r#"{ "zenith": [0.2, 0.3, 0.6], "horizon": [0.5, 0.5, 0.5] }"#,
         r#", "ground": { "color": [0.3, 0.25, 0.2] }"#,
     );
@@ -170,7 +177,9 @@ fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
     let got = s.pixels[8 * 17 + 8];
 
     use glam::Vec3;
-    use sylva_light::boulanger::{precompute, shade, sky_radiance_per_direction, sun_terms};
+    use sylva_light::boulanger::{
+        bsdf, directions, precompute, shade, shade_wood, sky_radiance_per_direction, sun_terms,
+    };
     let model = &scene.models[0].model;
     let env = precompute(model);
     let terms = sun_terms(&env, scene.sun.towards);
@@ -180,23 +189,45 @@ fn boulanger_shading_on_the_gpu_matches_its_cpu_reference() {
             .to_array()
     };
     let per_dir = sky_radiance_per_direction(sky, scene.ground.as_ref().unwrap().color);
+    let accel = sylva_accel::SceneAccel::build(&scene, AccelKind::Bvh);
+    let lit = |j: usize| {
+        let d = directions()[j];
+        let g = Vec3::new(0.0, 1.6, 0.0) + d * (1.6 / -d.y);
+        let ray = sylva_accel::Ray::new(Vec3::new(g.x, 1e-3, g.z), scene.sun.towards);
+        d.y < 0.0 && !accel.occluded(&scene, &ray, 0.0, f32::INFINITY)
+    };
+    // The square shades one octant's ground: the test sees both kinds.
+    assert_eq!((0..4).filter(|&j| !lit(j)).count(), 1, "octants whose ground is in shadow");
     let albedo = [0.5f32; 3];
     for c in 0..3 {
         let coeffs = scene.file.leaf_optics.coefficients(albedo, c);
         let sky_c: [f32; 8] = std::array::from_fn(|j| per_dir[j][c]);
         let e_sun = std::f32::consts::PI * scene.sun.radiance[c];
-        let (lo_sky, lo_sun, lo_ind) =
-            shade(&env, &terms, 0, Vec3::Z, Vec3::Z, coeffs, e_sun, &sky_c);
-        // The highlight the direct methods add (ks 0.12 for leaves), dimmed like the sun.
-        let r = (-scene.sun.towards).reflect(Vec3::Z);
-        let depth = env.tau * (0..8).map(|j| terms.weights[j] * env.s_max[0][j]).sum::<f32>();
-        let highlight =
-            0.12 * r.dot(Vec3::Z).max(0.0).powi(24) * (-depth).exp() * scene.sun.radiance[c];
-        let want = lo_sky + lo_sun + lo_ind + highlight;
-        assert!(lo_sky > 0.0 && lo_sun > 0.0, "both direct terms light the square");
+        // Below the horizon the ground, lit by the sky and, where the
+        // octant's axis from the pixel's point (the square's centre) meets
+        // it in sunlight, by the sun.
+        let ground_sun =
+            scene.ground.as_ref().unwrap().color[c] * scene.sun.radiance[c] * scene.sun.towards.y;
+        let sky_c: [f32; 8] =
+            std::array::from_fn(|j| sky_c[j] + if lit(j) { ground_sun } else { 0.0 });
+        // The direct sun is the tracer's, unshadowed here: the BSDF times the sun's irradiance.
+        let (lo_sky, lo_ind, sun) = if material == "leaf" {
+            let (lo_sky, _, lo_ind) =
+                shade(&env, &terms, 0, Vec3::Z, Vec3::Z, coeffs, e_sun, &sky_c);
+            (lo_sky, lo_ind, bsdf(Vec3::Z, Vec3::Z, coeffs, scene.sun.towards) * e_sun)
+        } else {
+            // No leaves: nothing bounces onto the bark, and nothing shades its sky.
+            assert_eq!((env.leaves, env.tau), (0, 0.0));
+            let (lo_sky, lo_ind) =
+                shade_wood(&env, &terms, 0, Vec3::Z, albedo[c], [0.0; 4], e_sun, &sky_c);
+            let sun = albedo[c] * Vec3::Z.dot(scene.sun.towards).max(0.0) * scene.sun.radiance[c];
+            (lo_sky, lo_ind, sun)
+        };
+        let want = lo_sky + sun + lo_ind;
+        assert!(lo_sky > 0.0 && sun > 0.0, "{material}: both direct terms light the square");
         assert!(
             (got[c] - want).abs() <= 1e-3 * want,
-            "channel {c}: GPU {} vs CPU {want} (sky {lo_sky}, sun {lo_sun}, indirect {lo_ind})",
+            "{material}, channel {c}: GPU {} vs CPU {want} (sky {lo_sky}, sun {sun}, indirect {lo_ind})",
             got[c]
         );
     }

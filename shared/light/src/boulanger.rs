@@ -36,6 +36,15 @@
 //! (the generator's quads) count as one leaf, with the summed area and the
 //! area-weighted centre; both triangles get the same `s_max`.
 //!
+//! Wood (trunk and branches) receives the same sky and one bounce: the
+//! paper shades leaves only, and a bark surface left at its direct sun is
+//! black wherever the sun does not reach it, where the reference shows
+//! the sky and the leaves' light on it (on `examples/tree.json` the
+//! branches are a large share of the tree's pixels). Its cards are its
+//! triangles (paired like the leaves'), its transmittance is measured the
+//! same way, and the neighbours that scatter sun light onto it are the
+//! model's leaves, of their mean albedo ([`LeafEnvelope::leaf_albedo`]).
+//!
 //! Directions: the paper's eq. 26 lists ω_0..ω_3 (all with y = −1/√3) and
 //! ω_j = −ω_{7−j}; here ω_{j+4} = −ω_j instead, so a shader recovers the
 //! upper four by negating the lower four in order. y is up.
@@ -92,8 +101,8 @@ fn m(x: f32) -> f32 {
 /// Per-leaf envelope distances and the per-model medium constants.
 #[derive(Clone, Debug, Default)]
 pub struct LeafEnvelope {
-    /// s_max(P, ω_j) per model triangle (both triangles of a leaf card get
-    /// the card's values); 0 for wood.
+    /// s_max(P, ω_j) per model triangle (both triangles of a card get the
+    /// card's values), leaves and wood alike.
     pub s_max: Vec<[f32; N_DIR]>,
     /// Optical thickness per unit length, τ = ρ A / 2.
     pub tau: f32,
@@ -103,6 +112,9 @@ pub struct LeafEnvelope {
     pub leaf_area: f32,
     /// Number of leaves (cards) found.
     pub leaves: usize,
+    /// The leaves' mean albedo, linear RGB, weighted by area: the
+    /// neighbours' in the one-bounce term that lights wood.
+    pub leaf_albedo: [f32; 3],
     /// Wall time of [`precompute`], milliseconds.
     pub precompute_ms: f64,
 }
@@ -119,6 +131,11 @@ struct Card {
 /// Leaf cards of a model: consecutive leaf triangles sharing two vertex
 /// indices (a quad) are merged, others stand alone.
 fn leaf_cards(model: &Model) -> Vec<Card> {
+    cards_of(model, Surface::Leaf)
+}
+
+/// The cards of `surface`: consecutive triangles of it sharing two vertices pair up.
+fn cards_of(model: &Model, surface: Surface) -> Vec<Card> {
     let tri = |t: usize| {
         let [a, b, c] = model.triangle(t);
         let n2 = (b - a).cross(c - a); // twice the area, along the normal
@@ -127,12 +144,12 @@ fn leaf_cards(model: &Model) -> Vec<Card> {
     let mut cards = Vec::new();
     let mut t = 0;
     while t < model.triangle_count() {
-        if model.surface(t) != Surface::Leaf {
+        if model.surface(t) != surface {
             t += 1;
             continue;
         }
         let paired = t + 1 < model.triangle_count()
-            && model.surface(t + 1) == Surface::Leaf
+            && model.surface(t + 1) == surface
             && model.triangles[t].iter().filter(|i| model.triangles[t + 1].contains(i)).count()
                 == 2;
         let (n0, c0) = tri(t);
@@ -240,6 +257,9 @@ pub fn precompute(model: &Model) -> LeafEnvelope {
     env.leaf_area = cards.iter().map(|c| c.area).sum::<f32>() / n;
     env.leaf_density = n / envelope_volume(&cards);
     env.tau = 0.5 * env.leaf_density * env.leaf_area;
+    env.leaf_albedo = mean_leaf_albedo(model, &cards);
+    let mut cards = cards;
+    cards.extend(cards_of(model, Surface::Wood));
     let triangles: Vec<[Vec3; 3]> =
         (0..model.triangle_count()).map(|t| model.triangle(t)).collect();
     let coverage = triangle_coverage(model);
@@ -262,6 +282,47 @@ pub fn precompute(model: &Model) -> LeafEnvelope {
     }
     env.precompute_ms = t0.elapsed().as_secs_f64() * 1e3;
     env
+}
+
+/// The area-weighted mean albedo of the leaf cards, linear RGB: each
+/// material's base colour times the mean of its texture's opaque texels
+/// (those its alpha test keeps), as the renderer reads them.
+fn mean_leaf_albedo(model: &Model, cards: &[Card]) -> [f32; 3] {
+    let srgb = |c: u8| {
+        let c = c as f32 / 255.0;
+        if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+    };
+    let per_material: Vec<[f32; 3]> = model
+        .materials
+        .iter()
+        .map(|m| {
+            let base = [m.base_color[0], m.base_color[1], m.base_color[2]];
+            let Some(tex) = m.texture.and_then(|t| model.textures.get(t as usize)) else {
+                return base;
+            };
+            let cut = m.alpha_cutoff.unwrap_or(0.0);
+            let (mut sum, mut n) = ([0.0f64; 3], 0usize);
+            for px in tex.rgba.chunks_exact(4).filter(|px| px[3] as f32 / 255.0 >= cut) {
+                for c in 0..3 {
+                    sum[c] += srgb(px[c]) as f64;
+                }
+                n += 1;
+            }
+            if n == 0 {
+                return base;
+            }
+            std::array::from_fn(|c| base[c] * (sum[c] / n as f64) as f32)
+        })
+        .collect();
+    let (mut sum, mut area) = ([0.0f64; 3], 0.0f64);
+    for card in cards {
+        let a = per_material[model.material[card.tris[0]] as usize];
+        for c in 0..3 {
+            sum[c] += (a[c] * card.area) as f64;
+        }
+        area += card.area as f64;
+    }
+    if area > 0.0 { sum.map(|x| (x / area) as f32) } else { [0.0; 3] }
 }
 
 /// Average of M(N·a) M(N·b) over uniformly distributed unit normals N, for
@@ -385,17 +446,51 @@ pub fn shade(
     e_sun: f32,
     sky: &[f32; N_DIR],
 ) -> (f32, f32, f32) {
+    let f = |w: Vec3| bsdf(normal, to_eye, coeffs, w);
+    let (lo_sky, lo_ind) = sky_and_bounce(env, terms, tri, &f, coeffs, e_sun, sky);
+    let lo_sun = f(terms.sun) * (-env.tau * sun_distance(terms, &env.s_max[tri])).exp() * e_sun; // eq. 8
+    (lo_sky, lo_sun, lo_ind)
+}
+
+/// The sky and one-bounce terms on wood triangle `tri` (Lambertian of
+/// `albedo`, its `normal` facing the viewer), lit by the model's leaves,
+/// whose coefficients are `leaves` (of their mean albedo).
+#[allow(clippy::too_many_arguments)] // mirrors the shader's inputs one to one
+pub fn shade_wood(
+    env: &LeafEnvelope,
+    terms: &SunTerms,
+    tri: usize,
+    normal: Vec3,
+    albedo: f32,
+    leaves: [f32; 4],
+    e_sun: f32,
+    sky: &[f32; N_DIR],
+) -> (f32, f32) {
+    let f = |w: Vec3| albedo * normal.dot(w).max(0.0) / PI;
+    sky_and_bounce(env, terms, tri, &f, leaves, e_sun, sky)
+}
+
+/// Eq. 6 (sky) and eq. 11 (one bounce of sun light off neighbours of
+/// coefficients `neighbours`) for a receiver whose cosine-weighted BSDF
+/// towards the viewer is `f`.
+fn sky_and_bounce(
+    env: &LeafEnvelope,
+    terms: &SunTerms,
+    tri: usize,
+    f: &dyn Fn(Vec3) -> f32,
+    neighbours: [f32; 4],
+    e_sun: f32,
+    sky: &[f32; N_DIR],
+) -> (f32, f32) {
     let s = &env.s_max[tri];
     let dirs = directions();
     let (mut lo_sky, mut lo_ind) = (0.0, 0.0);
     for j in 0..N_DIR {
-        let f = bsdf(normal, to_eye, coeffs, dirs[j]);
+        let f = f(dirs[j]);
         lo_sky += f * (-env.tau * s[j]).exp() * sky[j]; // eq. 6
-        lo_ind += f * lo_sample(terms, s, j, coeffs, e_sun); // eq. 11
+        lo_ind += f * lo_sample(terms, s, j, neighbours, e_sun); // eq. 11
     }
-    let lo_sun =
-        bsdf(normal, to_eye, coeffs, terms.sun) * (-env.tau * sun_distance(terms, s)).exp() * e_sun; // eq. 8
-    (lo_sky * 4.0 * PI / N_DIR as f32, lo_sun, lo_ind * env.leaf_area)
+    (lo_sky * 4.0 * PI / N_DIR as f32, lo_ind * env.leaf_area)
 }
 
 /// Mean sky radiance over each direction's octant, for eq. 6. `sky` gives
@@ -693,11 +788,14 @@ mod tests {
         assert!(env.s_max.iter().flatten().all(|s| s.is_finite() && *s >= 0.0));
         let leaf_tris: Vec<usize> =
             (0..model.triangle_count()).filter(|&t| model.surface(t) == Surface::Leaf).collect();
-        assert!(
-            (0..model.triangle_count())
-                .filter(|&t| model.surface(t) == Surface::Wood)
-                .all(|t| env.s_max[t] == [0.0; N_DIR])
-        );
+        // Wood is measured too: the branches inside the crown see leaves.
+        let wood: Vec<usize> =
+            (0..model.triangle_count()).filter(|&t| model.surface(t) == Surface::Wood).collect();
+        let shaded = wood.iter().filter(|&&t| env.s_max[t].iter().any(|&s| s > 0.0)).count();
+        assert!(shaded * 2 > wood.len(), "{shaded} of {} wood triangles see foliage", wood.len());
+        // The leaves' mean albedo is a leaf's: green above red above blue, all in (0, 1).
+        let [r, g, b] = env.leaf_albedo;
+        assert!(0.0 < b && b < r && r < g && g < 1.0, "{:?}", env.leaf_albedo);
         // Quads are cards: both halves share their values.
         assert!(env.leaves * 2 <= leaf_tris.len() + 1);
         assert_eq!(env.s_max[leaf_tris[0]], env.s_max[leaf_tris[1]]);
@@ -755,6 +853,7 @@ mod tests {
         let true_tau = 0.5 * n as f32 / (4.0 / 3.0 * PI) * side * side;
         eprintln!("sphere: tau {} (true {true_tau}), {:.1} ms", env.tau, env.precompute_ms);
         assert_eq!(env.leaves, n);
+        assert_eq!(env.leaf_albedo, [0.2, 0.6, 0.1], "one untextured material: its colour");
         assert!((env.tau / true_tau - 1.0).abs() < 0.35, "tau {} true {true_tau}", env.tau);
         // Near the centre, τ s_max ≈ τ R in every direction.
         let mut depth = Vec::new();

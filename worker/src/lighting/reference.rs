@@ -96,7 +96,10 @@ pub struct ReferenceStats {
     pub ms: f64,
 }
 
-/// Renders `f` (any lighting; the reference's is forced) progressively.
+/// Renders `f` progressively: with the reference's paths, or with the
+/// paths of another method its kernel draws (a gather: so `compare` has
+/// a converged one-bounce image to hold Boulanger et al.'s terms against,
+/// the form of their paper's comparison). Other lightings get the reference's.
 pub fn render_reference(
     ctx: &GpuContext,
     renderer: &StripRenderer,
@@ -166,7 +169,11 @@ pub fn render_reference_columns(
         let settings = RenderSettings {
             spp: batch_spp,
             seed: f.seed.wrapping_add(batch.wrapping_mul(0x9E37_79B9)),
-            lighting: LightingMode::Reference,
+            lighting: if super::method(f.lighting).kernel == Kernel::Reference {
+                f.lighting
+            } else {
+                LightingMode::Reference
+            },
             ..*f
         };
         for &(x0, x1, out) in &chunks {

@@ -115,6 +115,11 @@ pub struct GpuModel {
     pub leaf_area: f32,
     /// 1 when its leaves have envelope distances.
     pub has_envelope: u32,
+    /// Boulanger et al.: its leaves' mean albedo, linear RGB (the
+    /// neighbours whose scattered sun light reaches its wood).
+    pub leaf_albedo: [f32; 3],
+    /// Padding.
+    pub pad2: u32,
 }
 
 /// The indirect light that reaches the ground under a stand: the forest
@@ -528,8 +533,8 @@ fn push_model(
                     "envelope of model {} has the wrong size",
                     sm.name
                 );
-                (gm.tau, gm.leaf_density, gm.leaf_area, gm.has_envelope) =
-                    (e.tau, e.leaf_density, e.leaf_area, 1);
+                (gm.tau, gm.leaf_density, gm.leaf_area, gm.has_envelope, gm.leaf_albedo) =
+                    (e.tau, e.leaf_density, e.leaf_area, 1, e.leaf_albedo);
                 f.envelope.extend(e.s_max.iter().flatten());
             }
             None => f.envelope.extend(std::iter::repeat_n(0.0, 8 * model.triangles.len())),

@@ -50,6 +50,8 @@ struct MethodReport {
     rmse: f64,
     /// Mean of |method − reference| / reference luminance over lit pixels.
     mean_relative_error: f64,
+    /// Per channel, the method's image mean over lit pixels over the reference's.
+    mean_ratio: [f64; 3],
     /// RMS of the indirect component's error (method − local against
     /// reference − local) over the RMS of the reference's indirect light.
     indirect_relative_error: f64,
@@ -173,6 +175,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     let (local, local_again) = (rendered[0].image.clone(), rendered[0].again.clone());
     for m in &mut rendered {
         (m.report.rmse, m.report.mean_relative_error) = errors(&m.image, &reference, &lit);
+        m.report.mean_ratio = mean_ratio(&m.image, &reference, &lit);
         let l = match &m.own_local {
             Some((a, b)) => [a, b],
             None => [&local, &local_again],
@@ -182,6 +185,39 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         m.report.indirect_error_net = ind.net;
         m.report.indirect_noise_reference = ind.reference_noise;
         m.report.indirect_noise_method = ind.method_noise;
+    }
+    // Boulanger et al. against what their model holds, as their paper
+    // compares: the direct sky and one bounce of sun light, from a
+    // converged one-bounce gather (far end dark, ground lit by the sky).
+    if let Some(b) = rendered.iter_mut().find(|m| m.report.lighting == LightingMode::Boulanger) {
+        say("one-bounce reference (Boulanger's terms)");
+        let one = one_bounce_reference(&a, &ctx, &scene, &settings, &|m| say(m))?;
+        let e = IndirectError::measure([&b.image, &b.again], [&local, &local_again], &one, &lit);
+        let indirect_mean = |img: &HdrImage, loc: &HdrImage| -> [f64; 3] {
+            let n = lit.iter().filter(|&&l| l).count().max(1) as f64;
+            std::array::from_fn(|c| {
+                lit.iter()
+                    .enumerate()
+                    .filter(|(_, l)| **l)
+                    .map(|(i, _)| (img.pixels[i][c] - loc.pixels[i][c]) as f64)
+                    .sum::<f64>()
+                    / n
+            })
+        };
+        let ratio = |x: [f64; 3], y: [f64; 3]| -> [f64; 3] { [0, 1, 2].map(|c| x[c] / y[c]) };
+        let (mb, mo, mr) = (
+            indirect_mean(&b.image, &local),
+            indirect_mean(&one.image, &one.local),
+            indirect_mean(&r.image, &r.local),
+        );
+        b.report.notes["paper_form"] = json!({
+            "what": "its indirect light (image − local) against a one-bounce reference: direct sky and one bounce of sun light, the terms the paper models and compares",
+            "one_bounce_reference": { "spp": one.stats.spp, "relative_standard_error": one.stats.relative_error, "converged": one.stats.converged },
+            "indirect_error": e.raw,
+            "indirect_error_net": e.net,
+            "mean_ratio": ratio(mb, mo),
+            "one_bounce_share_of_all_indirect": ratio(mo, mr),
+        });
     }
     // Per crown: each instance's mean indirect light, reference and methods.
     let ids = crowns::instance_ids(&scene, a.width, a.height);
@@ -231,6 +267,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         frame_ms: r.stats.ms,
         rmse: 0.0,
         mean_relative_error: 0.0,
+        mean_ratio: [1.0; 3],
         indirect_relative_error: 0.0,
         image: ref_png.display().to_string(),
         indirect_error_net: 0.0,
@@ -550,6 +587,7 @@ fn empty_report() -> MethodReport {
         frame_ms: 0.0,
         rmse: 0.0,
         mean_relative_error: 0.0,
+        mean_ratio: [0.0; 3],
         indirect_relative_error: 0.0,
         indirect_error_net: 0.0,
         indirect_noise_reference: 0.0,
@@ -645,6 +683,7 @@ fn render_method(
             frame_ms,
             rmse: 0.0,
             mean_relative_error: 0.0,
+            mean_ratio: [0.0; 3],
             indirect_relative_error: 0.0,
             indirect_error_net: 0.0,
             indirect_noise_reference: 0.0,
@@ -760,6 +799,50 @@ fn errors(m: &HdrImage, r: &HdrImage, lit: &[bool]) -> (f64, f64) {
     }
     let n = n.max(1) as f64;
     ((se / (3.0 * n)).sqrt(), rel / n)
+}
+
+/// Per channel, the mean of `m` over lit pixels over the reference `r`'s.
+fn mean_ratio(m: &HdrImage, r: &HdrImage, lit: &[bool]) -> [f64; 3] {
+    let (mut a, mut b) = ([0.0f64; 3], [0.0f64; 3]);
+    for (i, _) in lit.iter().enumerate().filter(|(_, l)| **l) {
+        for c in 0..3 {
+            a[c] += m.pixels[i][c] as f64;
+            b[c] += r.pixels[i][c] as f64;
+        }
+    }
+    [0, 1, 2].map(|c| if b[c] > 0.0 { a[c] / b[c] } else { 0.0 })
+}
+
+/// The one-bounce image Boulanger et al.'s terms model, converged as the
+/// reference is: a gather one bounce deep whose far end is dark (the
+/// matched constant set to zero) and whose ground is lit by the sky, with
+/// a quarter of the reference's time at most (its paths are short).
+fn one_bounce_reference(
+    a: &CompareArgs,
+    ctx: &GpuContext,
+    scene: &Scene,
+    settings: &RenderSettings,
+    say: &dyn Fn(&str),
+) -> anyhow::Result<ReferenceImage> {
+    let prepared = prepare(ctx, scene, AccelKind::Bvh, LightingMode::GatherAmbient, say)?;
+    let f = RenderSettings {
+        lighting: LightingMode::GatherAmbient,
+        ambient: [0.0; 3],
+        gather_bounces: 1,
+        gather_filter: 0,
+        ..*settings
+    };
+    let opts = ReferenceOptions {
+        target_error: a.target_error,
+        max_seconds: a.max_seconds / 4.0,
+        ..Default::default()
+    };
+    render_reference(ctx, &prepared.renderer, &f, &opts, &|s| {
+        say(&format!(
+            "one-bounce reference: {} spp, relative standard error {:.4}",
+            s.spp, s.relative_error
+        ))
+    })
 }
 
 /// Writes a linear image as float32 `.npy`, height × width × 3.
