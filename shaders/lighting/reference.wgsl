@@ -202,7 +202,7 @@ fn seed_path(x: u32, y: u32, s: u32) {
 // One path per invocation: on lavapipe (Mesa 22.3) a loop over samples
 // around the loop over bounces silently dropped samples of lanes whose paths
 // ended early (up to 20 % of the samples of a forest frame).
-fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 3> {
+fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 4> {
     var depth = 0u;
     var ray = camera_ray(x, y, s);
     seed_path(x, y, s);
@@ -311,5 +311,12 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 3> {
         }
         depth += 1u;
     }
-    return array<vec4<f32>, 3>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit));
+    // The indirect light of a sample whose first event is a surface: what
+    // the gathers' filter averages as that surface's irradiance. A sample
+    // that scattered in a cloud first lit no surface; its part of
+    // `light − first_light` is the cloud's, and spread as leaf irradiance
+    // (divided by the few leaf samples' albedo) it whitened the crowns
+    // in front of a cloud.
+    let surface_indirect = select(vec3<f32>(0.0), light - first_light, first_surface_hit > 0.0);
+    return array<vec4<f32>, 4>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit), vec4<f32>(surface_indirect, 0.0));
 }

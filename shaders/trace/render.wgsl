@@ -478,12 +478,13 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         // sample_base + gid.z of the frame's, in its own slot of this
         // batch (the worker sums them); after the batch's samples, what
         // `local` shows along the same camera rays and the first hit's
-        // distance, then its albedo (reference.wgsl).
+        // distance, then its albedo, then the indirect light of a sample
+        // whose first event is a surface (reference.wgsl).
         let r = reference_sample(x, y, frame.sample_base + gid.z);
         let slots = frame.strip_width * frame.height;
-        out_pixels[pixel + gid.z * slots] = r[0];
-        out_pixels[pixel + (frame.batch_spp + gid.z) * slots] = r[1];
-        out_pixels[pixel + (2u * frame.batch_spp + gid.z) * slots] = r[2];
+        for (var k = 0u; k < 4u; k++) {
+            out_pixels[pixel + (k * frame.batch_spp + gid.z) * slots] = r[k];
+        }
         atomicAdd(&counters.transparent, transparent_passed);
         atomicAdd(&counters.primary, 1u);
         return;

@@ -23,7 +23,9 @@
 //! the model's own triangles with the alpha test, counting those that
 //! escape. A bin with no open ray gets half a ray's worth (T = 1/32), the
 //! estimate's resolution. Everything downstream (eqs. 6–8, 11, 18–25) is
-//! the paper's, unchanged.
+//! the paper's, unchanged; the renderer takes the direct sun from its own
+//! shadow ray rather than eq. 8, and lets the sun light the ground below
+//! the horizon (docs/lighting.md, "Boulanger et al.").
 //!
 //! τ = ρ A / 2 with ρ = leaves / envelope volume, the volume being the
 //! occupied cells of a coarse grid of leaf centres (24 cells on the

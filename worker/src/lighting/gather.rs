@@ -55,7 +55,8 @@ pub fn crown_depth(scene: &sylva_scene::Scene) -> f32 {
         .fold(f32::INFINITY, f32::min)
 }
 
-/// Filters the gathered indirect light (paths − first) of a strip `width`
+/// Filters the gathered indirect light (of the samples whose first event
+/// is a surface: `SampleMeans::surface_indirect`) of a strip `width`
 /// pixels wide, where its noise and not the light itself varies from
 /// pixel to pixel. Per pixel and channel, in irradiance (indirect light
 /// over the albedo its first surface shows a diffuse field, so leaf and
@@ -91,11 +92,11 @@ pub fn filter_indirect(
             std::array::from_fn(|c| {
                 let a = m.guide[i][c] as f64;
                 (m.guide[i][3] > 0.0 && a > 1e-6).then(|| {
-                    // Indirect light is never negative: a difference
-                    // below zero is the two f32 means' rounding, which the
-                    // division by a small albedo (a leaf's edge, one
-                    // sample of a dark channel) would make large.
-                    let y = ((m.paths[i][c] - m.first[i][c]) as f64 / a).max(0.0);
+                    // Indirect light is never negative: a mean below zero
+                    // is rounding, which the division by a small albedo
+                    // (a leaf's edge, one sample of a dark channel) would
+                    // make large.
+                    let y = (m.surface_indirect[i][c] as f64 / a).max(0.0);
                     (y, m.indirect_variance[i][c] as f64 / (a * a))
                 })
             })
@@ -137,7 +138,10 @@ pub fn filter_indirect(
                     }
                 }
                 if count > 0 {
-                    out[p][c] = m.first[p][c] + m.guide[p][c] * (sum / count as f64) as f32;
+                    // Only the surfaces' indirect light is replaced: the
+                    // sky's and a cloud's samples keep theirs.
+                    out[p][c] = m.paths[p][c] - m.surface_indirect[p][c]
+                        + m.guide[p][c] * (sum / count as f64) as f32;
                 }
             }
         }
@@ -156,6 +160,7 @@ mod tests {
         SampleMeans {
             paths: ind.iter().map(|&v| [0.1 + v; 4]).collect(),
             first: d.iter().map(|&d| [0.1, 0.1, 0.1, d]).collect(),
+            surface_indirect: ind.iter().map(|&v| [v, v, v, 0.0]).collect(),
             guide: alb.iter().map(|&a| [a, a, a, if a > 0.0 { 1.0 } else { 0.0 }]).collect(),
             indirect_variance: alb.iter().map(|&a| [noise * a * a; 3]).collect(),
         }
@@ -204,6 +209,7 @@ mod tests {
         // (one dark sample among many): −0.01 irradiance without the floor.
         let mut m = strip(&[0.0, 0.0, 0.0], &[0.5, 1e-4, 0.5], &[10.0; 3], 0.01);
         m.paths[1] = [0.1 - 1e-6; 4];
+        m.surface_indirect[1] = [-1e-6; 4];
         filter_indirect(&mut m, 3, 1, 2.0);
         for p in &m.paths {
             assert!(p[..3].iter().all(|&v| v >= 0.1 - 1e-6), "{:?}", m.paths);
@@ -211,5 +217,24 @@ mod tests {
         for p in [0, 2] {
             assert!(m.paths[p][0] >= 0.1, "{:?}", m.paths);
         }
+    }
+
+    #[test]
+    fn a_clouds_light_is_not_spread_as_a_leafs() {
+        // Pixel 1 sees a leaf at 10 m in half its samples and a bright
+        // cloud in the rest: its path mean holds the cloud's 2.0 beyond its
+        // first light, none of which is the leaf's indirect light. The
+        // noise is large enough that all three pixels' leaf light averages.
+        let mut m = strip(&[0.05, 0.05, 0.05], &[0.5, 0.25, 0.5], &[10.0; 3], 10.0);
+        m.paths[1] = [0.1 + 0.05 + 2.0; 4];
+        (m.guide[1][3], m.first[1][3]) = (0.5, 5.0);
+        filter_indirect(&mut m, 3, 1, 2.0);
+        // Irradiance 0.1, 0.2, 0.1 (the cloud's counted, 8.2 at pixel 1):
+        // the ends take the mean of two, 0.15; the middle of three.
+        for i in [0, 2] {
+            assert!((m.paths[i][0] - (0.1 + 0.5 * 0.15)).abs() < 1e-6, "{i}: {:?}", m.paths);
+        }
+        let middle = 0.1 + 2.0 + 0.25 * (0.4 / 3.0);
+        assert!((m.paths[1][0] - middle).abs() < 1e-6, "{:?}", m.paths);
     }
 }

@@ -14,10 +14,11 @@ use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
 
 const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
-/// Bytes one sample of the per-sample kernel writes per pixel: three
-/// images of four floats (the path, `local` along it and the first
-/// surface's guides; `reference.wgsl`'s `reference_sample`).
-pub const SAMPLE_BYTES_PER_PIXEL: u64 = 3 * 16;
+/// Bytes one sample of the per-sample kernel writes per pixel: four
+/// images of four floats (the path, `local` along it, the first
+/// surface's guides and its indirect light; `reference.wgsl`'s
+/// `reference_sample`).
+pub const SAMPLE_BYTES_PER_PIXEL: u64 = 4 * 16;
 /// Longest path the reference integrator follows.
 pub const MAX_BOUNCES: u32 = 16;
 
@@ -180,7 +181,7 @@ pub struct RenderedStrip {
     pub rays: RayCounts,
 }
 
-/// Per pixel, the means over its samples of the per-sample kernel's three
+/// Per pixel, the means over its samples of the per-sample kernel's four
 /// images (`reference.wgsl`'s `reference_sample`).
 pub struct SampleMeans {
     /// The paths' radiance, and the fraction of samples that hit a model.
@@ -191,8 +192,13 @@ pub struct SampleMeans {
     /// The albedo a diffuse field sees at the first surface, and the
     /// fraction of samples that hit a surface (model or ground).
     pub guide: Vec<[f32; 4]>,
-    /// Per channel, the variance of the mean of `paths − first` (the
-    /// indirect light) from its samples' spread; 0 with one sample.
+    /// The indirect light of the samples whose first event is a surface
+    /// (0 for the rest: the sky's, or a cloud's light before any surface):
+    /// `paths − first` without what clouds add in front of or behind the
+    /// surfaces. The fourth value is unused.
+    pub surface_indirect: Vec<[f32; 4]>,
+    /// Per channel, the variance of the mean of `surface_indirect` from
+    /// its samples' spread; 0 with one sample.
     pub indirect_variance: Vec<[f32; 3]>,
 }
 
@@ -392,9 +398,9 @@ impl StripRenderer {
             uniform.height,
             sample_bytes
         );
-        let mut sums = vec![[0.0f32; 4]; 3 * n];
-        // Per pixel and channel, Σ (path − first)² over its samples: the
-        // spread of its indirect light, which the gathers' filter weighs.
+        let mut sums = vec![[0.0f32; 4]; 4 * n];
+        // Per pixel and channel, Σ (surface indirect)² over its samples:
+        // the spread of its indirect light, which the gathers' filter weighs.
         let mut ind_sq = vec![[0.0f64; 3]; n];
         let mut rays = RayCounts::default();
         for base in (0..spp).step_by(batch as usize) {
@@ -402,12 +408,12 @@ impl StripRenderer {
             let u = FrameUniform { sample_base: base, batch_spp, ..*uniform };
             let (all, counts) =
                 self.dispatch(ctx, kernel, &u, batch_spp as u64 * sample_bytes, batch_spp)?;
-            // Three images, each `batch_spp` slots of `n` pixels.
-            let (paths, rest) = all.split_at(n * batch_spp as usize);
-            for (path, first) in paths.chunks_exact(n).zip(rest.chunks_exact(n)) {
-                for ((a, p), f) in ind_sq.iter_mut().zip(path).zip(first) {
+            // Four images, each `batch_spp` slots of `n` pixels.
+            let indirect = &all[3 * n * batch_spp as usize..];
+            for slot in indirect.chunks_exact(n) {
+                for (a, v) in ind_sq.iter_mut().zip(slot) {
                     for c in 0..3 {
-                        a[c] += ((p[c] - f[c]) as f64).powi(2);
+                        a[c] += (v[c] as f64).powi(2);
                     }
                 }
             }
@@ -426,15 +432,15 @@ impl StripRenderer {
         }
         let mut mean = sums.into_iter().map(|a| a.map(|v| v / spp as f32));
         let mut take = || (&mut mean).take(n).collect::<Vec<_>>();
-        let (paths, first, guide) = (take(), take(), take());
+        let (paths, first, guide, surface_indirect) = (take(), take(), take(), take());
         // The variance of each pixel's mean indirect light, from its samples' spread.
         let k = spp as f64;
         let indirect_variance = ind_sq
             .iter()
-            .zip(paths.iter().zip(&first))
-            .map(|(sq, (p, f))| {
+            .zip(&surface_indirect)
+            .map(|(sq, s)| {
                 std::array::from_fn(|c| {
-                    let mean = (p[c] - f[c]) as f64;
+                    let mean = s[c] as f64;
                     if spp < 2 {
                         0.0
                     } else {
@@ -443,7 +449,7 @@ impl StripRenderer {
                 })
             })
             .collect();
-        Ok((SampleMeans { paths, first, guide, indirect_variance }, rays))
+        Ok((SampleMeans { paths, first, guide, surface_indirect, indirect_variance }, rays))
     }
 
     /// One dispatch of the method's kernel with `uniform`, `depth` samples
