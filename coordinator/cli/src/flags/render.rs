@@ -90,7 +90,10 @@ impl clap::ValueEnum for LightingChoice {
 
     fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
         match self {
-            LightingChoice::Auto => Some(clap::builder::PossibleValue::new("auto")),
+            LightingChoice::Auto => Some(
+                clap::builder::PossibleValue::new("auto")
+                    .help("The method and its parameters a pilot on the scene picks (render only)"),
+            ),
             LightingChoice::Method(m) => m.to_possible_value(),
         }
     }
