@@ -155,6 +155,11 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     assert!(started(&q3) <= started(&q2), "the raised job runs first: {listed:?}");
     assert_eq!(job(&listed, &q1)["state"], "cancelled");
     assert_eq!(job(&listed, &long)["state"], "cancelled");
+    // A finished job's priority orders nothing: changing it is refused.
+    let out = sylva(&["priority", &q2, "9", "--coordinator", &addr], &[("SYLVA_USER", "alice")]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("is done: its priority orders nothing"), "{err}");
+    assert_eq!(job(&jobs(&addr), &q2)["priority"], 0);
     assert!(
         job(&listed, &q1)["started_unix_ms"].is_null(),
         "a job cancelled in the queue never started"

@@ -716,6 +716,25 @@ async fn bad_specs_and_strings_are_refused_at_submit() {
         e.code() == Code::InvalidArgument && e.message().contains("job name of 4194304 bytes"),
         "{e:?}"
     );
+    // Names that would drive the terminal of whoever lists the jobs: an
+    // escape that retitles and clears it, a forged row, a right-to-left override.
+    for (name, submitter) in [
+        ("ok\u{1b}]0;TITLE\u{7}\u{1b}[2J", "alice"),
+        ("ok\r\njob-999 done", "alice"),
+        ("gpj.exe\u{202e}", "alice"),
+        ("fine", "\u{2067}mallory"),
+    ] {
+        let mut s = spec(16, 8);
+        (s.name, s.submitter) = (name.into(), submitter.into());
+        let e = c
+            .submit_job(tokio_stream::iter(submission(s, &b.hash, &b.bytes, b.bytes.len() as u64)))
+            .await
+            .unwrap_err();
+        assert!(
+            e.code() == Code::InvalidArgument && e.message().contains("bidirectional formatting"),
+            "{name:?} {submitter:?}: {e:?}"
+        );
+    }
     let e = c
         .fetch_result(pb::FetchRequest {
             id: "x".repeat(1 << 20),

@@ -66,8 +66,27 @@ fn now_ms() -> u64 {
         .unwrap_or(0)
 }
 
-/// Left-aligned columns, two spaces apart, the header first.
+/// `s` as it may reach a terminal: the characters the coordinator refuses
+/// in names (control, bidirectional formatting) written as `\u{…}`, since
+/// a worker's error text or an older coordinator's job name may hold them.
+fn escaped(s: &str) -> String {
+    s.chars()
+        .map(|c| {
+            if sylva_coordinator::service::unprintable(c) {
+                format!("\\u{{{:x}}}", c as u32)
+            } else {
+                c.to_string()
+            }
+        })
+        .collect()
+}
+
+/// Left-aligned columns, two spaces apart, the header first; every cell
+/// [`escaped`].
 fn table(header: &[&str], rows: &[Vec<String>]) -> String {
+    let rows: Vec<Vec<String>> =
+        rows.iter().map(|r| r.iter().map(|c| escaped(c)).collect()).collect();
+    let rows = &rows;
     let mut width: Vec<usize> = header.iter().map(|h| h.chars().count()).collect();
     for r in rows {
         for (w, c) in width.iter_mut().zip(r) {
@@ -332,6 +351,20 @@ mod tests {
             &[vec!["job-1".into(), "done".into()], vec!["j".into(), "queued".into()]],
         );
         assert_eq!(t, "ID     STATE\njob-1  done\nj      queued\n");
+    }
+
+    #[test]
+    fn text_from_outside_cannot_drive_the_terminal() {
+        // A worker's error that would retitle and clear the terminal, then
+        // forge a row; a name turned around by a right-to-left override.
+        let t = table(
+            &["ID", "ERROR"],
+            &[vec!["job-1".into(), "ok\u{1b}]0;T\u{7}\u{1b}[2J\r\njob-2  done".into()]],
+        );
+        assert!(!t.chars().any(|c| c.is_control() && c != '\n'), "{t:?}");
+        assert_eq!(t.lines().count(), 2, "{t}");
+        assert!(t.contains("ok\\u{1b}]0;T\\u{7}\\u{1b}[2J\\u{d}\\u{a}job-2"), "{t}");
+        assert_eq!(escaped("exe.\u{202e}gpj"), "exe.\\u{202e}gpj");
     }
 
     #[test]

@@ -51,10 +51,11 @@ pub fn job_spec(
     }
 }
 
-/// `s` cut at a character so it holds at most `max` bytes, without control characters.
+/// `s` cut at a character so it holds at most `max` bytes, without the
+/// characters the coordinator refuses (control and bidirectional formatting).
 fn cut(s: &str, max: usize) -> String {
     s.chars()
-        .filter(|c| !c.is_control())
+        .filter(|&c| !sylva_coordinator::service::unprintable(c))
         .scan(0, |n, c| {
             (*n + c.len_utf8() <= max).then(|| {
                 *n += c.len_utf8();

@@ -231,6 +231,13 @@ impl CoordinatorService {
         let summary = {
             let mut jobs = lock(&self.state.jobs);
             let j = jobs.get_mut(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            // An ended job is never queued again: a priority would order nothing.
+            if j.state.ended() {
+                return Err(Status::failed_precondition(format!(
+                    "job {id} is {}: its priority orders nothing any more",
+                    j.state
+                )));
+            }
             j.spec.priority = r.priority;
             j.summary.priority = r.priority;
             j.summary.clone()
@@ -270,9 +277,14 @@ fn checked_spec(spec: &pb::JobSpec) -> Result<(FrameSettings, ScheduleKind, Vec<
             spec.name.len()
         )));
     }
-    if spec.submitter.len() > MAX_SUBMITTER || spec.submitter.chars().any(char::is_control) {
+    if spec.name.chars().any(super::unprintable) {
+        return Err(Status::invalid_argument(
+            "job name: no control or bidirectional formatting characters",
+        ));
+    }
+    if spec.submitter.len() > MAX_SUBMITTER || spec.submitter.chars().any(super::unprintable) {
         return Err(Status::invalid_argument(format!(
-            "submitter name: at most {MAX_SUBMITTER} bytes, no control characters"
+            "submitter name: at most {MAX_SUBMITTER} bytes, no control or bidirectional formatting characters"
         )));
     }
     Ok((frame, schedule, views))
