@@ -371,10 +371,24 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     let (status, _) = post(
         &http,
         &format!("/api/jobs/{long}/cancel"),
-        &format!("Cookie: sylva_token={TOKEN}\r\n"),
+        &format!("Cookie: sylva_token={TOKEN}\r\nContent-Type: application/json\r\n"),
     )
     .await;
     assert_eq!(status, 401);
+    // A form on another site can post only text/plain: refused with the
+    // token too, and the job goes on.
+    let (status, _) = post(
+        &http,
+        &format!("/api/jobs/{long}/cancel"),
+        &format!("Authorization: Bearer {TOKEN}\r\nContent-Type: text/plain\r\n"),
+    )
+    .await;
+    assert_eq!(status, 415);
+    let listed = c.list_jobs(sylva_proto::pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
+    assert_ne!(
+        listed.iter().find(|j| j.id == long).unwrap().state,
+        sylva_proto::pb::JobState::Cancelled as i32
+    );
     let shot = b
         .call("Page.captureScreenshot", json!({ "format": "png", "captureBeyondViewport": true }))
         .await;

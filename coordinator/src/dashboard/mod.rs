@@ -235,11 +235,32 @@ async fn preview(
         .into_response()
 }
 
+/// Whether a request that changes the farm says it is JSON. A form on
+/// another site can post only text/plain or a form encoding without the
+/// browser asking this server first (a CORS preflight it never answers),
+/// so a write in any other type is refused, token or not.
+fn json_write(headers: &HeaderMap) -> bool {
+    headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.split(';').next())
+        .is_some_and(|t| t.trim().eq_ignore_ascii_case("application/json"))
+}
+
+/// The answer to a write that is not JSON.
+fn not_json() -> Response {
+    (StatusCode::UNSUPPORTED_MEDIA_TYPE, "changes take Content-Type: application/json")
+        .into_response()
+}
+
 async fn cancel(
     State(service): State<CoordinatorService>,
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Response {
+    if !json_write(&headers) {
+        return not_json();
+    }
     if !service.accepts_token(token(&headers, false).as_deref()) {
         return refused();
     }
@@ -256,6 +277,9 @@ async fn priority(
     Path(id): Path<String>,
     body: String,
 ) -> Response {
+    if !json_write(&headers) {
+        return not_json();
+    }
     if !service.accepts_token(token(&headers, false).as_deref()) {
         return refused();
     }
@@ -285,5 +309,21 @@ mod tests {
         assert_eq!(token(&h, false), None, "a cookie does not authorise a change");
         h.insert(header::AUTHORIZATION, "Bearer abc".parse().unwrap());
         assert_eq!(token(&h, false).as_deref(), Some("abc"));
+    }
+
+    #[test]
+    fn only_json_changes_the_farm() {
+        let mut h = HeaderMap::new();
+        assert!(!json_write(&h), "no type");
+        for (t, ok) in [
+            ("application/json", true),
+            ("Application/JSON; charset=utf-8", true),
+            ("text/plain", false),
+            ("application/x-www-form-urlencoded", false),
+            ("multipart/form-data; boundary=x", false),
+        ] {
+            h.insert(header::CONTENT_TYPE, t.parse().unwrap());
+            assert_eq!(json_write(&h), ok, "{t}");
+        }
     }
 }
