@@ -74,18 +74,13 @@ pub enum LightingChoice {
 
 impl clap::ValueEnum for LightingChoice {
     fn value_variants<'a>() -> &'a [Self] {
-        use LightingMode::*;
-        &[
-            LightingChoice::Auto,
-            LightingChoice::Method(Local),
-            LightingChoice::Method(Ambient),
-            LightingChoice::Method(Lb),
-            LightingChoice::Method(LbVisualize),
-            LightingChoice::Method(Boulanger),
-            LightingChoice::Method(Gather),
-            LightingChoice::Method(GatherAmbient),
-            LightingChoice::Method(Reference),
-        ]
+        // `auto`, then every method in `LightingMode::ALL`'s order.
+        static ALL: std::sync::LazyLock<Vec<LightingChoice>> = std::sync::LazyLock::new(|| {
+            std::iter::once(LightingChoice::Auto)
+                .chain(LightingMode::ALL.map(LightingChoice::Method))
+                .collect()
+        });
+        &ALL
     }
 
     fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {

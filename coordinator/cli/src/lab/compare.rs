@@ -704,10 +704,7 @@ fn render_whole(
     prepared: &sylva_worker::prepare::PreparedScene,
     f: &RenderSettings,
 ) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
-    let s = prepared.renderer.render_strip(ctx, f, 0, f.width)?;
-    let image = |pixels: Vec<[f32; 3]>| HdrImage { width: f.width, height: f.height, pixels };
-    let local = (!s.first_light.is_empty()).then(|| image(s.first_light));
-    Ok((image(s.pixels), local))
+    crate::lab::pilot::render_columns(ctx, &prepared.renderer, f, &[(0, f.width)])
 }
 
 /// A method's name as a file name: `lb 32³ + forest grid` → `lb-32-forest-grid`.

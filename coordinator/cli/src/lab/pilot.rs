@@ -252,7 +252,7 @@ pub fn choose(
     let mut measured = Vec::new();
     // Per sampled family: its frame's fixed and per-ray milliseconds.
     let mut timings: Vec<(String, f64, f64)> = Vec::new();
-    let local = render(ctx, &first.renderer, &base, &columns)?.0;
+    let local = render_columns(ctx, &first.renderer, &base, &columns)?.0;
     for (g, _, p, pre_ms) in &preparations {
         let mut run = |family: &str, f: RenderSettings, pre: f64| -> anyhow::Result<()> {
             let sampled =
@@ -275,7 +275,7 @@ pub fn choose(
             } else {
                 time_frame(p, &f)?
             };
-            let (image, own) = render(ctx, &p.renderer, &f, &columns)?;
+            let (image, own) = render_columns(ctx, &p.renderer, &f, &columns)?;
             let l = own.as_ref().unwrap_or(&local);
             let e = IndirectError::measure([&image, &image], [l, l], &reference, &lit);
             measured.push(Measured {
@@ -363,7 +363,7 @@ fn grid_name(g: Option<usize>) -> String {
 
 /// `columns` of the frame side by side, as one image: the method's and,
 /// from the per-sample kernels, what `local` shows along the same samples.
-fn render(
+pub fn render_columns(
     ctx: &GpuContext,
     renderer: &sylva_worker::trace::StripRenderer,
     f: &RenderSettings,
