@@ -483,6 +483,10 @@ fn compare_lists_every_method_with_its_time_and_error() {
     assert_eq!(pt.len(), 5, "{pt:?}");
     let raw = |p: &Value| p["raw"].as_f64().unwrap();
     assert!(raw(&pt[4]) < raw(&pt[0]), "{pt:?}");
+    // Each point has more samples than the one before, however fast the reference was.
+    let spp =
+        |p: &Value| p["name"].as_str().unwrap().split(' ').nth(2).unwrap().parse::<u32>().unwrap();
+    assert!(pt.windows(2).all(|w| spp(&w[1]) >= 2 * spp(&w[0])), "{pt:?}");
     assert!(pt.windows(2).all(|w| w[1]["ms"].as_f64() >= w[0]["ms"].as_f64()), "{pt:?}");
     let front = v["front"].as_array().unwrap();
     assert!(!front.is_empty() && front.windows(2).all(|w| raw(&w[1]) < raw(&w[0])), "{front:?}");

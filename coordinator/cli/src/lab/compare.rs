@@ -722,8 +722,10 @@ const PROGRESSIVE_FRACTIONS: [f64; 5] = [0.01, 0.02, 0.05, 0.1, 0.2];
 /// the pixel's centre, and centre samples alone would count edge aliasing
 /// as error that never falls): its raw indirect error
 /// against the reference (indirect light along its own samples, as the
-/// reference's) at 1, 2, 5, 10 and 20 % of the reference's time. What
-/// brute force reaches at the cost of each fast method.
+/// reference's) at 1, 2, 5, 10 and 20 % of the reference's time, and at
+/// least twice the passes of the point before (a fast reference would
+/// otherwise put every point at one pass). What brute force reaches at the
+/// cost of each fast method.
 fn progressive_path_tracer(
     ctx: &GpuContext,
     scene: &Scene,
@@ -740,7 +742,8 @@ fn progressive_path_tracer(
     let mut passes = 0u32;
     for &fraction in &PROGRESSIVE_FRACTIONS {
         let until = fraction * r.stats.ms;
-        while passes == 0 || ms(t) < until {
+        let at_least = (2 * passes).max(1);
+        while passes < at_least || ms(t) < until {
             let settings = RenderSettings {
                 spp: PROGRESSIVE_PASS_SPP,
                 seed: (f.seed ^ PROGRESSIVE_SEED).wrapping_add(passes.wrapping_mul(0x9E37_79B9)),
