@@ -530,24 +530,14 @@ async fn finished_jobs_and_folders_are_freed() {
     let w =
         spawn(&["worker", "--listen", "127.0.0.1:0", "--cache-dir", cache.to_str().unwrap()], &[]);
     let coord = spawn(
-        &[
-            "coordinator",
-            "--listen",
-            "127.0.0.1:0",
-            "--workers",
-            &w.addr,
-            "--keep-results-s",
-            "1",
-            "--results-memory-mib",
-            "0",
-        ],
+        &["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr, "--keep-results-s", "1"],
         &[],
     );
     let work = folder_of(coord.child.id(), "sylva-coordinator");
     let mut c = coordinator(&coord.addr, None).await;
     let end = submit_and_wait(&mut c, spec(32, 16), &b, |_| {}).await;
     assert_eq!(sylva_coordinator::service::wire_name(end.state), "done");
-    // With no memory budget, the result went to disk; it is still served.
+    // The result is a file of the state folder; it is served from there.
     let png = c
         .fetch_result(pb::FetchRequest {
             id: end.id.clone(),

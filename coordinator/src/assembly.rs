@@ -105,6 +105,27 @@ impl Assembly {
     pub fn complete(&self) -> bool {
         self.filled.iter().all(|&f| f)
     }
+
+    /// The parts of `plan`'s strips whose columns are not filled yet, in
+    /// plan order: what is left to render of a frame begun before.
+    pub fn open_columns(&self, plan: &[Strip]) -> Vec<Strip> {
+        let mut out = Vec::new();
+        for &(x0, x1) in plan {
+            let mut start = None;
+            for x in x0..=x1.min(self.image.width) {
+                let open = x < x1 && !self.filled[x as usize];
+                match (open, start) {
+                    (true, None) => start = Some(x),
+                    (false, Some(s)) => {
+                        out.push((s, x));
+                        start = None;
+                    }
+                    _ => {}
+                }
+            }
+        }
+        out
+    }
 }
 
 #[cfg(test)]
@@ -119,6 +140,17 @@ mod tests {
             coverage: vec![1.0; n],
             rays: RayCounts { primary: n as u64, ..RayCounts::default() },
         }
+    }
+
+    #[test]
+    fn a_frame_begun_before_leaves_only_its_open_columns() {
+        let mut a = Assembly::new(10, 2);
+        a.add(&strip(2, 4, 2)).unwrap();
+        a.add(&strip(6, 10, 2)).unwrap();
+        assert_eq!(a.open_columns(&[(0, 5), (5, 10)]), vec![(0, 2), (4, 5), (5, 6)]);
+        a.add(&strip(0, 2, 2)).unwrap();
+        a.add(&strip(4, 6, 2)).unwrap();
+        assert!(a.open_columns(&[(0, 10)]).is_empty() && a.complete());
     }
 
     #[test]

@@ -55,6 +55,9 @@ pub enum FarmEvent {
     /// What the farm is doing now, in words: sending the scene, one worker
     /// preparing it, sharing what it prepared, tracing.
     Stage(String),
+    /// The strips this run will render (fewer than planned when an earlier
+    /// run left frames or strips).
+    Planned { strips: usize },
 }
 
 /// How a job's scene was prepared once for the farm.
@@ -141,9 +144,17 @@ pub async fn upload(client: &mut Client, bundle: &SceneBundle) -> Result<u64, to
 struct Shared {
     /// (frame, strip) in pull order.
     queue: Mutex<VecDeque<(usize, Strip)>>,
-    /// Checked strips with their frame, render and RPC times.
-    done: Mutex<Vec<(usize, StripPixels, f64, f64)>>,
-    total: usize,
+    /// Frames with strips in: only those in flight.
+    open: Mutex<std::collections::HashMap<usize, OpenFrame>>,
+    /// Per frame, strips not yet in.
+    left: Mutex<Vec<usize>>,
+    /// Strips not yet in, all frames.
+    remaining: Mutex<usize>,
+    /// Every frame's width and height.
+    size: (u32, u32),
+    upload_ms: f64,
+    prepared: Option<PreparedShare>,
+    out: tokio::sync::mpsc::Sender<Finished>,
 }
 
 /// Where and how to reach the workers.
@@ -362,10 +373,9 @@ pub async fn render_frame(
     Ok(frames.pop().expect("one frame"))
 }
 
-/// Renders every frame of a sequence (same size, own views) of `bundle` on
-/// `workers`: all (frame, strip) pairs go on one queue, frame by frame in
-/// `plans` order, so idle workers start the next frame while the last
-/// strips of one finish. Each frame carries the whole job's worker reports.
+/// Renders every frame of a sequence and returns them all, in order (see
+/// [`render_streamed`], which hands each over as it is done and holds
+/// only the frames in flight).
 pub async fn render_frames(
     workers: &Workers,
     bundle: &SceneBundle,
@@ -374,12 +384,148 @@ pub async fn render_frames(
     deadline: Duration,
     events: impl Fn(FarmEvent) + Send + Sync + 'static,
 ) -> anyhow::Result<Vec<RenderedFrame>> {
+    let (tx, mut rx) = tokio::sync::mpsc::channel(4);
+    let n = frames.len();
+    let collect = async move {
+        let mut out: Vec<Option<RenderedFrame>> = vec![None; n];
+        while let Some(f) = rx.recv().await {
+            if let Finished::Frame { frame, rendered } = f {
+                out[frame] = Some(rendered);
+            }
+        }
+        out
+    };
+    let run = render_streamed(workers, bundle, frames, plans, deadline, events, Resume::none(), tx);
+    let (run, out) = tokio::join!(run, collect);
+    let run = run?;
+    out.into_iter()
+        .map(|f| {
+            let mut f = f.ok_or_else(|| anyhow::anyhow!("a frame was not handed over"))?;
+            f.workers.clone_from(&run.workers);
+            Ok(f)
+        })
+        .collect()
+}
+
+/// What a farm run hands over as it goes.
+pub enum Finished {
+    /// A strip of a frame that is not whole yet, with the worker's reply
+    /// as received (kept, a restart need not render it again).
+    Strip {
+        /// Frame number.
+        frame: usize,
+        /// Its columns.
+        strip: Strip,
+        /// Who rendered it.
+        worker: String,
+        /// The reply, checked.
+        reply: Box<pb::RenderStripReply>,
+    },
+    /// A whole frame, put together.
+    Frame {
+        /// Frame number.
+        frame: usize,
+        /// The frame.
+        rendered: RenderedFrame,
+    },
+}
+
+/// What a run already holds from an earlier one (a restarted coordinator):
+/// frames to skip, and strips of unfinished frames to build on.
+#[derive(Default)]
+pub struct Resume {
+    /// Per frame, whether it is stored already.
+    pub done: Vec<bool>,
+    /// Strips kept of unfinished frames, with their render times.
+    pub strips: Vec<(usize, StripPixels, f64)>,
+}
+
+impl Resume {
+    /// Nothing held: every frame renders.
+    pub fn none() -> Self {
+        Self::default()
+    }
+}
+
+/// A farm run's figures, once every frame is handed over.
+#[derive(Clone, Debug, Default)]
+pub struct FarmRun {
+    /// Per worker.
+    pub workers: Vec<WorkerReport>,
+    /// Time to get the scene to the workers, ms.
+    pub upload_ms: f64,
+    /// How the scene was prepared once for the farm, when it was.
+    pub prepared: Option<PreparedShare>,
+}
+
+/// Renders every frame of a sequence (same size, own views) of `bundle` on
+/// `workers`: all (frame, strip) pairs go on one queue, frame by frame in
+/// `plans` order, so idle workers start the next frame while the last
+/// strips of one finish. Each frame goes to `out` as soon as its last
+/// strip is in (and each strip of a frame cut into several as it comes),
+/// so the run holds only the frames in flight; a full `out` holds the
+/// workers back. Frames and strips that `resume` holds are not rendered
+/// again.
+#[allow(clippy::too_many_arguments)]
+pub async fn render_streamed(
+    workers: &Workers,
+    bundle: &SceneBundle,
+    frames: &[FrameSettings],
+    plans: Vec<Vec<Strip>>,
+    deadline: Duration,
+    events: impl Fn(FarmEvent) + Send + Sync + 'static,
+    resume: Resume,
+    out: tokio::sync::mpsc::Sender<Finished>,
+) -> anyhow::Result<FarmRun> {
     anyhow::ensure!(!workers.addrs.is_empty(), "no workers to render on");
     anyhow::ensure!(!frames.is_empty() && frames.len() == plans.len(), "one strip plan per frame");
     anyhow::ensure!(
         frames.iter().all(|f| (f.width, f.height) == (frames[0].width, frames[0].height)),
         "a sequence's frames share one size"
     );
+    let (width, height) = (frames[0].width, frames[0].height);
+    // What an earlier run left: its strips go in first, and only the
+    // columns they leave open are rendered.
+    let mut open: std::collections::HashMap<usize, OpenFrame> = Default::default();
+    for (frame, px, render_ms) in resume.strips {
+        if frame >= frames.len() || resume.done.get(frame) == Some(&true) {
+            continue;
+        }
+        let f = open.entry(frame).or_insert_with(|| OpenFrame::new(width, height));
+        if f.assembly.add(&px).is_ok() {
+            f.times.push(StripTime { strip: px.strip, render_ms, call_ms: render_ms });
+        }
+    }
+    let mut queue = VecDeque::new();
+    for (i, plan) in plans.iter().enumerate() {
+        if resume.done.get(i) == Some(&true) {
+            continue;
+        }
+        let todo = match open.get(&i) {
+            Some(f) => f.assembly.open_columns(plan),
+            None => plan.clone(),
+        };
+        if let Some(f) = open.get_mut(&i) {
+            f.left = todo.len();
+        }
+        queue.extend(todo.into_iter().map(|s| (i, s)));
+    }
+    // A frame whose every strip an earlier run kept is whole already.
+    let whole: Vec<usize> = open.iter().filter(|(_, f)| f.left == 0).map(|(i, _)| *i).collect();
+    let mut ready = Vec::new();
+    for i in whole {
+        let f = open.remove(&i).expect("open frame");
+        ready.push(Finished::Frame { frame: i, rendered: f.rendered(0.0, None) });
+    }
+    for f in ready {
+        out.send(f).await.map_err(|_| anyhow::anyhow!("the frames' receiver is gone"))?;
+    }
+    let left: Vec<usize> =
+        (0..frames.len()).map(|i| queue.iter().filter(|(f, _)| *f == i).count()).collect();
+    events(FarmEvent::Planned { strips: queue.len() });
+    if queue.is_empty() {
+        return Ok(FarmRun::default());
+    }
     events(FarmEvent::Stage(format!("sending the scene to {} workers", workers.addrs.len())));
     let (clients, reports, upload_ms) = upload_to_all(workers, bundle, &events).await;
     let wires: Arc<Vec<pb::FrameSettings>> =
@@ -401,12 +547,16 @@ pub async fn render_frames(
                 None
             }
         };
-    let queue: VecDeque<(usize, Strip)> =
-        plans.iter().enumerate().flat_map(|(f, p)| p.iter().map(move |s| (f, *s))).collect();
+    let total = queue.len();
     let shared = Arc::new(Shared {
-        total: queue.len(),
         queue: Mutex::new(queue),
-        done: Mutex::new(Vec::new()),
+        open: Mutex::new(open),
+        left: Mutex::new(left),
+        remaining: Mutex::new(total),
+        size: (width, height),
+        upload_ms,
+        prepared: prepared.clone(),
+        out,
     });
     events(FarmEvent::Stage(
         "tracing (a worker that does not hold the prepared scene prepares it first: \
@@ -417,13 +567,11 @@ pub async fn render_frames(
     let mut tasks = Vec::new();
     let n_workers = clients.len();
     for (me, (client, report)) in clients.into_iter().zip(reports).enumerate() {
-        let (shared, events, wires, hash, height) =
-            (shared.clone(), events.clone(), wires.clone(), bundle.hash.clone(), frames[0].height);
+        let (shared, events, wires, hash) =
+            (shared.clone(), events.clone(), wires.clone(), bundle.hash.clone());
         tasks.push(tokio::spawn(async move {
-            pull_strips(
-                me, n_workers, client, report, &shared, &*events, &wires, &hash, height, deadline,
-            )
-            .await
+            pull_strips(me, n_workers, client, report, &shared, &*events, &wires, &hash, deadline)
+                .await
         }));
     }
     // Wait for the frames, or for every worker to be gone.
@@ -431,8 +579,8 @@ pub async fn render_frames(
     for t in tasks {
         reports.push(t.await?);
     }
-    let done = std::mem::take(&mut *shared.done.lock().expect("lock"));
-    if done.len() < shared.total {
+    let remaining = *shared.remaining.lock().expect("lock");
+    if remaining > 0 {
         let why: Vec<String> = reports
             .iter()
             .filter(|r| r.dropped)
@@ -440,13 +588,38 @@ pub async fn render_frames(
             .collect();
         let what = if frames.len() == 1 { "the frame" } else { "the sequence" };
         anyhow::bail!(
-            "{what} failed: {} of {} strips rendered; no worker left that can finish it ({})",
-            done.len(),
-            shared.total,
+            "{what} failed: {} of {total} strips rendered; no worker left that can finish it ({})",
+            total - remaining,
             why.join("; ")
         );
     }
-    assemble(frames, &done, &reports, upload_ms, &prepared)
+    Ok(FarmRun { workers: reports, upload_ms, prepared })
+}
+
+/// A frame being put together, and how many of its strips are still out.
+struct OpenFrame {
+    assembly: Assembly,
+    times: Vec<StripTime>,
+    left: usize,
+}
+
+impl OpenFrame {
+    fn new(width: u32, height: u32) -> Self {
+        Self { assembly: Assembly::new(width, height), times: Vec::new(), left: 0 }
+    }
+
+    fn rendered(mut self, upload_ms: f64, prepared: Option<PreparedShare>) -> RenderedFrame {
+        self.times.sort_by_key(|s| s.strip);
+        RenderedFrame {
+            image: self.assembly.image,
+            coverage: self.assembly.coverage,
+            rays: self.assembly.rays,
+            workers: Vec::new(),
+            strip_times: self.times,
+            upload_ms,
+            prepared,
+        }
+    }
 }
 
 /// Sends the bundle to every worker at once (a slow one delays only
@@ -498,8 +671,8 @@ async fn upload_to_all(
 }
 
 /// One worker's share of the frames: it pulls strips until none is left,
-/// puts back any it fails (and gives up after [`MAX_FAILURES`]), and says
-/// what it did.
+/// puts back any it fails (and gives up after [`MAX_FAILURES`]), hands
+/// each strip and each frame it completes over, and says what it did.
 #[allow(clippy::too_many_arguments)]
 async fn pull_strips(
     me: usize,
@@ -510,10 +683,10 @@ async fn pull_strips(
     events: &(impl Fn(FarmEvent) + Send + Sync),
     wires: &[pb::FrameSettings],
     hash: &str,
-    height: u32,
     deadline: Duration,
 ) -> WorkerReport {
     let Some(mut client) = client else { return report };
+    let (width, height) = shared.size;
     loop {
         let next = {
             // In a sequence each worker prefers the frames that
@@ -529,7 +702,7 @@ async fn pull_strips(
             mine.and_then(|i| q.remove(i)).or_else(|| q.pop_front())
         };
         let Some((frame, strip)) = next else {
-            if shared.done.lock().expect("lock").len() == shared.total {
+            if *shared.remaining.lock().expect("lock") == 0 {
                 return report;
             }
             // Strips may still come back from failing workers.
@@ -561,21 +734,48 @@ async fn pull_strips(
                 report.render_ms += r.render_ms;
                 report.prepare_ms += r.prepare_ms;
                 let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
-                let preview = Arc::new(px.preview());
                 events(FarmEvent::StripDone {
                     frame,
                     strip,
                     worker: report.worker.clone(),
                     ms: r.render_ms,
                     bytes,
-                    preview,
+                    preview: Arc::new(px.preview()),
                 });
-                shared.done.lock().expect("lock").push((
-                    frame,
-                    px,
-                    r.render_ms,
-                    sent.elapsed().as_secs_f64() * 1e3,
-                ));
+                let time = StripTime {
+                    strip,
+                    render_ms: r.render_ms,
+                    call_ms: sent.elapsed().as_secs_f64() * 1e3,
+                };
+                // Put in place now; the frame leaves the farm when whole.
+                let whole = {
+                    let mut open = shared.open.lock().expect("lock");
+                    let f = open.entry(frame).or_insert_with(|| OpenFrame::new(width, height));
+                    // decode_reply checked the strip against its request,
+                    // and the queue hands each columns out once.
+                    let _ = f.assembly.add(&px);
+                    f.times.push(time);
+                    let mut left = shared.left.lock().expect("lock");
+                    left[frame] -= 1;
+                    (left[frame] == 0).then(|| open.remove(&frame).expect("open frame"))
+                };
+                drop(px);
+                let handed = match whole {
+                    Some(f) => Finished::Frame {
+                        frame,
+                        rendered: f.rendered(shared.upload_ms, shared.prepared.clone()),
+                    },
+                    None => Finished::Strip {
+                        frame,
+                        strip,
+                        worker: report.worker.clone(),
+                        reply: Box::new(r),
+                    },
+                };
+                // A gone receiver has given up on the run; the count still
+                // falls, so every worker stops.
+                let _ = shared.out.send(handed).await;
+                *shared.remaining.lock().expect("lock") -= 1;
             }
             Err(error) => {
                 shared.queue.lock().expect("lock").push_back((frame, strip));
@@ -595,39 +795,4 @@ async fn pull_strips(
             }
         }
     }
-}
-
-/// The frames put together from their checked strips, each with the
-/// job's worker reports, upload time and shared preparation.
-fn assemble(
-    frames: &[FrameSettings],
-    done: &[(usize, StripPixels, f64, f64)],
-    reports: &[WorkerReport],
-    upload_ms: f64,
-    prepared: &Option<PreparedShare>,
-) -> anyhow::Result<Vec<RenderedFrame>> {
-    let mut assembled: Vec<(Assembly, Vec<StripTime>)> =
-        frames.iter().map(|f| (Assembly::new(f.width, f.height), Vec::new())).collect();
-    for (frame, px, render_ms, rpc_ms) in done {
-        let (a, strips) = &mut assembled[*frame];
-        a.add(px).map_err(|e| anyhow::anyhow!("assembling frame {frame}: {e}"))?;
-        strips.push(StripTime { strip: px.strip, render_ms: *render_ms, call_ms: *rpc_ms });
-    }
-    assembled
-        .into_iter()
-        .enumerate()
-        .map(|(i, (a, mut strip_times))| {
-            anyhow::ensure!(a.complete(), "the strips do not cover frame {i}");
-            strip_times.sort_by_key(|s| s.strip);
-            Ok(RenderedFrame {
-                image: a.image,
-                coverage: a.coverage,
-                rays: a.rays,
-                workers: reports.to_vec(),
-                strip_times,
-                upload_ms,
-                prepared: prepared.clone(),
-            })
-        })
-        .collect()
 }

@@ -25,3 +25,4 @@ pub mod schedule;
 pub mod sequence;
 pub mod service;
 pub mod shutdown;
+pub mod store;

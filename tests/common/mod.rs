@@ -17,6 +17,19 @@ pub struct Proc {
 
 impl Drop for Proc {
     fn drop(&mut self) {
+        // SIGTERM first, so it removes its temporary folders; killed if it
+        // has not left within a second.
+        #[cfg(unix)]
+        // SAFETY: signals our own child.
+        unsafe {
+            libc::kill(self.child.id() as i32, libc::SIGTERM)
+        };
+        for _ in 0..50 {
+            if self.child.try_wait().ok().flatten().is_some() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
@@ -51,6 +64,12 @@ pub fn runtime() -> PathBuf {
 fn command(args: &[&str], env: &[(&str, &str)]) -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_sylva"));
     cmd.args(args).env("XDG_RUNTIME_DIR", runtime()).env_remove("SYLVA_TOKEN");
+    // A coordinator keeps its queue in a state folder; a test's is its own
+    // and gone at exit, unless the test names one to restart on.
+    if args.first() == Some(&"coordinator") && !args.contains(&"--state-dir") {
+        cmd.arg("--ephemeral");
+    }
+    cmd.env_remove("SYLVA_STATE_DIR").env_remove("SYLVA_DATABASE_URL");
     for (k, v) in env {
         cmd.env(k, v);
     }

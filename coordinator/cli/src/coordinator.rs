@@ -21,8 +21,28 @@ fn limit_malloc_arenas() {
     }
 }
 
+/// Removes the temporary state folders of ephemeral coordinators that were
+/// killed before they could: a folder whose lock no process holds.
+fn remove_stale_ephemeral() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
+    for e in entries.flatten() {
+        let dir = e.path();
+        let ours = e.file_name().to_str().is_some_and(|n| n.starts_with("sylva-coordinator-"));
+        let Ok(lock) = std::fs::File::open(dir.join("lock")) else { continue };
+        if ours && lock.try_lock().is_ok() {
+            drop(lock);
+            if std::fs::remove_dir_all(&dir).is_ok() {
+                tracing::info!(dir = %dir.display(), "removed a killed coordinator's temporary state");
+            }
+        }
+    }
+}
+
 pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
     limit_malloc_arenas();
+    if a.ephemeral {
+        remove_stale_ephemeral();
+    }
     let token = a.auth.load()?;
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async {
@@ -60,9 +80,12 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             retention: Retention {
                 keep: Duration::from_secs(a.keep_results_s),
                 max_jobs: a.keep_jobs,
-                memory_bytes: a.results_memory_mib << 20,
-                ..Retention::default()
             },
+            state_dir: a.state_dir()?,
+            ephemeral: a.ephemeral,
+            database: a.database.clone(),
+            max_job_pixels: a.max_job_pixels,
+            results_disk_bytes: a.results_disk_mib << 20,
             registration_ttl: Duration::from_secs(a.registration_ttl_s.max(1)),
             tls: a.tls.load()?,
             worker_tls: a.worker_tls.load()?,

@@ -66,7 +66,7 @@ impl LoopbackProcesses {
         extra: &[String],
     ) -> anyhow::Result<String> {
         let mut args: Vec<String> =
-            ["coordinator", "--listen", "127.0.0.1:0", "--max-running", "1"]
+            ["coordinator", "--listen", "127.0.0.1:0", "--max-running", "1", "--ephemeral"]
                 .map(String::from)
                 .to_vec();
         if !workers.is_empty() {
@@ -81,7 +81,18 @@ impl LoopbackProcesses {
 
 impl Drop for LoopbackProcesses {
     fn drop(&mut self) {
+        // SIGTERM first, so each cleans up its temporary folders; a child
+        // that has not left after two seconds is killed.
+        #[cfg(unix)]
+        for c in &self.children {
+            // SAFETY: signals our own child process.
+            unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
+        }
+        let until = std::time::Instant::now() + std::time::Duration::from_secs(2);
         for c in &mut self.children {
+            while std::time::Instant::now() < until && c.try_wait().ok().flatten().is_none() {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
             let _ = c.kill();
             let _ = c.wait();
         }

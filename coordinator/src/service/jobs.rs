@@ -16,6 +16,7 @@ impl CoordinatorService {
             .spec
             .ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
         let (frame, schedule, views) = checked_spec(&spec)?;
+        let reserved = self.state.room_for(&frame, views.len().max(1)).await?;
         let from = remote.map(|a| a.ip().to_string()).unwrap_or_else(|| "local".into());
         let submitter =
             if spec.submitter.is_empty() { from } else { format!("{}@{from}", spec.submitter) };
@@ -39,23 +40,21 @@ impl CoordinatorService {
         }
         // Check the scene here, so a bad one fails its client, not a worker;
         // its files are unpacked for the check alone and removed after it.
-        let seq = {
-            let mut n = lock(&self.state.next);
-            *n += 1;
-            *n - 1
-        };
+        let seq = self.state.store.next_seq().await.map_err(internal_error)?;
         let id = format!("job-{}-{seq}", self.state.prefix);
-        let dir = self.state.config.work_dir.join("check").join(&id);
-        let (check, limits) = (bytes.clone(), self.state.config.limits);
+        let dir = self.state.config.state_dir.join("check").join(&id);
+        let limits = self.state.config.limits;
+        let bundle_file = self.state.bundle_path(&hash);
         let checked = tokio::task::spawn_blocking(move || {
-            let r = bundle::unpack_with(&check, &dir, &limits).map(|_| ());
+            let r = bundle::unpack_with(&bytes, &dir, &limits).map(|_| ());
             let _ = std::fs::remove_dir_all(&dir);
-            r
+            r?;
+            // Kept on disk, not in memory, until the job ends.
+            keep_file(&bundle_file, &bytes)
         })
         .await
         .map_err(|_| Status::internal("the scene check failed unexpectedly"))?;
         checked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
-        let (tx, _) = broadcast::channel(256);
         let summary = pb::JobSummary {
             id: id.clone(),
             state: JobState::Queued.to_wire(),
@@ -66,24 +65,26 @@ impl CoordinatorService {
             frames: views.len().max(1) as u32,
             ..Default::default()
         };
-        lock(&self.state.jobs).insert(
-            id.clone(),
-            Job {
-                seq,
-                state: JobState::Queued,
-                spec,
-                frame,
-                views,
-                schedule,
-                bundle: Some(Arc::new(SceneBundle { bytes, hash })),
-                summary,
-                events: tx,
-                task: None,
-                finished: None,
-                live: LiveFrame::default(),
-                stage: String::new(),
-            },
-        );
+        let job = Job {
+            seq,
+            state: JobState::Queued,
+            spec,
+            frame,
+            views,
+            schedule,
+            bundle_hash: hash,
+            summary,
+            events: broadcast::channel(256).0,
+            task: None,
+            finished: None,
+            live: LiveFrame::default(),
+            stage: String::new(),
+            reserved,
+        };
+        // Written before the client hears of it: an acknowledged job
+        // survives a crash.
+        self.state.store.insert_job(&job.row()).await.map_err(internal_error)?;
+        lock(&self.state.jobs).insert(id.clone(), job);
         self.state.wake.notify_one();
         tracing::info!(%id, "job queued");
         Ok(Response::new(pb::JobId { id }))
@@ -170,14 +171,17 @@ impl CoordinatorService {
                 )));
             }
         }
-        let stored = lock(&self.state.results).get(id, r.frame as usize, format);
-        let data = match stored {
-            Some(s) => tokio::task::spawn_blocking(move || s.read())
-                .await
-                .map_err(|e| Status::internal(e.to_string()))?
-                .map_err(|e| Status::internal(format!("the stored result cannot be read: {e}")))?,
-            None => return Err(Status::not_found(format!("job {id}'s result is no longer kept"))),
-        };
+        let frames = self.state.store.frames(id).await.map_err(internal_error)?;
+        let file = frames
+            .iter()
+            .find(|f| f.frame == r.frame)
+            .map(|f| if format == "exr" { &f.exr } else { &f.png })
+            .filter(|p| !p.is_empty())
+            .map(|p| self.state.config.state_dir.join(p))
+            .ok_or_else(|| Status::not_found(format!("job {id}'s result is no longer kept")))?;
+        let data = tokio::fs::read(&file)
+            .await
+            .map_err(|_| Status::not_found(format!("job {id}'s result is no longer kept")))?;
         Ok(Response::new(pb::FetchReply { data, format: format.into() }))
     }
 
@@ -194,13 +198,15 @@ impl CoordinatorService {
                 if let Some(t) = j.task.take() {
                     t.abort();
                 }
-                j.bundle = None;
                 j.finished = Some(Instant::now());
                 j.summary.finished_unix_ms = unix_ms();
                 j.live.preview = Vec::new();
             }
             (j.summary.clone(), j.events.clone())
         };
+        if wire_ended(summary.state) {
+            self.state.ended(id).await;
+        }
         let _ = tx.send(pb::JobEvent {
             id: id.to_string(),
             state: summary.state,
@@ -242,6 +248,7 @@ impl CoordinatorService {
             j.summary.priority = r.priority;
             j.summary.clone()
         };
+        self.state.store.set_priority(id, r.priority).await.map_err(internal_error)?;
         tracing::info!(%id, priority = r.priority, "job re-prioritised");
         Ok(Response::new(summary))
     }
@@ -318,4 +325,97 @@ async fn receive_bundle(
         )));
     }
     Ok(bytes)
+}
+
+/// A database or disk failure, as clients see it: the job is not harmed,
+/// and nothing of the server's is revealed.
+pub(super) fn internal_error(e: anyhow::Error) -> Status {
+    tracing::error!("state: {e:#}");
+    Status::unavailable("the coordinator cannot write its state now; try again")
+}
+
+/// Writes `bytes` to `path` whole or not at all (a file named by its
+/// content's hash that exists already is that content).
+pub(super) fn keep_file(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
+    if path.exists() {
+        return Ok(());
+    }
+    if let Some(d) = path.parent() {
+        std::fs::create_dir_all(d)?;
+    }
+    let tmp = path.with_extension(format!("part-{}", sylva_proto::auth::random_hex(4)));
+    std::fs::write(&tmp, bytes)?;
+    std::fs::rename(&tmp, path)?;
+    Ok(())
+}
+
+/// The jobs the database holds, as they were; a job that was running is
+/// queued again (its frames and strips stay, and it resumes from them),
+/// and one whose spec this coordinator cannot read is failed with why.
+pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Job>> {
+    use prost::Message;
+    let mut out = BTreeMap::new();
+    let now = unix_ms();
+    for row in store.jobs().await? {
+        let mut state = row.state.unwrap_or(JobState::Failed);
+        let mut error = row.error.clone();
+        let spec = pb::JobSpec::decode(row.spec.as_slice()).unwrap_or_default();
+        let (frame, schedule, views) = match checked_spec(&spec) {
+            Ok(v) => v,
+            Err(e) => {
+                if !state.ended() {
+                    state = JobState::Failed;
+                    error = format!("its spec cannot be read back: {}", e.message());
+                }
+                (FrameSettings::default(), ScheduleKind::Dynamic, Vec::new())
+            }
+        };
+        if state == JobState::Running {
+            // Not a transition of the job's life: the coordinator that ran
+            // it is gone, and the job waits for a slot again.
+            state = JobState::Queued;
+        }
+        let summary = pb::JobSummary {
+            id: row.id.clone(),
+            state: state.to_wire(),
+            name: row.name.clone(),
+            priority: row.priority,
+            submitter: row.submitter.clone(),
+            submitted_unix_ms: row.submitted_ms,
+            started_unix_ms: row.started_ms,
+            finished_unix_ms: row.finished_ms,
+            frames: row.frames,
+            frames_done: row.frames_done,
+            strips_done: row.strips_done,
+            strips_total: row.strips_total,
+            retries: row.retries,
+            error,
+            ..Default::default()
+        };
+        let finished = state.ended().then(|| {
+            let ago = Duration::from_millis(now.saturating_sub(row.finished_ms));
+            Instant::now().checked_sub(ago).unwrap_or_else(Instant::now)
+        });
+        let job = Job {
+            seq: row.seq,
+            state,
+            spec,
+            frame,
+            views,
+            schedule,
+            bundle_hash: row.bundle_hash.clone(),
+            summary,
+            events: broadcast::channel(if state.ended() { 1 } else { 256 }).0,
+            task: None,
+            finished,
+            live: LiveFrame::default(),
+            stage: String::new(),
+            reserved: row.result_bytes,
+        };
+        if Some(state) != row.state || job.summary.error != row.error {
+            store.set_state(&job.row()).await?;
+        }
+        out.insert(row.id, job);
+    }
+    Ok(out)
 }

@@ -1,10 +1,12 @@
 //! The coordinator's gRPC service: a queue of jobs (priority, then
 //! submission order), run over the registered workers by the strip farm;
 //! progress streamed to watchers; results kept for a retention time and a
-//! count and size budget, spilled to disk when large. A restart loses the
-//! queue, running jobs and results (clients resubmit; job ids never repeat,
-//! since each start draws a random prefix); workers keep their cached scenes
-//! and re-register within one period.
+//! count, on disk. The queue is durable ([`crate::store`]): jobs, their
+//! bundles, finished frames and strips are written before anyone is told of
+//! them, so a coordinator killed at any moment and started again on the
+//! same state folder resumes its queued and running jobs where they were,
+//! still serves finished results, and never hands out an id twice. Workers
+//! keep their cached scenes and re-register within one period.
 //!
 //! Trust: a client's submission is checked completely (frame, schedule,
 //! scene, sizes) before it is queued; a worker that registers must prove it
@@ -31,8 +33,10 @@ pub use state::{JobState, wire_ended, wire_name};
 use workers::KnownWorker;
 
 use crate::farm::{self, FarmEvent, Workers};
-use crate::results::{ResultStore, Retention};
+use crate::results::Retention;
 use crate::schedule::{ScheduleKind, Strip, scheduler};
+use crate::store::Store;
+use anyhow::Context;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::pin::Pin;
@@ -94,10 +98,20 @@ pub struct CoordinatorConfig {
     pub heartbeat: Duration,
     /// A registered worker not heard from for this long is forgotten.
     pub registration_ttl: Duration,
-    /// How long, how many and how large finished jobs are kept.
+    /// How long and how many finished jobs are kept.
     pub retention: Retention,
-    /// Where large results and scene checks go; removed at shutdown.
-    pub work_dir: PathBuf,
+    /// Where the database (unless `database` names another), bundles and
+    /// results live.
+    pub state_dir: PathBuf,
+    /// Remove the state folder at shutdown: a coordinator for one command.
+    pub ephemeral: bool,
+    /// The database's URL (`sqlite://…`, `postgres://…`); `None`: SQLite
+    /// in the state folder.
+    pub database: Option<String>,
+    /// Most pixels one job may render, all frames together.
+    pub max_job_pixels: u64,
+    /// Most bytes the results of all kept jobs may take on disk.
+    pub results_disk_bytes: u64,
     /// Serve Prometheus metrics here.
     pub metrics: Option<tokio::net::TcpListener>,
     /// Serve the web dashboard here.
@@ -120,8 +134,12 @@ impl Default for CoordinatorConfig {
             heartbeat: Duration::from_secs(2),
             registration_ttl: Duration::from_secs(30),
             retention: Retention::default(),
-            work_dir: std::env::temp_dir()
+            state_dir: std::env::temp_dir()
                 .join(format!("sylva-coordinator-{}", std::process::id())),
+            ephemeral: true,
+            database: None,
+            max_job_pixels: 1 << 30,
+            results_disk_bytes: 32 << 30,
             metrics: None,
             http: None,
             tls: None,
@@ -139,8 +157,9 @@ struct Job {
     /// A sequence's views, one per frame; empty: one frame of the scene's view.
     views: Vec<View>,
     schedule: ScheduleKind,
-    /// Dropped when the job ends: only queued and running jobs need it.
-    bundle: Option<Arc<SceneBundle>>,
+    /// Its scene bundle's hash: the bundle is a file of the state folder
+    /// while the job is queued or running.
+    bundle_hash: String,
     summary: pb::JobSummary,
     events: broadcast::Sender<pb::JobEvent>,
     task: Option<tokio::task::AbortHandle>,
@@ -149,6 +168,8 @@ struct Job {
     /// What the farm last said it is doing (a watcher that joins late
     /// hears it first).
     stage: String,
+    /// Bytes its results may take on disk (its estimate until it is done).
+    reserved: u64,
 }
 
 impl Job {
@@ -159,21 +180,58 @@ impl Job {
         self.summary.state = self.state.to_wire();
         Ok(())
     }
+
+    /// The job as the database keeps it.
+    fn row(&self) -> crate::store::JobRow {
+        use prost::Message;
+        let s = &self.summary;
+        crate::store::JobRow {
+            id: s.id.clone(),
+            seq: self.seq,
+            state: Some(self.state),
+            priority: s.priority,
+            name: s.name.clone(),
+            submitter: s.submitter.clone(),
+            spec: self.spec.encode_to_vec(),
+            bundle_hash: self.bundle_hash.clone(),
+            frames: s.frames,
+            frames_done: s.frames_done,
+            strips_done: s.strips_done,
+            strips_total: s.strips_total,
+            retries: s.retries,
+            error: s.error.clone(),
+            stats_json: String::new(),
+            submitted_ms: s.submitted_unix_ms,
+            started_ms: s.started_unix_ms,
+            finished_ms: s.finished_unix_ms,
+            result_bytes: self.reserved,
+        }
+    }
+}
+
+/// Bytes a frame's results take on disk at most: its EXR (three 32-bit
+/// floats a pixel, uncompressed) and PNG (three bytes a pixel and the
+/// filter byte of each row, when it does not compress), and their headers.
+pub fn result_bytes(width: u32, height: u32) -> u64 {
+    let px = width as u64 * height as u64;
+    px * 12 + px * 3 + height as u64 + 4096
 }
 
 struct State {
     config: CoordinatorConfig,
     metrics: Arc<crate::metrics::Metrics>,
     jobs: Mutex<BTreeMap<String, Job>>,
-    results: Mutex<ResultStore>,
+    /// The durable queue: every change is written here first.
+    store: Store,
     workers: Mutex<BTreeMap<String, KnownWorker>>,
     /// Per-column cost of frames rendered before, by scene and frame shape.
     costs: Mutex<std::collections::HashMap<String, Vec<f64>>>,
-    /// This start's random id prefix: ids never repeat across restarts.
+    /// The database's id prefix (ids are `job-PREFIX-SEQ`, SEQ from its counter).
     prefix: String,
-    next: Mutex<u64>,
     slots: Arc<Semaphore>,
     wake: tokio::sync::Notify,
+    /// Held while this coordinator uses the state folder.
+    _lock: std::fs::File,
 }
 
 /// The `sylva.v1.Coordinator` service.
@@ -183,40 +241,70 @@ pub struct CoordinatorService {
 }
 
 impl CoordinatorService {
-    /// A coordinator; call [`CoordinatorService::spawn_background`] to run jobs.
-    pub fn new(mut config: CoordinatorConfig) -> Self {
+    /// A coordinator on its state folder and database, with the jobs and
+    /// workers they hold (a running job is queued again, to resume where it
+    /// was); call [`CoordinatorService::spawn_background`] to run jobs.
+    pub async fn open(mut config: CoordinatorConfig) -> anyhow::Result<Self> {
         let metrics_listener = config.metrics.take();
         let http_listener = config.http.take();
+        let dir = config.state_dir.clone();
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create the state folder {}", dir.display()))?;
+        let lock = std::fs::File::create(dir.join("lock"))?;
+        lock.try_lock().map_err(|_| {
+            anyhow::anyhow!(
+                "the state folder {} is in use by another coordinator (give this one its own --state-dir)",
+                dir.display()
+            )
+        })?;
+        let url = config
+            .database
+            .clone()
+            .unwrap_or_else(|| format!("sqlite://{}", dir.join("sylva.db").display()));
+        let store = Store::open(&url).await?;
+        let prefix = store.meta("prefix", || sylva_proto::auth::random_hex(4)).await?;
         // Named workers count as alive until a heartbeat says otherwise, so a
-        // job submitted at once can use them (the farm copes if one is not).
-        let workers = config
-            .workers
-            .iter()
-            .map(|a| {
-                (
-                    a.clone(),
-                    KnownWorker {
-                        info: pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() },
-                        named: true,
-                        seen: Instant::now(),
-                    },
-                )
-            })
-            .collect();
+        // job submitted at once can use them (the farm copes if one is not);
+        // so do workers the database saw within their registration's life,
+        // so a restarted coordinator resumes on them at once.
+        let mut workers: BTreeMap<String, KnownWorker> = BTreeMap::new();
+        let ttl_ms = config.registration_ttl.as_millis() as u64;
+        for w in store.workers().await? {
+            if (crate::store::now_ms() as u64).saturating_sub(w.last_seen_ms) < ttl_ms {
+                workers.insert(w.addr.clone(), KnownWorker::restored(&w));
+            }
+        }
+        for a in &config.workers {
+            workers.insert(
+                a.clone(),
+                KnownWorker {
+                    info: pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() },
+                    named: true,
+                    seen: Instant::now(),
+                },
+            );
+        }
+        let jobs = jobs::restore(&store).await?;
         let slots = Arc::new(Semaphore::new(config.max_running.max(1)));
-        let results = ResultStore::new(config.work_dir.join("results"), config.retention);
+        tracing::info!(
+            state = %dir.display(),
+            database = store.kind(),
+            jobs = jobs.len(),
+            queued = jobs.values().filter(|j| j.state == JobState::Queued).count(),
+            "coordinator state opened"
+        );
         let service = Self {
             state: Arc::new(State {
                 config,
                 metrics: Arc::new(crate::metrics::Metrics::default()),
-                jobs: Mutex::new(BTreeMap::new()),
-                results: Mutex::new(results),
+                jobs: Mutex::new(jobs),
+                store,
                 workers: Mutex::new(workers),
                 costs: Mutex::new(Default::default()),
-                prefix: sylva_proto::auth::random_hex(4),
-                next: Mutex::new(1),
+                prefix,
                 slots,
                 wake: tokio::sync::Notify::new(),
+                _lock: lock,
             }),
         };
         if let Some(l) = metrics_listener {
@@ -228,7 +316,7 @@ impl CoordinatorService {
         if let Some(l) = http_listener {
             tokio::spawn(crate::dashboard::serve(l, service.clone()));
         }
-        service
+        Ok(service)
     }
 
     /// A job's frame as it renders (strips so far and their preview).
@@ -268,18 +356,74 @@ impl CoordinatorService {
             .max_encoding_message_size(usize::MAX)
     }
 
-    /// Removes what the coordinator wrote on disk.
-    pub fn clean_up(&self) {
-        let dir = &self.state.config.work_dir;
-        if dir.exists()
-            && let Err(e) = std::fs::remove_dir_all(dir)
+    /// Closes the database; removes the state folder of an ephemeral
+    /// coordinator (a durable one keeps it for the next start).
+    pub async fn clean_up(&self) {
+        self.state.store.close().await;
+        let dir = &self.state.config.state_dir;
+        let gone = if self.state.config.ephemeral { dir.clone() } else { dir.join("check") };
+        if gone.exists()
+            && let Err(e) = std::fs::remove_dir_all(&gone)
         {
-            tracing::warn!(dir = %dir.display(), "cannot remove the work folder: {e}");
+            tracing::warn!(dir = %gone.display(), "cannot remove the folder: {e}");
         }
     }
 }
 
 impl State {
+    /// Where a scene bundle waits while a job needs it.
+    fn bundle_path(&self, hash: &str) -> PathBuf {
+        self.config.state_dir.join("bundles").join(hash)
+    }
+
+    /// Whether a job of `frames` frames of `frame` fits the per-job pixel
+    /// cap and the results' disk budget: the bytes to reserve for it, or
+    /// RESOURCE_EXHAUSTED with the reason.
+    async fn room_for(&self, frame: &FrameSettings, frames: usize) -> Result<u64, Status> {
+        let pixels = frame.width as u64 * frame.height as u64 * frames as u64;
+        let cap = self.config.max_job_pixels;
+        if pixels > cap {
+            return Err(Status::resource_exhausted(format!(
+                "{frames} frame(s) of {}×{} are {pixels} pixels: over this farm's {cap} a job (--max-job-pixels)",
+                frame.width, frame.height
+            )));
+        }
+        let need = result_bytes(frame.width, frame.height) * frames as u64;
+        let used = self.store.result_bytes().await.map_err(jobs::internal_error)?;
+        let budget = self.config.results_disk_bytes;
+        if used + need > budget {
+            return Err(Status::resource_exhausted(format!(
+                "the job's results need up to {need} bytes; {} of this farm's {budget} bytes for results are free (--results-disk-mib); fetch and let older jobs go, or ask later",
+                budget.saturating_sub(used)
+            )));
+        }
+        Ok(need)
+    }
+
+    /// Writes an ended job's state and lets its bundle go when no job
+    /// waiting or running needs it.
+    async fn ended(&self, id: &str) {
+        let Some((row, hash)) = lock(&self.jobs).get(id).map(|j| (j.row(), j.bundle_hash.clone()))
+        else {
+            return;
+        };
+        if let Err(e) = self.store.set_state(&row).await {
+            tracing::error!(%id, "the job's end is not written: {e:#}");
+        }
+        let needed = lock(&self.jobs).values().any(|j| !j.state.ended() && j.bundle_hash == hash);
+        if !needed {
+            let _ = std::fs::remove_file(self.bundle_path(&hash));
+        }
+    }
+
+    /// Writes a job's progress counts.
+    async fn save_progress(&self, id: &str) {
+        let Some(row) = lock(&self.jobs).get(id).map(Job::row) else { return };
+        if let Err(e) = self.store.set_progress(&row).await {
+            tracing::warn!(%id, "progress not written: {e:#}");
+        }
+    }
+
     fn gauges(&self) -> crate::metrics::Gauges {
         let jobs = lock(&self.jobs);
         let workers = lock(&self.workers);
@@ -318,7 +462,7 @@ fn job_id(id: &str) -> Result<&str, Status> {
 type EventStream = Pin<Box<dyn Stream<Item = Result<pb::JobEvent, Status>> + Send>>;
 
 /// Serves the coordinator API, health and reflection until `shutdown`, then
-/// removes what it wrote on disk.
+/// closes the database (and removes an ephemeral state folder).
 pub async fn run(
     listener: tokio::net::TcpListener,
     mut config: CoordinatorConfig,
@@ -331,7 +475,7 @@ pub async fn run(
     if let Some(tls) = config.tls.take() {
         builder = builder.tls_config(tls)?;
     }
-    let service = CoordinatorService::new(config);
+    let service = CoordinatorService::open(config).await?;
     service.spawn_background();
     reporter.set_serving::<CoordinatorServer<CoordinatorService>>().await;
     let served = builder
@@ -350,7 +494,7 @@ pub async fn run(
             shutdown,
         )
         .await;
-    service.clean_up();
+    service.clean_up().await;
     served?;
     Ok(())
 }

@@ -22,10 +22,19 @@ impl State {
                     None => self.wake.notified().await,
                 }
             };
-            if let Some(j) = lock(&self.jobs).get_mut(&next)
-                && j.set_state(JobState::Running).is_ok()
+            let row = {
+                let mut jobs = lock(&self.jobs);
+                let j = jobs.get_mut(&next);
+                j.and_then(|j| {
+                    j.set_state(JobState::Running).ok()?;
+                    j.summary.started_unix_ms = unix_ms();
+                    Some(j.row())
+                })
+            };
+            if let Some(row) = row
+                && let Err(e) = self.store.set_state(&row).await
             {
-                j.summary.started_unix_ms = unix_ms();
+                tracing::error!(id = %next, "the job's start is not written: {e:#}");
             }
             let s = self.clone();
             let id = next.clone();
@@ -42,7 +51,7 @@ impl State {
                 {
                     let why = "the coordinator hit an internal error running this job";
                     tracing::error!(id = %next, "job task panicked: {e}");
-                    s.finish(&next, JobState::Failed, Some(why.into()));
+                    s.finish(&next, JobState::Failed, Some(why.into())).await;
                     let mut ev = s.event(&next);
                     ev.message = why.into();
                     if let Some(tx) = lock(&s.jobs).get(&next).map(|j| j.events.clone()) {
@@ -55,10 +64,11 @@ impl State {
         }
     }
 
-    /// Ends a job: its state and reason, its bundle dropped.
-    pub(super) fn finish(&self, id: &str, state: JobState, error: Option<String>) {
-        let mut jobs = lock(&self.jobs);
-        if let Some(j) = jobs.get_mut(id) {
+    /// Ends a job: its state and reason, written; its bundle let go.
+    pub(super) async fn finish(&self, id: &str, state: JobState, error: Option<String>) {
+        {
+            let mut jobs = lock(&self.jobs);
+            let Some(j) = jobs.get_mut(id) else { return };
             if let Err(e) = j.set_state(state) {
                 tracing::debug!(%id, "not ended again: {e}");
                 return;
@@ -66,12 +76,12 @@ impl State {
             if let Some(e) = error {
                 j.summary.error = e;
             }
-            j.bundle = None;
             j.task = None;
             j.finished = Some(Instant::now());
             j.summary.finished_unix_ms = unix_ms();
             j.live.preview = Vec::new();
         }
+        self.ended(id).await;
     }
 
     /// Lets go of a finished job's event channel once its last event is
@@ -84,20 +94,29 @@ impl State {
     }
 
     /// Forgets finished jobs past the retention time or beyond the count,
-    /// with their results.
-    pub(super) fn sweep(&self) {
+    /// with their results (database rows, then files).
+    pub(super) async fn sweep(&self) {
         let r = self.config.retention;
-        let mut jobs = lock(&self.jobs);
-        let mut finished: Vec<(Instant, String)> =
-            jobs.iter().filter_map(|(id, j)| j.finished.map(|t| (t, id.clone()))).collect();
-        finished.sort();
-        let over = finished.len().saturating_sub(r.max_jobs);
-        let mut results = lock(&self.results);
-        for (i, (t, id)) in finished.iter().enumerate() {
-            if i < over || t.elapsed() > r.keep {
-                jobs.remove(id);
-                results.remove(id);
+        let gone: Vec<String> = {
+            let jobs = lock(&self.jobs);
+            let mut finished: Vec<(Instant, String)> =
+                jobs.iter().filter_map(|(id, j)| j.finished.map(|t| (t, id.clone()))).collect();
+            finished.sort();
+            let over = finished.len().saturating_sub(r.max_jobs);
+            finished
+                .into_iter()
+                .enumerate()
+                .filter(|(i, (t, _))| *i < over || t.elapsed() > r.keep)
+                .map(|(_, (_, id))| id)
+                .collect()
+        };
+        for id in gone {
+            if let Err(e) = self.store.delete_job(&id).await {
+                tracing::warn!(%id, "not forgotten yet: {e:#}");
+                continue;
             }
+            lock(&self.jobs).remove(&id);
+            let _ = std::fs::remove_dir_all(crate::results::job_dir(&self.config.state_dir, &id));
         }
     }
 }

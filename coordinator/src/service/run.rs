@@ -6,30 +6,34 @@ use super::*;
 
 impl State {
     pub(super) async fn run_job(self: &Arc<Self>, id: &str) {
-        let Some((frame, views, schedule, bundle, tx)) = ({
+        let Some((frame, views, schedule, hash, tx)) = ({
             let jobs = lock(&self.jobs);
-            jobs.get(id).and_then(|j| {
-                Some((j.frame, j.views.clone(), j.schedule, j.bundle.clone()?, j.events.clone()))
+            jobs.get(id).map(|j| {
+                (j.frame, j.views.clone(), j.schedule, j.bundle_hash.clone(), j.events.clone())
             })
         }) else {
             return;
         };
         let _ = tx.send(self.event(id));
-        let fail = |why: String| {
-            self.finish(id, JobState::Failed, Some(why.clone()));
-            let mut ev = self.event(id);
-            ev.message = why;
-            let _ = tx.send(ev);
-            self.close_events(id);
-        };
         let addrs: Vec<String> = lock(&self.workers)
             .values()
             .filter(|w| w.info.alive)
             .map(|w| w.info.addr.clone())
             .collect();
         if addrs.is_empty() {
-            return fail("no worker is registered and alive: start workers with --coordinator, or the coordinator with --workers".into());
+            return self.fail(id, &tx, "no worker is registered and alive: start workers with --coordinator, or the coordinator with --workers".into()).await;
         }
+        // The bundle waited on disk; it is read back and checked.
+        let path = self.bundle_path(&hash);
+        let read = tokio::task::spawn_blocking(move || std::fs::read(path)).await;
+        let bundle = match read {
+            Ok(Ok(bytes)) if bundle::hash_of(&bytes) == hash => SceneBundle { bytes, hash },
+            _ => {
+                return self
+                    .fail(id, &tx, "the job's scene is missing or damaged in the coordinator's state folder: submit it again".into())
+                    .await;
+            }
+        };
         let frames: Vec<FrameSettings> = if views.is_empty() {
             vec![frame]
         } else {
@@ -37,9 +41,12 @@ impl State {
         };
         let (plans, cost_key, cost_source) =
             self.plan(&bundle.hash, &frames, schedule, addrs.len());
-        let total: usize = plans.iter().map(Vec::len).sum();
+        let resume = self.resume_of(id, frames.len(), frame.height).await;
+        let kept = resume.done.iter().filter(|d| **d).count();
         if let Some(j) = lock(&self.jobs).get_mut(id) {
-            j.summary.strips_total = total as u32;
+            j.summary.strips_total = plans.iter().map(Vec::len).sum::<usize>() as u32;
+            j.summary.strips_done = 0;
+            j.summary.frames_done = kept as u32;
             j.live = LiveFrame {
                 width: frame.width,
                 height: frame.height,
@@ -48,68 +55,260 @@ impl State {
                 preview: vec![0; frame.width as usize * frame.height as usize * 3],
             };
         }
-        let span = tracing::info_span!("job", %id, frames = frames.len(), strips = total, workers = addrs.len());
+        if kept > 0 || !resume.strips.is_empty() {
+            tracing::info!(%id, frames = kept, strips = resume.strips.len(), "resuming from what an earlier run stored");
+        }
+        let span = tracing::info_span!("job", %id, frames = frames.len(), workers = addrs.len());
         let _g = span.enter();
         let (me, jid, tx2) = (self.clone(), id.to_string(), tx.clone());
-        let left: Mutex<Vec<usize>> = Mutex::new(plans.iter().map(Vec::len).collect());
         let started = Instant::now();
-        let result = farm::render_frames(
-            &Workers {
-                addrs: addrs.clone(),
-                token: self.config.token.clone(),
-                tls: self.config.worker_tls.clone(),
-            },
+        // Frames leave the farm as they are done and go to disk at once:
+        // the job holds only those in flight, however long the sequence.
+        let (out, finished) = tokio::sync::mpsc::channel(2 * addrs.len() + 2);
+        let workers = Workers {
+            addrs: addrs.clone(),
+            token: self.config.token.clone(),
+            tls: self.config.worker_tls.clone(),
+        };
+        let farm = farm::render_streamed(
+            &workers,
             &bundle,
             &frames,
             plans,
             self.config.strip_deadline,
-            move |e| me.on_farm_event(&jid, e, &left, &tx2),
-        )
-        .await;
+            move |e| me.on_farm_event(&jid, e, &tx2),
+            resume,
+            out,
+        );
+        let (run, kept) = tokio::join!(farm, self.keep_frames(id, finished, started, &tx));
         drop(bundle);
-        let rendered = match result {
-            Ok(f) => f,
-            Err(e) => return fail(format!("{e:#}")),
+        let run = match run {
+            Ok(r) => r,
+            Err(e) => return self.fail(id, &tx, format!("{e:#}")).await,
         };
-        let encoded = match encode_frames(&rendered).await {
-            Ok(e) => e,
-            Err(e) => return fail(format!("the frame could not be encoded: {e:#}")),
+        let first = match kept {
+            Ok(f) => f,
+            Err(e) => {
+                return self.fail(id, &tx, format!("the result could not be stored: {e:#}")).await;
+            }
+        };
+        let (per_frame, bytes) = match self.tone_map(id, frames.len()).await {
+            Ok(t) => t,
+            Err(e) => {
+                return self.fail(id, &tx, format!("the frames could not be encoded: {e:#}")).await;
+            }
         };
         let frame_ms = started.elapsed().as_secs_f64() * 1e3;
-        self.remember_cost(cost_key, frame.width, &rendered[0]);
-        let n = rendered.len();
+        if let Some(times) = first {
+            self.remember_cost(cost_key, frame.width, &times);
+        }
+        let n = frames.len();
         let sequence = (!views.is_empty()).then(|| stats::SequenceStats {
             frames: n,
             ms_per_frame: frame_ms / n as f64,
-            whole_frames_in_parallel: rendered[0].strip_times.len() == 1,
-            per_frame: rendered
-                .iter()
-                .zip(&encoded)
-                .map(|(f, e)| stats::FrameStats::of(f, &e.2, frame_ms / n as f64))
-                .collect(),
+            whole_frames_in_parallel: per_frame
+                .first()
+                .is_some_and(|f| f["strips"].as_array().is_some_and(|s| s.len() == 1)),
+            per_frame: per_frame.clone(),
         });
         let stats = stats::JobStats {
             schedule,
             strip_cost: cost_source,
             frame_ms,
-            upload_ms: rendered[0].upload_ms,
-            prepared_once: rendered[0].prepared.clone(),
-            workers: rendered[0].workers.clone(),
-            frame: views
-                .is_empty()
-                .then(|| stats::FrameStats::of(&rendered[0], &encoded[0].2, frame_ms)),
+            upload_ms: run.upload_ms,
+            prepared_once: run.prepared.clone(),
+            workers: run.workers.clone(),
+            frame: views.is_empty().then(|| per_frame[0].clone()),
             sequence,
         };
-        let stored = lock(&self.results)
-            .put(id, encoded.into_iter().map(|(png, exr, _)| (png, exr)).collect());
-        if let Err(e) = stored {
-            return fail(format!("the result could not be stored: {e:#}"));
+        let json = serde_json::to_string(&stats).unwrap_or_default();
+        if let Some(j) = lock(&self.jobs).get_mut(id) {
+            j.reserved = bytes;
         }
-        self.finish(id, JobState::Done, None);
+        if let Err(e) = self.store.set_stats(id, &json, bytes).await {
+            tracing::warn!(%id, "stats not written: {e:#}");
+        }
+        self.finish(id, JobState::Done, None).await;
         let mut ev = self.event(id);
-        ev.stats_json = serde_json::to_string(&stats).unwrap_or_default();
+        ev.stats_json = json;
         let _ = tx.send(ev);
         self.close_events(id);
+    }
+
+    /// Fails a job with `why`, and tells its watchers.
+    async fn fail(&self, id: &str, tx: &broadcast::Sender<pb::JobEvent>, why: String) {
+        self.finish(id, JobState::Failed, Some(why.clone())).await;
+        let mut ev = self.event(id);
+        ev.message = why;
+        let _ = tx.send(ev);
+        self.close_events(id);
+    }
+
+    /// What earlier runs of a job stored: its frames, and the strips of
+    /// frames they did not finish (each read back and checked as a
+    /// worker's reply is; one that does not pass is rendered again).
+    async fn resume_of(&self, id: &str, frames: usize, height: u32) -> farm::Resume {
+        use prost::Message;
+        let mut resume = farm::Resume { done: vec![false; frames], strips: Vec::new() };
+        if let Ok(rows) = self.store.frames(id).await {
+            for f in rows {
+                if let Some(d) = resume.done.get_mut(f.frame as usize) {
+                    *d = true;
+                }
+            }
+        }
+        let strips = self.store.strips(id).await.unwrap_or_default();
+        let dir = self.config.state_dir.clone();
+        let read = tokio::task::spawn_blocking(move || {
+            strips
+                .into_iter()
+                .filter_map(|s| {
+                    let bytes = std::fs::read(dir.join(&s.path)).ok()?;
+                    let r = pb::RenderStripReply::decode(bytes.as_slice()).ok()?;
+                    let px = farm::decode_reply(&r, (s.x0, s.x1), height).ok()?;
+                    Some((s.frame as usize, px, r.render_ms))
+                })
+                .collect::<Vec<_>>()
+        })
+        .await;
+        resume.strips = read.unwrap_or_default();
+        resume
+    }
+
+    /// Stores what the farm hands over as it comes: a strip of an
+    /// unfinished frame as the worker's reply, a whole frame as its EXR;
+    /// each written, then recorded. Returns the strip times of the first
+    /// frame cut into strips (the next frame's plan learns from them).
+    async fn keep_frames(
+        &self,
+        id: &str,
+        mut finished: tokio::sync::mpsc::Receiver<farm::Finished>,
+        started: Instant,
+        tx: &broadcast::Sender<pb::JobEvent>,
+    ) -> anyhow::Result<Option<Vec<crate::schedule::StripTime>>> {
+        use prost::Message;
+        let dir = crate::results::job_dir(&self.config.state_dir, id);
+        let mut stored = std::collections::HashSet::new();
+        let mut first = None;
+        let mut in_run = 0u32;
+        while let Some(f) = finished.recv().await {
+            match f {
+                farm::Finished::Strip { frame, strip, worker, reply } => {
+                    if stored.contains(&frame) {
+                        continue;
+                    }
+                    let name = format!("strips/{frame:05}-{}-{}.pb", strip.0, strip.1);
+                    let path = dir.join(&name);
+                    tokio::task::spawn_blocking(move || {
+                        crate::results::write_whole(&path, &reply.encode_to_vec())
+                    })
+                    .await??;
+                    let row = crate::store::StripRow {
+                        frame: frame as u32,
+                        x0: strip.0,
+                        x1: strip.1,
+                        worker,
+                        path: crate::results::relative(id, &name),
+                    };
+                    self.store.put_strip(id, &row).await?;
+                }
+                farm::Finished::Frame { frame, rendered } => {
+                    in_run += 1;
+                    let ms = started.elapsed().as_secs_f64() * 1e3 / in_run as f64;
+                    let figures = stats::FrameStats::of(&rendered, &Default::default(), ms);
+                    if first.is_none() && rendered.strip_times.len() > 1 {
+                        first = Some(rendered.strip_times.clone());
+                    }
+                    let name = format!("{frame:05}.exr");
+                    let path = dir.join(&name);
+                    let bytes = tokio::task::spawn_blocking(move || {
+                        let exr = crate::results::encode_exr(&rendered.image)?;
+                        crate::results::write_whole(&path, &exr)?;
+                        anyhow::Ok(exr.len() as u64)
+                    })
+                    .await??;
+                    let row = crate::store::FrameRow {
+                        frame: frame as u32,
+                        exr: crate::results::relative(id, &name),
+                        png: String::new(),
+                        bytes,
+                        stats_json: serde_json::to_string(&figures)?,
+                    };
+                    self.store.put_frame(id, &row).await?;
+                    stored.insert(frame);
+                    let ev = {
+                        let mut jobs = lock(&self.jobs);
+                        jobs.get_mut(id).map(|j| {
+                            j.summary.frames_done += 1;
+                            pb::JobEvent {
+                                id: id.to_string(),
+                                state: j.summary.state,
+                                strips_done: j.summary.strips_done,
+                                strips_total: j.summary.strips_total,
+                                frame: frame as u32,
+                                ..Default::default()
+                            }
+                        })
+                    };
+                    self.save_progress(id).await;
+                    if let Some(ev) = ev {
+                        let _ = tx.send(ev);
+                    }
+                }
+            }
+        }
+        Ok(first)
+    }
+
+    /// Tone-maps a job's stored frames and writes their PNGs, one frame in
+    /// memory at a time. A sequence keeps one exposure (its middle
+    /// frame's), so a sun sweep shows the light change rather than the
+    /// tone mapper's. Returns each frame's figures and the bytes of all files.
+    async fn tone_map(&self, id: &str, n: usize) -> anyhow::Result<(Vec<serde_json::Value>, u64)> {
+        let rows = self.store.frames(id).await?;
+        anyhow::ensure!(
+            rows.len() == n && rows.iter().enumerate().all(|(i, r)| r.frame as usize == i),
+            "{} of {n} frames are stored",
+            rows.len()
+        );
+        let state = self.config.state_dir.clone();
+        let read = move |r: &crate::store::FrameRow| {
+            crate::results::decode_exr(&std::fs::read(state.join(&r.exr))?)
+        };
+        let middle = rows[n / 2].clone();
+        let read2 = read.clone();
+        let exposure =
+            tokio::task::spawn_blocking(move || anyhow::Ok(reinhard(&read2(&middle)?, 0.18).1))
+                .await??;
+        let (mut per_frame, mut total) = (Vec::with_capacity(n), 0u64);
+        for row in rows {
+            let read = read.clone();
+            let png_path = self.config.state_dir.join(row.exr.replace(".exr", ".png"));
+            let (row, tone) = tokio::task::spawn_blocking(move || {
+                let image = read(&row)?;
+                let (ldr, tone) = if n == 1 {
+                    reinhard(&image, 0.18)
+                } else {
+                    (reinhard_like(&image, &exposure), exposure)
+                };
+                let png = crate::results::encode_png(image.width, image.height, &ldr)?;
+                crate::results::write_whole(&png_path, &png)?;
+                let row = crate::store::FrameRow {
+                    png: row.exr.replace(".exr", ".png"),
+                    bytes: row.bytes + png.len() as u64,
+                    ..row
+                };
+                anyhow::Ok((row, tone))
+            })
+            .await??;
+            let mut figures: serde_json::Value = serde_json::from_str(&row.stats_json)?;
+            figures["tone_map"] = serde_json::to_value(tone)?;
+            let row = crate::store::FrameRow { stats_json: figures.to_string(), ..row };
+            self.store.put_frame(id, &row).await?;
+            total += row.bytes;
+            per_frame.push(figures);
+        }
+        Ok((per_frame, total))
     }
 
     /// Cuts a job's frames into strips for `workers` workers: a frame seen
@@ -151,13 +350,7 @@ impl State {
 
     /// What one event of the farm does to the job: counts, the live view,
     /// the workers' tallies, metrics, and an event for watchers.
-    fn on_farm_event(
-        &self,
-        jid: &str,
-        e: FarmEvent,
-        left: &Mutex<Vec<usize>>,
-        tx: &broadcast::Sender<pb::JobEvent>,
-    ) {
+    fn on_farm_event(&self, jid: &str, e: FarmEvent, tx: &broadcast::Sender<pb::JobEvent>) {
         let mut ev = self.event(jid);
         ev.state = JobState::Running.to_wire();
         match e {
@@ -166,15 +359,9 @@ impl State {
                 if let Some(w) = lock(&self.workers).get_mut(&worker) {
                     w.info.strips_done += 1;
                 }
-                let frame_done = {
-                    let mut left = lock(left);
-                    left[frame] -= 1;
-                    left[frame] == 0
-                };
                 let mut jobs = lock(&self.jobs);
                 if let Some(j) = jobs.get_mut(jid) {
                     j.summary.strips_done += 1;
-                    j.summary.frames_done += frame_done as u32;
                     ev.strips_done = j.summary.strips_done;
                     j.live.frame = j.live.frame.max(frame);
                     j.live.paint(strip, &preview);
@@ -217,6 +404,12 @@ impl State {
             FarmEvent::WorkerDropped { worker, error } => {
                 ev.message = format!("worker {worker} dropped: {error}")
             }
+            FarmEvent::Planned { strips } => {
+                if let Some(j) = lock(&self.jobs).get_mut(jid) {
+                    j.summary.strips_total = j.summary.strips_done + strips as u32;
+                    ev.strips_total = j.summary.strips_total;
+                }
+            }
             FarmEvent::Stage(s) => {
                 if let Some(j) = lock(&self.jobs).get_mut(jid) {
                     j.stage.clone_from(&s);
@@ -235,57 +428,13 @@ impl State {
 
     /// Remembers a frame's per-column cost (of a frame cut into strips) for
     /// the next frame of the same scene and shape.
-    fn remember_cost(&self, key: String, width: u32, rendered: &crate::executor::RenderedFrame) {
+    fn remember_cost(&self, key: String, width: u32, times: &[crate::schedule::StripTime]) {
         let mut costs = lock(&self.costs);
         if costs.len() >= 1024 {
             costs.clear();
         }
-        if rendered.strip_times.len() > 1 {
-            costs.insert(key, crate::schedule::column_cost(width, &rendered.strip_times));
+        if times.len() > 1 {
+            costs.insert(key, crate::schedule::column_cost(width, times));
         }
     }
-}
-
-/// Tone-maps and encodes every frame (PNG and EXR), off the async runtime.
-async fn encode_frames(
-    rendered: &[crate::executor::RenderedFrame],
-) -> anyhow::Result<Vec<(Vec<u8>, Vec<u8>, sylva_scene::film::ToneMapStats)>> {
-    // Tone mapping and encoding are CPU work: off the async runtime.
-    let images: Vec<sylva_scene::film::HdrImage> =
-        rendered.iter().map(|f| f.image.clone()).collect();
-    // A sequence keeps one exposure (its middle frame's), so a sun
-    // sweep shows the light change rather than the tone mapper's.
-    tokio::task::spawn_blocking(move || {
-        let exposure = reinhard(&images[images.len() / 2], 0.18).1;
-        images
-            .iter()
-            .map(|image| {
-                let (ldr, tone) = if images.len() == 1 {
-                    reinhard(image, 0.18)
-                } else {
-                    (reinhard_like(image, &exposure), exposure)
-                };
-                Ok((encode_png(image.width, image.height, &ldr)?, encode_exr(image)?, tone))
-            })
-            .collect::<anyhow::Result<Vec<_>>>()
-    })
-    .await
-    .map_err(|e| anyhow::anyhow!("{e}"))?
-}
-
-fn encode_png(w: u32, h: u32, px: &[[u8; 3]]) -> anyhow::Result<Vec<u8>> {
-    let img = image::RgbImage::from_raw(w, h, px.iter().flatten().copied().collect())
-        .ok_or_else(|| anyhow::anyhow!("image size"))?;
-    let mut out = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut out, image::ImageFormat::Png)?;
-    Ok(out.into_inner())
-}
-
-fn encode_exr(img: &sylva_scene::film::HdrImage) -> anyhow::Result<Vec<u8>> {
-    let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
-    let buf = image::Rgb32FImage::from_raw(img.width, img.height, flat)
-        .ok_or_else(|| anyhow::anyhow!("image size"))?;
-    let mut out = std::io::Cursor::new(Vec::new());
-    image::DynamicImage::ImageRgb32F(buf).write_to(&mut out, image::ImageFormat::OpenExr)?;
-    Ok(out.into_inner())
 }

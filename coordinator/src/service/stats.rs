@@ -22,9 +22,10 @@ pub struct JobStats {
     pub prepared_once: Option<PreparedShare>,
     /// Per worker.
     pub workers: Vec<WorkerReport>,
-    /// One frame's figures, beside the job's (a single frame).
+    /// One frame's figures ([`FrameStats`], as stored with the frame),
+    /// beside the job's (a single frame).
     #[serde(flatten)]
-    pub frame: Option<FrameStats>,
+    pub frame: Option<serde_json::Value>,
     /// A sequence's figures.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sequence: Option<SequenceStats>,
@@ -78,8 +79,8 @@ pub struct SequenceStats {
     pub ms_per_frame: f64,
     /// Whether whole frames went to workers side by side (no strips cut).
     pub whole_frames_in_parallel: bool,
-    /// Each frame's figures.
-    pub per_frame: Vec<FrameStats>,
+    /// Each frame's figures ([`FrameStats`], as stored with the frame).
+    pub per_frame: Vec<serde_json::Value>,
 }
 
 impl FrameStats {

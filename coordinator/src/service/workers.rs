@@ -13,6 +13,37 @@ pub(super) struct KnownWorker {
     pub(super) seen: Instant,
 }
 
+impl KnownWorker {
+    /// A worker the database remembers from before a restart: alive until
+    /// a heartbeat says otherwise, forgotten when its registration expires.
+    pub(super) fn restored(w: &crate::store::WorkerRow) -> Self {
+        let ago = (crate::store::now_ms() as u64).saturating_sub(w.last_seen_ms);
+        KnownWorker {
+            info: pb::WorkerInfo {
+                addr: w.addr.clone(),
+                alive: true,
+                strips_done: w.strips_done,
+                strips_failed: w.strips_failed,
+                ..Default::default()
+            },
+            named: false,
+            seen: Instant::now()
+                .checked_sub(Duration::from_millis(ago))
+                .unwrap_or_else(Instant::now),
+        }
+    }
+
+    fn row(&self) -> crate::store::WorkerRow {
+        let ago = self.seen.elapsed().as_millis() as u64;
+        crate::store::WorkerRow {
+            addr: self.info.addr.clone(),
+            strips_done: self.info.strips_done,
+            strips_failed: self.info.strips_failed,
+            last_seen_ms: (crate::store::now_ms() as u64).saturating_sub(ago),
+        }
+    }
+}
+
 impl CoordinatorService {
     pub(super) async fn workers(
         &self,
@@ -41,16 +72,23 @@ impl CoordinatorService {
             // before it proves it is one of the farm's workers.
             self.state.verify_worker(&addr).await?;
         }
-        let mut w = lock(&self.state.workers);
-        let entry = w.entry(addr.clone()).or_insert_with(|| KnownWorker {
-            info: pb::WorkerInfo { addr: addr.clone(), ..Default::default() },
-            named: false,
-            seen: Instant::now(),
-        });
-        entry.info.alive = true;
-        entry.seen = Instant::now();
+        let row = {
+            let mut w = lock(&self.state.workers);
+            let entry = w.entry(addr.clone()).or_insert_with(|| KnownWorker {
+                info: pb::WorkerInfo { addr: addr.clone(), ..Default::default() },
+                named: false,
+                seen: Instant::now(),
+            });
+            entry.info.alive = true;
+            entry.seen = Instant::now();
+            entry.row()
+        };
         if !known {
             tracing::info!(%addr, "worker registered");
+            // A restarted coordinator finds it at once.
+            if let Err(e) = self.state.store.put_workers(&[row]).await {
+                tracing::warn!(%addr, "worker record not written: {e:#}");
+            }
         }
         Ok(Response::new(pb::RegisterWorkerReply {}))
     }
@@ -95,14 +133,27 @@ impl State {
                 }
             }
             let ttl = self.config.registration_ttl;
-            lock(&self.workers).retain(|addr, w| {
-                let keep = w.named || w.seen.elapsed() < ttl;
-                if !keep {
-                    tracing::info!(%addr, "forgot a worker whose registration expired");
-                }
-                keep
-            });
-            self.sweep();
+            let mut forgotten = Vec::new();
+            let rows: Vec<crate::store::WorkerRow> = {
+                let mut workers = lock(&self.workers);
+                workers.retain(|addr, w| {
+                    let keep = w.named || w.seen.elapsed() < ttl;
+                    if !keep {
+                        tracing::info!(%addr, "forgot a worker whose registration expired");
+                        forgotten.push(addr.clone());
+                    }
+                    keep
+                });
+                workers.values().map(KnownWorker::row).collect()
+            };
+            // Per-worker records, for a restarted coordinator and for audits.
+            if let Err(e) = self.store.put_workers(&rows).await {
+                tracing::warn!("worker records not written: {e:#}");
+            }
+            for addr in forgotten {
+                let _ = self.store.delete_worker(&addr).await;
+            }
+            self.sweep().await;
             tokio::time::sleep(self.config.heartbeat).await;
         }
     }

@@ -46,7 +46,7 @@ impl HdrImage {
 }
 
 /// What the tone mapper measured.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct ToneMapStats {
     /// Log-average luminance of the frame.
     pub log_average: f32,

@@ -42,9 +42,28 @@ pub struct CoordinatorArgs {
     /// Most finished jobs kept; the oldest are forgotten first.
     #[arg(long, default_value_t = 1000)]
     pub keep_jobs: usize,
-    /// Images kept in memory, MiB over all jobs; the rest go to disk.
-    #[arg(long, default_value_t = 256)]
-    pub results_memory_mib: u64,
+    /// The state folder: the queue's database (unless --database names
+    /// another), the bundles of waiting jobs and every result. A restart on
+    /// the same folder resumes where the coordinator stopped. Default:
+    /// `$XDG_STATE_HOME/sylva/coordinator`, else `~/.local/state/sylva/coordinator`.
+    #[arg(long, env = "SYLVA_STATE_DIR", conflicts_with = "ephemeral")]
+    pub state_dir: Option<PathBuf>,
+    /// A fresh state folder in $TMPDIR, removed at exit: a coordinator for
+    /// one command or test, which nothing needs to survive.
+    #[arg(long)]
+    pub ephemeral: bool,
+    /// The queue's database instead of SQLite in the state folder:
+    /// `postgres://USER:PASSWORD@HOST/DB` (or `sqlite://PATH`).
+    #[arg(long, env = "SYLVA_DATABASE_URL", hide_env_values = true)]
+    pub database: Option<String>,
+    /// Most pixels one job may render, all its frames together
+    /// (2^30: e.g. 2,675 frames of 896 × 448).
+    #[arg(long, default_value_t = 1 << 30)]
+    pub max_job_pixels: u64,
+    /// Disk the results of all kept jobs may take, MiB; a job that would
+    /// go over is refused at submit.
+    #[arg(long, default_value_t = 32 * 1024)]
+    pub results_disk_mib: u64,
     /// Seconds after which a worker that registered itself and stopped
     /// answering is forgotten.
     #[arg(long, default_value_t = 30)]
@@ -76,4 +95,26 @@ pub struct SubmitArgs {
     pub auth: crate::flags::security::TokenArgs,
     #[command(flatten)]
     pub tls: crate::flags::security::ConnectTlsArgs,
+}
+
+impl CoordinatorArgs {
+    /// The state folder: the flag's, else the documented default.
+    pub fn state_dir(&self) -> anyhow::Result<PathBuf> {
+        if self.ephemeral {
+            return Ok(
+                std::env::temp_dir().join(format!("sylva-coordinator-{}", std::process::id()))
+            );
+        }
+        if let Some(d) = &self.state_dir {
+            return Ok(d.clone());
+        }
+        let base = match std::env::var_os("XDG_STATE_HOME").filter(|v| !v.is_empty()) {
+            Some(x) => PathBuf::from(x),
+            None => PathBuf::from(std::env::var_os("HOME").ok_or_else(|| {
+                anyhow::anyhow!("no HOME and no XDG_STATE_HOME: give --state-dir")
+            })?)
+            .join(".local/state"),
+        };
+        Ok(base.join("sylva").join("coordinator"))
+    }
 }

@@ -1,0 +1,553 @@
+//! The durable queue: jobs, their finished frames and strips, per-worker
+//! records and the id counter, in a database — SQLite embedded in the
+//! state folder (WAL mode) by default, PostgreSQL for a farm that keeps
+//! its data on a server — through one query layer (`sqlx`'s `Any`), so
+//! both run the same statements. Images are files in the state folder,
+//! indexed here. A coordinator killed at any moment restarts from what is
+//! written here: every row is written before the client or the farm is
+//! told of the change it records.
+
+mod schema;
+
+use crate::service::JobState;
+use anyhow::Context;
+use sqlx::any::{AnyPoolOptions, AnyRow};
+use sqlx::{AnyPool, Row};
+
+/// A job as the database keeps it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct JobRow {
+    /// Its id, `job-PREFIX-SEQ`.
+    pub id: String,
+    /// Submission order.
+    pub seq: u64,
+    /// Where it is in its life.
+    pub state: Option<JobState>,
+    /// Higher runs first.
+    pub priority: i32,
+    /// The client's name for it.
+    pub name: String,
+    /// Who submitted it.
+    pub submitter: String,
+    /// The job spec as the client sent it (protobuf).
+    pub spec: Vec<u8>,
+    /// The scene bundle's hash (the bundle is a file of the state folder).
+    pub bundle_hash: String,
+    /// Frames (1 unless a sequence).
+    pub frames: u32,
+    /// Frames stored.
+    pub frames_done: u32,
+    /// Strips rendered.
+    pub strips_done: u32,
+    /// Strips planned.
+    pub strips_total: u32,
+    /// Strips rendered again after a failure.
+    pub retries: u32,
+    /// Why it failed.
+    pub error: String,
+    /// Its figures, once done.
+    pub stats_json: String,
+    /// When it was submitted, started and ended, ms since the Unix epoch.
+    pub submitted_ms: u64,
+    /// When it started (0: not yet).
+    pub started_ms: u64,
+    /// When it ended (0: not yet).
+    pub finished_ms: u64,
+    /// Bytes its results take (or are reserved for, until it ends).
+    pub result_bytes: u64,
+}
+
+/// A finished frame's files, relative to the state folder.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameRow {
+    /// Frame number, from 0.
+    pub frame: u32,
+    /// The linear HDR frame.
+    pub exr: String,
+    /// The tone-mapped frame ("" until the job's exposure is known).
+    pub png: String,
+    /// Bytes of both files.
+    pub bytes: u64,
+    /// The frame's figures.
+    pub stats_json: String,
+}
+
+/// A strip of an unfinished frame, kept so a restart does not render it again.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StripRow {
+    /// Frame number.
+    pub frame: u32,
+    /// First column.
+    pub x0: u32,
+    /// Column after the last.
+    pub x1: u32,
+    /// Who rendered it.
+    pub worker: String,
+    /// The worker's reply as received, relative to the state folder.
+    pub path: String,
+}
+
+/// What the farm has seen of one worker.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WorkerRow {
+    /// `host:port`.
+    pub addr: String,
+    /// Strips it rendered.
+    pub strips_done: u64,
+    /// Strips that failed on it.
+    pub strips_failed: u64,
+    /// When it last registered or answered, ms since the Unix epoch.
+    pub last_seen_ms: u64,
+}
+
+/// The database.
+#[derive(Clone, Debug)]
+pub struct Store {
+    pool: AnyPool,
+    postgres: bool,
+}
+
+/// A database URL without its password, for messages.
+pub fn redacted(url: &str) -> String {
+    match (url.find("://"), url.rfind('@')) {
+        (Some(s), Some(at)) if at > s => format!("{}://…@{}", &url[..s], &url[at + 1..]),
+        _ => url.to_string(),
+    }
+}
+
+impl Store {
+    /// Opens (creating if need be) the database at `url` — `sqlite://PATH`
+    /// or `postgres://…` — and brings its schema up to date.
+    pub async fn open(url: &str) -> anyhow::Result<Store> {
+        sqlx::any::install_default_drivers();
+        let postgres = url.starts_with("postgres://") || url.starts_with("postgresql://");
+        let sqlite = url.starts_with("sqlite:");
+        anyhow::ensure!(
+            postgres || sqlite,
+            "database {}: sqlite://PATH or postgres://USER@HOST/DB",
+            redacted(url)
+        );
+        let url = if sqlite && !url.contains('?') { format!("{url}?mode=rwc") } else { url.into() };
+        // SQLite takes one writer at a time: one connection serialises the
+        // coordinator's writes rather than failing them as "locked".
+        let pool = AnyPoolOptions::new()
+            .max_connections(if sqlite { 1 } else { 4 })
+            .connect(&url)
+            .await
+            .with_context(|| format!("cannot open the database {}", redacted(&url)))?;
+        if sqlite {
+            // Readers never block the writer, and a commit is one append.
+            sqlx::query("PRAGMA journal_mode = WAL").execute(&pool).await?;
+        }
+        let store = Store { pool, postgres };
+        store.migrate().await?;
+        Ok(store)
+    }
+
+    /// Which database this is, in words.
+    pub fn kind(&self) -> &'static str {
+        if self.postgres { "PostgreSQL" } else { "SQLite" }
+    }
+
+    async fn migrate(&self) -> anyhow::Result<()> {
+        sqlx::query(
+            "CREATE TABLE IF NOT EXISTS schema_migrations (
+                version BIGINT PRIMARY KEY, name TEXT NOT NULL, applied_ms BIGINT NOT NULL)",
+        )
+        .execute(&self.pool)
+        .await?;
+        let applied: Vec<i64> = sqlx::query("SELECT version FROM schema_migrations")
+            .fetch_all(&self.pool)
+            .await?
+            .iter()
+            .map(|r| r.get::<i64, _>(0))
+            .collect();
+        let newest = schema::MIGRATIONS.last().map_or(0, |m| m.0);
+        if let Some(v) = applied.iter().find(|v| **v > newest) {
+            anyhow::bail!(
+                "the database is at schema version {v}, newer than this coordinator's {newest}: \
+                 run the newer coordinator, or another database"
+            );
+        }
+        for (version, name, statements) in schema::MIGRATIONS {
+            if applied.contains(version) {
+                continue;
+            }
+            let mut tx = self.pool.begin().await?;
+            for s in *statements {
+                sqlx::query(&schema::in_dialect(s, self.postgres))
+                    .execute(&mut *tx)
+                    .await
+                    .with_context(|| format!("schema migration {version} ({name})"))?;
+            }
+            sqlx::query(
+                "INSERT INTO schema_migrations (version, name, applied_ms) VALUES ($1, $2, $3)",
+            )
+            .bind(version)
+            .bind(*name)
+            .bind(now_ms())
+            .execute(&mut *tx)
+            .await?;
+            tx.commit().await?;
+            tracing::info!(version, name, "database schema migrated");
+        }
+        Ok(())
+    }
+
+    /// A value kept under `key`, set to `make()` the first time it is asked for.
+    pub async fn meta(&self, key: &str, make: impl FnOnce() -> String) -> anyhow::Result<String> {
+        sqlx::query("INSERT INTO meta (key, value) VALUES ($1, $2) ON CONFLICT (key) DO NOTHING")
+            .bind(key)
+            .bind(make())
+            .execute(&self.pool)
+            .await?;
+        Ok(sqlx::query("SELECT value FROM meta WHERE key = $1")
+            .bind(key)
+            .fetch_one(&self.pool)
+            .await?
+            .get::<String, _>(0))
+    }
+
+    /// The next job number: never one handed out before, by any
+    /// coordinator on this database.
+    pub async fn next_seq(&self) -> anyhow::Result<u64> {
+        let r =
+            sqlx::query("UPDATE counters SET value = value + 1 WHERE name = 'job' RETURNING value")
+                .fetch_one(&self.pool)
+                .await?;
+        Ok(r.get::<i64, _>(0) as u64)
+    }
+
+    /// Records a new job.
+    pub async fn insert_job(&self, j: &JobRow) -> anyhow::Result<()> {
+        sqlx::query(
+            "INSERT INTO jobs (id, seq, state, priority, name, submitter, spec, bundle_hash,
+                frames, submitted_ms, result_bytes)
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
+        )
+        .bind(&j.id)
+        .bind(j.seq as i64)
+        .bind(j.state.map_or("queued", JobState::name))
+        .bind(j.priority as i64)
+        .bind(&j.name)
+        .bind(&j.submitter)
+        .bind(j.spec.clone())
+        .bind(&j.bundle_hash)
+        .bind(j.frames as i64)
+        .bind(j.submitted_ms as i64)
+        .bind(j.result_bytes as i64)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// Every job, in submission order.
+    pub async fn jobs(&self) -> anyhow::Result<Vec<JobRow>> {
+        let rows = sqlx::query("SELECT * FROM jobs ORDER BY seq").fetch_all(&self.pool).await?;
+        rows.iter().map(job_row).collect()
+    }
+
+    /// A job's state, and with it the reason it failed and when it started or ended.
+    pub async fn set_state(&self, j: &JobRow) -> anyhow::Result<()> {
+        sqlx::query(
+            "UPDATE jobs SET state = $2, error = $3, started_ms = $4, finished_ms = $5 WHERE id = $1",
+        )
+        .bind(&j.id)
+        .bind(j.state.map_or("queued", JobState::name))
+        .bind(&j.error)
+        .bind(j.started_ms as i64)
+        .bind(j.finished_ms as i64)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// A job's progress counts.
+    pub async fn set_progress(&self, j: &JobRow) -> anyhow::Result<()> {
+        sqlx::query(
+            "UPDATE jobs SET strips_done = $2, strips_total = $3, frames_done = $4, retries = $5
+             WHERE id = $1",
+        )
+        .bind(&j.id)
+        .bind(j.strips_done as i64)
+        .bind(j.strips_total as i64)
+        .bind(j.frames_done as i64)
+        .bind(j.retries as i64)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// A job's priority.
+    pub async fn set_priority(&self, id: &str, priority: i32) -> anyhow::Result<()> {
+        sqlx::query("UPDATE jobs SET priority = $2 WHERE id = $1")
+            .bind(id)
+            .bind(priority as i64)
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
+    /// A finished job's figures and the bytes its results take.
+    pub async fn set_stats(&self, id: &str, stats_json: &str, bytes: u64) -> anyhow::Result<()> {
+        sqlx::query("UPDATE jobs SET stats_json = $2, result_bytes = $3 WHERE id = $1")
+            .bind(id)
+            .bind(stats_json)
+            .bind(bytes as i64)
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
+    /// Forgets a job, its frames and strips (its files are the caller's).
+    pub async fn delete_job(&self, id: &str) -> anyhow::Result<()> {
+        let mut tx = self.pool.begin().await?;
+        for table in ["strips", "frames"] {
+            sqlx::query(&format!("DELETE FROM {table} WHERE job_id = $1"))
+                .bind(id)
+                .execute(&mut *tx)
+                .await?;
+        }
+        sqlx::query("DELETE FROM jobs WHERE id = $1").bind(id).execute(&mut *tx).await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// Bytes that results take or are reserved for, over every job kept.
+    pub async fn result_bytes(&self) -> anyhow::Result<u64> {
+        let r = sqlx::query("SELECT COALESCE(SUM(result_bytes), 0) FROM jobs")
+            .fetch_one(&self.pool)
+            .await?;
+        Ok(r.try_get::<i64, _>(0).unwrap_or(0).max(0) as u64)
+    }
+
+    /// Records a finished frame (replacing an earlier record of it), and
+    /// drops the strips it was put together from.
+    pub async fn put_frame(&self, id: &str, f: &FrameRow) -> anyhow::Result<()> {
+        let mut tx = self.pool.begin().await?;
+        sqlx::query(
+            "INSERT INTO frames (job_id, frame, exr, png, bytes, stats_json)
+             VALUES ($1, $2, $3, $4, $5, $6)
+             ON CONFLICT (job_id, frame) DO UPDATE SET exr = excluded.exr, png = excluded.png,
+                bytes = excluded.bytes, stats_json = excluded.stats_json",
+        )
+        .bind(id)
+        .bind(f.frame as i64)
+        .bind(&f.exr)
+        .bind(&f.png)
+        .bind(f.bytes as i64)
+        .bind(&f.stats_json)
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query("DELETE FROM strips WHERE job_id = $1 AND frame = $2")
+            .bind(id)
+            .bind(f.frame as i64)
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// A job's finished frames, in order.
+    pub async fn frames(&self, id: &str) -> anyhow::Result<Vec<FrameRow>> {
+        let rows = sqlx::query("SELECT * FROM frames WHERE job_id = $1 ORDER BY frame")
+            .bind(id)
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter()
+            .map(|r| {
+                Ok(FrameRow {
+                    frame: r.try_get::<i64, _>("frame")? as u32,
+                    exr: r.try_get("exr")?,
+                    png: r.try_get("png")?,
+                    bytes: r.try_get::<i64, _>("bytes")? as u64,
+                    stats_json: r.try_get("stats_json")?,
+                })
+            })
+            .collect()
+    }
+
+    /// Records a strip of an unfinished frame.
+    pub async fn put_strip(&self, id: &str, s: &StripRow) -> anyhow::Result<()> {
+        sqlx::query(
+            "INSERT INTO strips (job_id, frame, x0, x1, worker, path) VALUES ($1, $2, $3, $4, $5, $6)
+             ON CONFLICT (job_id, frame, x0) DO UPDATE SET x1 = excluded.x1,
+                worker = excluded.worker, path = excluded.path",
+        )
+        .bind(id)
+        .bind(s.frame as i64)
+        .bind(s.x0 as i64)
+        .bind(s.x1 as i64)
+        .bind(&s.worker)
+        .bind(&s.path)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// The strips kept of a job's unfinished frames.
+    pub async fn strips(&self, id: &str) -> anyhow::Result<Vec<StripRow>> {
+        let rows = sqlx::query("SELECT * FROM strips WHERE job_id = $1 ORDER BY frame, x0")
+            .bind(id)
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter()
+            .map(|r| {
+                Ok(StripRow {
+                    frame: r.try_get::<i64, _>("frame")? as u32,
+                    x0: r.try_get::<i64, _>("x0")? as u32,
+                    x1: r.try_get::<i64, _>("x1")? as u32,
+                    worker: r.try_get("worker")?,
+                    path: r.try_get("path")?,
+                })
+            })
+            .collect()
+    }
+
+    /// Records what the farm has seen of each of `workers`.
+    pub async fn put_workers(&self, workers: &[WorkerRow]) -> anyhow::Result<()> {
+        let mut tx = self.pool.begin().await?;
+        for w in workers {
+            sqlx::query(
+                "INSERT INTO workers (addr, strips_done, strips_failed, last_seen_ms)
+                 VALUES ($1, $2, $3, $4)
+                 ON CONFLICT (addr) DO UPDATE SET strips_done = excluded.strips_done,
+                    strips_failed = excluded.strips_failed, last_seen_ms = excluded.last_seen_ms",
+            )
+            .bind(&w.addr)
+            .bind(w.strips_done as i64)
+            .bind(w.strips_failed as i64)
+            .bind(w.last_seen_ms as i64)
+            .execute(&mut *tx)
+            .await?;
+        }
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// Forgets a worker's record.
+    pub async fn delete_worker(&self, addr: &str) -> anyhow::Result<()> {
+        sqlx::query("DELETE FROM workers WHERE addr = $1").bind(addr).execute(&self.pool).await?;
+        Ok(())
+    }
+
+    /// Every worker's record.
+    pub async fn workers(&self) -> anyhow::Result<Vec<WorkerRow>> {
+        let rows = sqlx::query("SELECT * FROM workers ORDER BY addr").fetch_all(&self.pool).await?;
+        rows.iter()
+            .map(|r| {
+                Ok(WorkerRow {
+                    addr: r.try_get("addr")?,
+                    strips_done: r.try_get::<i64, _>("strips_done")? as u64,
+                    strips_failed: r.try_get::<i64, _>("strips_failed")? as u64,
+                    last_seen_ms: r.try_get::<i64, _>("last_seen_ms")? as u64,
+                })
+            })
+            .collect()
+    }
+
+    /// Closes the connections, waiting for writes under way.
+    pub async fn close(&self) {
+        self.pool.close().await;
+    }
+}
+
+fn job_row(r: &AnyRow) -> anyhow::Result<JobRow> {
+    let n = |c: &str| r.try_get::<i64, _>(c).map(|v| v.max(0) as u64);
+    let state: String = r.try_get("state")?;
+    Ok(JobRow {
+        id: r.try_get("id")?,
+        seq: n("seq")?,
+        state: Some(
+            JobState::from_name(&state).with_context(|| {
+                format!("a job in the database is in an unknown state {state:?}")
+            })?,
+        ),
+        priority: r.try_get::<i64, _>("priority")? as i32,
+        name: r.try_get("name")?,
+        submitter: r.try_get("submitter")?,
+        spec: r.try_get("spec")?,
+        bundle_hash: r.try_get("bundle_hash")?,
+        frames: n("frames")? as u32,
+        frames_done: n("frames_done")? as u32,
+        strips_done: n("strips_done")? as u32,
+        strips_total: n("strips_total")? as u32,
+        retries: n("retries")? as u32,
+        error: r.try_get("error")?,
+        stats_json: r.try_get("stats_json")?,
+        submitted_ms: n("submitted_ms")?,
+        started_ms: n("started_ms")?,
+        finished_ms: n("finished_ms")?,
+        result_bytes: n("result_bytes")?,
+    })
+}
+
+/// Milliseconds since the Unix epoch.
+pub fn now_ms() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn a_job_and_its_frames_outlive_the_connection() {
+        let dir = std::env::temp_dir().join(format!("sylva-store-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let url = format!("sqlite://{}", dir.join("sylva.db").display());
+        let s = Store::open(&url).await.unwrap();
+        let prefix = s.meta("prefix", || "abcd".into()).await.unwrap();
+        assert_eq!((s.next_seq().await.unwrap(), s.next_seq().await.unwrap()), (1, 2));
+        let job = JobRow {
+            id: "job-abcd-1".into(),
+            seq: 1,
+            state: Some(JobState::Queued),
+            priority: -3,
+            name: "n".into(),
+            submitter: "me".into(),
+            spec: vec![0, 1, 255],
+            bundle_hash: "h".into(),
+            frames: 24,
+            submitted_ms: 7,
+            result_bytes: 1000,
+            ..Default::default()
+        };
+        s.insert_job(&job).await.unwrap();
+        let strip = StripRow { frame: 3, x0: 0, x1: 8, worker: "w:1".into(), path: "p".into() };
+        s.put_strip(&job.id, &strip).await.unwrap();
+        let f = FrameRow { frame: 2, exr: "a.exr".into(), bytes: 9, ..Default::default() };
+        s.put_frame(&job.id, &f).await.unwrap();
+        let running = JobRow { state: Some(JobState::Running), started_ms: 8, ..job.clone() };
+        s.set_state(&running).await.unwrap();
+        s.put_workers(&[WorkerRow { addr: "w:1".into(), strips_done: 5, ..Default::default() }])
+            .await
+            .unwrap();
+        s.close().await;
+        // Opened again (the migrations already applied), everything is there.
+        let s = Store::open(&url).await.unwrap();
+        assert_eq!(s.meta("prefix", || "other".into()).await.unwrap(), prefix);
+        assert_eq!(s.next_seq().await.unwrap(), 3, "a number is never handed out twice");
+        assert_eq!(s.jobs().await.unwrap(), vec![running]);
+        assert_eq!(s.frames(&job.id).await.unwrap(), vec![f.clone()]);
+        assert_eq!(s.strips(&job.id).await.unwrap(), vec![strip]);
+        assert_eq!(s.workers().await.unwrap()[0].strips_done, 5);
+        assert_eq!(s.result_bytes().await.unwrap(), 1000);
+        // A frame put together drops its strips.
+        s.put_frame(&job.id, &FrameRow { frame: 3, ..f }).await.unwrap();
+        assert!(s.strips(&job.id).await.unwrap().is_empty());
+        s.delete_job(&job.id).await.unwrap();
+        assert!(s.jobs().await.unwrap().is_empty() && s.frames(&job.id).await.unwrap().is_empty());
+        s.close().await;
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_url_loses_its_password_in_messages() {
+        assert_eq!(redacted("postgres://sylva:secret@db:5432/farm"), "postgres://…@db:5432/farm");
+        assert_eq!(redacted("sqlite:///var/lib/sylva.db"), "sqlite:///var/lib/sylva.db");
+    }
+}
