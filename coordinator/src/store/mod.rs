@@ -315,7 +315,7 @@ impl Store {
 
     /// Bytes that results take or are reserved for, over every job kept.
     pub async fn result_bytes(&self) -> anyhow::Result<u64> {
-        let r = sqlx::query("SELECT COALESCE(SUM(result_bytes), 0) FROM jobs")
+        let r = sqlx::query("SELECT CAST(COALESCE(SUM(result_bytes), 0) AS BIGINT) FROM jobs")
             .fetch_one(&self.pool)
             .await?;
         Ok(r.try_get::<i64, _>(0).unwrap_or(0).max(0) as u64)

@@ -1,0 +1,262 @@
+//! The durable queue as an operator meets it: a coordinator `kill -9`'d in
+//! the middle of a 24-frame sequence, started again on the same state
+//! folder, finishes the job from the frames it had stored, every frame
+//! byte for byte the uninterrupted run's; finished results outlive another
+//! kill; ids are never handed out twice. Real worker and coordinator
+//! processes, real gRPC, a real SQLite file.
+
+mod common;
+
+use common::{Proc, coordinator, ok, scratch, small_scene, spawn, spawn_logging};
+use std::path::Path;
+use std::time::Duration;
+use sylva_proto::pb;
+
+/// Kills a process as a crash or the OOM killer does: no clean-up at all.
+fn kill_9(p: Proc) {
+    // SAFETY: signals our own child.
+    unsafe { libc::kill(p.child.id() as i32, libc::SIGKILL) };
+    drop(p);
+}
+
+fn durable_coordinator(workers: &str, state: &Path, log: &Path) -> Proc {
+    spawn_logging(
+        &[
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--workers",
+            workers,
+            "--state-dir",
+            state.to_str().unwrap(),
+        ],
+        &[("RUST_LOG", "sylva_coordinator=info")],
+        Some(log),
+    )
+}
+
+fn bytes(p: &Path) -> Vec<u8> {
+    std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_coordinator_killed_mid_sequence_resumes_it_and_every_frame_is_the_same() {
+    let dir = scratch("durable");
+    let scene = small_scene(&dir);
+    let (w1, w2) = (
+        spawn(&["worker", "--listen", "127.0.0.1:0"], &[]),
+        spawn(&["worker", "--listen", "127.0.0.1:0"], &[]),
+    );
+    let workers = format!("{},{}", w1.addr, w2.addr);
+    // A sun sweep: each frame solves its own LB, so the sequence takes long
+    // enough to be stopped in the middle.
+    let flags = [
+        "--width",
+        "48",
+        "--height",
+        "32",
+        "--lighting",
+        "lb",
+        "--frames",
+        "24",
+        "--sun-from",
+        "60,100",
+        "--sun-to",
+        "20,220",
+        "--exr",
+    ];
+    let submit = |addr: &str, out: &Path| {
+        let mut a = vec![
+            "submit".to_string(),
+            scene.display().to_string(),
+            "--coordinator".into(),
+            addr.into(),
+            "-o".into(),
+            out.display().to_string(),
+        ];
+        a.extend(flags.iter().map(|s| s.to_string()));
+        a
+    };
+
+    // The uninterrupted run.
+    let clean = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &workers], &[]);
+    let args = submit(&clean.addr, &dir.join("clean/shot.png"));
+    ok(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    drop(clean);
+
+    // The same job on a durable coordinator, killed once frames are stored.
+    let state = dir.join("state");
+    let c1 = durable_coordinator(&workers, &state, &dir.join("c1.log"));
+    let mut client = std::process::Command::new(env!("CARGO_BIN_EXE_sylva"))
+        .args(submit(&c1.addr, &dir.join("lost/shot.png")))
+        .env("XDG_RUNTIME_DIR", common::runtime())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut c = coordinator(&c1.addr, None).await;
+    let (id, at_kill) = loop {
+        let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
+        if let Some(j) = jobs.first().filter(|j| j.frames_done >= 4) {
+            break (j.id.clone(), j.frames_done);
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
+    kill_9(c1);
+    let _ = client.wait();
+    assert!(
+        at_kill < 24,
+        "the sequence ended before the kill ({at_kill} frames): nothing to resume"
+    );
+
+    // Started again on the same folder, it finishes the job from there.
+    let log2 = dir.join("c2.log");
+    let c2 = durable_coordinator(&workers, &state, &log2);
+    let mut c = coordinator(&c2.addr, None).await;
+    let mut events = c.watch_job(pb::JobId { id: id.clone() }).await.unwrap().into_inner();
+    let mut last = None;
+    while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
+        let ev = ev.unwrap();
+        let end = sylva_coordinator::service::wire_ended(ev.state);
+        last = Some(ev);
+        if end {
+            break;
+        }
+    }
+    let last = last.unwrap();
+    assert_eq!(sylva_coordinator::service::wire_name(last.state), "done", "{last:?}");
+    let log = std::fs::read_to_string(&log2).unwrap();
+    let resumed = log.lines().find(|l| l.contains("resuming from what an earlier run stored"));
+    let kept: u32 = resumed
+        .and_then(|l| l.split("frames=").nth(1))
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("the restart says what it resumed from:\n{log}"));
+    assert!(kept >= at_kill, "frames stored before the kill are kept: {kept} < {at_kill}");
+    let out = dir.join("resumed/shot.png");
+    ok(&["fetch", &id, "--coordinator", &c2.addr, "--all", "-o", out.to_str().unwrap()]);
+    for i in 0..24 {
+        let clean = |ext| bytes(&dir.join(format!("clean/shot-{i:04}.{ext}")));
+        let png = bytes(&dir.join(format!("resumed/shot-{i:04}.png")));
+        assert!(png == clean("png"), "frame {i}'s PNG differs from the uninterrupted run's");
+        let exr = c
+            .fetch_result(pb::FetchRequest { id: id.clone(), format: "exr".into(), frame: i })
+            .await
+            .unwrap()
+            .into_inner()
+            .data;
+        assert!(exr == clean("exr"), "frame {i}'s EXR differs from the uninterrupted run's");
+    }
+
+    // Killed again, the finished job is still served, and a new job gets
+    // an id never handed out before.
+    kill_9(c2);
+    let c3 = durable_coordinator(&workers, &state, &dir.join("c3.log"));
+    let again = dir.join("again.png");
+    ok(&["fetch", &id, "--coordinator", &c3.addr, "--frame", "5", "-o", again.to_str().unwrap()]);
+    assert!(bytes(&again) == bytes(&dir.join("clean/shot-0005.png")));
+    let one = dir.join("one.png");
+    let said = ok(&[
+        "submit",
+        scene.to_str().unwrap(),
+        "--coordinator",
+        &c3.addr,
+        "-o",
+        one.to_str().unwrap(),
+        "--width",
+        "32",
+        "--height",
+        "16",
+    ]);
+    let seq = |id: &str| id.rsplit('-').next().unwrap().parse::<u64>().unwrap();
+    let new_id = said.split_whitespace().next().unwrap();
+    assert!(seq(new_id) > seq(&id) && new_id.starts_with(id.rsplit_once('-').unwrap().0));
+    assert!(state.join("sylva.db").exists());
+    c3.terminate();
+    assert!(state.join("sylva.db").exists(), "a durable coordinator keeps its state at exit");
+    drop((w1, w2));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
+    let dir = scratch("durable-strips");
+    let scene = small_scene(&dir);
+    let (w1, w2) = (
+        spawn(&["worker", "--listen", "127.0.0.1:0"], &[]),
+        spawn(&["worker", "--listen", "127.0.0.1:0"], &[]),
+    );
+    let workers = format!("{},{}", w1.addr, w2.addr);
+    let submit = |addr: &str, out: &Path| {
+        [
+            "submit",
+            scene.to_str().unwrap(),
+            "--coordinator",
+            addr,
+            "-o",
+            out.to_str().unwrap(),
+            "--width",
+            "384",
+            "--height",
+            "96",
+            "--spp",
+            "8",
+            "--schedule",
+            "dynamic",
+        ]
+        .map(String::from)
+    };
+    let clean = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &workers], &[]);
+    ok(&submit(&clean.addr, &dir.join("clean.png")).each_ref().map(String::as_str));
+    drop(clean);
+
+    let state = dir.join("state");
+    let c1 = durable_coordinator(&workers, &state, &dir.join("c1.log"));
+    let mut client = std::process::Command::new(env!("CARGO_BIN_EXE_sylva"))
+        .args(submit(&c1.addr, &dir.join("lost.png")))
+        .env("XDG_RUNTIME_DIR", common::runtime())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut c = coordinator(&c1.addr, None).await;
+    let id = loop {
+        let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
+        if let Some(j) = jobs.first().filter(|j| j.strips_done >= 2) {
+            assert_eq!(j.frames_done, 0, "the frame ended before the kill: nothing to resume");
+            break j.id.clone();
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    };
+    // A strip is recorded a moment after it is counted.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    kill_9(c1);
+    let _ = client.wait();
+
+    let log2 = dir.join("c2.log");
+    let c2 = durable_coordinator(&workers, &state, &log2);
+    let mut c = coordinator(&c2.addr, None).await;
+    let mut events = c.watch_job(pb::JobId { id: id.clone() }).await.unwrap().into_inner();
+    while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
+        if sylva_coordinator::service::wire_ended(ev.unwrap().state) {
+            break;
+        }
+    }
+    let log = std::fs::read_to_string(&log2).unwrap();
+    let kept: u32 = log
+        .lines()
+        .find(|l| l.contains("resuming from what an earlier run stored"))
+        .and_then(|l| l.split("strips=").nth(1))
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("the restart says what it resumed from:\n{log}"));
+    assert!(kept >= 1, "strips rendered before the kill are kept:\n{log}");
+    let out = dir.join("resumed.png");
+    ok(&["fetch", &id, "--coordinator", &c2.addr, "-o", out.to_str().unwrap()]);
+    assert!(
+        bytes(&out) == bytes(&dir.join("clean.png")),
+        "the frame differs from the uninterrupted run's"
+    );
+    drop((c2, w1, w2));
+    let _ = std::fs::remove_dir_all(&dir);
+}
