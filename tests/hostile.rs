@@ -232,6 +232,9 @@ async fn a_worker_counts_bundle_bytes_as_they_arrive() {
     assert!(w.load_scene(tokio_stream::iter(vec![upper])).await.unwrap().into_inner().was_cached);
 }
 
+/// An error text that drives a terminal that prints it raw.
+const HOSTILE_TEXT: &str = "ok\x1b]0;TITLE\x07\x1b[2J\u{202e}dlrow\r\nINFO forged line";
+
 /// A worker that answers every strip with a reply that does not fit it,
 /// and records whether any call carried a bearer token.
 #[derive(Clone, Default)]
@@ -273,12 +276,14 @@ impl pb::worker_server::Worker for BadWorker {
         self.note(&r);
         let r = r.into_inner();
         let h = r.frame.unwrap().height;
-        // One pixel short, one column too wide, zero wide: in turn.
+        // One pixel short, one column too wide, an error whose text would
+        // drive a terminal (retitle, clear, turn a line round, forge a line):
+        // in turn.
         let n = self.replies.fetch_add(1, Ordering::SeqCst) % 3;
-        let width = match n {
-            0 | 1 => r.x1 - r.x0 + n,
-            _ => 0,
-        };
+        if n == 2 {
+            return Err(tonic::Status::internal(HOSTILE_TEXT));
+        }
+        let width = r.x1 - r.x0 + n;
         let px = (width * h).saturating_sub(if n == 0 { 1 } else { 0 }) as usize;
         Ok(tonic::Response::new(pb::RenderStripReply {
             x0: r.x0,
@@ -410,6 +415,11 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
         !retries.is_empty() && retries.iter().all(|r| r.1 > 0),
         "retry events keep the progress: {retries:?}"
     );
+    // Its hostile error reached watchers and the stats escaped, not raw.
+    let said: Vec<&str> = retries.iter().map(|r| r.2.as_str()).collect();
+    assert!(said.iter().any(|m| m.contains("ok\\u{1b}]0;TITLE\\u{7}")), "{said:?}");
+    let raw = |t: &str| t.chars().any(sylva_scene::sandbox::unprintable);
+    assert!(!said.iter().any(|m| raw(m)) && !raw(&end.stats_json), "{said:?}");
     // It also claimed to hold the scene's prepared data and exported junk
     // under a matching hash: the good workers refused it, then one of them
     // prepared the scene and the other took its data.

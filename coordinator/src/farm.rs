@@ -22,6 +22,12 @@ use sylva_scene::frame::FrameSettings;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig};
 
+/// What a worker said (an error's text), as it may be shown and logged:
+/// bounded, and escaped so it cannot drive a terminal or forge a log line.
+fn said(text: &str) -> String {
+    sylva_scene::sandbox::printable(text, 500)
+}
+
 /// Failures after which a worker is dropped for the frame.
 pub const MAX_FAILURES: u32 = 3;
 /// Bytes per upload chunk.
@@ -275,7 +281,7 @@ async fn share_prepared(
                 let mut req = tonic::Request::new(ask(true));
                 req.set_timeout(deadline);
                 let r = live[k].1.clone().prepare(req).await.map_err(|s| {
-                    format!("{} could not prepare: {}", addrs[live[k].0], s.message())
+                    format!("{} could not prepare: {}", addrs[live[k].0], said(s.message()))
                 })?;
                 held[k] = Some(true);
                 (k, r.into_inner().prepare_ms)
@@ -308,7 +314,7 @@ async fn share_prepared(
                     tracing::warn!(worker = %addr, "took the prepared data but does not hold it")
                 }
                 Err(s) => {
-                    tracing::warn!(worker = %addr, from = %from, "refused the prepared data: {}", s.message())
+                    tracing::warn!(worker = %addr, from = %from, "refused the prepared data: {}", said(s.message()))
                 }
             }
         }
@@ -338,14 +344,14 @@ async fn export_from(
         .clone()
         .export_prepared(req)
         .await
-        .map_err(|s| format!("{from} could not export: {}", s.message()))?
+        .map_err(|s| format!("{from} could not export: {}", said(s.message())))?
         .into_inner();
     let mut chunks: Vec<pb::PreparedChunk> = Vec::new();
     let (mut bytes, mut declared) = (0u64, None);
     while let Some(c) = stream
         .message()
         .await
-        .map_err(|s| format!("{from} broke off its export: {}", s.message()))?
+        .map_err(|s| format!("{from} broke off its export: {}", said(s.message())))?
     {
         let total = *declared.get_or_insert(c.total_size);
         bytes += c.data.len() as u64;
@@ -638,7 +644,7 @@ async fn upload_to_all(
                 let mut c = connect(&w, token, tls.as_ref()).await.map_err(|e| e.to_string())?;
                 let bytes = upload(&mut c, bundle)
                     .await
-                    .map_err(|e| format!("scene upload: {:?}: {}", e.code(), e.message()))?;
+                    .map_err(|e| format!("scene upload: {:?}: {}", e.code(), said(e.message())))?;
                 Ok::<_, String>((c, bytes))
             }
             .await;
@@ -725,7 +731,7 @@ async fn pull_strips(
                     let r = reply.into_inner();
                     decode_reply(&r, strip, height).map(|px| (r, px))
                 }
-                Ok(Err(status)) => Err(format!("{:?}: {}", status.code(), status.message())),
+                Ok(Err(status)) => Err(format!("{:?}: {}", status.code(), said(status.message()))),
                 Err(_) => Err("deadline passed".to_string()),
             };
         match outcome {

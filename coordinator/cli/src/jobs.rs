@@ -69,17 +69,7 @@ fn now_ms() -> u64 {
 /// `s` as it may reach a terminal: the characters the coordinator refuses
 /// in names (control, bidirectional formatting) written as `\u{…}`, since
 /// a worker's error text or an older coordinator's job name may hold them.
-fn escaped(s: &str) -> String {
-    s.chars()
-        .map(|c| {
-            if sylva_coordinator::service::unprintable(c) {
-                format!("\\u{{{:x}}}", c as u32)
-            } else {
-                c.to_string()
-            }
-        })
-        .collect()
-}
+use sylva_scene::sandbox::escaped;
 
 /// Left-aligned columns, two spaces apart, the header first; every cell
 /// [`escaped`].

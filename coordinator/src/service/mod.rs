@@ -62,14 +62,8 @@ pub const MAX_ID: usize = 128;
 /// Longest submitter name accepted, bytes.
 pub const MAX_SUBMITTER: usize = 64;
 
-/// Whether `c` may not appear in a job's name or submitter: a control
-/// character (an escape sequence retitles or clears a terminal that
-/// prints it) or a bidirectional formatting character (U+202E turns the
-/// rest of a listing's row around).
-pub fn unprintable(c: char) -> bool {
-    c.is_control()
-        || matches!(c, '\u{061C}' | '\u{200E}' | '\u{200F}' | '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}')
-}
+/// Whether `c` may not appear in a job's name or submitter.
+pub use sylva_scene::sandbox::unprintable;
 
 /// Milliseconds since the Unix epoch, for listings.
 fn unix_ms() -> u64 {

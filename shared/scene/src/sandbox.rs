@@ -83,12 +83,40 @@ impl FileAccess {
     }
 }
 
-/// At most 80 characters of `s`, for error messages about hostile input.
+/// At most 80 characters of `s`, [`escaped`], for error messages about
+/// hostile input.
 pub fn clip(s: &str) -> String {
-    match s.char_indices().nth(80) {
-        Some((i, _)) => format!("{}…", &s[..i]),
-        None => s.to_string(),
+    printable(s, 80)
+}
+
+/// At most `max` characters of `s` (an ellipsis marks a cut), with
+/// control and bidirectional formatting characters [`escaped`]: a string
+/// from outside (a worker's error, a client's name) as it may be printed
+/// or logged.
+pub fn printable(s: &str, max: usize) -> String {
+    match s.char_indices().nth(max) {
+        Some((i, _)) => format!("{}…", escaped(&s[..i])),
+        None => escaped(s),
     }
+}
+
+/// Whether `c` may not reach a terminal or a log as it is: a control
+/// character (an escape sequence retitles or clears a terminal that
+/// prints it, a newline forges a log line) or a bidirectional formatting
+/// character (U+202E turns the rest of a line around).
+pub fn unprintable(c: char) -> bool {
+    c.is_control()
+        || matches!(c, '\u{061C}' | '\u{200E}' | '\u{200F}' | '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}')
+}
+
+/// `s` with every [`unprintable`] character written as `\u{…}`.
+pub fn escaped(s: &str) -> String {
+    if !s.chars().any(unprintable) {
+        return s.to_string();
+    }
+    s.chars()
+        .map(|c| if unprintable(c) { format!("\\u{{{:x}}}", c as u32) } else { c.to_string() })
+        .collect()
 }
 
 /// Decodes `%XX` escapes as the glTF loader does; `None` if the result is not UTF-8.
