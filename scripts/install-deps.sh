@@ -26,7 +26,8 @@ for p in "${packages[@]}"; do
 done
 # With --test, what only the tests use: Node.js and npm run the Khronos
 # glTF validator on exported scenes (a Node.js installed otherwise, with its
-# own npm, is used as it is), and headless Chromium drives the dashboard.
+# own npm, is used as it is), headless Chromium drives the dashboard, and
+# PostgreSQL serves the durable queue's second database.
 tests=0
 [ "${1:-}" = "--test" ] && tests=1
 if ((tests)); then
@@ -36,6 +37,9 @@ if ((tests)); then
   command -v node >/dev/null 2>&1 || missing+=(nodejs)
   command -v npm >/dev/null 2>&1 || missing+=(npm)
   command -v chromium >/dev/null 2>&1 || missing+=(chromium)
+  # The durable queue's tests run once more on a PostgreSQL server
+  # (scripts/postgres-check.sh starts a throwaway one).
+  ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || missing+=(postgresql)
 fi
 sudo=""
 [ "$(id -u)" -eq 0 ] || sudo="sudo"

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Every check: formatting, lints, the docs (warnings are errors), the fuzz
 # targets built, then every test on the machine's real GPU adapter
-# (lavapipe on a machine without a GPU). Extra arguments go to `cargo test`.
+# (lavapipe on a machine without a GPU), and the durable queue's tests once
+# more on a PostgreSQL server. Extra arguments go to `cargo test`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh --test
@@ -18,3 +19,5 @@ if cargo tree --locked -p sylva-coordinator -e normal --prefix none | grep -q '^
   exit 1
 fi
 cargo test --workspace --locked "$@"
+# The same durable-queue tests on PostgreSQL (a throwaway local server).
+bash scripts/postgres-check.sh

@@ -19,20 +19,27 @@ fn kill_9(p: Proc) {
     drop(p);
 }
 
+/// The database these tests run on: SQLite in the state folder, or the
+/// server `scripts/postgres-check.sh` names.
+fn database() -> Option<String> {
+    std::env::var("SYLVA_TEST_DATABASE_URL").ok().filter(|u| !u.is_empty())
+}
+
 fn durable_coordinator(workers: &str, state: &Path, log: &Path) -> Proc {
-    spawn_logging(
-        &[
-            "coordinator",
-            "--listen",
-            "127.0.0.1:0",
-            "--workers",
-            workers,
-            "--state-dir",
-            state.to_str().unwrap(),
-        ],
-        &[("RUST_LOG", "sylva_coordinator=info")],
-        Some(log),
-    )
+    let mut args = vec![
+        "coordinator",
+        "--listen",
+        "127.0.0.1:0",
+        "--workers",
+        workers,
+        "--state-dir",
+        state.to_str().unwrap(),
+    ];
+    let url = database();
+    if let Some(u) = &url {
+        args.extend(["--database", u.as_str()]);
+    }
+    spawn_logging(&args, &[("RUST_LOG", "sylva_coordinator=info")], Some(log))
 }
 
 fn bytes(p: &Path) -> Vec<u8> {
@@ -171,9 +178,12 @@ async fn a_coordinator_killed_mid_sequence_resumes_it_and_every_frame_is_the_sam
     let seq = |id: &str| id.rsplit('-').next().unwrap().parse::<u64>().unwrap();
     let new_id = said.split_whitespace().next().unwrap();
     assert!(seq(new_id) > seq(&id) && new_id.starts_with(id.rsplit_once('-').unwrap().0));
-    assert!(state.join("sylva.db").exists());
+    let log3 = std::fs::read_to_string(dir.join("c3.log")).unwrap();
+    let kind = if database().is_some() { "PostgreSQL" } else { "SQLite" };
+    assert!(log3.contains(&format!("database=\"{kind}\"")), "{log3}");
     c3.terminate();
-    assert!(state.join("sylva.db").exists(), "a durable coordinator keeps its state at exit");
+    assert!(state.join("results").exists(), "a durable coordinator keeps its state at exit");
+    assert_eq!(state.join("sylva.db").exists(), database().is_none());
     drop((w1, w2));
     let _ = std::fs::remove_dir_all(&dir);
 }
