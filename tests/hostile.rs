@@ -350,8 +350,8 @@ impl pb::worker_identity_server::WorkerIdentity for BadWorker {
         r: tonic::Request<pb::ProveRequest>,
     ) -> Result<tonic::Response<pb::ProveReply>, tonic::Status> {
         // It does not hold the farm's token: it guesses.
-        let proof = sylva_proto::auth::prove(Some("guess"), &r.into_inner().nonce).to_vec();
-        Ok(tonic::Response::new(pb::ProveReply { proof }))
+        let (salt, proof) = sylva_proto::auth::prove(Some("guess"), &r.into_inner().nonce);
+        Ok(tonic::Response::new(pb::ProveReply { proof: proof.to_vec(), salt }))
     }
 }
 
@@ -431,6 +431,42 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
     }
     counts.sort();
     assert_eq!(counts, [(0, 1), (1, 0)], "(builds, imports) per good worker");
+}
+
+/// Finding 5: anyone may ask a worker to prove it holds the farm's token
+/// (the coordinator must, before trusting an address), so the answer must
+/// not let a guess list be tried offline at the speed of a hash: each
+/// answer is salted afresh and keyed by Argon2id of the token.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_identity_proof_does_not_give_a_human_chosen_token_away() {
+    let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[("SYLVA_TOKEN", "hunter2")]);
+    let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", w.addr))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    let mut id = pb::worker_identity_client::WorkerIdentityClient::new(ch);
+    let nonce = vec![7u8; 32];
+    let ask = |mut id: pb::worker_identity_client::WorkerIdentityClient<_>, nonce: Vec<u8>| async move {
+        id.prove(pb::ProveRequest { nonce }).await.unwrap().into_inner()
+    };
+    let (a, b) = (ask(id.clone(), nonce.clone()).await, ask(id.clone(), nonce.clone()).await);
+    assert!(a.proof != b.proof && a.salt != b.salt, "the same question, answered afresh");
+    // The attack that worked: the proof as a keyed BLAKE3 hash of the
+    // nonce, tried against a guess list. It no longer finds the token.
+    let guesses = ["password", "s3cret", "letmein", "hunter2", "sylva"];
+    let cheap = |g: &str| {
+        let key = blake3::derive_key("sylva 2026 worker identity v1", g.as_bytes());
+        blake3::keyed_hash(&key, &nonce).as_bytes().to_vec()
+    };
+    assert!(!guesses.iter().any(|g| cheap(g) == a.proof), "a guess list recovers the token");
+    // Only the slow derivation with the answer's own salt checks a guess.
+    assert!(sylva_proto::auth::check_proof(Some("hunter2"), &nonce, &a.salt, &a.proof));
+    assert!(!sylva_proto::auth::check_proof(Some("hunter2"), &nonce, &b.salt, &a.proof));
+    assert!(sylva_proto::auth::PROOF_KDF.0 >= 19 * 1024 && sylva_proto::auth::PROOF_KDF.1 >= 2);
+    // A nonce it did not choose well is refused rather than answered.
+    let e = id.prove(pb::ProveRequest { nonce: vec![1; 4] }).await.unwrap_err();
+    assert_eq!(e.code(), Code::InvalidArgument);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -87,17 +87,40 @@ pub fn random_token() -> String {
     random_hex(32)
 }
 
-/// A worker's proof that it holds `token`, for the coordinator's `nonce`:
-/// BLAKE3 keyed by a key derived from the token, so the proof reveals
-/// nothing of the token and cannot be replayed for another nonce.
-pub fn prove(token: Option<&str>, nonce: &[u8]) -> [u8; 32] {
-    let key = blake3::derive_key("sylva 2026 worker identity v1", token.unwrap_or("").as_bytes());
-    *blake3::keyed_hash(&key, nonce).as_bytes()
+/// Argon2id's cost for a proof key: OWASP's minimum for passwords (19 MiB,
+/// two passes, one lane), so each guess at a human-chosen token costs as
+/// much as a password guess does.
+pub const PROOF_KDF: (u32, u32, u32) = (19 * 1024, 2, 1);
+
+/// Bytes of a proof's salt.
+pub const PROOF_SALT: usize = 16;
+
+/// The key a proof is made with: Argon2id of the token and `salt`.
+fn proof_key(token: Option<&str>, salt: &[u8]) -> [u8; 32] {
+    let (m, t, p) = PROOF_KDF;
+    let params = argon2::Params::new(m, t, p, Some(32)).expect("valid Argon2 parameters");
+    let kdf = argon2::Argon2::new(argon2::Algorithm::Argon2id, argon2::Version::V0x13, params);
+    let mut key = [0u8; 32];
+    kdf.hash_password_into(token.unwrap_or("").as_bytes(), salt, &mut key)
+        .expect("a 16-byte salt and a 32-byte key are within Argon2's bounds");
+    key
 }
 
-/// Whether `proof` answers `nonce` for `token`, compared in constant time.
-pub fn check_proof(token: Option<&str>, nonce: &[u8], proof: &[u8]) -> bool {
-    constant_time_eq(&prove(token, nonce), proof)
+/// A worker's proof that it holds `token`, for the coordinator's `nonce`:
+/// a fresh salt, and BLAKE3 of the nonce keyed by Argon2id(token, salt).
+/// Whoever asks learns nothing cheaper to test a guess against than a slow
+/// key derivation per guess, and the proof cannot be replayed for another
+/// nonce.
+pub fn prove(token: Option<&str>, nonce: &[u8]) -> (Vec<u8>, [u8; 32]) {
+    let salt = random_bytes(PROOF_SALT);
+    let proof = *blake3::keyed_hash(&proof_key(token, &salt), nonce).as_bytes();
+    (salt, proof)
+}
+
+/// Whether `proof` with `salt` answers `nonce` for `token`, compared in constant time.
+pub fn check_proof(token: Option<&str>, nonce: &[u8], salt: &[u8], proof: &[u8]) -> bool {
+    salt.len() == PROOF_SALT
+        && constant_time_eq(blake3::keyed_hash(&proof_key(token, salt), nonce).as_bytes(), proof)
 }
 
 /// Compares two byte strings in time that depends on their length only.
@@ -132,11 +155,18 @@ mod tests {
 
     #[test]
     fn proofs_match_only_the_same_token_and_nonce() {
-        let p = prove(Some("s3cret"), b"nonce-1");
-        assert!(check_proof(Some("s3cret"), b"nonce-1", &p));
-        assert!(!check_proof(Some("s3cret"), b"nonce-2", &p));
-        assert!(!check_proof(Some("guess"), b"nonce-1", &p));
-        assert!(!check_proof(None, b"nonce-1", &p));
+        let (salt, p) = prove(Some("s3cret"), b"nonce-1");
+        assert!(check_proof(Some("s3cret"), b"nonce-1", &salt, &p));
+        assert!(!check_proof(Some("s3cret"), b"nonce-2", &salt, &p));
+        assert!(!check_proof(Some("guess"), b"nonce-1", &salt, &p));
+        assert!(!check_proof(None, b"nonce-1", &salt, &p));
+        assert!(!check_proof(Some("s3cret"), b"nonce-1", &salt[..8], &p), "a short salt");
+        // Salted afresh: the same question never gets the same answer.
+        let (salt2, p2) = prove(Some("s3cret"), b"nonce-1");
+        assert!(salt2 != salt && p2 != p);
+        // Not the BLAKE3 key a guess list could be tried against cheaply.
+        let fast = blake3::derive_key("sylva 2026 worker identity v1", b"s3cret");
+        assert_ne!(*blake3::keyed_hash(&fast, b"nonce-1").as_bytes(), p);
         assert_ne!(random_token(), random_token());
         assert_eq!(random_token().len(), 64);
     }

@@ -174,13 +174,18 @@ impl State {
         let mut c = pb::worker_identity_client::WorkerIdentityClient::new(ch);
         let mut req = Request::new(pb::ProveRequest { nonce: nonce.clone() });
         req.set_timeout(Duration::from_secs(5));
-        let proof = c
+        let reply = c
             .prove(req)
             .await
             .map_err(|_| refused("does not answer the identity check (is it a Sylva worker?)"))?
-            .into_inner()
-            .proof;
-        if !sylva_proto::auth::check_proof(self.config.token.as_deref(), &nonce, &proof) {
+            .into_inner();
+        let token = self.config.token.clone();
+        let checked = tokio::task::spawn_blocking(move || {
+            sylva_proto::auth::check_proof(token.as_deref(), &nonce, &reply.salt, &reply.proof)
+        })
+        .await
+        .unwrap_or(false);
+        if !checked {
             return Err(refused(
                 "could not prove it holds the farm's token; start it with the coordinator's --token",
             ));

@@ -151,6 +151,8 @@ struct Cancelled;
 /// Answers a coordinator's identity challenge with this worker's token.
 struct Identity {
     token: Option<String>,
+    /// One proof at a time.
+    turn: tokio::sync::Mutex<()>,
 }
 
 #[tonic::async_trait]
@@ -163,9 +165,15 @@ impl WorkerIdentity for Identity {
         if nonce.len() < 16 || nonce.len() > 64 {
             return Err(Status::invalid_argument("the nonce must be 16 to 64 bytes"));
         }
-        Ok(Response::new(pb::ProveReply {
-            proof: sylva_proto::auth::prove(self.token.as_deref(), &nonce).to_vec(),
-        }))
+        // Each answer costs a slow key derivation; a flood of questions is
+        // answered one at a time, never all at once.
+        let _turn = self.turn.lock().await;
+        let token = self.token.clone();
+        let (salt, proof) =
+            tokio::task::spawn_blocking(move || sylva_proto::auth::prove(token.as_deref(), &nonce))
+                .await
+                .map_err(|_| Status::internal("the proof could not be made"))?;
+        Ok(Response::new(pb::ProveReply { proof: proof.to_vec(), salt }))
     }
 }
 
@@ -188,7 +196,7 @@ pub async fn run(
         builder = builder.tls_config(tls)?;
     }
     let (cache_dir, keep) = (config.cache_dir.clone(), config.keep_cache);
-    let identity = Identity { token: config.token.clone() };
+    let identity = Identity { token: config.token.clone(), turn: Default::default() };
     let service = WorkerService::new(ctx, config);
     reporter.set_serving::<WorkerServer<WorkerService>>().await;
     let served = builder
