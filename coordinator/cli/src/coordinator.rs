@@ -21,27 +21,14 @@ fn limit_malloc_arenas() {
     }
 }
 
-/// Removes the temporary state folders of ephemeral coordinators that were
-/// killed before they could: a folder whose lock no process holds.
-fn remove_stale_ephemeral() {
-    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
-    for e in entries.flatten() {
-        let dir = e.path();
-        let ours = e.file_name().to_str().is_some_and(|n| n.starts_with("sylva-coordinator-"));
-        let Ok(lock) = std::fs::File::open(dir.join("lock")) else { continue };
-        if ours && lock.try_lock().is_ok() {
-            drop(lock);
-            if std::fs::remove_dir_all(&dir).is_ok() {
-                tracing::info!(dir = %dir.display(), "removed a killed coordinator's temporary state");
-            }
-        }
-    }
-}
-
 pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
     limit_malloc_arenas();
     if a.ephemeral {
-        remove_stale_ephemeral();
+        // Temporary state of coordinators killed before they removed it.
+        for d in sylva_scene::workdir::remove_abandoned(&std::env::temp_dir(), "sylva-coordinator-")
+        {
+            tracing::info!(dir = %d.display(), "removed a killed coordinator's temporary state");
+        }
     }
     let token = a.auth.load()?;
     let rt = tokio::runtime::Runtime::new()?;

@@ -30,6 +30,10 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         if let Some(d) = &a.cache_dir {
             config.cache_dir = d.clone();
         }
+        // Caches of workers killed before they could remove them.
+        for d in sylva_scene::workdir::remove_abandoned(&std::env::temp_dir(), "sylva-worker-") {
+            tracing::info!(dir = %d.display(), "removed a killed worker's bundle cache");
+        }
         let coordinator_tls = a.coordinator_tls.load()?;
         tracing::info!(%addr, adapter = %ctx.adapter_name(), "worker ready");
         println!("sylva worker listening on {addr}");

@@ -36,7 +36,6 @@ use crate::farm::{self, FarmEvent, Workers};
 use crate::results::Retention;
 use crate::schedule::{ScheduleKind, Strip, scheduler};
 use crate::store::Store;
-use anyhow::Context;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::pin::Pin;
@@ -242,15 +241,7 @@ impl CoordinatorService {
         let metrics_listener = config.metrics.take();
         let http_listener = config.http.take();
         let dir = config.state_dir.clone();
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create the state folder {}", dir.display()))?;
-        let lock = std::fs::File::create(dir.join("lock"))?;
-        lock.try_lock().map_err(|_| {
-            anyhow::anyhow!(
-                "the state folder {} is in use by another coordinator (give this one its own --state-dir)",
-                dir.display()
-            )
-        })?;
+        let lock = sylva_scene::workdir::claim(&dir, "state folder")?;
         let url = config
             .database
             .clone()
