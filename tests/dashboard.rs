@@ -423,3 +423,57 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
     std::fs::write(&path, png).unwrap();
 }
+
+/// One raw HTTP/1.1 request as written; the status of its answer.
+async fn raw_status(addr: &str, request: &str) -> u16 {
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(request.as_bytes()).await.unwrap();
+    let mut out = Vec::new();
+    tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out))
+        .await
+        .expect("an answer")
+        .unwrap();
+    let text = String::from_utf8_lossy(&out).to_string();
+    text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0)
+}
+
+/// Finding 6: with no token, any web page could change the farm (a
+/// cross-site form post, or DNS rebinding reaching the page under the
+/// attacker's own name). Now the page serves this machine only: it will
+/// not listen elsewhere, answers only to loopback names, and refuses
+/// another site's origin.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn without_a_token_the_page_serves_this_machine_only() {
+    let refused = sylva(&["coordinator", "--listen", "127.0.0.1:0", "--http", "0.0.0.0:0"], &[]);
+    assert!(!refused.status.success());
+    let said = String::from_utf8_lossy(&refused.stderr);
+    assert!(said.contains("without a token the dashboard serves this machine only"), "{said}");
+
+    let http = format!("127.0.0.1:{}", free_port());
+    let _coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--http", &http], &[]);
+    let port = http.rsplit(':').next().unwrap();
+    let cancel = |host: &str, extra: &str| {
+        format!(
+            "POST /api/jobs/nope/cancel HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: 0\r\n{extra}\r\n"
+        )
+    };
+    // This machine's own page: the change reaches the farm (no such job).
+    let mine = format!("Origin: http://{http}\r\n");
+    assert_eq!(raw_status(&http, &cancel(&http, &mine)).await, 404);
+    assert_eq!(raw_status(&http, &cancel(&format!("localhost:{port}"), "")).await, 404);
+    // A page under another name (DNS rebinding): refused, reads too.
+    assert_eq!(raw_status(&http, &cancel(&format!("evil.example:{port}"), "")).await, 421);
+    let snapshot = format!(
+        "GET /api/snapshot HTTP/1.1\r\nHost: evil.example:{port}\r\nConnection: close\r\n\r\n"
+    );
+    assert_eq!(raw_status(&http, &snapshot).await, 421);
+    // Another site's page posting here under the right name: refused.
+    let theirs = "Origin: http://evil.example\r\n";
+    assert_eq!(raw_status(&http, &cancel(&http, theirs)).await, 403);
+    // And a form's text/plain is no change at all.
+    let form = format!(
+        "POST /api/jobs/nope/cancel HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\nContent-Type: text/plain\r\nContent-Length: 0\r\n\r\n"
+    );
+    assert_eq!(raw_status(&http, &form).await, 415);
+    assert_eq!(get(&http, "/api/snapshot", "").await.0, 200, "the page itself is served");
+}

@@ -8,7 +8,10 @@
 //! `Authorization: Bearer …` or the `sylva_token` cookie the page sets, since
 //! an `EventSource` or an `<img>` cannot send headers); changing anything
 //! (cancel, priority) needs the header, which another site's form cannot
-//! send, so a page elsewhere cannot act with the cookie.
+//! send, so a page elsewhere cannot act with the cookie. Without a token the
+//! page serves this machine only: the command line binds it to loopback,
+//! and a request whose `Host` is not a loopback name (DNS rebinding) or
+//! whose `Origin` is another site's is refused. Every change takes JSON.
 
 use crate::service::{CoordinatorService, wire_ended, wire_name};
 use axum::Router;
@@ -53,7 +56,56 @@ pub fn router(service: CoordinatorService) -> Router {
         .route("/api/jobs/{id}/preview.png", get(preview))
         .route("/api/jobs/{id}/cancel", post(cancel))
         .route("/api/jobs/{id}/priority", post(priority))
+        .layer(axum::middleware::from_fn_with_state(service.clone(), guard))
         .with_state(service)
+}
+
+/// Refuses a request another site made or aimed here: a change whose
+/// `Origin` is not this page's; and, with no token to protect the farm,
+/// any request whose `Host` is not a loopback name (a DNS-rebinding page
+/// reaches this server under its own name) or whose `Origin` is another
+/// site's.
+async fn guard(
+    State(service): State<CoordinatorService>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let headers = request.headers();
+    let host = headers.get(header::HOST).and_then(|v| v.to_str().ok()).unwrap_or("");
+    let open = !service.needs_token();
+    if open && !loopback_host(host) {
+        return (
+            StatusCode::MISDIRECTED_REQUEST,
+            "without a token this dashboard answers only to this machine's own names (localhost, 127.0.0.1, [::1])",
+        )
+            .into_response();
+    }
+    let change = !matches!(*request.method(), axum::http::Method::GET | axum::http::Method::HEAD);
+    if let Some(origin) = headers.get(header::ORIGIN).map(|v| v.to_str().unwrap_or("?"))
+        && (change || open)
+        && !same_origin(origin, host)
+    {
+        return (StatusCode::FORBIDDEN, "a request from another site changes nothing here")
+            .into_response();
+    }
+    next.run(request).await
+}
+
+/// Whether `host` (a `Host` header: a name and maybe a port) names this machine.
+fn loopback_host(host: &str) -> bool {
+    let name = match host.strip_prefix('[') {
+        Some(v6) => v6.split(']').next().unwrap_or(""),
+        None => host.rsplit_once(':').map_or(host, |(n, _)| n),
+    };
+    name.eq_ignore_ascii_case("localhost")
+        || name.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
+}
+
+/// Whether a request's `Origin` is the page this server serves at `host`.
+fn same_origin(origin: &str, host: &str) -> bool {
+    ["http://", "https://"]
+        .iter()
+        .any(|scheme| origin.strip_prefix(scheme).is_some_and(|h| h.eq_ignore_ascii_case(host)))
 }
 
 /// The bearer token of a request: its header, or (`cookie_too`) its cookie.
@@ -309,6 +361,19 @@ mod tests {
         assert_eq!(token(&h, false), None, "a cookie does not authorise a change");
         h.insert(header::AUTHORIZATION, "Bearer abc".parse().unwrap());
         assert_eq!(token(&h, false).as_deref(), Some("abc"));
+    }
+
+    #[test]
+    fn only_this_machines_names_and_this_pages_origin_pass() {
+        for h in ["localhost:8080", "127.0.0.1:80", "127.1.2.3", "[::1]:8080", "LOCALHOST"] {
+            assert!(loopback_host(h), "{h}");
+        }
+        for h in ["evil.example:8080", "10.0.0.1:80", "", "localhost.evil.example", "[::2]:1"] {
+            assert!(!loopback_host(h), "{h}");
+        }
+        assert!(same_origin("http://127.0.0.1:8080", "127.0.0.1:8080"));
+        assert!(!same_origin("http://evil.example", "127.0.0.1:8080"));
+        assert!(!same_origin("null", "127.0.0.1:8080"));
     }
 
     #[test]
