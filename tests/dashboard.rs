@@ -477,3 +477,67 @@ async fn without_a_token_the_page_serves_this_machine_only() {
     assert_eq!(raw_status(&http, &form).await, 415);
     assert_eq!(get(&http, "/api/snapshot", "").await.0, 200, "the page itself is served");
 }
+
+/// A TCP connection to `addr` from the loopback address `from` (another
+/// client, as far as the server can tell).
+async fn connect_from(from: &str, addr: &str) -> tokio::net::TcpStream {
+    let s = tokio::net::TcpSocket::new_v4().unwrap();
+    s.bind(format!("{from}:0").parse().unwrap()).unwrap();
+    s.connect(addr.parse().unwrap()).await.unwrap()
+}
+
+/// Finding 7: 300 half-sent request headers made each real request wait
+/// 9–10 s, and 300 unread event streams made the page unavailable. Now one
+/// client holds at most a few connections and event streams, and the page
+/// stays served to everyone else.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_hoards_connections_does_not_starve_the_page() {
+    let http = format!("127.0.0.1:{}", free_port());
+    let _coord = spawn(
+        &["coordinator", "--listen", "127.0.0.1:0", "--http", &http],
+        &[("SYLVA_TOKEN", TOKEN)],
+    );
+    let auth = format!("Authorization: Bearer {TOKEN}\r\n");
+    assert_eq!(get(&http, "/api/snapshot", &auth).await.0, 200);
+    // Event streams opened with the token and never read: a few are
+    // served, the rest refused at once.
+    let mut streams = Vec::new();
+    let mut refused = 0;
+    for _ in 0..8 {
+        let mut s = connect_from("127.0.0.3", &http).await;
+        s.write_all(format!("GET /api/events HTTP/1.1\r\nHost: {http}\r\n{auth}\r\n").as_bytes())
+            .await
+            .unwrap();
+        let mut head = [0u8; 12];
+        s.read_exact(&mut head).await.unwrap();
+        if &head[9..12] == b"429" {
+            refused += 1;
+        }
+        streams.push(s);
+    }
+    assert_eq!(refused, 4, "four event streams per client");
+    // Half-sent request headers from one client: it keeps a few
+    // connections; the next are closed as soon as they are accepted.
+    let mut hoard = Vec::new();
+    for _ in 0..300 {
+        let mut s = connect_from("127.0.0.2", &http).await;
+        let _ = s.write_all(b"GET / HTTP/1.1\r\nHost: x\r\n").await;
+        hoard.push(s);
+    }
+    let mut closed = 0;
+    for s in hoard.iter_mut() {
+        let mut b = [0u8; 1];
+        if let Ok(Ok(0)) = tokio::time::timeout(Duration::from_millis(20), s.read(&mut b)).await {
+            closed += 1;
+        }
+    }
+    assert!(closed >= 250, "connections over the client's share are closed: {closed} of 300");
+    // Everyone else is served as before (well inside the header timeout
+    // the hoarded connections would otherwise have made them wait).
+    let answered = tokio::time::timeout(Duration::from_secs(5), async {
+        (get(&http, "/", "").await.0, get(&http, "/api/snapshot", &auth).await.0)
+    })
+    .await;
+    assert_eq!(answered.ok(), Some((200, 200)), "the page stays served");
+    drop((streams, hoard));
+}

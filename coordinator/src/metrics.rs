@@ -149,12 +149,25 @@ pub struct MetricsServerConfig {
     pub header_read_timeout: Duration,
     /// Connections served at once; later ones wait in the listen backlog.
     pub max_connections: usize,
+    /// Connections one address may hold at once; more are closed as soon
+    /// as they are accepted, so one client cannot starve the others.
+    pub per_client: usize,
 }
 
 impl Default for MetricsServerConfig {
     fn default() -> Self {
-        Self { header_read_timeout: Duration::from_secs(10), max_connections: 256 }
+        Self { header_read_timeout: Duration::from_secs(10), max_connections: 512, per_client: 32 }
     }
+}
+
+/// The connection a request came on: its peer, and a way for a handler to
+/// close it (an event stream its client stopped reading).
+#[derive(Clone, Debug)]
+pub struct Connection {
+    /// The client's address.
+    pub peer: SocketAddr,
+    /// Notified to close the connection at once.
+    pub close: Arc<tokio::sync::Notify>,
 }
 
 /// Serves `GET /metrics` on `listener` with the counters and `gauges()`, with default limits.
@@ -215,6 +228,7 @@ where
     const FIRST_BACKOFF: Duration = Duration::from_millis(100);
     const MAX_BACKOFF: Duration = Duration::from_secs(1);
     let slots = Arc::new(tokio::sync::Semaphore::new(config.max_connections.max(1)));
+    let per_client: PerClient = Default::default();
     let mut http = hyper::server::conn::http1::Builder::new();
     // hyper re-arms this timer whenever it waits for a request head, so it
     // closes silent new connections and idle keep-alive ones alike.
@@ -224,24 +238,64 @@ where
         // Taking a slot before accepting leaves extra clients queued in the
         // kernel's backlog instead of growing tasks here.
         let Ok(permit) = slots.clone().acquire_owned().await else { return };
-        let stream = match accept().await {
-            Ok((stream, _)) => stream,
+        let (stream, peer) = match accept().await {
+            Ok(accepted) => accepted,
             Err(e) => {
                 // Errors such as EMFILE persist until something closes, so
                 // retrying at once would spin.
-                tracing::warn!(error = %e, "metrics: accept failed; retrying in {backoff:?}");
+                tracing::warn!(error = %e, "http: accept failed; retrying in {backoff:?}");
                 tokio::time::sleep(backoff).await;
                 backoff = (backoff * 2).min(MAX_BACKOFF);
                 continue;
             }
         };
         backoff = FIRST_BACKOFF;
-        let conn =
-            http.serve_connection(TokioIo::new(stream), TowerToHyperService::new(app.clone()));
+        // One address holds at most `per_client` connections: the next is
+        // closed unanswered, its slot free for someone else at once.
+        let Some(held) = take(&per_client, peer.ip(), config.per_client) else {
+            drop(stream);
+            continue;
+        };
+        let connection = Connection { peer, close: Arc::new(tokio::sync::Notify::new()) };
+        let close = connection.close.clone();
+        let app = app.clone().layer(axum::Extension(connection));
+        let conn = http.serve_connection(TokioIo::new(stream), TowerToHyperService::new(app));
         tokio::spawn(async move {
-            let _ = conn.await;
-            drop(permit);
+            tokio::select! {
+                _ = conn => {}
+                _ = close.notified() => {}
+            }
+            drop((permit, held));
         });
+    }
+}
+
+/// Connections held per client address.
+type PerClient = Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>;
+
+/// One connection of a client, counted while it lives.
+struct Held(PerClient, std::net::IpAddr);
+
+/// Counts one more of `ip`'s connections, unless it holds `cap` already.
+fn take(counts: &PerClient, ip: std::net::IpAddr, cap: usize) -> Option<Held> {
+    let mut c = counts.lock().expect("lock");
+    let n = c.entry(ip).or_insert(0);
+    if *n >= cap.max(1) {
+        return None;
+    }
+    *n += 1;
+    Some(Held(counts.clone(), ip))
+}
+
+impl Drop for Held {
+    fn drop(&mut self) {
+        let mut c = self.0.lock().expect("lock");
+        if let Some(n) = c.get_mut(&self.1) {
+            *n -= 1;
+            if *n == 0 {
+                c.remove(&self.1);
+            }
+        }
     }
 }
 

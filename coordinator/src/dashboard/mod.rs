@@ -22,6 +22,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use serde_json::{Value, json};
 use std::convert::Infallible;
+use std::sync::Arc;
 use std::time::Duration;
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::Coordinator;
@@ -207,18 +208,103 @@ async fn snapshot_route(State(service): State<CoordinatorService>, headers: Head
     axum::Json(snapshot(&service).await).into_response()
 }
 
-/// A snapshot now and every [`TICK`] after, as `snapshot` events.
-async fn events(State(service): State<CoordinatorService>, headers: HeaderMap) -> Response {
+/// Event streams one client address may hold open at once.
+pub const STREAMS_PER_CLIENT: usize = 4;
+/// An event stream ends after this long; the page's `EventSource` opens
+/// another at once, so only a client that stopped listening is let go.
+pub const STREAM_LIFETIME: Duration = Duration::from_secs(600);
+/// A stream whose client has not taken an event for this long (its
+/// socket full: it stopped reading) is closed.
+pub const STREAM_UNREAD: Duration = Duration::from_secs(10);
+
+/// Open event streams per client address.
+static STREAMS: std::sync::LazyLock<
+    std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>,
+> = std::sync::LazyLock::new(Default::default);
+
+/// One open event stream of a client, counted while it lives.
+struct StreamSlot(std::net::IpAddr);
+
+impl StreamSlot {
+    fn take(ip: std::net::IpAddr) -> Option<StreamSlot> {
+        let mut open = STREAMS.lock().expect("lock");
+        let n = open.entry(ip).or_insert(0);
+        if *n >= STREAMS_PER_CLIENT {
+            return None;
+        }
+        *n += 1;
+        Some(StreamSlot(ip))
+    }
+}
+
+impl Drop for StreamSlot {
+    fn drop(&mut self) {
+        let mut open = STREAMS.lock().expect("lock");
+        if let Some(n) = open.get_mut(&self.0) {
+            *n -= 1;
+            if *n == 0 {
+                open.remove(&self.0);
+            }
+        }
+    }
+}
+
+/// A snapshot now and every [`TICK`] after, as `snapshot` events, for at
+/// most [`STREAM_LIFETIME`]; at most [`STREAMS_PER_CLIENT`] per client, and
+/// a stream its client stops reading is closed after [`STREAM_UNREAD`].
+async fn events(
+    State(service): State<CoordinatorService>,
+    connection: Option<axum::Extension<crate::metrics::Connection>>,
+    headers: HeaderMap,
+) -> Response {
     if !service.accepts_token(token(&headers, true).as_deref()) {
         return refused();
     }
-    let stream = futures_util::stream::unfold((service, true), |(service, first)| async move {
-        if !first {
-            tokio::time::sleep(TICK).await;
-        }
-        let data = snapshot(&service).await.to_string();
-        Some((Ok::<_, Infallible>(Event::default().event("snapshot").data(data)), (service, false)))
-    });
+    let ip = connection.as_ref().map_or(std::net::Ipv4Addr::UNSPECIFIED.into(), |c| c.peer.ip());
+    let Some(slot) = StreamSlot::take(ip) else {
+        return (
+            StatusCode::TOO_MANY_REQUESTS,
+            format!("at most {STREAMS_PER_CLIENT} event streams per client: close a page first"),
+        )
+            .into_response();
+    };
+    // The time an event was last taken, and a watchdog that closes the
+    // connection when the client stops taking them (hyper then stops
+    // polling this stream, so the stream itself cannot notice).
+    let taken = Arc::new(std::sync::Mutex::new(std::time::Instant::now()));
+    if let Some(axum::Extension(c)) = connection {
+        let (taken, close) = (taken.clone(), c.close.clone());
+        tokio::spawn(async move {
+            loop {
+                tokio::time::sleep(TICK).await;
+                let last = *taken.lock().expect("lock");
+                if Arc::strong_count(&taken) == 1 {
+                    return; // the stream ended
+                }
+                if last.elapsed() > STREAM_UNREAD {
+                    close.notify_one();
+                    return;
+                }
+            }
+        });
+    }
+    let until = std::time::Instant::now() + STREAM_LIFETIME;
+    let stream =
+        futures_util::stream::unfold((service, true, slot), move |(service, first, slot)| {
+            let taken = taken.clone();
+            async move {
+                if !first {
+                    tokio::time::sleep(TICK).await;
+                }
+                if std::time::Instant::now() > until {
+                    return None;
+                }
+                *taken.lock().expect("lock") = std::time::Instant::now();
+                let data = snapshot(&service).await.to_string();
+                let event = Event::default().event("snapshot").data(data);
+                Some((Ok::<_, Infallible>(event), (service, false, slot)))
+            }
+        });
     // A snapshot every tick keeps the connection busy: no keep-alive comments needed.
     Sse::new(stream).into_response()
 }
