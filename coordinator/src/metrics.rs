@@ -479,6 +479,7 @@ mod tests {
         let config = MetricsServerConfig {
             header_read_timeout: Duration::from_secs(10),
             max_connections: 2,
+            ..Default::default()
         };
         let addr = start(config, Arc::default(), Gauges::default).await;
         let hog1 = TcpStream::connect(addr).await.unwrap();
