@@ -390,7 +390,6 @@ pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Jo
             strips_total: row.strips_total,
             retries: row.retries,
             error,
-            ..Default::default()
         };
         let finished = state.ended().then(|| {
             let ago = Duration::from_millis(now.saturating_sub(row.finished_ms));
