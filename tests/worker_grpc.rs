@@ -357,3 +357,74 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
 fn frame_with(lighting: pb::Lighting) -> pb::FrameSettings {
     pb::FrameSettings { lighting: lighting.into(), ..frame() }
 }
+
+/// A scene of one tree grown from `seed` (a different bundle per seed).
+fn tree_bundle(dir: &Path, seed: u32) -> bundle::SceneBundle {
+    let text = format!(
+        r#"{{
+        "models": {{ "t": {{ "tree": {{ "species": "red_maple", "triangles": 20000, "seed": {seed} }} }} }},
+        "instances": [ {{ "model": "t", "position": [0, 0, 0] }} ],
+        "camera": {{ "position": [0, 8, -26], "look_at": [0, 7, 0], "fov_y_deg": 45 }},
+        "sun": {{ "elevation_deg": 50, "azimuth_deg": 120 }},
+        "lb": {{ "grid": 16, "preset": "leaf" }}
+    }}"#
+    );
+    let d = dir.join(format!("tree-{seed}"));
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(d.join("scene.json"), text).unwrap();
+    bundle::pack(&d.join("scene.json")).unwrap()
+}
+
+/// Loads `b` and renders a strip of it with LB light: the worker then
+/// holds the scene, its structures, its light and its GPU copy.
+async fn use_scene(c: &mut WorkerClient<tonic::transport::Channel>, b: &bundle::SceneBundle) {
+    c.load_scene(tokio_stream::iter(chunks(b, 1 << 20))).await.unwrap();
+    c.render_strip(pb::RenderStripRequest {
+        scene_hash: b.hash.clone(),
+        frame: Some(frame()),
+        x0: 0,
+        x1: 8,
+    })
+    .await
+    .unwrap();
+}
+
+/// Finding 2: a worker counted bundle bytes only, not what a bundle expands
+/// into, and 12 small bundles of large procedural trees took one from 1.7
+/// to 3.6 GB. Now it counts what each scene holds and lets the least
+/// recently used go to stay within --memory-mib.
+#[tokio::test]
+async fn a_worker_keeps_what_its_scenes_hold_within_its_memory_budget() {
+    let dir = std::env::temp_dir().join(format!("sylva-memory-{}", std::process::id()));
+    let bundles: Vec<_> = (1..=6).map(|s| tree_bundle(&dir, s)).collect();
+    // What one scene holds, measured on a worker with room for all.
+    let roomy = WorkerProcess::start(&[]);
+    let mut c = roomy.client().await;
+    use_scene(&mut c, &bundles[0]).await;
+    let one = c.status(pb::StatusRequest {}).await.unwrap().into_inner().held_bytes;
+    assert!(
+        one > bundles[0].bytes.len() as u64 * 10,
+        "a scene holds far more than its bundle: {one}"
+    );
+    drop(roomy);
+    // Room for two and a half of them.
+    let budget_mib = (one * 5 / 2).div_ceil(1 << 20);
+    let w = WorkerProcess::start(&["--memory-mib", &budget_mib.to_string()]);
+    let mut c = w.client().await;
+    for b in &bundles {
+        use_scene(&mut c, b).await;
+        let s = c.status(pb::StatusRequest {}).await.unwrap().into_inner();
+        assert!(
+            s.held_bytes <= budget_mib << 20,
+            "{} bytes held over a budget of {budget_mib} MiB ({} scenes)",
+            s.held_bytes,
+            s.cached_scenes.len()
+        );
+        assert!(s.cached_scenes.contains(&b.hash), "the scene in use stays");
+    }
+    let s = c.status(pb::StatusRequest {}).await.unwrap().into_inner();
+    assert!(s.scenes_evicted >= 3 && s.cached_scenes.len() <= 3, "{s:?}");
+    // A scene let go is simply loaded again when it is needed.
+    use_scene(&mut c, &bundles[0]).await;
+    std::fs::remove_dir_all(&dir).ok();
+}

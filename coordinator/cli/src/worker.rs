@@ -25,6 +25,7 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
             keep_cache: a.keep_cache,
             lb_cache_entries: a.lb_cache_entries,
             lb_cache_bytes: a.lb_cache_mib << 20,
+            memory_bytes: a.memory_mib << 20,
             ..WorkerConfig::default()
         };
         if let Some(d) = &a.cache_dir {

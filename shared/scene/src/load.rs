@@ -92,6 +92,13 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// Bytes its models (each once, however many instances share it) and
+    /// placements hold in memory.
+    pub fn bytes(&self) -> u64 {
+        self.models.iter().map(|m| m.model.bytes()).sum::<u64>()
+            + (self.instances.len() * std::mem::size_of::<Instance>()) as u64
+    }
+
     /// The scene with a frame's sun in place of its own (the camera is the
     /// renderer's per frame); models are shared, not copied.
     pub fn with_view(&self, view: &crate::sequence::View) -> Scene {

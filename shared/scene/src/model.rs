@@ -86,6 +86,17 @@ pub struct Model {
 }
 
 impl Model {
+    /// Bytes its geometry, materials and textures hold in memory.
+    pub fn bytes(&self) -> u64 {
+        let v = |n: usize, each: usize| (n * each) as u64;
+        v(self.positions.len(), 12)
+            + v(self.uvs.len(), 8)
+            + v(self.triangles.len(), 12)
+            + v(self.material.len(), 4)
+            + v(self.materials.len(), std::mem::size_of::<Material>())
+            + self.textures.iter().map(|t| t.rgba.len() as u64).sum::<u64>()
+    }
+
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.triangles.len()

@@ -52,12 +52,61 @@ impl State {
                 .min_by_key(|(_, c)| c.last_used)
                 .map(|(h, _)| h.clone())
                 .expect("not empty");
-            bundles.remove(&oldest);
-            lock(&self.prepared).retain(|k, _| k.0 != oldest);
-            lock(&self.accels).retain(|k, _| k.0 != oldest);
-            lock(&self.lbs).retain(|k, _| k.0 != oldest);
-            let _ = std::fs::remove_dir_all(self.config.cache_dir.join(&oldest));
-            tracing::info!(hash = %oldest, "evicted a scene bundle");
+            self.forget(bundles, &oldest, "the bundle cache is full");
+        }
+    }
+
+    /// Lets go of a scene and everything it expanded into.
+    fn forget(&self, bundles: &mut HashMap<String, Cached>, hash: &str, why: &str) {
+        bundles.remove(hash);
+        lock(&self.prepared).retain(|k, _| k.0 != hash);
+        lock(&self.accels).retain(|k, _| k.0 != hash);
+        lock(&self.lbs).retain(|k, _| k.0 != hash);
+        let _ = std::fs::remove_dir_all(self.config.cache_dir.join(hash));
+        self.evictions.fetch_add(1, Ordering::Relaxed);
+        tracing::info!(%hash, "evicted a scene: {why}");
+    }
+
+    /// Bytes each kept scene holds: its models, its structures, its LB
+    /// light and its prepared GPU copies (by hash).
+    pub(super) fn held_bytes(&self, bundles: &HashMap<String, Cached>) -> HashMap<String, u64> {
+        let mut held: HashMap<String, u64> =
+            bundles.iter().map(|(h, c)| (h.clone(), c.scene.bytes())).collect();
+        let mut add = |h: &str, b: u64| *held.entry(h.to_string()).or_insert(0) += b;
+        for ((h, _), a) in lock(&self.accels).iter() {
+            add(h, a.bytes() as u64);
+        }
+        for ((h, _), l) in lock(&self.lbs).iter() {
+            add(h, l.value.bytes());
+        }
+        for (k, p) in lock(&self.prepared).iter() {
+            add(&k.0, p.value.renderer.scene_bytes());
+        }
+        held
+    }
+
+    /// Lets go of least recently used scenes, never `keep` (the one in
+    /// use), until what the kept scenes hold fits the memory budget.
+    pub(super) fn bound_memory(&self, keep: &str) {
+        let mut bundles = lock(&self.bundles);
+        loop {
+            let total: u64 = self.held_bytes(&bundles).values().sum();
+            if total <= self.config.memory_bytes {
+                return;
+            }
+            let Some(oldest) = bundles
+                .iter()
+                .filter(|(h, _)| h.as_str() != keep)
+                .min_by_key(|(_, c)| c.last_used)
+                .map(|(h, _)| h.clone())
+            else {
+                return;
+            };
+            let why = format!(
+                "the kept scenes hold {total} bytes, over the {} of --memory-mib",
+                self.config.memory_bytes
+            );
+            self.forget(&mut bundles, &oldest, &why);
         }
     }
 }
@@ -110,23 +159,26 @@ impl State {
             self.lb_solves.fetch_add(1, Ordering::Relaxed);
             self.keep_lb(lb_key, lb);
         }
-        let mut prepared = lock(&self.prepared);
-        prepared.insert(key.clone(), Used { value: p.clone(), stamp: self.tick() });
-        // Each sun variant holds the whole scene on the GPU: keep the
-        // newest few of this scene's.
-        loop {
-            let variants: Vec<(&PreparedKey, u64)> = prepared
-                .iter()
-                .filter(|(k, _)| (&k.0, k.1, k.2) == (&key.0, key.1, key.2))
-                .map(|(k, u)| (k, u.stamp))
-                .collect();
-            if variants.len() <= PREPARED_SUNS {
-                break;
+        {
+            let mut prepared = lock(&self.prepared);
+            prepared.insert(key.clone(), Used { value: p.clone(), stamp: self.tick() });
+            // Each sun variant holds the whole scene on the GPU: keep the
+            // newest few of this scene's.
+            loop {
+                let variants: Vec<(&PreparedKey, u64)> = prepared
+                    .iter()
+                    .filter(|(k, _)| (&k.0, k.1, k.2) == (&key.0, key.1, key.2))
+                    .map(|(k, u)| (k, u.stamp))
+                    .collect();
+                if variants.len() <= PREPARED_SUNS {
+                    break;
+                }
+                let oldest =
+                    variants.iter().min_by_key(|v| v.1).map(|v| v.0.clone()).expect("not empty");
+                prepared.remove(&oldest);
             }
-            let oldest =
-                variants.iter().min_by_key(|v| v.1).map(|v| v.0.clone()).expect("not empty");
-            prepared.remove(&oldest);
         }
+        self.bound_memory(hash);
         Ok(p)
     }
 

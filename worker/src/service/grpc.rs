@@ -61,6 +61,8 @@ impl Worker for WorkerService {
             hash.clone(),
             Cached { scene: Arc::new(scene), bytes: size, last_used: Instant::now() },
         );
+        drop(bundles);
+        self.state.bound_memory(&hash);
         tracing::info!(%hash, bytes = size, "cached a scene bundle");
         Ok(Response::new(pb::LoadSceneReply { hash, was_cached: false }))
     }
@@ -161,6 +163,10 @@ impl Worker for WorkerService {
         let cached: Vec<String> = lock(&self.state.bundles).keys().cloned().collect();
         let gpu_bytes =
             lock(&self.state.prepared).values().map(|p| p.value.renderer.scene_bytes()).sum();
+        let held = {
+            let bundles = lock(&self.state.bundles);
+            self.state.held_bytes(&bundles).values().sum()
+        };
         Ok(Response::new(pb::WorkerStatus {
             adapter: self.state.ctx.adapter_name(),
             gpu_memory_bytes: gpu_bytes,
@@ -169,6 +175,8 @@ impl Worker for WorkerService {
             lb_solves: self.state.lb_solves(),
             accel_builds: self.state.accel_builds.load(Ordering::Relaxed),
             prepared_imports: self.state.prepared_imports.load(Ordering::Relaxed),
+            held_bytes: held,
+            scenes_evicted: self.state.evictions.load(Ordering::Relaxed),
         }))
     }
 
@@ -269,6 +277,7 @@ impl Worker for WorkerService {
             self.state.keep_lb(p.lb_key.clone(), Arc::new(lb));
         }
         self.state.prepared_imports.fetch_add(1, Ordering::Relaxed);
+        self.state.bound_memory(&p.accel_key.0);
         tracing::info!(scene = %p.accel_key.0, "took prepared data from another worker");
         Ok(Response::new(pb::PrepareReply {
             held: self.state.held(&p).is_some(),

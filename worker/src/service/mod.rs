@@ -60,6 +60,10 @@ pub struct WorkerConfig {
     /// Bytes of LB light kept at most, all suns together (the newest is
     /// kept whatever its size): fine grids make the count alone no bound.
     pub lb_cache_bytes: u64,
+    /// Bytes the kept scenes may hold at most, all they expand into
+    /// together (models, structures, LB light, GPU copies); the least
+    /// recently used scenes go first (the one in use stays, whatever its size).
+    pub memory_bytes: u64,
 }
 
 impl Default for WorkerConfig {
@@ -74,6 +78,7 @@ impl Default for WorkerConfig {
             keep_cache: false,
             lb_cache_entries: 64,
             lb_cache_bytes: 1 << 30,
+            memory_bytes: 8 << 30,
         }
     }
 }
@@ -98,6 +103,8 @@ struct State {
     accel_builds: AtomicU64,
     /// Prepared data taken from other workers.
     prepared_imports: AtomicU64,
+    /// Scenes let go to stay within the memory budget.
+    evictions: AtomicU64,
     /// Matched ambient constants by scene and frame shape.
     ambient: Mutex<HashMap<String, [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
@@ -128,6 +135,7 @@ impl WorkerService {
                 lb_solves: AtomicU64::new(0),
                 accel_builds: AtomicU64::new(0),
                 prepared_imports: AtomicU64::new(0),
+                evictions: AtomicU64::new(0),
                 ambient: Mutex::new(HashMap::new()),
                 gpu: Mutex::new(()),
                 incoming: Mutex::new(0),

@@ -42,4 +42,9 @@ pub struct WorkerArgs {
     /// MiB of LB light kept at most, all suns together.
     #[arg(long, default_value_t = 1024)]
     pub lb_cache_mib: u64,
+    /// MiB the kept scenes may hold, everything each expands into
+    /// together (models, structures, LB light, GPU copies): the least
+    /// recently used scenes are let go beyond it.
+    #[arg(long, default_value_t = 8192)]
+    pub memory_mib: u64,
 }
