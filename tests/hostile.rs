@@ -351,7 +351,11 @@ impl pb::worker_identity_server::WorkerIdentity for BadWorker {
     ) -> Result<tonic::Response<pb::ProveReply>, tonic::Status> {
         // It does not hold the farm's token: it guesses.
         let (salt, proof) = sylva_proto::auth::prove(Some("guess"), &r.into_inner().nonce);
-        Ok(tonic::Response::new(pb::ProveReply { proof: proof.to_vec(), salt }))
+        Ok(tonic::Response::new(pb::ProveReply {
+            proof: proof.to_vec(),
+            salt,
+            token_id: String::new(),
+        }))
     }
 }
 

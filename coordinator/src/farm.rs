@@ -164,7 +164,7 @@ struct Shared {
 }
 
 /// Where and how to reach the workers.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Workers {
     /// Addresses, `host:port`.
     pub addrs: Vec<String>,
@@ -172,12 +172,20 @@ pub struct Workers {
     pub token: Option<String>,
     /// TLS to reach them with, if they serve it.
     pub tls: Option<ClientTlsConfig>,
+    /// Per worker, the key it was given at registration, sent in place of
+    /// `token` (only calls with it may push prepared data into the worker).
+    pub keys: std::collections::HashMap<String, String>,
 }
 
 impl Workers {
     /// Workers that need no token.
     pub fn open(addrs: &[String]) -> Self {
-        Self { addrs: addrs.to_vec(), token: None, tls: None }
+        Self { addrs: addrs.to_vec(), ..Default::default() }
+    }
+
+    /// The bearer token to call `addr` with.
+    pub fn token_for(&self, addr: &str) -> Option<String> {
+        self.keys.get(addr).cloned().or_else(|| self.token.clone())
     }
 }
 
@@ -638,7 +646,7 @@ async fn upload_to_all(
     let t = Instant::now();
     // Every worker gets the bundle at once; a slow one delays only itself.
     let uploads = workers.addrs.iter().map(|w| {
-        let (w, token, tls) = (w.clone(), workers.token.clone(), workers.tls.clone());
+        let (w, token, tls) = (w.clone(), workers.token_for(w), workers.tls.clone());
         async move {
             let client = async {
                 let mut c = connect(&w, token, tls.as_ref()).await.map_err(|e| e.to_string())?;

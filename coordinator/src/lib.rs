@@ -13,6 +13,7 @@
 //! assert_eq!(Static.plan(896, 2, &[]), vec![(0, 448), (448, 896)]);
 //! ```
 
+pub mod access;
 pub mod assembly;
 pub mod client;
 pub mod dashboard;

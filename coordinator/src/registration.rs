@@ -11,13 +11,13 @@ use tonic::transport::ClientTlsConfig;
 pub const PERIOD: Duration = Duration::from_secs(5);
 
 /// Registers `me` (the address the coordinator should dial) with
-/// `coordinator` once: `Ok` or the coordinator's reason.
+/// `coordinator` once: the key the coordinator will call with, or its reason.
 pub async fn register_once(
     coordinator: &str,
     me: &str,
     token: Option<String>,
     tls: Option<&ClientTlsConfig>,
-) -> Result<(), String> {
+) -> Result<String, String> {
     let ch = sylva_proto::tls::connect(coordinator, tls, Duration::from_secs(10))
         .await
         .map_err(|e| format!("cannot reach the coordinator: {e}"))?;
@@ -27,20 +27,29 @@ pub async fn register_once(
     );
     c.register_worker(pb::RegisterWorkerRequest { addr: me.to_string() })
         .await
-        .map(|_| ())
+        .map(|r| r.into_inner().session_key)
         .map_err(|s| format!("the coordinator refused: {:?}: {}", s.code(), s.message()))
 }
 
-/// Registers forever, logging each change between success and failure.
+/// Registers forever, logging each change between success and failure,
+/// and keeps the coordinator's key in `session` (the worker takes calls
+/// made with it).
 pub async fn register_loop(
     coordinator: String,
     me: String,
     token: Option<String>,
     tls: Option<ClientTlsConfig>,
+    session: std::sync::Arc<std::sync::RwLock<Option<String>>>,
 ) {
     let mut last: Option<Result<(), String>> = None;
     loop {
-        let now = register_once(&coordinator, &me, token.clone(), tls.as_ref()).await;
+        let now = match register_once(&coordinator, &me, token.clone(), tls.as_ref()).await {
+            Ok(key) => {
+                *session.write().expect("lock") = Some(key).filter(|k| !k.is_empty());
+                Ok(())
+            }
+            Err(e) => Err(e),
+        };
         if last.as_ref() != Some(&now) {
             match &now {
                 Ok(()) => tracing::info!(%coordinator, "registered with the coordinator"),

@@ -63,9 +63,14 @@ pub fn attach(token: Option<String>) -> Attach {
     Attach(token.and_then(|t| format!("Bearer {t}").parse().ok()))
 }
 
+/// The bearer token a request carries, if any.
+pub fn bearer_of<T>(req: &Request<T>) -> Option<&str> {
+    req.metadata().get("authorization").and_then(|v| v.to_str().ok()).and_then(bearer)
+}
+
 /// The token of an `authorization` value: the scheme is case-insensitive
 /// (RFC 7235), surrounding spaces are ignored.
-fn bearer(value: &str) -> Option<&str> {
+pub fn bearer(value: &str) -> Option<&str> {
     let (scheme, token) = value.trim().split_once(' ')?;
     scheme.eq_ignore_ascii_case("bearer").then(|| token.trim())
 }
@@ -115,6 +120,26 @@ pub fn prove(token: Option<&str>, nonce: &[u8]) -> (Vec<u8>, [u8; 32]) {
     let salt = random_bytes(PROOF_SALT);
     let proof = *blake3::keyed_hash(&proof_key(token, &salt), nonce).as_bytes();
     (salt, proof)
+}
+
+/// A user's token (`sylva_ID_SECRET`, 12 hex digits of id and 64 of
+/// secret) split into its id and secret.
+pub fn user_token(token: &str) -> Option<(&str, &str)> {
+    let rest = token.strip_prefix("sylva_")?;
+    let (id, secret) = rest.split_once('_')?;
+    let hex = |s: &str, n: usize| s.len() == n && s.bytes().all(|b| b.is_ascii_hexdigit());
+    (hex(id, 12) && hex(secret, 64)).then_some((id, secret))
+}
+
+/// The key a user token's record holds (its secret's keyed BLAKE3): what
+/// the coordinator checks the token and its worker's proofs against.
+pub fn user_token_key(secret: &str) -> [u8; 32] {
+    blake3::derive_key("sylva 2026 user token v1", secret.as_bytes())
+}
+
+/// A proof with a user's token: BLAKE3 of `nonce` keyed by the token's key.
+pub fn prove_with_key(key: &[u8; 32], nonce: &[u8]) -> [u8; 32] {
+    *blake3::keyed_hash(key, nonce).as_bytes()
 }
 
 /// Whether `proof` with `salt` answers `nonce` for `token`, compared in constant time.

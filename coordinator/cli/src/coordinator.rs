@@ -21,14 +21,6 @@ fn limit_malloc_arenas() {
     }
 }
 
-/// Whether a listening address (`host:port`) is this machine's loopback.
-fn loopback_addr(addr: &str) -> bool {
-    let host = addr.rsplit_once(':').map_or(addr, |(h, _)| h);
-    let host = host.trim_start_matches('[').trim_end_matches(']');
-    host.eq_ignore_ascii_case("localhost")
-        || host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
-}
-
 pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
     limit_malloc_arenas();
     if a.ephemeral {
@@ -54,14 +46,6 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             None => None,
         };
         let metrics_addr = metrics.as_ref().map(|l| l.local_addr()).transpose()?;
-        if let Some(h) = &a.http
-            && token.is_none()
-            && !loopback_addr(h)
-        {
-            anyhow::bail!(
-                "--http {h}: without a token the dashboard serves this machine only (anyone who reaches it could cancel jobs); give --http 127.0.0.1:PORT, or a token (--token-file)"
-            );
-        }
         let http = match &a.http {
             Some(h) => Some(
                 tokio::net::TcpListener::bind(h)

@@ -73,7 +73,7 @@ use sylva_scene::sandbox::escaped;
 
 /// Left-aligned columns, two spaces apart, the header first; every cell
 /// [`escaped`].
-fn table(header: &[&str], rows: &[Vec<String>]) -> String {
+pub(crate) fn table(header: &[&str], rows: &[Vec<String>]) -> String {
     let rows: Vec<Vec<String>> =
         rows.iter().map(|r| r.iter().map(|c| escaped(c)).collect()).collect();
     let rows = &rows;

@@ -13,6 +13,7 @@ mod loopback;
 mod progress;
 mod render;
 mod scene;
+mod users;
 mod worker;
 
 use crate::flags::cli::*;
@@ -34,6 +35,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Cancel(a) => jobs::run_cancel(a),
         Command::Priority(a) => jobs::run_priority(a),
         Command::Fetch(a) => jobs::run_fetch(a),
+        Command::Token(c) => users::run_token(c),
+        Command::Audit(a) => users::run_audit(a),
     }
 }
 

@@ -47,6 +47,7 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
                 me,
                 token,
                 coordinator_tls,
+                config.session.clone(),
             ));
         }
         service::run(listener, ctx, config, sylva_coordinator::shutdown::signal()).await

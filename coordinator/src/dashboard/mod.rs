@@ -13,6 +13,7 @@
 //! and a request whose `Host` is not a loopback name (DNS rebinding) or
 //! whose `Origin` is another site's is refused. Every change takes JSON.
 
+use crate::access::Caller;
 use crate::service::{CoordinatorService, wire_ended, wire_name};
 use axum::Router;
 use axum::extract::{Path, State};
@@ -162,20 +163,29 @@ fn status_response(s: tonic::Status) -> Response {
         tonic::Code::NotFound => StatusCode::NOT_FOUND,
         tonic::Code::InvalidArgument => StatusCode::BAD_REQUEST,
         tonic::Code::FailedPrecondition => StatusCode::CONFLICT,
+        tonic::Code::PermissionDenied => StatusCode::FORBIDDEN,
+        tonic::Code::Unauthenticated => StatusCode::UNAUTHORIZED,
         _ => StatusCode::INTERNAL_SERVER_ERROR,
     };
     (code, s.message().to_string()).into_response()
 }
 
+/// A request to the service as `caller` makes it.
+fn by<T>(caller: &Caller, message: T) -> Request<T> {
+    let mut r = Request::new(message);
+    r.extensions_mut().insert(caller.clone());
+    r
+}
+
 /// Jobs and workers as the page lists them.
-async fn snapshot(service: &CoordinatorService) -> Value {
+async fn snapshot(service: &CoordinatorService, caller: &Caller) -> Value {
     let jobs = service
-        .list_jobs(Request::new(pb::ListJobsRequest {}))
+        .list_jobs(by(caller, pb::ListJobsRequest {}))
         .await
         .map(|r| r.into_inner().jobs)
         .unwrap_or_default();
     let workers = service
-        .list_workers(Request::new(pb::ListWorkersRequest {}))
+        .list_workers(by(caller, pb::ListWorkersRequest {}))
         .await
         .map(|r| r.into_inner().workers)
         .unwrap_or_default();
@@ -202,10 +212,10 @@ async fn snapshot(service: &CoordinatorService) -> Value {
 }
 
 async fn snapshot_route(State(service): State<CoordinatorService>, headers: HeaderMap) -> Response {
-    if !service.accepts_token(token(&headers, true).as_deref()) {
+    let Some(caller) = service.caller_of(token(&headers, true).as_deref()) else {
         return refused();
-    }
-    axum::Json(snapshot(&service).await).into_response()
+    };
+    axum::Json(snapshot(&service, &caller).await).into_response()
 }
 
 /// Event streams one client address may hold open at once.
@@ -257,9 +267,9 @@ async fn events(
     connection: Option<axum::Extension<crate::metrics::Connection>>,
     headers: HeaderMap,
 ) -> Response {
-    if !service.accepts_token(token(&headers, true).as_deref()) {
+    let Some(caller) = service.caller_of(token(&headers, true).as_deref()) else {
         return refused();
-    }
+    };
     let ip = connection.as_ref().map_or(std::net::Ipv4Addr::UNSPECIFIED.into(), |c| c.peer.ip());
     let Some(slot) = StreamSlot::take(ip) else {
         return (
@@ -291,7 +301,7 @@ async fn events(
     let until = std::time::Instant::now() + STREAM_LIFETIME;
     let stream =
         futures_util::stream::unfold((service, true, slot), move |(service, first, slot)| {
-            let taken = taken.clone();
+            let (taken, caller) = (taken.clone(), caller.clone());
             async move {
                 if !first {
                     tokio::time::sleep(TICK).await;
@@ -300,7 +310,7 @@ async fn events(
                     return None;
                 }
                 *taken.lock().expect("lock") = std::time::Instant::now();
-                let data = snapshot(&service).await.to_string();
+                let data = snapshot(&service, &caller).await.to_string();
                 let event = Event::default().event("snapshot").data(data);
                 Some((Ok::<_, Infallible>(event), (service, false, slot)))
             }
@@ -341,19 +351,18 @@ async fn preview(
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Response {
-    if !service.accepts_token(token(&headers, true).as_deref()) {
+    let Some(caller) = service.caller_of(token(&headers, true).as_deref()) else {
         return refused();
-    }
+    };
     let Some(f) = service.live(&id) else {
         return (StatusCode::NOT_FOUND, "no such job").into_response();
     };
     let png = if f.preview.is_empty() {
         match service
-            .fetch_result(Request::new(pb::FetchRequest {
-                id: id.clone(),
-                format: "png".into(),
-                frame: f.frame as u32,
-            }))
+            .fetch_result(by(
+                &caller,
+                pb::FetchRequest { id: id.clone(), format: "png".into(), frame: f.frame as u32 },
+            ))
             .await
         {
             Ok(r) => r.into_inner().data,
@@ -399,10 +408,10 @@ async fn cancel(
     if !json_write(&headers) {
         return not_json();
     }
-    if !service.accepts_token(token(&headers, false).as_deref()) {
+    let Some(caller) = service.caller_of(token(&headers, false).as_deref()) else {
         return refused();
-    }
-    match service.cancel_job(Request::new(pb::JobId { id })).await {
+    };
+    match service.cancel_job(by(&caller, pb::JobId { id })).await {
         Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "state": wire_name(r.get_ref().state) }))
             .into_response(),
         Err(s) => status_response(s),
@@ -418,9 +427,9 @@ async fn priority(
     if !json_write(&headers) {
         return not_json();
     }
-    if !service.accepts_token(token(&headers, false).as_deref()) {
+    let Some(caller) = service.caller_of(token(&headers, false).as_deref()) else {
         return refused();
-    }
+    };
     let Some(p) = serde_json::from_str::<Value>(&body)
         .ok()
         .and_then(|v| v.get("priority")?.as_i64())
@@ -428,7 +437,7 @@ async fn priority(
     else {
         return (StatusCode::BAD_REQUEST, "send {\"priority\": N}").into_response();
     };
-    match service.set_priority(Request::new(pb::SetPriorityRequest { id, priority: p })).await {
+    match service.set_priority(by(&caller, pb::SetPriorityRequest { id, priority: p })).await {
         Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "priority": r.get_ref().priority }))
             .into_response(),
         Err(s) => status_response(s),

@@ -1,8 +1,9 @@
 //! The `sylva.v1.Coordinator` API: each call handed to the module of the
 //! resource it acts on ([`super::jobs`], [`super::workers`]), as
-//! Flamenco's `api_impl` is split.
+//! Flamenco's `api_impl` is split. Each call first checks its caller's
+//! role ([`crate::access`]); ownership is the resource's to check.
 
-use super::{CoordinatorService, EventStream};
+use super::{CoordinatorService, EventStream, Role, allow, caller};
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::Coordinator;
 use tonic::{Request, Response, Status, Streaming};
@@ -13,7 +14,14 @@ impl Coordinator for CoordinatorService {
         &self,
         request: Request<Streaming<pb::SubmitChunk>>,
     ) -> Result<Response<pb::JobId>, Status> {
-        self.submit(request).await
+        {
+            allow(
+                &caller(&self.state.access, &request)?,
+                &[Role::Admin, Role::Submitter],
+                "submit jobs",
+            )?;
+            self.submit(request).await
+        }
     }
 
     type WatchJobStream = EventStream;
@@ -22,48 +30,97 @@ impl Coordinator for CoordinatorService {
         &self,
         request: Request<pb::JobId>,
     ) -> Result<Response<Self::WatchJobStream>, Status> {
-        self.watch(request).await
+        {
+            allow(
+                &caller(&self.state.access, &request)?,
+                &[Role::Admin, Role::Submitter],
+                "watch jobs",
+            )?;
+            self.watch(request).await
+        }
     }
 
     async fn fetch_result(
         &self,
         request: Request<pb::FetchRequest>,
     ) -> Result<Response<pb::FetchReply>, Status> {
-        self.fetch(request).await
+        {
+            allow(
+                &caller(&self.state.access, &request)?,
+                &[Role::Admin, Role::Submitter],
+                "fetch results",
+            )?;
+            self.fetch(request).await
+        }
     }
 
     async fn cancel_job(
         &self,
         request: Request<pb::JobId>,
     ) -> Result<Response<pb::JobSummary>, Status> {
-        self.cancel(request).await
+        {
+            allow(
+                &caller(&self.state.access, &request)?,
+                &[Role::Admin, Role::Submitter],
+                "cancel jobs",
+            )?;
+            self.cancel(request).await
+        }
     }
 
     async fn list_jobs(
         &self,
         request: Request<pb::ListJobsRequest>,
     ) -> Result<Response<pb::JobList>, Status> {
-        self.jobs(request).await
+        {
+            allow(
+                &caller(&self.state.access, &request)?,
+                &[Role::Admin, Role::Submitter],
+                "list jobs",
+            )?;
+            self.jobs(request).await
+        }
     }
 
     async fn set_priority(
         &self,
         request: Request<pb::SetPriorityRequest>,
     ) -> Result<Response<pb::JobSummary>, Status> {
-        self.reprioritise(request).await
+        {
+            allow(
+                &caller(&self.state.access, &request)?,
+                &[Role::Admin, Role::Submitter],
+                "change priorities",
+            )?;
+            self.reprioritise(request).await
+        }
     }
 
     async fn list_workers(
         &self,
         request: Request<pb::ListWorkersRequest>,
     ) -> Result<Response<pb::WorkerList>, Status> {
-        self.workers(request).await
+        {
+            allow(
+                &caller(&self.state.access, &request)?,
+                &[Role::Admin, Role::Submitter],
+                "list workers",
+            )?;
+            self.workers(request).await
+        }
     }
 
     async fn register_worker(
         &self,
         request: Request<pb::RegisterWorkerRequest>,
     ) -> Result<Response<pb::RegisterWorkerReply>, Status> {
-        self.register(request).await
+        {
+            allow(
+                &caller(&self.state.access, &request)?,
+                &[Role::Admin, Role::Worker],
+                "register workers",
+            )?;
+            self.register(request).await
+        }
     }
 }

@@ -9,6 +9,7 @@ impl CoordinatorService {
         request: Request<Streaming<pb::SubmitChunk>>,
     ) -> Result<Response<pb::JobId>, Status> {
         let remote = request.remote_addr();
+        let who = caller(&self.state.access, &request)?;
         let mut stream = request.into_inner();
         let first =
             stream.next().await.ok_or_else(|| Status::invalid_argument("empty submission"))??;
@@ -17,9 +18,16 @@ impl CoordinatorService {
             .ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
         let (frame, schedule, views) = checked_spec(&spec)?;
         let reserved = self.state.room_for(&frame, views.len().max(1)).await?;
+        // A user's job is theirs, whatever name the client sends; on a farm
+        // of one token (or none) the client's name and address are shown.
         let from = remote.map(|a| a.ip().to_string()).unwrap_or_else(|| "local".into());
-        let submitter =
-            if spec.submitter.is_empty() { from } else { format!("{}@{from}", spec.submitter) };
+        let submitter = if !who.token_id.is_empty() {
+            who.user.clone()
+        } else if spec.submitter.is_empty() {
+            from
+        } else {
+            format!("{}@{from}", spec.submitter)
+        };
         let hash = first.hash.to_ascii_lowercase();
         if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
             return Err(Status::invalid_argument(format!(
@@ -84,7 +92,9 @@ impl CoordinatorService {
         // Written before the client hears of it: an acknowledged job
         // survives a crash.
         self.state.store.insert_job(&job.row()).await.map_err(internal_error)?;
+        let detail = format!("{} frame(s), {}", job.summary.frames, job.summary.name);
         lock(&self.state.jobs).insert(id.clone(), job);
+        self.state.audit(&who.user, "submit", &id, &detail).await;
         self.state.wake.notify_one();
         tracing::info!(%id, "job queued");
         Ok(Response::new(pb::JobId { id }))
@@ -189,11 +199,13 @@ impl CoordinatorService {
         &self,
         request: Request<pb::JobId>,
     ) -> Result<Response<pb::JobSummary>, Status> {
+        let who = caller(&self.state.access, &request)?;
         let id = request.into_inner().id;
         let id = job_id(&id)?;
         let (summary, tx) = {
             let mut jobs = lock(&self.state.jobs);
             let j = jobs.get_mut(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            owner(&who, id, &j.summary.submitter)?;
             if j.set_state(JobState::Cancelled).is_ok() {
                 if let Some(t) = j.task.take() {
                     t.abort();
@@ -206,6 +218,7 @@ impl CoordinatorService {
         };
         if wire_ended(summary.state) {
             self.state.ended(id).await;
+            self.state.audit(&who.user, "cancel", id, "").await;
         }
         let _ = tx.send(pb::JobEvent {
             id: id.to_string(),
@@ -232,11 +245,13 @@ impl CoordinatorService {
         &self,
         request: Request<pb::SetPriorityRequest>,
     ) -> Result<Response<pb::JobSummary>, Status> {
+        let who = caller(&self.state.access, &request)?;
         let r = request.into_inner();
         let id = job_id(&r.id)?;
         let summary = {
             let mut jobs = lock(&self.state.jobs);
             let j = jobs.get_mut(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
+            owner(&who, id, &j.summary.submitter)?;
             // An ended job is never queued again: a priority would order nothing.
             if j.state.ended() {
                 return Err(Status::failed_precondition(format!(
@@ -249,6 +264,7 @@ impl CoordinatorService {
             j.summary.clone()
         };
         self.state.store.set_priority(id, r.priority).await.map_err(internal_error)?;
+        self.state.audit(&who.user, "priority", id, &r.priority.to_string()).await;
         tracing::info!(%id, priority = r.priority, "job re-prioritised");
         Ok(Response::new(summary))
     }
@@ -417,4 +433,16 @@ pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Jo
         out.insert(row.id, job);
     }
     Ok(out)
+}
+
+/// PERMISSION_DENIED unless `who` may act on job `id`, which `submitter`
+/// submitted: an admin may act on any, a submitter on their own.
+fn owner(who: &Caller, id: &str, submitter: &str) -> Result<(), Status> {
+    if who.owns(submitter) {
+        return Ok(());
+    }
+    Err(Status::permission_denied(format!(
+        "job {id} is {}'s: a submitter acts on their own jobs only",
+        submitter
+    )))
 }

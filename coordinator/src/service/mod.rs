@@ -32,6 +32,7 @@ pub use live::{LiveFrame, LiveStrip};
 pub use state::{JobState, wire_ended, wire_name};
 use workers::KnownWorker;
 
+use crate::access::{Access, Caller, Role};
 use crate::farm::{self, FarmEvent, Workers};
 use crate::results::Retention;
 use crate::schedule::{ScheduleKind, Strip, scheduler};
@@ -225,6 +226,8 @@ struct State {
     wake: tokio::sync::Notify,
     /// Held while this coordinator uses the state folder.
     _lock: std::fs::File,
+    /// Whose tokens are accepted, with what role.
+    access: Arc<Access>,
 }
 
 /// The `sylva.v1.Coordinator` service.
@@ -266,10 +269,24 @@ impl CoordinatorService {
                     info: pb::WorkerInfo { addr: a.clone(), alive: true, ..Default::default() },
                     named: true,
                     seen: Instant::now(),
+                    key: None,
                 },
             );
         }
         let jobs = jobs::restore(&store).await?;
+        let access = Arc::new(Access::new(config.token.clone()));
+        access.set(store.tokens().await?);
+        // Without a token anyone who reaches the page could cancel jobs:
+        // it serves this machine only.
+        if let Some(l) = &http_listener
+            && !access.closed()
+            && !l.local_addr()?.ip().is_loopback()
+        {
+            anyhow::bail!(
+                "--http {}: without a token the dashboard serves this machine only (anyone who reaches it could cancel jobs); give --http 127.0.0.1:PORT, or a token (--token-file, or users: sylva token add)",
+                l.local_addr()?
+            );
+        }
         let slots = Arc::new(Semaphore::new(config.max_running.max(1)));
         tracing::info!(
             state = %dir.display(),
@@ -290,6 +307,7 @@ impl CoordinatorService {
                 slots,
                 wake: tokio::sync::Notify::new(),
                 _lock: lock,
+                access,
             }),
         };
         if let Some(l) = metrics_listener {
@@ -309,19 +327,37 @@ impl CoordinatorService {
         lock(&self.state.jobs).get(id).map(|j| j.live.clone())
     }
 
-    /// Whether `token` is the one this coordinator asks of callers (any, when it asks none).
+    /// Who `token` makes a caller (anyone, on a farm that asks no token);
+    /// `None` for a wrong or missing token.
+    pub fn caller_of(&self, token: Option<&str>) -> Option<Caller> {
+        self.state.access.caller(token)
+    }
+
+    /// Whether `token` is one this coordinator accepts (any, when it asks none).
     pub fn accepts_token(&self, token: Option<&str>) -> bool {
-        match &self.state.config.token {
-            None => true,
-            Some(want) => token.is_some_and(|t| {
-                sylva_proto::auth::constant_time_eq(t.as_bytes(), want.as_bytes())
-            }),
-        }
+        self.caller_of(token).is_some()
     }
 
     /// Whether callers must bring a token.
     pub fn needs_token(&self) -> bool {
-        self.state.config.token.is_some()
+        self.state.access.closed()
+    }
+
+    /// The API's interceptor: finds who calls from their bearer token and
+    /// hands it to the call (UNAUTHENTICATED for a wrong or missing one).
+    pub fn authenticate(
+        &self,
+    ) -> impl FnMut(Request<()>) -> Result<Request<()>, Status> + Clone + use<> {
+        let access = self.state.access.clone();
+        move |mut req: Request<()>| {
+            let caller = access.caller(sylva_proto::auth::bearer_of(&req)).ok_or_else(|| {
+                Status::unauthenticated(
+                    "this coordinator needs a valid bearer token (authorization: Bearer …)",
+                )
+            })?;
+            req.extensions_mut().insert(caller);
+            Ok(req)
+        }
     }
 
     /// Starts the scheduler loop and the worker heartbeats.
@@ -355,7 +391,33 @@ impl CoordinatorService {
     }
 }
 
+/// Who made a call: the interceptor's finding, or (a call made in this
+/// process, as the dashboard's) the one its bearer token names.
+fn caller<T>(access: &Access, req: &Request<T>) -> Result<Caller, Status> {
+    if let Some(c) = req.extensions().get::<Caller>() {
+        return Ok(c.clone());
+    }
+    access
+        .caller(sylva_proto::auth::bearer_of(req))
+        .ok_or_else(|| Status::unauthenticated("this coordinator needs a valid bearer token"))
+}
+
+/// PERMISSION_DENIED unless `caller` has one of `roles`.
+fn allow(caller: &Caller, roles: &[Role], what: &str) -> Result<(), Status> {
+    if roles.contains(&caller.role) {
+        return Ok(());
+    }
+    Err(Status::permission_denied(format!("a {} token cannot {what}", caller.role.name())))
+}
+
 impl State {
+    /// Writes an entry of the audit log (a failure to is logged, not fatal).
+    async fn audit(&self, actor: &str, action: &str, target: &str, detail: &str) {
+        if let Err(e) = self.store.audit(actor, action, target, detail).await {
+            tracing::error!(action, target, "not written to the audit log: {e:#}");
+        }
+    }
+
     /// Where a scene bundle waits while a job needs it.
     fn bundle_path(&self, hash: &str) -> PathBuf {
         self.config.state_dir.join("bundles").join(hash)
@@ -455,12 +517,12 @@ pub async fn run(
 ) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
     let (reflection, reflection_alpha) = sylva_proto::reflection(&["sylva.v1.Coordinator"])?;
-    let auth = sylva_proto::auth::require(config.token.clone());
     let mut builder = tonic::transport::Server::builder();
     if let Some(tls) = config.tls.take() {
         builder = builder.tls_config(tls)?;
     }
     let service = CoordinatorService::open(config).await?;
+    let auth = service.authenticate();
     service.spawn_background();
     reporter.set_serving::<CoordinatorServer<CoordinatorService>>().await;
     let served = builder

@@ -15,11 +15,14 @@ impl State {
             return;
         };
         let _ = tx.send(self.event(id));
-        let addrs: Vec<String> = lock(&self.workers)
-            .values()
-            .filter(|w| w.info.alive)
-            .map(|w| w.info.addr.clone())
-            .collect();
+        let (addrs, keys): (Vec<String>, std::collections::HashMap<String, String>) = {
+            let workers = lock(&self.workers);
+            let alive: Vec<&KnownWorker> = workers.values().filter(|w| w.info.alive).collect();
+            (
+                alive.iter().map(|w| w.info.addr.clone()).collect(),
+                alive.iter().filter_map(|w| Some((w.info.addr.clone(), w.key.clone()?))).collect(),
+            )
+        };
         if addrs.is_empty() {
             return self.fail(id, &tx, "no worker is registered and alive: start workers with --coordinator, or the coordinator with --workers".into()).await;
         }
@@ -69,6 +72,7 @@ impl State {
             addrs: addrs.clone(),
             token: self.config.token.clone(),
             tls: self.config.worker_tls.clone(),
+            keys,
         };
         let farm = farm::render_streamed(
             &workers,

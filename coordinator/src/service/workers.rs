@@ -11,6 +11,9 @@ pub(super) struct KnownWorker {
     pub(super) named: bool,
     /// Last registration or answered heartbeat.
     pub(super) seen: Instant,
+    /// The key this coordinator calls it with, given at registration (a
+    /// named worker is called with the coordinator's `--token`).
+    pub(super) key: Option<String>,
 }
 
 impl KnownWorker {
@@ -30,6 +33,9 @@ impl KnownWorker {
             seen: Instant::now()
                 .checked_sub(Duration::from_millis(ago))
                 .unwrap_or_else(Instant::now),
+            // Keys are not kept: the worker gets a new one when it
+            // registers again (within one period).
+            key: None,
         }
     }
 
@@ -57,6 +63,7 @@ impl CoordinatorService {
         &self,
         request: Request<pb::RegisterWorkerRequest>,
     ) -> Result<Response<pb::RegisterWorkerReply>, Status> {
+        let caller = caller(&self.state.access, &request)?;
         let addr = request.into_inner().addr;
         if addr.len() > MAX_ID
             || addr.parse::<std::net::SocketAddr>().is_err() && !addr.contains(':')
@@ -66,31 +73,41 @@ impl CoordinatorService {
                 clip(&addr)
             )));
         }
-        let known = lock(&self.state.workers).get(&addr).is_some_and(|w| w.info.alive);
-        if !known {
-            // Nothing — not the token, not a bundle — goes to an address
-            // before it proves it is one of the farm's workers.
-            self.state.verify_worker(&addr).await?;
-        }
-        let row = {
+        let known = lock(&self.state.workers)
+            .get(&addr)
+            .and_then(|w| w.key.clone().filter(|_| w.info.alive));
+        let key = match known {
+            Some(k) => k,
+            None => {
+                // Nothing — not a key, not a bundle — goes to an address
+                // before it proves it holds the caller's token.
+                self.state.verify_worker(&addr, &caller).await?;
+                sylva_proto::auth::random_token()
+            }
+        };
+        let (row, fresh) = {
             let mut w = lock(&self.state.workers);
             let entry = w.entry(addr.clone()).or_insert_with(|| KnownWorker {
                 info: pb::WorkerInfo { addr: addr.clone(), ..Default::default() },
                 named: false,
                 seen: Instant::now(),
+                key: None,
             });
+            let fresh = entry.key.as_deref() != Some(key.as_str());
             entry.info.alive = true;
             entry.seen = Instant::now();
-            entry.row()
+            entry.key = Some(key.clone());
+            (entry.row(), fresh)
         };
-        if !known {
-            tracing::info!(%addr, "worker registered");
+        if fresh {
+            tracing::info!(%addr, user = %caller.user, "worker registered");
+            self.state.audit(&caller.user, "register worker", &addr, "").await;
             // A restarted coordinator finds it at once.
             if let Err(e) = self.state.store.put_workers(&[row]).await {
                 tracing::warn!(%addr, "worker record not written: {e:#}");
             }
         }
-        Ok(Response::new(pb::RegisterWorkerReply {}))
+        Ok(Response::new(pb::RegisterWorkerReply { session_key: key }))
     }
 }
 
@@ -101,13 +118,14 @@ impl State {
     /// retention.
     pub(super) async fn heartbeat_loop(self: Arc<Self>) {
         loop {
-            let addrs: Vec<String> = lock(&self.workers).keys().cloned().collect();
+            let addrs: Vec<(String, Option<String>)> = lock(&self.workers)
+                .iter()
+                .map(|(a, w)| (a.clone(), w.key.clone().or_else(|| self.config.token.clone())))
+                .collect();
             let config = &self.config;
-            let polls = addrs.into_iter().map(|a| async move {
+            let polls = addrs.into_iter().map(|(a, key)| async move {
                 let status = async {
-                    let mut c = farm::connect(&a, config.token.clone(), config.worker_tls.as_ref())
-                        .await
-                        .ok()?;
+                    let mut c = farm::connect(&a, key, config.worker_tls.as_ref()).await.ok()?;
                     let mut req = Request::new(pb::StatusRequest {});
                     req.set_timeout(Duration::from_secs(5));
                     c.status(req).await.ok().map(|r| r.into_inner())
@@ -154,13 +172,20 @@ impl State {
                 let _ = self.store.delete_worker(&addr).await;
             }
             self.sweep().await;
+            // Tokens added or revoked on the state folder take effect here.
+            match self.store.tokens().await {
+                Ok(t) => self.access.set(t),
+                Err(e) => tracing::warn!("tokens not re-read: {e:#}"),
+            }
             tokio::time::sleep(self.config.heartbeat).await;
         }
     }
 
-    /// Checks that the worker at `addr` holds the farm's token: it must
-    /// answer a fresh nonce with the keyed hash only a token holder can make.
-    pub(super) async fn verify_worker(&self, addr: &str) -> Result<(), Status> {
+    /// Checks that the worker at `addr` holds the token `caller` registered
+    /// with: it must answer a fresh nonce with the keyed hash only a
+    /// holder of that token can make (a user's token: keyed by the token's
+    /// record; the coordinator's own: by Argon2id of it).
+    pub(super) async fn verify_worker(&self, addr: &str, caller: &Caller) -> Result<(), Status> {
         let refused =
             |why: &str| Status::permission_denied(format!("worker {}: {why}", clip(addr)));
         let ch = sylva_proto::tls::connect(
@@ -179,15 +204,27 @@ impl State {
             .await
             .map_err(|_| refused("does not answer the identity check (is it a Sylva worker?)"))?
             .into_inner();
-        let token = self.config.token.clone();
-        let checked = tokio::task::spawn_blocking(move || {
-            sylva_proto::auth::check_proof(token.as_deref(), &nonce, &reply.salt, &reply.proof)
-        })
-        .await
-        .unwrap_or(false);
+        let checked = if !reply.token_id.is_empty() || !caller.token_id.is_empty() {
+            // A user's token: the address must hold the very token the
+            // registration came with.
+            reply.token_id == caller.token_id
+                && self.access.key_of(&reply.token_id).is_some_and(|key| {
+                    sylva_proto::auth::constant_time_eq(
+                        &sylva_proto::auth::prove_with_key(&key, &nonce),
+                        &reply.proof,
+                    )
+                })
+        } else {
+            let token = self.config.token.clone();
+            tokio::task::spawn_blocking(move || {
+                sylva_proto::auth::check_proof(token.as_deref(), &nonce, &reply.salt, &reply.proof)
+            })
+            .await
+            .unwrap_or(false)
+        };
         if !checked {
             return Err(refused(
-                "could not prove it holds the farm's token; start it with the coordinator's --token",
+                "could not prove it holds the token it registered with; start it with the farm's token (--token-file)",
             ));
         }
         Ok(())

@@ -100,6 +100,41 @@ pub struct WorkerRow {
     pub last_seen_ms: u64,
 }
 
+/// A user's token as the database keeps it: never the token, its hash.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct TokenRow {
+    /// The token's public id (its second part).
+    pub id: String,
+    /// Whose it is.
+    pub user: String,
+    /// `admin`, `submitter` or `worker`.
+    pub role: String,
+    /// BLAKE3 of its secret part, hex.
+    #[serde(skip)]
+    pub hash: String,
+    /// When it was made, ms since the Unix epoch.
+    pub created_ms: u64,
+    /// When it was revoked (0: it is not).
+    pub revoked_ms: u64,
+}
+
+/// One entry of the audit log.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct AuditRow {
+    /// Its number, in order.
+    pub id: u64,
+    /// When, ms since the Unix epoch.
+    pub at_ms: u64,
+    /// Who: a user, `operator` (the command line on the state folder) or `worker`.
+    pub actor: String,
+    /// What: `submit`, `cancel`, `priority`, `token add`, …
+    pub action: String,
+    /// What to: a job id, a token id, a worker's address.
+    pub target: String,
+    /// More, in words.
+    pub detail: String,
+}
+
 /// The database.
 #[derive(Clone, Debug)]
 pub struct Store {
@@ -444,6 +479,103 @@ impl Store {
                 })
             })
             .collect()
+    }
+
+    /// Records a user's token (its hash: the token itself is never kept).
+    pub async fn add_token(&self, t: &TokenRow) -> anyhow::Result<()> {
+        sqlx::query(
+            "INSERT INTO tokens (id, user_name, role, hash, created_ms) VALUES ($1, $2, $3, $4, $5)",
+        )
+        .bind(&t.id)
+        .bind(&t.user)
+        .bind(&t.role)
+        .bind(&t.hash)
+        .bind(t.created_ms as i64)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// Every token record, revoked ones too, oldest first.
+    pub async fn tokens(&self) -> anyhow::Result<Vec<TokenRow>> {
+        let rows = sqlx::query("SELECT * FROM tokens ORDER BY created_ms, id")
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter()
+            .map(|r| {
+                Ok(TokenRow {
+                    id: r.try_get("id")?,
+                    user: r.try_get("user_name")?,
+                    role: r.try_get("role")?,
+                    hash: r.try_get("hash")?,
+                    created_ms: r.try_get::<i64, _>("created_ms")?.max(0) as u64,
+                    revoked_ms: r.try_get::<i64, _>("revoked_ms")?.max(0) as u64,
+                })
+            })
+            .collect()
+    }
+
+    /// Revokes a token; whether there was one to revoke.
+    pub async fn revoke_token(&self, id: &str) -> anyhow::Result<bool> {
+        let r = sqlx::query("UPDATE tokens SET revoked_ms = $2 WHERE id = $1 AND revoked_ms = 0")
+            .bind(id)
+            .bind(now_ms())
+            .execute(&self.pool)
+            .await?;
+        Ok(r.rows_affected() > 0)
+    }
+
+    /// Appends to the audit log: who did what to what.
+    pub async fn audit(
+        &self,
+        actor: &str,
+        action: &str,
+        target: &str,
+        detail: &str,
+    ) -> anyhow::Result<()> {
+        let mut tx = self.pool.begin().await?;
+        let id = sqlx::query(
+            "UPDATE counters SET value = value + 1 WHERE name = 'audit' RETURNING value",
+        )
+        .fetch_one(&mut *tx)
+        .await?
+        .get::<i64, _>(0);
+        sqlx::query(
+            "INSERT INTO audit (id, at_ms, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5, $6)",
+        )
+        .bind(id)
+        .bind(now_ms())
+        .bind(actor)
+        .bind(action)
+        .bind(target)
+        .bind(detail)
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// The newest `limit` entries of the audit log, oldest first.
+    pub async fn audit_log(&self, limit: u32) -> anyhow::Result<Vec<AuditRow>> {
+        let rows = sqlx::query("SELECT * FROM audit ORDER BY id DESC LIMIT $1")
+            .bind(limit as i64)
+            .fetch_all(&self.pool)
+            .await?;
+        let mut out = rows
+            .iter()
+            .map(|r| {
+                Ok(AuditRow {
+                    id: r.try_get::<i64, _>("id")? as u64,
+                    at_ms: r.try_get::<i64, _>("at_ms")?.max(0) as u64,
+                    actor: r.try_get("actor")?,
+                    action: r.try_get("action")?,
+                    target: r.try_get("target")?,
+                    detail: r.try_get("detail")?,
+                })
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        out.reverse();
+        Ok(out)
     }
 
     /// Closes the connections, waiting for writes under way.

@@ -5,14 +5,15 @@
 //! SQLite), so one query layer reads both.
 
 /// Migrations, oldest first: (version, what it does, statements).
-pub(super) const MIGRATIONS: &[(i64, &str, &[&str])] = &[(
-    1,
-    "jobs, frames, strips, workers, counters",
-    &[
-        "CREATE TABLE counters (name TEXT PRIMARY KEY, value BIGINT NOT NULL)",
-        "INSERT INTO counters (name, value) VALUES ('job', 0)",
-        "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
-        "CREATE TABLE jobs (
+pub(super) const MIGRATIONS: &[(i64, &str, &[&str])] = &[
+    (
+        1,
+        "jobs, frames, strips, workers, counters",
+        &[
+            "CREATE TABLE counters (name TEXT PRIMARY KEY, value BIGINT NOT NULL)",
+            "INSERT INTO counters (name, value) VALUES ('job', 0)",
+            "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
+            "CREATE TABLE jobs (
             id TEXT PRIMARY KEY,
             seq BIGINT NOT NULL,
             state TEXT NOT NULL,
@@ -33,8 +34,8 @@ pub(super) const MIGRATIONS: &[(i64, &str, &[&str])] = &[(
             finished_ms BIGINT NOT NULL DEFAULT 0,
             result_bytes BIGINT NOT NULL DEFAULT 0
         )",
-        "CREATE INDEX jobs_by_state ON jobs (state)",
-        "CREATE TABLE frames (
+            "CREATE INDEX jobs_by_state ON jobs (state)",
+            "CREATE TABLE frames (
             job_id TEXT NOT NULL,
             frame BIGINT NOT NULL,
             exr TEXT NOT NULL,
@@ -43,7 +44,7 @@ pub(super) const MIGRATIONS: &[(i64, &str, &[&str])] = &[(
             stats_json TEXT NOT NULL,
             PRIMARY KEY (job_id, frame)
         )",
-        "CREATE TABLE strips (
+            "CREATE TABLE strips (
             job_id TEXT NOT NULL,
             frame BIGINT NOT NULL,
             x0 BIGINT NOT NULL,
@@ -52,14 +53,38 @@ pub(super) const MIGRATIONS: &[(i64, &str, &[&str])] = &[(
             path TEXT NOT NULL,
             PRIMARY KEY (job_id, frame, x0)
         )",
-        "CREATE TABLE workers (
+            "CREATE TABLE workers (
             addr TEXT PRIMARY KEY,
             strips_done BIGINT NOT NULL,
             strips_failed BIGINT NOT NULL,
             last_seen_ms BIGINT NOT NULL
         )",
-    ],
-)];
+        ],
+    ),
+    (
+        2,
+        "tokens of users with roles, the audit log",
+        &[
+            "CREATE TABLE tokens (
+                id TEXT PRIMARY KEY,
+                user_name TEXT NOT NULL,
+                role TEXT NOT NULL,
+                hash TEXT NOT NULL,
+                created_ms BIGINT NOT NULL,
+                revoked_ms BIGINT NOT NULL DEFAULT 0
+            )",
+            "CREATE TABLE audit (
+                id BIGINT PRIMARY KEY,
+                at_ms BIGINT NOT NULL,
+                actor TEXT NOT NULL,
+                action TEXT NOT NULL,
+                target TEXT NOT NULL,
+                detail TEXT NOT NULL
+            )",
+            "INSERT INTO counters (name, value) VALUES ('audit', 0)",
+        ],
+    ),
+];
 
 /// A statement in `dialect`'s words.
 pub(super) fn in_dialect(sql: &str, postgres: bool) -> String {

@@ -251,6 +251,15 @@ impl Worker for WorkerService {
         request: Request<Streaming<pb::PreparedChunk>>,
     ) -> Result<Response<pb::PrepareReply>, Status> {
         let t = Instant::now();
+        // Prepared data is taken from the coordinator this worker
+        // registered with, and no one else holding a token.
+        let registered = self.state.config.session.read().expect("lock").is_some();
+        let via = request.extensions().get::<super::Via>().copied();
+        if registered && via != Some(super::Via::Coordinator) {
+            return Err(Status::permission_denied(
+                "only the coordinator this worker registered with may push prepared data into it",
+            ));
+        }
         let mut stream = request.into_inner();
         let first = stream
             .next()

@@ -60,6 +60,9 @@ pub struct WorkerConfig {
     /// Bytes of LB light kept at most, all suns together (the newest is
     /// kept whatever its size): fine grids make the count alone no bound.
     pub lb_cache_bytes: u64,
+    /// The key the coordinator calls with, once this worker has registered
+    /// (set by the registration, read by every call).
+    pub session: Session,
     /// Bytes the kept scenes may hold at most, all they expand into
     /// together (models, structures, LB light, GPU copies); the least
     /// recently used scenes go first (the one in use stays, whatever its size).
@@ -79,7 +82,50 @@ impl Default for WorkerConfig {
             lb_cache_entries: 64,
             lb_cache_bytes: 1 << 30,
             memory_bytes: 8 << 30,
+            session: Session::default(),
         }
+    }
+}
+
+/// The coordinator's key for this worker, given at registration.
+pub type Session = Arc<std::sync::RwLock<Option<String>>>;
+
+/// How a call was authorised.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Via {
+    /// With the key the coordinator was given: the coordinator.
+    Coordinator,
+    /// With the worker's own token (an operator's tool, or a coordinator
+    /// that names this worker rather than being registered with).
+    Token,
+    /// This worker asks no token.
+    Open,
+}
+
+/// The worker's interceptor: a call brings the worker's token or the
+/// coordinator's key (either, where the worker asks no token), and the
+/// call learns which ([`Via`]).
+fn authenticate(
+    token: Option<String>,
+    session: Session,
+) -> impl FnMut(Request<()>) -> Result<Request<()>, Status> + Clone {
+    move |mut req: Request<()>| {
+        let eq = |a: &str, b: &str| sylva_proto::auth::constant_time_eq(a.as_bytes(), b.as_bytes());
+        let got = sylva_proto::auth::bearer_of(&req).map(str::to_string);
+        let key = session.read().expect("lock").clone();
+        let via = match (&got, &key, &token) {
+            (Some(g), Some(k), _) if eq(g, k) => Via::Coordinator,
+            (Some(g), _, Some(t)) if eq(g, t) => Via::Token,
+            (_, _, None) => Via::Open,
+            (Some(_), _, Some(_)) => return Err(Status::unauthenticated("wrong bearer token")),
+            (None, _, Some(_)) => {
+                return Err(Status::unauthenticated(
+                    "this worker needs a bearer token (authorization: Bearer …)",
+                ));
+            }
+        };
+        req.extensions_mut().insert(via);
+        Ok(req)
     }
 }
 
@@ -176,12 +222,22 @@ impl WorkerIdentity for Identity {
         // Each answer costs a slow key derivation; a flood of questions is
         // answered one at a time, never all at once.
         let _turn = self.turn.lock().await;
+        // A user's token: proved with the key its record holds (the secret
+        // is 256 random bits, so no slow derivation is needed).
+        if let Some((id, secret)) = self.token.as_deref().and_then(sylva_proto::auth::user_token) {
+            let key = sylva_proto::auth::user_token_key(secret);
+            return Ok(Response::new(pb::ProveReply {
+                proof: sylva_proto::auth::prove_with_key(&key, &nonce).to_vec(),
+                salt: Vec::new(),
+                token_id: id.to_string(),
+            }));
+        }
         let token = self.token.clone();
         let (salt, proof) =
             tokio::task::spawn_blocking(move || sylva_proto::auth::prove(token.as_deref(), &nonce))
                 .await
                 .map_err(|_| Status::internal("the proof could not be made"))?;
-        Ok(Response::new(pb::ProveReply { proof: proof.to_vec(), salt }))
+        Ok(Response::new(pb::ProveReply { proof: proof.to_vec(), salt, token_id: String::new() }))
     }
 }
 
@@ -198,7 +254,7 @@ pub async fn run(
     reporter.set_not_serving::<WorkerServer<WorkerService>>().await;
     let (reflection, reflection_alpha) =
         sylva_proto::reflection(&["sylva.v1.Worker", "sylva.v1.WorkerIdentity"])?;
-    let auth = sylva_proto::auth::require(config.token.clone());
+    let auth = authenticate(config.token.clone(), config.session.clone());
     let mut builder = tonic::transport::Server::builder();
     if let Some(tls) = config.tls.clone() {
         builder = builder.tls_config(tls)?;

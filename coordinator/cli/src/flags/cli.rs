@@ -48,6 +48,13 @@ pub(crate) enum Command {
     Priority(super::jobs::PriorityArgs),
     /// Fetch a finished job's image.
     Fetch(super::jobs::FetchArgs),
+    /// The farm's users: tokens with roles, made and revoked on the
+    /// coordinator's state folder or database.
+    #[command(subcommand)]
+    Token(super::users::TokenCommand),
+    /// The farm's audit log: who submitted, cancelled, re-prioritised,
+    /// registered or changed tokens.
+    Audit(super::users::AuditArgs),
     /// Serve the worker API: hold scenes, render strips on this machine's GPU.
     Worker(super::worker::WorkerArgs),
     /// Scene files: write the paper's forest, export to glTF or pbrt-v4,

@@ -105,16 +105,22 @@ impl CoordinatorArgs {
                 std::env::temp_dir().join(format!("sylva-coordinator-{}", std::process::id()))
             );
         }
-        if let Some(d) = &self.state_dir {
-            return Ok(d.clone());
+        match &self.state_dir {
+            Some(d) => Ok(d.clone()),
+            None => default_state_dir(),
         }
-        let base = match std::env::var_os("XDG_STATE_HOME").filter(|v| !v.is_empty()) {
+    }
+}
+
+/// `$XDG_STATE_HOME/sylva/coordinator`, else `~/.local/state/sylva/coordinator`.
+pub fn default_state_dir() -> anyhow::Result<PathBuf> {
+    let base =
+        match std::env::var_os("XDG_STATE_HOME").filter(|v| !v.is_empty()) {
             Some(x) => PathBuf::from(x),
             None => PathBuf::from(std::env::var_os("HOME").ok_or_else(|| {
                 anyhow::anyhow!("no HOME and no XDG_STATE_HOME: give --state-dir")
             })?)
             .join(".local/state"),
         };
-        Ok(base.join("sylva").join("coordinator"))
-    }
+    Ok(base.join("sylva").join("coordinator"))
 }

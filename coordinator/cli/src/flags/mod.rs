@@ -15,4 +15,5 @@ pub mod lb;
 pub mod render;
 pub mod scene;
 pub mod security;
+pub mod users;
 pub mod worker;

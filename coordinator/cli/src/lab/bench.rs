@@ -527,7 +527,7 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
     let one = Workers {
         addrs: profiler.start_workers(1, &token)?,
         token: Some(token.clone()),
-        tls: None,
+        ..Default::default()
     };
     let whole = vec![(0, a.width)];
     Farm::new(&rt, one.clone(), &bundle, frame, deadline).render(&whole, &|_| {})?; // prepare + compile
@@ -567,7 +567,7 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
                         let ws = Workers {
                             addrs: l.start_workers(w, &token)?,
                             token: Some(token.clone()),
-                            tls: None,
+                            ..Default::default()
                         };
                         (Some(l), ws)
                     } else {
@@ -577,6 +577,7 @@ fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
                                 addrs: a.real_workers[..w].to_vec(),
                                 token: a.auth.load()?,
                                 tls: a.tls.load()?,
+                                ..Default::default()
                             },
                         )
                     };

@@ -1,0 +1,133 @@
+//! Users with their own tokens and roles, as an operator sets them up:
+//! `sylva token add` on the coordinator's state folder, a worker joining
+//! with a worker token, submitters acting on their own jobs only, an
+//! admin on any, revocation, and the audit log. Real processes, real gRPC,
+//! a real SQLite file.
+
+mod common;
+
+use common::{Client, coordinator, ok, scratch, small_scene, spawn, spec, sylva};
+use std::time::Duration;
+use sylva_proto::pb;
+use sylva_scene::bundle;
+use tonic::Code;
+
+fn token_add(state: &str, user: &str, role: &str) -> String {
+    ok(&["token", "add", user, "--role", role, "--state-dir", state]).trim().to_string()
+}
+
+/// Waits until `c` is refused (the coordinator re-reads tokens every 2 s).
+async fn until_refused(c: &mut Client) {
+    for _ in 0..100 {
+        if c.list_jobs(pb::ListJobsRequest {}).await.is_err() {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    panic!("the coordinator still takes the token");
+}
+
+async fn submit(
+    c: &mut Client,
+    b: &bundle::SceneBundle,
+    claimed: &str,
+) -> Result<String, tonic::Status> {
+    let mut s = spec(32, 16);
+    s.submitter = claimed.into();
+    let chunks = common::submission(s, &b.hash, &b.bytes, b.bytes.len() as u64);
+    c.submit_job(tokio_stream::iter(chunks)).await.map(|r| r.into_inner().id)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn users_act_within_their_roles_and_every_change_is_audited() {
+    let dir = scratch("users");
+    let state = dir.join("state");
+    let st = state.to_str().unwrap();
+    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--state-dir", st], &[]);
+    let (alice, bob) = (token_add(st, "alice", "submitter"), token_add(st, "bob", "submitter"));
+    let (root, wtok) = (token_add(st, "root", "admin"), token_add(st, "render-01", "worker"));
+    assert!(alice.starts_with("sylva_") && alice.len() == "sylva_".len() + 12 + 1 + 64);
+    // The farm was open; with users it takes their tokens only.
+    let mut anon = coordinator(&coord.addr, None).await;
+    until_refused(&mut anon).await;
+    let (mut a, mut b, mut r) = (
+        coordinator(&coord.addr, Some(&alice)).await,
+        coordinator(&coord.addr, Some(&bob)).await,
+        coordinator(&coord.addr, Some(&root)).await,
+    );
+    let mut w = coordinator(&coord.addr, Some(&wtok)).await;
+
+    // A worker joins with its worker token (and proves it holds it).
+    let worker = spawn(
+        &["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr],
+        &[("SYLVA_TOKEN", &wtok)],
+    );
+    common::wait_for_workers(&mut r, 1).await;
+
+    // The submitter shown is the token's user, whatever the client claims.
+    let scene = bundle::pack(&small_scene(&dir)).unwrap();
+    let id = submit(&mut a, &scene, "mallory").await.unwrap();
+    let listed = r.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
+    assert_eq!(listed.iter().find(|j| j.id == id).unwrap().submitter, "alice");
+
+    // Bob may not touch Alice's job; Alice may; an admin may.
+    let denied = b.cancel_job(pb::JobId { id: id.clone() }).await.unwrap_err();
+    assert_eq!(denied.code(), Code::PermissionDenied, "{denied:?}");
+    assert!(denied.message().contains("alice's"), "{}", denied.message());
+    let e = b.set_priority(pb::SetPriorityRequest { id: id.clone(), priority: 9 }).await;
+    assert_eq!(e.unwrap_err().code(), Code::PermissionDenied);
+    let mine = a.set_priority(pb::SetPriorityRequest { id: id.clone(), priority: 3 }).await;
+    assert!(mine.is_ok() || mine.unwrap_err().code() == Code::FailedPrecondition, "ended is fine");
+    assert!(r.cancel_job(pb::JobId { id: id.clone() }).await.is_ok());
+
+    // Only the coordinator it registered with may push prepared data into
+    // the worker: not its own token's other holders, not an admin.
+    for t in [&wtok, &root] {
+        let mut direct = sylva_coordinator::farm::connect(&worker.addr, Some(t.to_string()), None)
+            .await
+            .unwrap();
+        let chunk = pb::PreparedChunk { scene_hash: scene.hash.clone(), ..Default::default() };
+        let e = direct.import_prepared(tokio_stream::iter(vec![chunk])).await.unwrap_err();
+        assert!(matches!(e.code(), Code::PermissionDenied | Code::Unauthenticated), "{e:?}");
+    }
+
+    // A worker token reaches the worker-facing call only; a submitter's
+    // cannot register workers.
+    assert_eq!(submit(&mut w, &scene, "").await.unwrap_err().code(), Code::PermissionDenied);
+    let e = w.list_jobs(pb::ListJobsRequest {}).await.unwrap_err();
+    assert_eq!(e.code(), Code::PermissionDenied);
+    let e = a.register_worker(pb::RegisterWorkerRequest { addr: "127.0.0.1:1".into() }).await;
+    assert_eq!(e.unwrap_err().code(), Code::PermissionDenied);
+
+    // Revoked, Bob's token stops working.
+    let list = ok(&["token", "list", "--json", "--state-dir", st]);
+    let tokens: serde_json::Value = serde_json::from_str(&list).unwrap();
+    assert!(!list.contains(&bob[19..]), "a listing never shows a token");
+    let bob_id = tokens.as_array().unwrap().iter().find(|t| t["user"] == "bob").unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    ok(&["token", "revoke", &bob_id, "--state-dir", st]);
+    until_refused(&mut b).await;
+    assert!(!sylva(&["token", "revoke", &bob_id, "--state-dir", st], &[]).status.success());
+
+    // Every change is in the audit log, with who made it.
+    let log: serde_json::Value =
+        serde_json::from_str(&ok(&["audit", "--json", "--state-dir", st])).unwrap();
+    let seen: Vec<(String, String)> = log
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| (e["actor"].as_str().unwrap().into(), e["action"].as_str().unwrap().into()))
+        .collect();
+    for (who, what) in [
+        ("operator", "token add"),
+        ("render-01", "register worker"),
+        ("alice", "submit"),
+        ("root", "cancel"),
+        ("operator", "token revoke"),
+    ] {
+        assert!(seen.contains(&(who.into(), what.into())), "{who} {what} in {seen:?}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
