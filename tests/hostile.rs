@@ -330,6 +330,7 @@ impl pb::worker_server::Worker for BadWorker {
             content_hash: blake3::hash(&junk).to_hex().to_string(),
             total_size: junk.len() as u64,
             data: junk,
+            job: String::new(),
         };
         Ok(tonic::Response::new(Box::pin(tokio_stream::iter(vec![Ok(chunk)]))))
     }

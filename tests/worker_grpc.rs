@@ -96,6 +96,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
                 frame: Some(frame()),
                 x0,
                 x1,
+                job: String::new(),
             })
             .await
             .unwrap()
@@ -179,6 +180,7 @@ async fn bad_requests_get_their_codes_and_the_worker_stays_up() {
         frame: Some(f),
         x0,
         x1,
+        job: String::new(),
     };
     assert_eq!(c.render_strip(req(frame(), 0, 48)).await.unwrap_err().code(), Code::NotFound);
     // Absurd sizes.
@@ -244,6 +246,7 @@ async fn export(
             scene_hash: hash.into(),
             frame: Some(f),
             build: false,
+            job: String::new(),
         })
         .await
         .unwrap()
@@ -266,6 +269,7 @@ async fn strip_bits(
         frame: Some(f),
         x0: 0,
         x1: 48,
+        job: String::new(),
     })
     .await
     .unwrap()
@@ -290,6 +294,7 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
         scene_hash: b.hash.clone(),
         frame: Some(f),
         build,
+        job: String::new(),
     };
     assert!(!a.prepare(ask(frame(), false)).await.unwrap().into_inner().held);
     let e = a.export_prepared(ask(frame(), false)).await.unwrap_err();
@@ -333,6 +338,7 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
         content_hash: loop_data.hash,
         total_size: loop_data.bytes.len() as u64,
         data: loop_data.bytes,
+        job: String::new(),
     };
     refused(import(vec![looped]).await.unwrap_err(), Code::InvalidArgument, "not a later node");
     let st = bw.status(pb::StatusRequest {}).await.unwrap().into_inner();
@@ -384,6 +390,7 @@ async fn use_scene(c: &mut WorkerClient<tonic::transport::Channel>, b: &bundle::
         frame: Some(frame()),
         x0: 0,
         x1: 8,
+        job: String::new(),
     })
     .await
     .unwrap();
@@ -426,5 +433,61 @@ async fn a_worker_keeps_what_its_scenes_hold_within_its_memory_budget() {
     assert!(s.scenes_evicted >= 3 && s.cached_scenes.len() <= 3, "{s:?}");
     // A scene let go is simply loaded again when it is needed.
     use_scene(&mut c, &bundles[0]).await;
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Finding 3: a token holder exported a worker's prepared data, multiplied
+/// its LB light by 20, and imported it into another worker, which rendered
+/// every later job of that scene wrong. Prepared data another worker sent
+/// now serves the job that brought it only: another job's strips find it
+/// gone and the worker prepares the scene itself. (Only the coordinator the
+/// worker registered with may import at all: `tests/users.rs`.)
+#[tokio::test]
+async fn imported_prepared_data_serves_only_the_job_that_brought_it() {
+    let dir = std::env::temp_dir().join(format!("sylva-grpc-scope-{}", std::process::id()));
+    let b = bundle::pack(&scene_file(&dir)).unwrap();
+    let (wa, wb) = (WorkerProcess::start(&[]), WorkerProcess::start(&[]));
+    let (mut a, mut bw) = (wa.client().await, wb.client().await);
+    for c in [&mut a, &mut bw] {
+        c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
+    }
+    let ask = |job: &str| pb::PrepareRequest {
+        scene_hash: b.hash.clone(),
+        frame: Some(frame()),
+        build: true,
+        job: job.into(),
+    };
+    a.prepare(ask("job-1")).await.unwrap();
+    let mut data = export(&mut a, &b.hash, frame()).await;
+    data[0].job = "job-1".into();
+    bw.import_prepared(tokio_stream::iter(data)).await.unwrap();
+    let strip = |job: &str| pb::RenderStripRequest {
+        scene_hash: b.hash.clone(),
+        frame: Some(frame()),
+        x0: 0,
+        x1: 48,
+        job: job.into(),
+    };
+    let counts = |s: pb::WorkerStatus| (s.prepared_imports, s.accel_builds, s.lb_solves);
+    // For its own job the import serves: nothing built, nothing solved.
+    bw.render_strip(strip("job-1")).await.unwrap();
+    assert_eq!(counts(bw.status(pb::StatusRequest {}).await.unwrap().into_inner()), (1, 0, 0));
+    // Not a held scene for another job, and not rendered from it.
+    assert!(
+        !bw.prepare(pb::PrepareRequest { build: false, ..ask("job-2") })
+            .await
+            .unwrap()
+            .into_inner()
+            .held
+    );
+    bw.render_strip(strip("job-2")).await.unwrap();
+    assert_eq!(
+        counts(bw.status(pb::StatusRequest {}).await.unwrap().into_inner()),
+        (1, 1, 1),
+        "the next job's strips are rendered from what this worker prepared itself"
+    );
+    // What it prepared itself is its own, and stays for the jobs after.
+    bw.render_strip(strip("job-3")).await.unwrap();
+    assert_eq!(counts(bw.status(pb::StatusRequest {}).await.unwrap().into_inner()), (1, 1, 1));
     std::fs::remove_dir_all(&dir).ok();
 }

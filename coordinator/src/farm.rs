@@ -161,6 +161,8 @@ struct Shared {
     upload_ms: f64,
     prepared: Option<PreparedShare>,
     out: tokio::sync::mpsc::Sender<Finished>,
+    /// The job the strips belong to.
+    job: String,
 }
 
 /// Where and how to reach the workers.
@@ -175,6 +177,9 @@ pub struct Workers {
     /// Per worker, the key it was given at registration, sent in place of
     /// `token` (only calls with it may push prepared data into the worker).
     pub keys: std::collections::HashMap<String, String>,
+    /// The job these calls serve: a worker uses prepared data imported
+    /// for a job for that job's strips only.
+    pub job: String,
 }
 
 impl Workers {
@@ -247,6 +252,7 @@ async fn share_prepared(
     clients: &[Option<Client>],
     addrs: &[String],
     hash: &str,
+    job: &str,
     frame: &pb::FrameSettings,
     deadline: Duration,
     stage: &(dyn Fn(String) + Sync),
@@ -260,6 +266,7 @@ async fn share_prepared(
         scene_hash: hash.to_string(),
         frame: Some(frame.clone()),
         build,
+        job: job.to_string(),
     };
     let mut held = futures_util::future::join_all(live.iter().map(|(_, c)| {
         let (mut c, req) = (c.clone(), ask(false));
@@ -299,7 +306,13 @@ async fn share_prepared(
         let to: Vec<usize> = lacking.into_iter().filter(|&k| k != source).collect();
         let plural = if to.len() == 1 { "" } else { "s" };
         stage(format!("sharing the prepared scene from {from} with {} worker{plural}", to.len()));
-        let chunks = Arc::new(export_from(&live[source].1, ask(false), &from).await?);
+        let mut exported = export_from(&live[source].1, ask(false), &from).await?;
+        // The coordinator says which job the data serves, whatever the
+        // exporter wrote: the importers use it for this job only.
+        if let Some(first) = exported.first_mut() {
+            first.job = job.to_string();
+        }
+        let chunks = Arc::new(exported);
         let bytes = chunks.iter().map(|c| c.data.len() as u64).sum();
         let imported = futures_util::future::join_all(to.iter().map(|&k| {
             let (mut c, chunks) = (live[k].1.clone(), chunks.clone());
@@ -544,23 +557,28 @@ pub async fn render_streamed(
     let (clients, reports, upload_ms) = upload_to_all(workers, bundle, &events).await;
     let wires: Arc<Vec<pb::FrameSettings>> =
         Arc::new(frames.iter().map(pb::FrameSettings::from).collect());
-    let prepared =
-        match share_prepared(&clients, &workers.addrs, &bundle.hash, &wires[0], deadline, &|s| {
-            events(FarmEvent::Stage(s))
-        })
-        .await
-        {
-            Ok(Some(share)) => {
-                events(FarmEvent::PreparedShared(share.clone()));
-                Some(share)
-            }
-            Ok(None) => None,
-            Err(e) => {
-                // Not fatal: each worker then prepares the scene itself.
-                tracing::warn!("prepared data not shared: {e}");
-                None
-            }
-        };
+    let prepared = match share_prepared(
+        &clients,
+        &workers.addrs,
+        &bundle.hash,
+        &workers.job,
+        &wires[0],
+        deadline,
+        &|s| events(FarmEvent::Stage(s)),
+    )
+    .await
+    {
+        Ok(Some(share)) => {
+            events(FarmEvent::PreparedShared(share.clone()));
+            Some(share)
+        }
+        Ok(None) => None,
+        Err(e) => {
+            // Not fatal: each worker then prepares the scene itself.
+            tracing::warn!("prepared data not shared: {e}");
+            None
+        }
+    };
     let total = queue.len();
     let shared = Arc::new(Shared {
         queue: Mutex::new(queue),
@@ -571,6 +589,7 @@ pub async fn render_streamed(
         upload_ms,
         prepared: prepared.clone(),
         out,
+        job: workers.job.clone(),
     });
     events(FarmEvent::Stage(
         "tracing (a worker that does not hold the prepared scene prepares it first: \
@@ -728,6 +747,7 @@ async fn pull_strips(
             frame: Some(wires[frame].clone()),
             x0: strip.0,
             x1: strip.1,
+            job: shared.job.clone(),
         });
         req.set_timeout(deadline);
         let sent = Instant::now();

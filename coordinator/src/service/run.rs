@@ -73,6 +73,7 @@ impl State {
             token: self.config.token.clone(),
             tls: self.config.worker_tls.clone(),
             keys,
+            job: id.to_string(),
         };
         let farm = farm::render_streamed(
             &workers,

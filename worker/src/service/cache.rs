@@ -59,12 +59,29 @@ impl State {
     /// Lets go of a scene and everything it expanded into.
     fn forget(&self, bundles: &mut HashMap<String, Cached>, hash: &str, why: &str) {
         bundles.remove(hash);
+        lock(&self.imported).remove(hash);
         lock(&self.prepared).retain(|k, _| k.0 != hash);
         lock(&self.accels).retain(|k, _| k.0 != hash);
         lock(&self.lbs).retain(|k, _| k.0 != hash);
         let _ = std::fs::remove_dir_all(self.config.cache_dir.join(hash));
         self.evictions.fetch_add(1, Ordering::Relaxed);
         tracing::info!(%hash, "evicted a scene: {why}");
+    }
+
+    /// Drops a scene's prepared data when another worker's export brought
+    /// it for a job other than `job`: imported data serves the job that
+    /// brought it only, so data poisoned by a hostile exporter cannot
+    /// outlive that job. This worker's own data is kept.
+    pub(super) fn scope(&self, hash: &str, job: &str) {
+        let mut imported = lock(&self.imported);
+        if imported.get(hash).is_none_or(|j| j == job) {
+            return;
+        }
+        let was = imported.remove(hash).unwrap_or_default();
+        lock(&self.prepared).retain(|k, _| k.0 != hash);
+        lock(&self.accels).retain(|k, _| k.0 != hash);
+        lock(&self.lbs).retain(|k, _| k.0 != hash);
+        tracing::info!(%hash, job = %sylva_scene::sandbox::clip(&was), "dropped prepared data imported for another job");
     }
 
     /// Bytes each kept scene holds: its models, its structures, its LB

@@ -82,6 +82,7 @@ impl Worker for WorkerService {
             )));
         }
         let hash = normalize_hash(&r.scene_hash)?;
+        self.state.scope(&hash, &r.job);
         let scene = self.state.scene(&hash)?;
         let settings = RenderSettings::resolve(&f, scene.lighting);
         let (lighting, accel) = (settings.lighting, f.accel);
@@ -186,6 +187,7 @@ impl Worker for WorkerService {
     ) -> Result<Response<pb::PrepareReply>, Status> {
         let r = request.into_inner();
         let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
+        self.state.scope(&p.accel_key.0, &r.job);
         let t = Instant::now();
         let held = self.state.held(&p).is_some();
         if held || !r.build {
@@ -219,6 +221,8 @@ impl Worker for WorkerService {
     ) -> Result<Response<Self::ExportPreparedStream>, Status> {
         let r = request.into_inner();
         let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
+        // Data imported for another job is not this worker's to pass on.
+        self.state.scope(&p.accel_key.0, &r.job);
         let (accel, lb) = self.state.held(&p).ok_or_else(|| {
             Status::not_found("this worker does not hold that frame's prepared data")
         })?;
@@ -240,6 +244,7 @@ impl Worker for WorkerService {
                     content_hash: if first { hash.clone() } else { String::new() },
                     total_size: if first { total } else { 0 },
                     data: c.to_vec(),
+                    job: String::new(),
                 })
             })
             .collect();
@@ -279,6 +284,9 @@ impl Worker for WorkerService {
         .map_err(|e| Status::internal(format!("importing panicked: {e}")))?
         .map_err(|e| Status::invalid_argument(format!("prepared data refused: {e}")))?;
         drop(held);
+        // What was imported serves the job that brought it, and no other.
+        self.state.scope(&p.accel_key.0, &first.job);
+        lock(&self.state.imported).insert(p.accel_key.0.clone(), first.job.clone());
         lock(&self.state.accels).entry(p.accel_key.clone()).or_insert_with(|| Arc::new(accel));
         if let Some(lb) = lb
             && !lock(&self.state.lbs).contains_key(&p.lb_key)

@@ -151,6 +151,9 @@ struct State {
     prepared_imports: AtomicU64,
     /// Scenes let go to stay within the memory budget.
     evictions: AtomicU64,
+    /// Scenes whose prepared data came from another worker, and the job
+    /// it serves: another job's strips drop it first.
+    imported: Mutex<HashMap<String, String>>,
     /// Matched ambient constants by scene and frame shape.
     ambient: Mutex<HashMap<String, [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
@@ -182,6 +185,7 @@ impl WorkerService {
                 accel_builds: AtomicU64::new(0),
                 prepared_imports: AtomicU64::new(0),
                 evictions: AtomicU64::new(0),
+                imported: Mutex::default(),
                 ambient: Mutex::new(HashMap::new()),
                 gpu: Mutex::new(()),
                 incoming: Mutex::new(0),
