@@ -19,8 +19,8 @@ serve() {
     until grep -q "listening on" "$out/$name.out" 2>/dev/null; do sleep 0.1; done
     addr=$(awk '/listening on/ {print $NF}' "$out/$name.out")
 }
-hwm() { awk '/VmHWM/ {print $2 * 1024}' "/proc/$1/status"; }
-rss() { awk '/VmRSS/ {print $2 * 1024}' "/proc/$1/status"; }
+hwm() { awk '/VmHWM/ {printf "%d", $2 * 1024}' "/proc/$1/status"; }
+rss() { awk '/VmRSS/ {printf "%d", $2 * 1024}' "/proc/$1/status"; }
 
 cat > "$out/scene.json" <<'JSON'
 { "models": { "maple": { "tree": { "species": "red_maple", "triangles": 3000, "seed": 1 } } },
@@ -43,6 +43,7 @@ frames=$(ls "$out/seq" | grep -c '^f-[0-9]*\.png$')
 kill "${pids[2]}"; wait "${pids[2]}" 2>/dev/null || true
 serve c2 coordinator --listen 127.0.0.1:0 --ephemeral --workers "$w2"; c2=$addr
 w_start=$(rss "$wpid")
+series=""
 for seed in $(seq 1 50); do
     mkdir -p "$out/b$seed"
     cat > "$out/b$seed/scene.json" <<JSON
@@ -53,6 +54,7 @@ for seed in $(seq 1 50); do
 JSON
     "$S" submit "$out/b$seed/scene.json" --coordinator "$c2" -o "$out/b$seed/out.png" \
         --width 64 --height 32 > /dev/null
+    series="$series${series:+, }$(( $(rss "$wpid") >> 20 ))"
 done
 w_peak=$(hwm "$wpid")
 evicted=$(grep -c "evicted a scene" "$out/w2.log" || true)
@@ -62,6 +64,7 @@ cat <<JSON
                    "rss_at_start_bytes": $c_start, "peak_rss_bytes": $c_peak },
   "worker": { "bundles": 50, "triangles_each": 100000, "memory_mib": 1024,
               "rss_at_start_bytes": $w_start, "peak_rss_bytes": $w_peak,
+              "rss_after_each_job_mib": [$series],
               "scenes_evicted_logged": $evicted }
 }
 JSON

@@ -119,6 +119,18 @@ async fn a_coordinator_killed_mid_sequence_resumes_it_and_every_frame_is_the_sam
     // Started again on the same folder, it finishes the job from there.
     let log2 = dir.join("c2.log");
     let c2 = durable_coordinator(&workers, &state, &log2);
+    // A second coordinator on the same queue would run its jobs twice: it
+    // is refused (the state folder's lock; on PostgreSQL, the database's).
+    let other = if database().is_some() { dir.join("other-state") } else { state.clone() };
+    let mut second =
+        vec!["coordinator", "--listen", "127.0.0.1:0", "--state-dir", other.to_str().unwrap()];
+    let url = database();
+    if let Some(u) = &url {
+        second.extend(["--database", u.as_str()]);
+    }
+    let refused = common::sylva(&second, &[]);
+    let said = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && said.contains("another"), "{said}");
     let mut c = coordinator(&c2.addr, None).await;
     let mut events = c.watch_job(pb::JobId { id: id.clone() }).await.unwrap().into_inner();
     let mut last = None;

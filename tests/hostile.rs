@@ -918,3 +918,39 @@ async fn metrics_and_reflection_answer_as_standard_clients_expect() {
         assert!(tokio_stream::StreamExt::next(&mut replies).await.unwrap().is_ok(), "v1 on {addr}");
     }
 }
+
+/// Finding 1: any size of sequence was accepted (10,000 frames of
+/// 16384 × 16384), and held whole in memory. Now a job's pixels and the
+/// disk its results would take are capped (flags with documented defaults)
+/// and refused at submit, with the figures, before the bundle arrives.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_too_large_for_the_farm_is_refused_at_submit() {
+    let coord = spawn(
+        &[
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--max-job-pixels",
+            "100000",
+            "--results-disk-mib",
+            "1",
+        ],
+        &[],
+    );
+    let mut c = coordinator(&coord.addr, None).await;
+    let b = bundle::pack(&small_scene(&scratch("too-large"))).unwrap();
+    let try_submit = |w: u32, h: u32, frames: usize| {
+        let mut s = spec(w, h);
+        // A sequence of the scene's own view, `frames` long.
+        s.views = vec![pb::FrameView::default(); if frames > 1 { frames } else { 0 }];
+        submission(s, &b.hash, &b.bytes, b.bytes.len() as u64)
+    };
+    let e = c.submit_job(tokio_stream::iter(try_submit(16384, 16384, 10_000))).await.unwrap_err();
+    assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+    assert!(e.message().contains("--max-job-pixels"), "{}", e.message());
+    let e = c.submit_job(tokio_stream::iter(try_submit(100, 100, 9))).await.unwrap_err();
+    assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+    assert!(e.message().contains("--results-disk-mib"), "{}", e.message());
+    // Within both, a job is taken.
+    assert!(c.submit_job(tokio_stream::iter(try_submit(64, 32, 1))).await.is_ok());
+}

@@ -12,8 +12,8 @@ use sylva_coordinator::service::{self, CoordinatorConfig};
 /// checks run on the runtime's blocking threads, each leaving its arena at
 /// its peak: 100 submissions of a 3.4 MB bundle left the coordinator at
 /// 172 MB resident with the default arenas and 44 MB with one. Two keep a
-/// long-running coordinator near what it actually holds.
-fn limit_malloc_arenas() {
+/// long-running coordinator (or worker) near what it actually holds.
+pub(crate) fn limit_malloc_arenas() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only changes allocator tuning; called before any thread starts.
     unsafe {

@@ -7,6 +7,9 @@ use sylva_worker::GpuContext;
 use sylva_worker::service::{self, WorkerConfig};
 
 pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
+    // Scenes are prepared on many threads (rayon, the runtime's blocking
+    // pool): without a cap each keeps its own arena at its peak.
+    crate::coordinator::limit_malloc_arenas();
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async {
         let listener = tokio::net::TcpListener::bind(&a.listen)

@@ -249,7 +249,7 @@ impl CoordinatorService {
             .database
             .clone()
             .unwrap_or_else(|| format!("sqlite://{}", dir.join("sylva.db").display()));
-        let store = Store::open(&url).await?;
+        let store = Store::claim(&url).await?;
         let prefix = store.meta("prefix", || sylva_proto::auth::random_hex(4)).await?;
         // Named workers count as alive until a heartbeat says otherwise, so a
         // job submitted at once can use them (the farm copes if one is not);

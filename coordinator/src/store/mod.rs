@@ -140,7 +140,13 @@ pub struct AuditRow {
 pub struct Store {
     pool: AnyPool,
     postgres: bool,
+    /// On PostgreSQL, the connection holding this coordinator's advisory
+    /// lock on the database for the process's life.
+    _holder: Option<std::sync::Arc<tokio::sync::Mutex<sqlx::AnyConnection>>>,
 }
+
+/// The advisory lock one coordinator holds on a PostgreSQL database.
+const COORDINATOR_LOCK: i64 = 0x5379_6c76_6100_0001;
 
 /// A database URL without its password, for messages.
 pub fn redacted(url: &str) -> String {
@@ -152,8 +158,20 @@ pub fn redacted(url: &str) -> String {
 
 impl Store {
     /// Opens (creating if need be) the database at `url` — `sqlite://PATH`
-    /// or `postgres://…` — and brings its schema up to date.
+    /// or `postgres://…` — and brings its schema up to date: for a tool
+    /// beside the coordinator (`sylva token`, `sylva audit`).
     pub async fn open(url: &str) -> anyhow::Result<Store> {
+        Self::connect(url, false).await
+    }
+
+    /// Opens the database as its coordinator: refused while another
+    /// coordinator holds it (on PostgreSQL, by an advisory lock held for
+    /// this process's life; SQLite's file is in the locked state folder).
+    pub async fn claim(url: &str) -> anyhow::Result<Store> {
+        Self::connect(url, true).await
+    }
+
+    async fn connect(url: &str, exclusive: bool) -> anyhow::Result<Store> {
         sqlx::any::install_default_drivers();
         let postgres = url.starts_with("postgres://") || url.starts_with("postgresql://");
         let sqlite = url.starts_with("sqlite:");
@@ -174,7 +192,26 @@ impl Store {
             // Readers never block the writer, and a commit is one append.
             sqlx::query("PRAGMA journal_mode = WAL").execute(&pool).await?;
         }
-        let store = Store { pool, postgres };
+        // One coordinator per database: two would both run its queue.
+        // (SQLite's file is in the state folder, which is locked already.)
+        let holder = if postgres && exclusive {
+            use sqlx::Connection;
+            let mut c = sqlx::AnyConnection::connect(&url).await?;
+            let got: bool = sqlx::query("SELECT pg_try_advisory_lock($1)")
+                .bind(COORDINATOR_LOCK)
+                .fetch_one(&mut c)
+                .await?
+                .try_get(0)?;
+            anyhow::ensure!(
+                got,
+                "another coordinator is using the database {}: one coordinator per database",
+                redacted(&url)
+            );
+            Some(std::sync::Arc::new(tokio::sync::Mutex::new(c)))
+        } else {
+            None
+        };
+        let store = Store { pool, postgres, _holder: holder };
         store.migrate().await?;
         Ok(store)
     }

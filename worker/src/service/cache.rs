@@ -65,6 +65,14 @@ impl State {
         lock(&self.lbs).retain(|k, _| k.0 != hash);
         let _ = std::fs::remove_dir_all(self.config.cache_dir.join(hash));
         self.evictions.fetch_add(1, Ordering::Relaxed);
+        // glibc keeps freed memory in its arenas; a scene's hundreds of MB
+        // go back to the system here, or the budget bounds what the worker
+        // holds but not what it occupies.
+        #[cfg(all(target_os = "linux", target_env = "gnu"))]
+        // SAFETY: malloc_trim only returns free heap pages to the system.
+        unsafe {
+            libc::malloc_trim(0);
+        }
         tracing::info!(%hash, "evicted a scene: {why}");
     }
 
