@@ -42,6 +42,18 @@ fn durable_coordinator(workers: &str, state: &Path, log: &Path) -> Proc {
     spawn_logging(&args, &[("RUST_LOG", "sylva_coordinator=info")], Some(log))
 }
 
+/// `sylva ARGS` started and left running (a client whose coordinator
+/// will be killed under it).
+fn in_background(args: &[String]) -> std::process::Child {
+    std::process::Command::new(env!("CARGO_BIN_EXE_sylva"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", common::runtime())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
 fn bytes(p: &Path) -> Vec<u8> {
     std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
 }
@@ -94,13 +106,7 @@ async fn a_coordinator_killed_mid_sequence_resumes_it_and_every_frame_is_the_sam
     // The same job on a durable coordinator, killed once frames are stored.
     let state = dir.join("state");
     let c1 = durable_coordinator(&workers, &state, &dir.join("c1.log"));
-    let mut client = std::process::Command::new(env!("CARGO_BIN_EXE_sylva"))
-        .args(submit(&c1.addr, &dir.join("lost/shot.png")))
-        .env("XDG_RUNTIME_DIR", common::runtime())
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut client = in_background(&submit(&c1.addr, &dir.join("lost/shot.png")));
     let mut c = coordinator(&c1.addr, None).await;
     let (id, at_kill) = loop {
         let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
@@ -234,13 +240,7 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
 
     let state = dir.join("state");
     let c1 = durable_coordinator(&workers, &state, &dir.join("c1.log"));
-    let mut client = std::process::Command::new(env!("CARGO_BIN_EXE_sylva"))
-        .args(submit(&c1.addr, &dir.join("lost.png")))
-        .env("XDG_RUNTIME_DIR", common::runtime())
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut client = in_background(&submit(&c1.addr, &dir.join("lost.png")));
     let mut c = coordinator(&c1.addr, None).await;
     let id = loop {
         let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;

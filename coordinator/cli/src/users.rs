@@ -61,26 +61,15 @@ pub fn run_token(c: TokenCommand) -> anyhow::Result<()> {
                 let store = Store::open(&a.state.url()?).await?;
                 let rows = store.tokens().await?;
                 store.close().await;
-                if a.json {
-                    println!("{}", serde_json::to_string_pretty(&rows)?);
-                } else {
-                    let cells: Vec<Vec<String>> = rows
-                        .iter()
-                        .map(|t| {
-                            vec![
-                                t.id.clone(),
-                                t.user.clone(),
-                                t.role.clone(),
-                                when(t.created_ms),
-                                when(t.revoked_ms),
-                            ]
-                        })
-                        .collect();
-                    print!(
-                        "{}",
-                        crate::jobs::table(&["id", "user", "role", "created", "revoked"], &cells)
-                    );
-                }
+                print_rows(a.json, &rows, &["id", "user", "role", "created", "revoked"], |t| {
+                    vec![
+                        t.id.clone(),
+                        t.user.clone(),
+                        t.role.clone(),
+                        when(t.created_ms),
+                        when(t.revoked_ms),
+                    ]
+                })?;
             }
             TokenCommand::Revoke(a) => {
                 let store = Store::open(&a.state.url()?).await?;
@@ -102,26 +91,30 @@ pub fn run_audit(a: AuditArgs) -> anyhow::Result<()> {
         let store = Store::open(&a.state.url()?).await?;
         let rows = store.audit_log(a.limit).await?;
         store.close().await;
-        if a.json {
-            println!("{}", serde_json::to_string_pretty(&rows)?);
-        } else {
-            let cells: Vec<Vec<String>> = rows
-                .iter()
-                .map(|r| {
-                    vec![
-                        when(r.at_ms),
-                        r.actor.clone(),
-                        r.action.clone(),
-                        r.target.clone(),
-                        r.detail.clone(),
-                    ]
-                })
-                .collect();
-            print!(
-                "{}",
-                crate::jobs::table(&["when (UTC)", "who", "what", "on", "detail"], &cells)
-            );
-        }
-        Ok(())
+        print_rows(a.json, &rows, &["when (UTC)", "who", "what", "on", "detail"], |r| {
+            vec![
+                when(r.at_ms),
+                r.actor.clone(),
+                r.action.clone(),
+                r.target.clone(),
+                r.detail.clone(),
+            ]
+        })
     })
+}
+
+/// Rows as JSON, or as a table of `header` with `cells` of each row.
+fn print_rows<T: serde::Serialize>(
+    json: bool,
+    rows: &[T],
+    header: &[&str],
+    cells: impl Fn(&T) -> Vec<String>,
+) -> anyhow::Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(rows)?);
+    } else {
+        let cells: Vec<Vec<String>> = rows.iter().map(cells).collect();
+        print!("{}", crate::jobs::table(header, &cells));
+    }
+    Ok(())
 }
