@@ -523,6 +523,11 @@ pub async fn run(
     }
     let service = CoordinatorService::open(config).await?;
     let auth = service.authenticate();
+    if !service.needs_token() && listener.local_addr().is_ok_and(|a| !a.ip().is_loopback()) {
+        tracing::warn!(
+            "the API is served beyond this machine without a token: whoever reaches it can submit and cancel jobs (give --token-file, or users: sylva token add)"
+        );
+    }
     service.spawn_background();
     reporter.set_serving::<CoordinatorServer<CoordinatorService>>().await;
     let served = builder
