@@ -78,15 +78,19 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             worker_tls: a.worker_tls.load()?,
             ..Default::default()
         };
-        if let Some(m) = metrics_addr {
-            eprintln!("sylva coordinator metrics on http://{m}/metrics");
-        }
-        if let Some(h) = http_addr {
-            eprintln!("sylva coordinator dashboard on http://{h}/");
-        }
-        println!("sylva coordinator listening on {addr}");
-        std::io::stdout().flush()?;
-        service::run(listener, config, sylva_coordinator::shutdown::signal()).await
+        // Announced once the state is open: a script that waits for the
+        // line may use the state folder (`sylva token add`) at once.
+        let ready = move || {
+            if let Some(m) = metrics_addr {
+                eprintln!("sylva coordinator metrics on http://{m}/metrics");
+            }
+            if let Some(h) = http_addr {
+                eprintln!("sylva coordinator dashboard on http://{h}/");
+            }
+            println!("sylva coordinator listening on {addr}");
+            let _ = std::io::stdout().flush();
+        };
+        service::run(listener, config, ready, sylva_coordinator::shutdown::signal()).await
     })
 }
 

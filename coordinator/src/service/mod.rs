@@ -508,11 +508,13 @@ fn job_id(id: &str) -> Result<&str, Status> {
 
 type EventStream = Pin<Box<dyn Stream<Item = Result<pb::JobEvent, Status>> + Send>>;
 
-/// Serves the coordinator API, health and reflection until `shutdown`, then
-/// closes the database (and removes an ephemeral state folder).
+/// Opens the coordinator's state, calls `ready`, serves the API, health and
+/// reflection until `shutdown`, then closes the database (and removes an
+/// ephemeral state folder).
 pub async fn run(
     listener: tokio::net::TcpListener,
     mut config: CoordinatorConfig,
+    ready: impl FnOnce(),
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
@@ -522,6 +524,7 @@ pub async fn run(
         builder = builder.tls_config(tls)?;
     }
     let service = CoordinatorService::open(config).await?;
+    ready();
     let auth = service.authenticate();
     if !service.needs_token() && listener.local_addr().is_ok_and(|a| !a.ip().is_loopback()) {
         tracing::warn!(

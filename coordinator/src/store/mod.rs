@@ -172,6 +172,22 @@ impl Store {
     }
 
     async fn connect(url: &str, exclusive: bool) -> anyhow::Result<Store> {
+        // Two processes opening a new SQLite file at once (a `sylva token`
+        // beside a starting coordinator) can find it locked while the other
+        // sets it up: such a refusal is waited out, briefly.
+        let mut tries = 0;
+        loop {
+            match Self::connect_once(url, exclusive).await {
+                Err(e) if tries < 50 && format!("{e:#}").contains("database is locked") => {
+                    tries += 1;
+                    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                }
+                r => return r,
+            }
+        }
+    }
+
+    async fn connect_once(url: &str, exclusive: bool) -> anyhow::Result<Store> {
         sqlx::any::install_default_drivers();
         let postgres = url.starts_with("postgres://") || url.starts_with("postgresql://");
         let sqlite = url.starts_with("sqlite:");
@@ -245,25 +261,46 @@ impl Store {
             if applied.contains(version) {
                 continue;
             }
-            let mut tx = self.pool.begin().await?;
-            for s in *statements {
-                sqlx::query(&schema::in_dialect(s, self.postgres))
-                    .execute(&mut *tx)
-                    .await
-                    .with_context(|| format!("schema migration {version} ({name})"))?;
+            match self.apply(*version, name, statements).await {
+                Ok(()) => tracing::info!(version, name, "database schema migrated"),
+                // Another process (a `sylva token` beside a starting
+                // coordinator) applied it at the same moment: its
+                // transaction won, and the schema is as it should be.
+                Err(_) if self.has_migration(*version).await? => {}
+                Err(e) => return Err(e),
             }
-            sqlx::query(
-                "INSERT INTO schema_migrations (version, name, applied_ms) VALUES ($1, $2, $3)",
-            )
-            .bind(version)
-            .bind(*name)
-            .bind(now_ms())
-            .execute(&mut *tx)
-            .await?;
-            tx.commit().await?;
-            tracing::info!(version, name, "database schema migrated");
         }
         Ok(())
+    }
+
+    /// Applies one migration and records it, in one transaction.
+    async fn apply(&self, version: i64, name: &str, statements: &[&str]) -> anyhow::Result<()> {
+        let mut tx = self.pool.begin().await?;
+        for s in statements {
+            sqlx::query(&schema::in_dialect(s, self.postgres))
+                .execute(&mut *tx)
+                .await
+                .with_context(|| format!("schema migration {version} ({name})"))?;
+        }
+        sqlx::query(
+            "INSERT INTO schema_migrations (version, name, applied_ms) VALUES ($1, $2, $3)",
+        )
+        .bind(version)
+        .bind(name)
+        .bind(now_ms())
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// Whether migration `version` is recorded as applied.
+    async fn has_migration(&self, version: i64) -> anyhow::Result<bool> {
+        let r = sqlx::query("SELECT COUNT(*) FROM schema_migrations WHERE version = $1")
+            .bind(version)
+            .fetch_one(&self.pool)
+            .await?;
+        Ok(r.try_get::<i64, _>(0)? > 0)
     }
 
     /// A value kept under `key`, set to `make()` the first time it is asked for.
@@ -711,6 +748,23 @@ mod tests {
         s.delete_job(&job.id).await.unwrap();
         assert!(s.jobs().await.unwrap().is_empty() && s.frames(&job.id).await.unwrap().is_empty());
         s.close().await;
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[tokio::test]
+    async fn two_processes_opening_a_new_database_at_once_both_get_its_schema() {
+        let dir = std::env::temp_dir().join(format!("sylva-store-race-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let url = format!("sqlite://{}", dir.join("sylva.db").display());
+        for _ in 0..5 {
+            std::fs::remove_file(dir.join("sylva.db")).ok();
+            let (a, b, c) = tokio::join!(Store::open(&url), Store::open(&url), Store::claim(&url));
+            for s in [a, b, c] {
+                let s = s.unwrap();
+                assert!(s.jobs().await.unwrap().is_empty());
+                s.close().await;
+            }
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 
