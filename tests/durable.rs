@@ -273,6 +273,10 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("the restart says what it resumed from:\n{log}"));
     assert!(kept >= 1, "strips rendered before the kill are kept:\n{log}");
+    // Once the frame is whole, the strips kept for it are gone.
+    let strips = state.join("results").join(&id).join("strips");
+    let left = std::fs::read_dir(&strips).map(|d| d.count()).unwrap_or(0);
+    assert_eq!(left, 0, "strip files left in {}", strips.display());
     let out = dir.join("resumed.png");
     ok(&["fetch", &id, "--coordinator", &c2.addr, "-o", out.to_str().unwrap()]);
     assert!(

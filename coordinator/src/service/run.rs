@@ -241,6 +241,17 @@ impl State {
                     };
                     self.store.put_frame(id, &row).await?;
                     stored.insert(frame);
+                    // The frame's strips, kept in case of a restart, are done with.
+                    let strips = dir.join("strips");
+                    let prefix = format!("{frame:05}-");
+                    let _ = tokio::task::spawn_blocking(move || {
+                        for e in std::fs::read_dir(strips).into_iter().flatten().flatten() {
+                            if e.file_name().to_string_lossy().starts_with(&prefix) {
+                                let _ = std::fs::remove_file(e.path());
+                            }
+                        }
+                    })
+                    .await;
                     let ev = {
                         let mut jobs = lock(&self.jobs);
                         jobs.get_mut(id).map(|j| {
