@@ -202,13 +202,26 @@ pub struct SampleMeans {
     pub indirect_variance: Vec<[f32; 3]>,
 }
 
+/// The render kernels for one specialisation (structure, clouds): one
+/// pipeline per lighting family (direct methods, reference, Boulanger),
+/// each compiled on its first dispatch, and the frame's bind-group layout.
+pub(crate) struct Kernels {
+    pipelines: [wgpu::ComputePipeline; 3],
+    layout: wgpu::BindGroupLayout,
+}
+
+/// Kernels by (structure kind, clouds), shared by every scene of a device:
+/// scenes' bind-group layouts are alike, and wgpu gives alike layouts one
+/// identity, so a kernel built for one scene binds every other.
+pub(crate) type KernelCache = std::sync::Arc<
+    std::sync::Mutex<std::collections::HashMap<(u32, bool), std::sync::Arc<Kernels>>>,
+>;
+
 /// The render pipeline over one uploaded scene.
 pub struct StripRenderer {
     scene: GpuScene,
-    /// One pipeline per lighting family (direct methods, reference,
-    /// Boulanger); each compiles on its first dispatch.
-    pipelines: [wgpu::ComputePipeline; 3],
-    layout: wgpu::BindGroupLayout,
+    /// Its kernels (shared with other scenes of the same specialisation).
+    kernels: std::sync::Arc<Kernels>,
     base: FrameUniform,
     /// The gathers' filter: the depth range of one crown, metres.
     crown_depth: f32,
@@ -221,6 +234,42 @@ impl StripRenderer {
     }
 
     fn build(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> Self {
+        let key = (gpu_scene.accel_kind, !scene.clouds.is_empty());
+        let cached = ctx.render_kernels.lock().expect("lock").get(&key).cloned();
+        let kernels = cached.unwrap_or_else(|| {
+            let k = std::sync::Arc::new(Self::kernels(ctx, &gpu_scene, key.1));
+            ctx.render_kernels.lock().expect("lock").insert(key, k.clone());
+            k
+        });
+        let mut base = FrameUniform {
+            sun_radiance: scene.sun.radiance,
+            sky_zenith: scene.sky.zenith,
+            sky_horizon: scene.sky.horizon,
+            ground_color: scene.ground.as_ref().map_or([0.0; 3], |g| g.color),
+            has_ground: scene.ground.is_some() as u32,
+            epsilon: ray_offset(scene),
+            max_bounces: MAX_BOUNCES,
+            leaf_reflect_front: scene.file.leaf_optics.reflect_front,
+            leaf_reflect_back: scene.file.leaf_optics.reflect_back,
+            leaf_transmit_front: scene.file.leaf_optics.transmit_front,
+            leaf_transmit_back: scene.file.leaf_optics.transmit_back,
+            bl_sky: lighting::boulanger::sky_per_direction(scene),
+            ground_grid: gpu_scene.ground.0,
+            ground_dims: gpu_scene.ground.1,
+            lb_model: match scene.file.lb_model {
+                sylva_scene::LbModel::Grounded => 0,
+                sylva_scene::LbModel::Paper => 1,
+            },
+            ..FrameUniform::zeroed()
+        };
+        base.set_camera(&scene.camera);
+        base.set_sun(scene.sun.towards).expect("the scene checked its sun");
+        let crown_depth = lighting::gather::crown_depth(scene);
+        Self { scene: gpu_scene, kernels, base, crown_depth }
+    }
+
+    /// Compiles the render kernels for a scene's structure and clouds.
+    fn kernels(ctx: &GpuContext, gpu_scene: &GpuScene, clouds: bool) -> Kernels {
         let device = &ctx.device;
         let module = ctx.trusted_module("render", render_source());
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
@@ -252,38 +301,14 @@ impl StripRenderer {
                     constants: &[
                         ("ACCEL_KIND", gpu_scene.accel_kind as f64),
                         ("LIGHTING_FAMILY", kernel as u32 as f64),
-                        ("HAS_CLOUDS", if scene.clouds.is_empty() { 0.0 } else { 1.0 }),
+                        ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
                     ],
                     ..Default::default()
                 },
                 cache: None,
             })
         });
-        let mut base = FrameUniform {
-            sun_radiance: scene.sun.radiance,
-            sky_zenith: scene.sky.zenith,
-            sky_horizon: scene.sky.horizon,
-            ground_color: scene.ground.as_ref().map_or([0.0; 3], |g| g.color),
-            has_ground: scene.ground.is_some() as u32,
-            epsilon: ray_offset(scene),
-            max_bounces: MAX_BOUNCES,
-            leaf_reflect_front: scene.file.leaf_optics.reflect_front,
-            leaf_reflect_back: scene.file.leaf_optics.reflect_back,
-            leaf_transmit_front: scene.file.leaf_optics.transmit_front,
-            leaf_transmit_back: scene.file.leaf_optics.transmit_back,
-            bl_sky: lighting::boulanger::sky_per_direction(scene),
-            ground_grid: gpu_scene.ground.0,
-            ground_dims: gpu_scene.ground.1,
-            lb_model: match scene.file.lb_model {
-                sylva_scene::LbModel::Grounded => 0,
-                sylva_scene::LbModel::Paper => 1,
-            },
-            ..FrameUniform::zeroed()
-        };
-        base.set_camera(&scene.camera);
-        base.set_sun(scene.sun.towards).expect("the scene checked its sun");
-        let crown_depth = lighting::gather::crown_depth(scene);
-        Self { scene: gpu_scene, pipelines, layout, base, crown_depth }
+        Kernels { pipelines, layout }
     }
 
     /// Bytes of scene data on the GPU.
@@ -489,7 +514,7 @@ impl StripRenderer {
         });
         let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("frame"),
-            layout: &self.layout,
+            layout: &self.kernels.layout,
             entries: &[
                 wgpu::BindGroupEntry { binding: 0, resource: ubuf.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
@@ -499,7 +524,7 @@ impl StripRenderer {
         let mut enc = device.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.pipelines[kernel as usize]);
+            pass.set_pipeline(&self.kernels.pipelines[kernel as usize]);
             pass.set_bind_group(0, &self.scene.bind_group, &[]);
             pass.set_bind_group(1, &bg, &[]);
             pass.dispatch_workgroups(
