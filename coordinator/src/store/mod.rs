@@ -4,8 +4,8 @@
 //! its data on a server — through one query layer (`sqlx`'s `Any`), so
 //! both run the same statements. Images are files in the state folder,
 //! indexed here. A coordinator killed at any moment restarts from what is
-//! written here: every row is written before the client or the farm is
-//! told of the change it records.
+//! written here: a job before its submission is acknowledged, a change of
+//! state before watchers hear of it, frames and strips as they arrive.
 
 mod schema;
 
