@@ -91,11 +91,6 @@ fn hash(secret: &str) -> String {
     sylva_proto::auth::user_token_key(secret).iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// A user's token split into its id and secret.
-fn parse(token: &str) -> Option<(&str, &str)> {
-    sylva_proto::auth::user_token(token)
-}
-
 /// Whether a user name may be given (and shown in listings as it is).
 pub fn valid_user(name: &str) -> bool {
     !name.is_empty()
@@ -154,7 +149,7 @@ impl Access {
                 token_id: String::new(),
             });
         }
-        let (id, secret) = parse(bearer)?;
+        let (id, secret) = sylva_proto::auth::user_token(bearer)?;
         let tokens = self.tokens.read().expect("lock");
         let row = tokens.get(id)?;
         if !constant_time_eq(hash(secret).as_bytes(), row.hash.as_bytes()) {

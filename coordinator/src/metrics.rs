@@ -228,7 +228,7 @@ where
     const FIRST_BACKOFF: Duration = Duration::from_millis(100);
     const MAX_BACKOFF: Duration = Duration::from_secs(1);
     let slots = Arc::new(tokio::sync::Semaphore::new(config.max_connections.max(1)));
-    let per_client: PerClient = Default::default();
+    let per_client = ClientCounts::default();
     let mut http = hyper::server::conn::http1::Builder::new();
     // hyper re-arms this timer whenever it waits for a request head, so it
     // closes silent new connections and idle keep-alive ones alike.
@@ -252,7 +252,7 @@ where
         backoff = FIRST_BACKOFF;
         // One address holds at most `per_client` connections: the next is
         // closed unanswered, its slot free for someone else at once.
-        let Some(held) = take(&per_client, peer.ip(), config.per_client) else {
+        let Some(held) = per_client.take(peer.ip(), config.per_client) else {
             drop(stream);
             continue;
         };
@@ -270,26 +270,30 @@ where
     }
 }
 
-/// Connections held per client address.
-type PerClient = Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>;
+/// Things (connections, event streams) held per client address, each
+/// counted while its [`ClientSlot`] lives.
+#[derive(Clone, Debug, Default)]
+pub struct ClientCounts(Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>);
 
-/// One connection of a client, counted while it lives.
-struct Held(PerClient, std::net::IpAddr);
+/// One thing a client holds, counted until dropped.
+pub struct ClientSlot(ClientCounts, std::net::IpAddr);
 
-/// Counts one more of `ip`'s connections, unless it holds `cap` already.
-fn take(counts: &PerClient, ip: std::net::IpAddr, cap: usize) -> Option<Held> {
-    let mut c = counts.lock().expect("lock");
-    let n = c.entry(ip).or_insert(0);
-    if *n >= cap.max(1) {
-        return None;
+impl ClientCounts {
+    /// Counts one more for `ip`, unless it holds `cap` already.
+    pub fn take(&self, ip: std::net::IpAddr, cap: usize) -> Option<ClientSlot> {
+        let mut c = self.0.lock().expect("lock");
+        let n = c.entry(ip).or_insert(0);
+        if *n >= cap.max(1) {
+            return None;
+        }
+        *n += 1;
+        Some(ClientSlot(self.clone(), ip))
     }
-    *n += 1;
-    Some(Held(counts.clone(), ip))
 }
 
-impl Drop for Held {
+impl Drop for ClientSlot {
     fn drop(&mut self) {
-        let mut c = self.0.lock().expect("lock");
+        let mut c = (self.0).0.lock().expect("lock");
         if let Some(n) = c.get_mut(&self.1) {
             *n -= 1;
             if *n == 0 {

@@ -228,36 +228,8 @@ pub const STREAM_LIFETIME: Duration = Duration::from_secs(600);
 pub const STREAM_UNREAD: Duration = Duration::from_secs(10);
 
 /// Open event streams per client address.
-static STREAMS: std::sync::LazyLock<
-    std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>,
-> = std::sync::LazyLock::new(Default::default);
-
-/// One open event stream of a client, counted while it lives.
-struct StreamSlot(std::net::IpAddr);
-
-impl StreamSlot {
-    fn take(ip: std::net::IpAddr) -> Option<StreamSlot> {
-        let mut open = STREAMS.lock().expect("lock");
-        let n = open.entry(ip).or_insert(0);
-        if *n >= STREAMS_PER_CLIENT {
-            return None;
-        }
-        *n += 1;
-        Some(StreamSlot(ip))
-    }
-}
-
-impl Drop for StreamSlot {
-    fn drop(&mut self) {
-        let mut open = STREAMS.lock().expect("lock");
-        if let Some(n) = open.get_mut(&self.0) {
-            *n -= 1;
-            if *n == 0 {
-                open.remove(&self.0);
-            }
-        }
-    }
-}
+static STREAMS: std::sync::LazyLock<crate::metrics::ClientCounts> =
+    std::sync::LazyLock::new(Default::default);
 
 /// A snapshot now and every [`TICK`] after, as `snapshot` events, for at
 /// most [`STREAM_LIFETIME`]; at most [`STREAMS_PER_CLIENT`] per client, and
@@ -271,7 +243,7 @@ async fn events(
         return refused();
     };
     let ip = connection.as_ref().map_or(std::net::Ipv4Addr::UNSPECIFIED.into(), |c| c.peer.ip());
-    let Some(slot) = StreamSlot::take(ip) else {
+    let Some(slot) = STREAMS.take(ip, STREAMS_PER_CLIENT) else {
         return (
             StatusCode::TOO_MANY_REQUESTS,
             format!("at most {STREAMS_PER_CLIENT} event streams per client: close a page first"),

@@ -67,10 +67,7 @@ pub use sylva_scene::sandbox::unprintable;
 
 /// Milliseconds since the Unix epoch, for listings.
 fn unix_ms() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_millis() as u64)
-        .unwrap_or(0)
+    crate::store::now_ms() as u64
 }
 
 /// How the coordinator runs.
