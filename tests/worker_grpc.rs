@@ -331,7 +331,7 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
     let sylva_accel::Accel::Bvh(bvh) = &mut accel.models[0] else { unreachable!() };
     let inner = bvh.nodes[0].child.iter().position(|&c| c & sylva_accel::bvh::LEAF == 0).unwrap();
     bvh.nodes[0].child[inner] = 0;
-    let loop_data = sylva_worker::share::export(&accel, None).unwrap();
+    let loop_data = sylva_worker::share::export(Some(&accel), None).unwrap();
     let looped = pb::PreparedChunk {
         scene_hash: b.hash.clone(),
         frame: Some(local.clone()),

@@ -6,7 +6,7 @@
 use crate::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::format::CameraSpec;
-use sylva_scene::frame::{AccelKind, FrameSettings, ScheduleKind};
+use sylva_scene::frame::{AccelChoice, Backend, FrameSettings, ScheduleKind};
 use sylva_scene::sequence::View;
 use tonic::Status;
 
@@ -46,14 +46,36 @@ pub fn lighting_from_wire(v: i32) -> Result<Option<LightingMode>, Status> {
     )
 }
 
-/// The structure a wire number names.
-pub fn accel_from_wire(v: i32) -> Result<AccelKind, Status> {
+/// The traversal a wire number names.
+pub fn accel_from_wire(v: i32) -> Result<AccelChoice, Status> {
     match pb::Accel::try_from(v) {
-        Ok(pb::Accel::Bvh) => Ok(AccelKind::Bvh),
-        Ok(pb::Accel::Kd) => Ok(AccelKind::Kd),
+        Ok(pb::Accel::Bvh) => Ok(AccelChoice::Bvh),
+        Ok(pb::Accel::Kd) => Ok(AccelChoice::Kd),
+        Ok(pb::Accel::Auto) => Ok(AccelChoice::Auto),
+        Ok(pb::Accel::Rq) => Ok(AccelChoice::Rq),
         Err(_) => Err(Status::invalid_argument(format!(
-            "accel {v}: not a structure this worker knows (bvh, kd)"
+            "accel {v}: not a traversal this worker knows (auto, rq, bvh, kd)"
         ))),
+    }
+}
+
+/// The wire's traversal.
+pub fn accel_to_wire(a: AccelChoice) -> pb::Accel {
+    match a {
+        AccelChoice::Auto => pb::Accel::Auto,
+        AccelChoice::Rq => pb::Accel::Rq,
+        AccelChoice::Bvh => pb::Accel::Bvh,
+        AccelChoice::Kd => pb::Accel::Kd,
+    }
+}
+
+/// A backend a worker chose, by the wire number of its name.
+pub fn backend_from_wire(v: i32) -> Option<Backend> {
+    match pb::Accel::try_from(v).ok()? {
+        pb::Accel::Bvh => Some(Backend::Bvh),
+        pb::Accel::Kd => Some(Backend::Kd),
+        pb::Accel::Rq => Some(Backend::Rq),
+        pb::Accel::Auto => None,
     }
 }
 
@@ -119,11 +141,7 @@ impl From<&FrameSettings> for pb::FrameSettings {
             spp: f.spp,
             seed: f.seed,
             lighting: lighting_to_wire(f.lighting).into(),
-            accel: match f.accel {
-                AccelKind::Bvh => pb::Accel::Bvh,
-                AccelKind::Kd => pb::Accel::Kd,
-            }
-            .into(),
+            accel: accel_to_wire(f.accel).into(),
             lb_strength: f.lb_strength,
             ambient: f.ambient.map(|a| a.to_vec()).unwrap_or_default(),
             view: (f.view != View::default()).then(|| pb::FrameView::from(&f.view)),
@@ -187,7 +205,7 @@ mod tests {
         for lighting in [None, Some(LightingMode::Boulanger), Some(LightingMode::GatherAmbient)] {
             let f = FrameSettings {
                 lighting,
-                accel: AccelKind::Kd,
+                accel: AccelChoice::Kd,
                 ambient: Some([0.1, 0.2, 0.3]),
                 gather_bounces: 2,
                 gather_filter: 0,

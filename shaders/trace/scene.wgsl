@@ -1,14 +1,17 @@
-// The scene as the tracer sees it, and ray casting through it: two levels
-// of acceleration (instances, then each model's triangles), either a
-// four-wide BVH or a kd-tree with the short-stack algorithm, Möller–Trumbore triangle tests
-// and alpha-masked texels passed through. Prepended to every tracer entry
-// point (rays.wgsl, render.wgsl); uploaded by worker/src/trace/gpu_scene.rs,
-// whose #[repr(C)] structs these mirror (a test checks the offsets).
+// The scene as the tracer sees it: two levels (instances, then each
+// model's triangles), Möller–Trumbore triangle tests and alpha-masked
+// texels passed through. Prepended to every tracer entry point (rays.wgsl,
+// render.wgsl) with one traversal backend after it: walk.wgsl (a
+// four-wide BVH or a kd-tree with the short-stack algorithm, walked by
+// the shader) or rq.wgsl (the device's own structures, through ray
+// queries). Uploaded by worker/src/trace/gpu_scene.rs, whose #[repr(C)]
+// structs these mirror (a test checks the offsets).
 //
 // The CPU reference is shared/accel/src: the same node layouts, the same
 // traversal order, the same arithmetic.
 
-// 0: BVH, 1: kd-tree. Set when the pipeline is built.
+// 0: BVH, 1: kd-tree, 2: ray queries (Backend in gpu_scene.rs). Set when
+// the pipeline is built.
 override ACCEL_KIND: u32 = 0u;
 
 // MIN_DIRECTION, BVH_STACK, BVH_LEAF, BVH_EMPTY, COVERAGE_MIXED,
@@ -53,12 +56,15 @@ struct Model {
     root: u32,
     lb_offset: u32,
     has_lb: u32,
-    pad0: u32,
+    // Ray queries: its first entry in rq_triangles (rq.wgsl).
+    rq_first: u32,
     lb_origin: vec3<f32>,
     lb_cell: f32,
     // LB nodes per axis, fitted to the model's bounds.
     lb_dims: vec3<u32>,
-    pad1: u32,
+    // Ray queries: how many of its triangles are opaque (its BLAS's
+    // geometry 0; the mixed ones follow as geometry 1).
+    rq_opaque: u32,
     // Boulanger et al.: optical thickness, leaf density and area of the foliage.
     tau: f32,
     leaf_density: f32,
@@ -231,12 +237,6 @@ fn intersect_edges(ray: Ray, a: vec3<f32>, e1: vec3<f32>, e2: vec3<f32>, t_min: 
     return miss;
 }
 
-struct KdEntry {
-    node: u32,
-    lo: f32,
-    hi: f32,
-}
-
 fn to_model_point(inst: Instance, p: vec3<f32>) -> vec3<f32> {
     let h = vec4<f32>(p, 1.0);
     return vec3<f32>(dot(inst.to_model[0], h), dot(inst.to_model[1], h), dot(inst.to_model[2], h));
@@ -249,67 +249,3 @@ fn to_model_vector(inst: Instance, v: vec3<f32>) -> vec3<f32> {
 
 // Hits on transparent texels this invocation passed through (for statistics).
 var<private> transparent_passed: u32;
-
-// A triangle hit in (t_min, t_max), or no_hit().
-fn test_triangle(ray: Ray, tri: u32, t_min: f32, t_max: f32) -> Hit {
-    let h = intersect_triangle(ray, tri, t_min, t_max);
-    if h.x > t_min {
-        if !is_transparent(tri, triangle_uv(tri, h.y, h.z)) {
-            return Hit(NO_HIT, tri, h.x, h.y, h.z);
-        }
-        transparent_passed += 1u;
-    }
-    return no_hit();
-}
-
-// The closest hit inside an instance (kd-tree): the ray carried into
-// model space unnormalized, so t means the same in both spaces.
-fn test_instance(ray: Ray, index: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
-    let inst = instances[index];
-    let local = make_ray(to_model_point(inst, ray.origin), to_model_vector(inst, ray.dir));
-    var h = traverse_kd_model(local, models[inst.model].root, t_min, t_max, any);
-    h.instance = index;
-    return h;
-}
-
-fn test_prim_top(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
-    return test_instance(ray, prim, t_min, t_max, any);
-}
-
-fn test_prim_model(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hit {
-    return test_triangle(ray, prim, t_min, t_max);
-}
-
-// The k-th triangle record of a wide BVH leaf (model level): the alpha
-// test only where the triangle's texels are mixed.
-fn test_record(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32) -> Hit {
-    let r = first + 3u * k;
-    let a = nodes[r];
-    let b = nodes[r + 1u];
-    let c = nodes[r + 2u];
-    let h = intersect_edges(ray, bitcast<vec3<f32>>(a.xyz), bitcast<vec3<f32>>(b.xyz), bitcast<vec3<f32>>(c.xyz), t_min, t_max);
-    if h.x > t_min {
-        if b.w != COVERAGE_MIXED || !is_transparent_material(c.w, triangle_uv(a.w, h.y, h.z)) {
-            return Hit(NO_HIT, a.w, h.x, h.y, h.z);
-        }
-        transparent_passed += 1u;
-    }
-    return no_hit();
-}
-
-// The closest opaque hit in the scene in (t_min, t_max).
-fn closest_hit(ray: Ray, t_min: f32, t_max: f32) -> Hit {
-    if ACCEL_KIND == 0u {
-        return traverse_bvh(ray, t_min, t_max, false);
-    }
-    // A kd-tree's root follows its two bounds entries.
-    return traverse_kd_top(ray, 2u, t_min, t_max, false);
-}
-
-// Whether anything opaque lies along the ray in (t_min, t_max).
-fn occluded(ray: Ray, t_min: f32, t_max: f32) -> bool {
-    if ACCEL_KIND == 0u {
-        return traverse_bvh(ray, t_min, t_max, true).triangle != NO_HIT;
-    }
-    return traverse_kd_top(ray, 2u, t_min, t_max, true).triangle != NO_HIT;
-}

@@ -60,10 +60,18 @@ impl GpuContext {
                 "no GPU adapter found: install a Vulkan driver (on Debian, `apt-get install mesa-vulkan-drivers` gives the lavapipe CPU driver)",
             )?;
         let limits = adapter.limits();
+        // Ray queries where the adapter has them (the `rq` backend). wgpu
+        // calls the feature experimental: its API may change between
+        // releases, which this crate's pinned wgpu version absorbs.
+        let ray_queries = adapter.features() & wgpu::Features::EXPERIMENTAL_RAY_QUERY;
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("sylva"),
+                required_features: ray_queries,
                 required_limits: limits.clone(),
+                // SAFETY: only the ray-query feature is experimental, and
+                // wgpu validates its use like any other feature's.
+                experimental_features: unsafe { wgpu::ExperimentalFeatures::enabled() },
                 ..Default::default()
             })
             .await
@@ -72,6 +80,12 @@ impl GpuContext {
         let ctx = Self { adapter, device, queue, limits, render_kernels: Default::default() };
         tracing::info!(adapter = %ctx.adapter_name(), "GPU opened");
         Ok(ctx)
+    }
+
+    /// Whether the device traces rays in hardware through ray queries
+    /// (the `rq` backend; lavapipe emulates them).
+    pub fn has_ray_queries(&self) -> bool {
+        self.device.features().contains(wgpu::Features::EXPERIMENTAL_RAY_QUERY)
     }
 
     /// The adapter's name and driver, as reports print it.
@@ -95,6 +109,7 @@ impl GpuContext {
             driver: format!("{} {}", i.driver, i.driver_info).trim().to_string(),
             max_storage_binding_bytes: self.limits.max_storage_buffer_binding_size,
             max_buffer_bytes: self.limits.max_buffer_size,
+            ray_queries: self.has_ray_queries(),
         }
     }
 
@@ -182,4 +197,6 @@ pub struct AdapterSummary {
     pub max_storage_binding_bytes: u64,
     /// Largest buffer, in bytes.
     pub max_buffer_bytes: u64,
+    /// Whether it offers ray queries (the `rq` backend).
+    pub ray_queries: bool,
 }

@@ -9,11 +9,13 @@ use crate::lighting::{
     boulanger::ModelEnvelope,
     lb::{ModelLight, SceneLb},
 };
-use crate::trace::{GpuScene, SceneLight, StripRenderer};
+use crate::trace::{GpuScene, SceneLight, SceneStructure, StripRenderer};
 use std::sync::Arc;
-use sylva_accel::{AccelKind, SceneAccel};
+use sylva_accel::SceneAccel;
+use sylva_accel::coverage::{Coverage, triangle_coverage};
 use sylva_light::lb::coarse::ForestLight;
 use sylva_light::lb::solver::PhaseTimer;
+use sylva_scene::frame::{AccelChoice, Backend};
 use sylva_scene::{LightingMode, Scene};
 
 /// A scene ready to trace, and what preparing it cost.
@@ -22,8 +24,11 @@ pub struct PreparedScene {
     pub renderer: StripRenderer,
     /// Wall time per phase: build, voxelize, lb, upload.
     pub phases: PhaseTimer,
-    /// Bytes of acceleration structures.
+    /// Bytes of the acceleration structures rays traverse (the device's,
+    /// with ray queries, where its allocator reports them).
     pub accel_bytes: usize,
+    /// The backend rays take, and why.
+    pub backend: crate::trace::BackendChoice,
     /// The LB solve per model (empty when the lighting needs none).
     pub light: Vec<ModelLight>,
     /// The coarse forest grid's decision (none when the lighting needs no LB).
@@ -39,20 +44,23 @@ pub struct PreparedScene {
 pub struct Reuse {
     /// Structures built before for this scene and kind.
     pub accel: Option<Arc<SceneAccel>>,
+    /// Each model's triangle coverage, found before (ray queries).
+    pub coverage: Option<Arc<Vec<Vec<Coverage>>>>,
     /// LB light solved before for this scene, lighting and sun.
     pub lb: Option<Arc<SceneLb>>,
 }
 
-/// Prepares `scene` for tracing with `kind` structures and whatever the
-/// `lighting` method needs. `progress` hears each step.
+/// Prepares `scene` for tracing with the `accel` backend (`auto`: this
+/// adapter's choice, measured) and whatever the `lighting` method needs.
+/// `progress` hears each step.
 pub fn prepare(
     ctx: &GpuContext,
     scene: &Scene,
-    kind: AccelKind,
+    accel: impl Into<AccelChoice>,
     lighting: LightingMode,
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<PreparedScene> {
-    prepare_reusing(ctx, scene, kind, lighting, &mut Reuse::default(), progress)
+    prepare_reusing(ctx, scene, accel, lighting, &mut Reuse::default(), progress)
 }
 
 /// [`prepare`], taking what `reuse` holds instead of building it again and
@@ -60,22 +68,32 @@ pub fn prepare(
 pub fn prepare_reusing(
     ctx: &GpuContext,
     scene: &Scene,
-    kind: AccelKind,
+    accel: impl Into<AccelChoice>,
     lighting: LightingMode,
     reuse: &mut Reuse,
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<PreparedScene> {
+    let asked = accel.into();
+    let candidates = crate::trace::candidates(ctx, asked)?;
     let needs = lighting::method(lighting).needs;
     let mut phases = PhaseTimer::default();
-    let accel = match &reuse.accel {
-        Some(a) => a.clone(),
-        None => {
-            progress("building acceleration structures");
-            let a = Arc::new(phases.time("build", || SceneAccel::build(scene, kind)));
-            reuse.accel = Some(a.clone());
-            a
+    for &b in &candidates {
+        match b.structure() {
+            Some(kind) if reuse.accel.as_ref().is_none_or(|a| a.kind != kind) => {
+                progress("building acceleration structures");
+                let a = phases.time("build", || SceneAccel::build(scene, kind));
+                reuse.accel = Some(Arc::new(a));
+            }
+            None if reuse.coverage.is_none() => {
+                use rayon::prelude::*;
+                let c = phases.time("coverage", || {
+                    scene.models.par_iter().map(|m| triangle_coverage(&m.model)).collect()
+                });
+                reuse.coverage = Some(Arc::new(c));
+            }
+            _ => {}
         }
-    };
+    }
     let mut light = SceneLight {
         models: vec![None; scene.models.len()],
         instance_scales: vec![1.0; scene.instances.len()],
@@ -105,8 +123,28 @@ pub fn prepare_reusing(
         light.clouds = phases.time("cloud lb", || lighting::clouds::solve_clouds(ctx, scene))?;
     }
     progress("uploading the scene");
-    let renderer = phases.time("upload", || -> anyhow::Result<StripRenderer> {
-        let gpu_scene = GpuScene::upload(ctx, scene, &accel, &light)?;
+    let structure = |b: Backend| match b {
+        Backend::Rq => SceneStructure::RayQuery(reuse.coverage.as_deref().expect("found above")),
+        _ => SceneStructure::Walk(reuse.accel.as_deref().expect("built above")),
+    };
+    let mut uploads = Vec::new();
+    for &b in &candidates {
+        let name = if b == Backend::Rq { "rq build" } else { "upload" };
+        let gpu_scene =
+            phases.time(name, || GpuScene::upload(ctx, scene, structure(b), &light))?;
+        uploads.push(gpu_scene);
+    }
+    let (gpu_scene, backend) = if uploads.len() == 1 {
+        (uploads.pop().expect("one"), crate::trace::BackendChoice::asked(asked, candidates[0], ctx))
+    } else {
+        progress("measuring the traversal backends");
+        phases.time("choose backend", || crate::trace::choose(ctx, scene, asked, uploads))?
+    };
+    let accel_bytes = match gpu_scene.backend {
+        Backend::Rq => gpu_scene.rq.as_ref().and_then(|r| r.bytes).unwrap_or(0) as usize,
+        _ => reuse.accel.as_ref().map_or(0, |a| a.bytes()),
+    };
+    let renderer = phases.time("pipeline", || -> anyhow::Result<StripRenderer> {
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
         ctx.wait()?;
         Ok(r)
@@ -114,7 +152,8 @@ pub fn prepare_reusing(
     Ok(PreparedScene {
         renderer,
         phases,
-        accel_bytes: accel.bytes(),
+        backend,
+        accel_bytes,
         light: reports,
         forest,
         boulanger,

@@ -42,24 +42,27 @@ pub struct Exported {
     pub hash: String,
 }
 
-/// Serializes a scene's model structures and, when given, its LB light.
-pub fn export(accel: &SceneAccel, lb: Option<&SceneLb>) -> anyhow::Result<Exported> {
-    let bytes = postcard::to_stdvec(&Outgoing { format: FORMAT, models: &accel.models, lb })?;
+/// Serializes a scene's model structures (none for ray queries: each
+/// device builds its own) and, when given, its LB light.
+pub fn export(accel: Option<&SceneAccel>, lb: Option<&SceneLb>) -> anyhow::Result<Exported> {
+    let models = accel.map_or(&[][..], |a| a.models.as_slice());
+    let bytes = postcard::to_stdvec(&Outgoing { format: FORMAT, models, lb })?;
     let hash = blake3::hash(&bytes).to_hex().to_string();
     Ok(Exported { bytes, hash })
 }
 
 /// Reads prepared data for `scene`: its hash must be `hash`, its
-/// structures of `kind` and fit the scene's models, and its LB light (which
-/// it must hold when `want_lb`) fit the scene. Returns both levels, built
-/// around the received model structures, and the LB light.
+/// structures of `kind` (none when `None`) and fit the scene's models, and
+/// its LB light (which it must hold when `want_lb`) fit the scene. Returns
+/// both levels, built around the received model structures, and the LB
+/// light.
 pub fn import(
     bytes: &[u8],
     hash: &str,
     scene: &Scene,
-    kind: AccelKind,
+    kind: Option<AccelKind>,
     want_lb: bool,
-) -> Result<(SceneAccel, Option<SceneLb>), String> {
+) -> Result<(Option<SceneAccel>, Option<SceneLb>), String> {
     if blake3::hash(bytes).to_hex().as_str() != hash {
         return Err("the prepared data's bytes do not match its hash".into());
     }
@@ -83,7 +86,11 @@ pub fn import(
         }
         (_, false) => None,
     };
-    let accel = SceneAccel::from_models(scene, kind, d.models)?;
+    let accel = match kind {
+        Some(kind) => Some(SceneAccel::from_models(scene, kind, d.models)?),
+        None if d.models.is_empty() => None,
+        None => return Err("the prepared data holds structures where none was asked for".into()),
+    };
     Ok((accel, lb))
 }
 

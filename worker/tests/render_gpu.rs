@@ -3,9 +3,10 @@
 
 mod common;
 
-use common::{QUAD, TestMaterial, ctx, scratch, write_squares_gltf};
+use common::{QUAD, TestMaterial, ctx, ray_queries, scratch, write_squares_gltf};
 use std::path::Path;
 use sylva_accel::AccelKind;
+use sylva_scene::frame::AccelChoice;
 use sylva_scene::{LightingMode, Scene, parse};
 use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
@@ -33,8 +34,13 @@ fn a_lit_quad_matches_the_shading_formula() {
     }"#;
     let scene = Scene::build(parse(text, "quad.json").unwrap(), &dir, "quad.json").unwrap();
     let ctx = ctx();
-    for kind in [AccelKind::Bvh, AccelKind::Kd] {
+    let mut kinds = vec![AccelChoice::Bvh, AccelChoice::Kd];
+    if ray_queries(&ctx) {
+        kinds.push(AccelChoice::Rq);
+    }
+    for kind in kinds {
         let p = prepare(&ctx, &scene, kind, LightingMode::Local, &|_| {}).unwrap();
+        assert_eq!(Some(p.backend.backend), kind.backend());
         let f = RenderSettings {
             width: 33,
             height: 33,
@@ -107,6 +113,47 @@ fn a_frame_is_bit_identical_however_it_is_split_and_repeated() {
     // A different seed moves the samples.
     let other = p.renderer.render_strip(&ctx, &RenderSettings { seed: 8, ..f }, 0, 70).unwrap();
     assert_ne!(bits(&other.pixels), bits(&whole.pixels));
+}
+
+/// Every ray of the reference path tracer (camera, shadow, bounces through
+/// alpha-cut leaves) through the device's structures: the frame the BVH
+/// gives, but for the few pixels whose paths cross an edge or a texel line
+/// on the other side (trace_gpu.rs measures those ties).
+#[test]
+fn ray_queries_render_the_frame_the_bvh_renders() {
+    let ctx = ctx();
+    if !ray_queries(&ctx) {
+        return;
+    }
+    let scene = small_forest();
+    let f = RenderSettings {
+        width: 48,
+        height: 32,
+        spp: 2,
+        seed: 3,
+        lighting: LightingMode::Reference,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+        view: Default::default(),
+        gather_bounces: 1,
+        gather_filter: 0,
+    };
+    let frame = |kind: AccelChoice| {
+        let p = prepare(&ctx, &scene, kind, LightingMode::Reference, &|_| {}).unwrap();
+        p.renderer.render_strip(&ctx, &f, 0, f.width).unwrap()
+    };
+    let (rq, bvh) = (frame(AccelChoice::Rq), frame(AccelChoice::Bvh));
+    assert_eq!(rq.rays.primary, bvh.rays.primary);
+    assert_eq!(rq.coverage, bvh.coverage, "the camera rays hit the same leaves");
+    let differ = rq
+        .pixels
+        .iter()
+        .zip(&bvh.pixels)
+        .filter(|(a, b)| a.iter().zip(b.iter()).any(|(x, y)| (x - y).abs() > 1e-3 * y.max(1e-2)))
+        .count();
+    assert!(differ * 50 <= rq.pixels.len(), "{differ} of {} pixels differ", rq.pixels.len());
+    let lit = bvh.coverage.iter().filter(|&&c| c > 0.0).count();
+    assert!(lit > rq.pixels.len() / 20, "the trees cover {lit} pixels");
 }
 
 #[test]

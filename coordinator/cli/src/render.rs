@@ -13,7 +13,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use sylva_accel::AccelKind;
+use sylva_scene::frame::AccelChoice;
 use sylva_coordinator::executor::{StripExecutor, even_strips};
 use sylva_scene::film::{HdrImage, reinhard, write_png};
 use sylva_scene::{LightingMode, Scene};
@@ -243,6 +243,7 @@ fn render_here(
             "instances": scene.instances.len(),
             "models": scene.models.len(),
             "gpu_memory_bytes": { "scene": prepared.renderer.scene_bytes(), "acceleration_structures": prepared.accel_bytes },
+            "backend": prepared.backend,
             "lb": prepared.light,
             "lb_grid_choice": choices,
             "boulanger": prepared.boulanger,
@@ -253,9 +254,10 @@ fn render_here(
         }),
     );
     let mut how = format!(
-        "in {:.0} ms of tracing, {:.2} Mrays/s",
+        "in {:.0} ms of tracing, {:.2} Mrays/s ({})",
         trace_ms,
-        (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6
+        (primary + shadow) as f64 / (trace_ms / 1e3) / 1e6,
+        prepared.backend.why
     );
     if let Some(r) = &auto {
         stats["spp"] = json!(request.spp);
@@ -275,7 +277,7 @@ fn render_reference_here(
     scene: &Scene,
     prepared: &PreparedScene,
     settings: &RenderSettings,
-    accel: AccelKind,
+    accel: AccelChoice,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
     let lighting = settings.lighting;
@@ -336,6 +338,7 @@ fn render_reference_here(
         &phases,
         json!({
             "adapter": ctx.summary(),
+            "backend": prepared.backend,
             "reference": r.stats,
             "local_exr": local_exr,
             "leaf_optics": scene.file.leaf_optics,
@@ -380,7 +383,7 @@ fn write_image(
 fn with_head(
     a: &RenderArgs,
     exr: Option<PathBuf>,
-    accel: AccelKind,
+    accel: AccelChoice,
     lighting: LightingMode,
     phases: &[(&str, f64)],
     rest: serde_json::Value,
@@ -415,7 +418,7 @@ pub(super) fn create_parent(path: &Path) -> anyhow::Result<()> {
 fn report(
     a: &RenderArgs,
     stats: &serde_json::Value,
-    accel: AccelKind,
+    accel: AccelChoice,
     lighting: LightingMode,
     how: &str,
 ) -> anyhow::Result<()> {
@@ -426,7 +429,7 @@ fn report(
 fn report_wrote(
     a: &RenderArgs,
     stats: &serde_json::Value,
-    accel: AccelKind,
+    accel: AccelChoice,
     lighting: LightingMode,
     how: &str,
     wrote: &str,
@@ -472,7 +475,7 @@ fn render_through_coordinator(
     views: &[View],
     scene: &Scene,
     lighting: LightingMode,
-    accel: AccelKind,
+    accel: AccelChoice,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
     use crate::loopback::LoopbackProcesses;

@@ -29,7 +29,8 @@ fn default_gather_bounces() -> u32 {
     DEFAULT_GATHER_BOUNCES
 }
 
-/// Which structure accelerates a render.
+/// Which structure a CPU builds for a traversal that walks its own (the
+/// compute backends; also the CPU reference's).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
@@ -39,6 +40,109 @@ pub enum AccelKind {
     /// Four-wide bounding-volume hierarchy.
     #[default]
     Bvh,
+}
+
+/// How rays traverse the scene on a worker's GPU: the choice made.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// Ray queries: the device's own structures, in hardware where it has
+    /// them.
+    Rq,
+    /// Sylva's four-wide BVH, walked by a compute kernel.
+    Bvh,
+    /// Sylva's kd-tree, walked by a compute kernel (the paper's).
+    Kd,
+}
+
+impl Backend {
+    /// The structure it walks, built on the CPU (none for ray queries: the
+    /// device builds its own).
+    pub fn structure(self) -> Option<AccelKind> {
+        match self {
+            Backend::Rq => None,
+            Backend::Bvh => Some(AccelKind::Bvh),
+            Backend::Kd => Some(AccelKind::Kd),
+        }
+    }
+
+    /// Its name, as `--accel` spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Rq => "rq",
+            Backend::Bvh => "bvh",
+            Backend::Kd => "kd",
+        }
+    }
+}
+
+impl From<AccelKind> for Backend {
+    fn from(k: AccelKind) -> Self {
+        match k {
+            AccelKind::Bvh => Backend::Bvh,
+            AccelKind::Kd => Backend::Kd,
+        }
+    }
+}
+
+/// What a frame asks of the traversal (`--accel`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum AccelChoice {
+    /// Each worker chooses for its adapter: ray queries where it has them
+    /// and a short measurement at preparation finds them faster, else the
+    /// BVH.
+    #[default]
+    Auto,
+    /// Ray queries (refused where the adapter has none).
+    Rq,
+    /// The four-wide BVH.
+    Bvh,
+    /// The kd-tree.
+    Kd,
+}
+
+impl AccelChoice {
+    /// The structure a worker builds on the CPU for it: `auto` may walk
+    /// the BVH, ray queries need none.
+    pub fn walked_structure(self) -> Option<AccelKind> {
+        match self {
+            AccelChoice::Auto | AccelChoice::Bvh => Some(AccelKind::Bvh),
+            AccelChoice::Kd => Some(AccelKind::Kd),
+            AccelChoice::Rq => None,
+        }
+    }
+
+    /// The backend it names; `None` for `auto`.
+    pub fn backend(self) -> Option<Backend> {
+        match self {
+            AccelChoice::Auto => None,
+            AccelChoice::Rq => Some(Backend::Rq),
+            AccelChoice::Bvh => Some(Backend::Bvh),
+            AccelChoice::Kd => Some(Backend::Kd),
+        }
+    }
+}
+
+impl From<Backend> for AccelChoice {
+    fn from(b: Backend) -> Self {
+        match b {
+            Backend::Rq => AccelChoice::Rq,
+            Backend::Bvh => AccelChoice::Bvh,
+            Backend::Kd => AccelChoice::Kd,
+        }
+    }
+}
+
+impl From<AccelKind> for AccelChoice {
+    fn from(k: AccelKind) -> Self {
+        match k {
+            AccelKind::Bvh => AccelChoice::Bvh,
+            AccelKind::Kd => AccelChoice::Kd,
+        }
+    }
 }
 
 /// How a job's frames are cut into strips for the workers.
@@ -67,8 +171,8 @@ pub struct FrameSettings {
     pub seed: u32,
     /// Lighting method; `None`: the scene file's.
     pub lighting: Option<LightingMode>,
-    /// Acceleration structure.
-    pub accel: AccelKind,
+    /// The traversal backend asked for (`auto`: each worker's choice).
+    pub accel: AccelChoice,
     /// Weight of the LB light relative to the sun's.
     pub lb_strength: f32,
     /// The `ambient` method's constant, linear RGB; `None`: matched to the
@@ -96,7 +200,7 @@ impl Default for FrameSettings {
             spp: 1,
             seed: 1,
             lighting: None,
-            accel: AccelKind::Bvh,
+            accel: AccelChoice::Auto,
             lb_strength: 0.35,
             ambient: None,
             view: Default::default(),

@@ -15,7 +15,7 @@ pub(super) struct Cached {
 /// A prepared scene's key: bundle hash, structure, what the lighting needs
 /// prepared, and the sun's bits where that depends on the sun (`None`: the
 /// scene's own sun, or a method the sun does not change).
-pub(super) type PreparedKey = (String, AccelKind, crate::lighting::Needs, Option<[u32; 3]>);
+pub(super) type PreparedKey = (String, AccelChoice, crate::lighting::Needs, Option<[u32; 3]>);
 
 /// A scene's LB light's key: bundle hash and the sun's bits (`None`: the
 /// scene's own sun).
@@ -27,7 +27,10 @@ pub(super) const PREPARED_SUNS: usize = 2;
 
 /// What one frame of a loaded scene needs prepared.
 pub(super) struct Preparation {
-    pub(super) accel_key: (String, AccelKind),
+    /// The bundle's hash.
+    pub(super) hash: String,
+    /// The structure it walks, built on the CPU (none for ray queries).
+    pub(super) structure: Option<AccelKind>,
     pub(super) lb_key: LbKey,
     pub(super) needs_lb: bool,
     pub(super) scene: Arc<Scene>,
@@ -148,7 +151,7 @@ impl State {
         &self,
         scene: &Scene,
         hash: &str,
-        accel: AccelKind,
+        accel: AccelChoice,
         lighting: LightingMode,
         view: &View,
     ) -> anyhow::Result<Arc<PreparedScene>> {
@@ -161,7 +164,10 @@ impl State {
         }
         let lb_key = (hash.to_string(), sun);
         let mut reuse = Reuse {
-            accel: lock(&self.accels).get(&(hash.to_string(), accel)).cloned(),
+            accel: accel
+                .walked_structure()
+                .and_then(|k| lock(&self.accels).get(&(hash.to_string(), k)).cloned()),
+            coverage: None,
             lb: if needs.lb {
                 lock(&self.lbs).get_mut(&lb_key).map(|l| {
                     l.stamp = self.tick();
@@ -178,7 +184,7 @@ impl State {
         })?);
         if let (Some(a), false) = (reuse.accel, built_before) {
             self.accel_builds.fetch_add(1, Ordering::Relaxed);
-            lock(&self.accels).insert((hash.to_string(), accel), a);
+            lock(&self.accels).insert((hash.to_string(), a.kind), a);
         }
         if let (Some(lb), false) = (reuse.lb, solved_before) {
             self.lb_solves.fetch_add(1, Ordering::Relaxed);
@@ -249,7 +255,8 @@ impl State {
         let needs = crate::lighting::method(lighting).needs;
         let sun = if needs.lb || needs.clouds { f.view.sun_key() } else { None };
         Ok(Preparation {
-            accel_key: (hash.clone(), f.accel),
+            hash: hash.clone(),
+            structure: f.accel.walked_structure(),
             lb_key: (hash, sun),
             needs_lb: needs.lb,
             scene,
@@ -262,8 +269,11 @@ impl State {
     pub(super) fn held(
         &self,
         p: &Preparation,
-    ) -> Option<(Arc<sylva_accel::SceneAccel>, Option<Arc<SceneLb>>)> {
-        let accel = lock(&self.accels).get(&p.accel_key).cloned()?;
+    ) -> Option<(Option<Arc<sylva_accel::SceneAccel>>, Option<Arc<SceneLb>>)> {
+        let accel = match p.structure {
+            Some(k) => Some(lock(&self.accels).get(&(p.hash.clone(), k)).cloned()?),
+            None => None,
+        };
         if !p.needs_lb {
             return Some((accel, None));
         }

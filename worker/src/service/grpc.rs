@@ -187,19 +187,19 @@ impl Worker for WorkerService {
     ) -> Result<Response<pb::PrepareReply>, Status> {
         let r = request.into_inner();
         let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
-        self.state.scope(&p.accel_key.0, &r.job);
+        self.state.scope(&p.hash, &r.job);
         let t = Instant::now();
         let held = self.state.held(&p).is_some();
         if held || !r.build {
             return Ok(Response::new(pb::PrepareReply { held, prepare_ms: 0.0 }));
         }
         let state = self.state.clone();
-        let span = tracing::info_span!("prepare", scene = %p.accel_key.0);
+        let span = tracing::info_span!("prepare", scene = %p.hash);
         tokio::task::spawn_blocking(move || {
             let _g = span.enter();
             let _gpu = lock(&state.gpu);
             state
-                .prepared_for(&p.scene, &p.accel_key.0, p.frame.accel, p.lighting, &p.frame.view)
+                .prepared_for(&p.scene, &p.hash, p.frame.accel, p.lighting, &p.frame.view)
                 .map(|_| ())
         })
         .await
@@ -222,16 +222,16 @@ impl Worker for WorkerService {
         let r = request.into_inner();
         let p = self.state.preparation(&r.scene_hash, r.frame.as_ref())?;
         // Data imported for another job is not this worker's to pass on.
-        self.state.scope(&p.accel_key.0, &r.job);
+        self.state.scope(&p.hash, &r.job);
         let (accel, lb) = self.state.held(&p).ok_or_else(|| {
             Status::not_found("this worker does not hold that frame's prepared data")
         })?;
-        let out = tokio::task::spawn_blocking(move || crate::share::export(&accel, lb.as_deref()))
+        let out = tokio::task::spawn_blocking(move || crate::share::export(accel.as_deref(), lb.as_deref()))
             .await
             .map_err(|e| Status::internal(format!("exporting panicked: {e}")))?
             .map_err(|e| Status::internal(format!("{e:#}")))?;
         let (total, hash, frame, scene_hash) =
-            (out.bytes.len() as u64, out.hash, r.frame, p.accel_key.0);
+            (out.bytes.len() as u64, out.hash, r.frame, p.hash);
         let chunks: Vec<Result<pb::PreparedChunk, Status>> = out
             .bytes
             .chunks(EXPORT_CHUNK)
@@ -276,7 +276,7 @@ impl Worker for WorkerService {
             .state
             .receive("prepared data", first.total_size, first.data, &mut stream, |c| c.data)
             .await?;
-        let (scene, kind, needs_lb) = (p.scene.clone(), p.frame.accel, p.needs_lb);
+        let (scene, kind, needs_lb) = (p.scene.clone(), p.structure, p.needs_lb);
         let (accel, lb) = tokio::task::spawn_blocking(move || {
             crate::share::import(&bytes, &content_hash, &scene, kind, needs_lb)
         })
@@ -285,17 +285,19 @@ impl Worker for WorkerService {
         .map_err(|e| Status::invalid_argument(format!("prepared data refused: {e}")))?;
         drop(held);
         // What was imported serves the job that brought it, and no other.
-        self.state.scope(&p.accel_key.0, &first.job);
-        lock(&self.state.imported).insert(p.accel_key.0.clone(), first.job.clone());
-        lock(&self.state.accels).entry(p.accel_key.clone()).or_insert_with(|| Arc::new(accel));
+        self.state.scope(&p.hash, &first.job);
+        lock(&self.state.imported).insert(p.hash.clone(), first.job.clone());
+        if let (Some(k), Some(accel)) = (p.structure, accel) {
+            lock(&self.state.accels).entry((p.hash.clone(), k)).or_insert_with(|| Arc::new(accel));
+        }
         if let Some(lb) = lb
             && !lock(&self.state.lbs).contains_key(&p.lb_key)
         {
             self.state.keep_lb(p.lb_key.clone(), Arc::new(lb));
         }
         self.state.prepared_imports.fetch_add(1, Ordering::Relaxed);
-        self.state.bound_memory(&p.accel_key.0);
-        tracing::info!(scene = %p.accel_key.0, "took prepared data from another worker");
+        self.state.bound_memory(&p.hash);
+        tracing::info!(scene = %p.hash, "took prepared data from another worker");
         Ok(Response::new(pb::PrepareReply {
             held: self.state.held(&p).is_some(),
             prepare_ms: t.elapsed().as_secs_f64() * 1e3,

@@ -22,6 +22,7 @@ use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use sylva_accel::AccelKind;
+use sylva_scene::frame::AccelChoice;
 use sylva_proto::pb;
 use sylva_proto::pb::worker_identity_server::{WorkerIdentity, WorkerIdentityServer};
 use sylva_proto::pb::worker_server::{Worker, WorkerServer};

@@ -1,14 +1,48 @@
 //! The scene on the GPU: models' triangles, materials and textures, both
 //! acceleration levels flattened into one node array, and instances.
 
+use super::rq::{self, RqModel, RqStructures};
 use crate::gpu::GpuContext;
 use bytemuck::{Pod, Zeroable};
 use sylva_accel::bvh::{self, BvhNode};
+use sylva_accel::coverage::Coverage;
 use sylva_accel::triangle::TriangleRecord;
 use sylva_accel::{Accel, KdNode, SceneAccel};
 use sylva_light::lb::LbGrid;
 use sylva_scene::Scene;
+use sylva_scene::frame::Backend;
 use wgpu::util::DeviceExt;
+
+/// What rays traverse, as the upload receives it: Sylva's own two levels
+/// (walked by the compute kernel), or each model's triangle coverage, from
+/// which the device builds its own structures (ray queries).
+#[derive(Clone, Copy)]
+pub enum SceneStructure<'a> {
+    /// A kd-tree or BVH over both levels.
+    Walk(&'a SceneAccel),
+    /// Per model, each triangle's coverage class (which BLAS geometry it
+    /// goes to, or none).
+    RayQuery(&'a [Vec<Coverage>]),
+}
+
+impl SceneStructure<'_> {
+    /// The backend that traces it.
+    pub fn backend(&self) -> Backend {
+        match self {
+            SceneStructure::Walk(a) => a.kind.into(),
+            SceneStructure::RayQuery(_) => Backend::Rq,
+        }
+    }
+}
+
+/// `ACCEL_KIND` in the WGSL for a backend.
+pub fn accel_kind(backend: Backend) -> u32 {
+    match backend {
+        Backend::Bvh => 0,
+        Backend::Kd => 1,
+        Backend::Rq => 2,
+    }
+}
 
 /// Stack entries of the GPU's BVH traversal, both levels together
 /// (`BVH_STACK` in the WGSL, generated from this).
@@ -97,16 +131,16 @@ pub struct GpuModel {
     pub lb_offset: u32,
     /// 1 when the model has an LB grid.
     pub has_lb: u32,
-    /// Padding.
-    pub pad0: u32,
+    /// Ray queries: its first entry in `rq_triangles`.
+    pub rq_first: u32,
     /// Corner of LB node (0, 0, 0), model space.
     pub lb_origin: [f32; 3],
     /// LB cell size.
     pub lb_cell: f32,
     /// LB nodes per axis.
     pub lb_dims: [u32; 3],
-    /// Padding.
-    pub pad1: u32,
+    /// Ray queries: its opaque triangles (its BLAS's geometry 0).
+    pub rq_opaque: u32,
     /// Boulanger optical thickness τ = ρA/2 of its foliage.
     pub tau: f32,
     /// Leaves per unit volume of its envelope.
@@ -204,10 +238,12 @@ pub struct GpuScene {
     pub bind_group: wgpu::BindGroup,
     /// Global index of each model's first triangle.
     pub triangle_offsets: Vec<u32>,
-    /// Bytes uploaded.
+    /// Bytes uploaded, with the device's structures where it built them.
     pub bytes: u64,
-    /// `ACCEL_KIND` for pipelines over this scene.
-    pub accel_kind: u32,
+    /// How rays traverse it.
+    pub backend: Backend,
+    /// The device's structures (ray queries only).
+    pub rq: Option<RqStructures>,
     /// Where the ground's light lies in the LB buffer: `(origin x, origin z,
     /// cell, 0)` and `(nx, nz, offset, 1)`; all zero when there is none.
     pub ground: ([f32; 4], [u32; 4]),
@@ -230,6 +266,12 @@ struct Flat {
     clouds: Vec<GpuCloud>,
     cloud_data: Vec<f32>,
     envelope: Vec<f32>,
+    /// Ray queries: per model, its triangles in BLAS order.
+    rq_models: Vec<RqModel>,
+    /// Ray queries: model-local vertex indices, three per triangle, in BLAS order.
+    rq_indices: Vec<u32>,
+    /// Ray queries: the global triangle of each, in BLAS order.
+    rq_triangles: Vec<u32>,
 }
 
 impl Flat {
@@ -288,8 +330,74 @@ impl Flat {
 }
 
 impl GpuScene {
-    /// Uploads `scene` with its acceleration structures and its solved light.
+    /// Uploads `scene` with what its rays traverse and its solved light.
     pub fn upload(
+        ctx: &GpuContext,
+        scene: &Scene,
+        structure: SceneStructure,
+        light: &SceneLight,
+    ) -> anyhow::Result<Self> {
+        match structure {
+            SceneStructure::Walk(accel) => Self::upload_walk(ctx, scene, accel, light),
+            SceneStructure::RayQuery(coverage) => Self::upload_rq(ctx, scene, coverage, light),
+        }
+    }
+
+    /// The ray-query upload: the scene's data as for the walk, without
+    /// nodes, and the device's structures built over its triangles.
+    fn upload_rq(
+        ctx: &GpuContext,
+        scene: &Scene,
+        coverage: &[Vec<Coverage>],
+        light: &SceneLight,
+    ) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            ctx.has_ray_queries(),
+            "{} offers no ray queries: choose --accel bvh or kd (or auto)",
+            ctx.adapter_name()
+        );
+        anyhow::ensure!(coverage.len() == scene.models.len(), "one coverage list per model");
+        let mut f = Flat::default();
+        // The walk's node buffer is bound but unread.
+        f.nodes.push([0; 4]);
+        let mut triangle_offsets = Vec::with_capacity(scene.models.len());
+        for (m, (sm, cov)) in scene.models.iter().zip(coverage).enumerate() {
+            anyhow::ensure!(
+                cov.len() == sm.model.triangle_count(),
+                "coverage of model {} has the wrong size",
+                sm.name
+            );
+            let tri0 = f.triangles.len() as u32;
+            let (order, opaque) = rq::blas_order(cov);
+            let rm = RqModel {
+                vert0: (f.positions.len() / 3) as u32,
+                vertices: sm.model.positions.len() as u32,
+                first: f.rq_triangles.len() as u32,
+                opaque,
+                mixed: order.len() as u32 - opaque,
+            };
+            f.rq_triangles.extend(order.iter().map(|t| tri0 + t));
+            f.rq_indices.extend(order.iter().flat_map(|&t| sm.model.triangles[t as usize]));
+            push_model(&mut f, m, sm, None, light)?;
+            let gm = f.models.last_mut().expect("pushed");
+            (gm.rq_first, gm.rq_opaque) = (rm.first, rm.opaque);
+            f.rq_models.push(rm);
+            triangle_offsets.push(tri0);
+        }
+        let to_model: Vec<glam::Affine3A> =
+            scene.instances.iter().map(|i| i.to_world.inverse()).collect();
+        push_instances(&mut f, scene, &to_model, &light.instance_scales);
+        push_clouds(&mut f, &light.clouds)?;
+        let ground = push_ground(&mut f, light)?;
+        let instances: Vec<(glam::Affine3A, u32)> =
+            scene.instances.iter().map(|i| (i.to_world, i.model)).collect();
+        let mut scene = Self::create(ctx, f, triangle_offsets, Backend::Rq, &instances)?;
+        scene.ground = ground;
+        Ok(scene)
+    }
+
+    /// The compute walk's upload: both levels flattened into the node buffer.
+    fn upload_walk(
         ctx: &GpuContext,
         scene: &Scene,
         accel: &SceneAccel,
@@ -325,7 +433,7 @@ impl GpuScene {
         let mut model_places = Vec::with_capacity(scene.models.len());
         let mut triangle_offsets = Vec::with_capacity(scene.models.len());
         for (m, sm) in scene.models.iter().enumerate() {
-            let (tri0, root, records_at) = push_model(&mut f, m, sm, accel, light)?;
+            let (tri0, root, records_at) = push_model(&mut f, m, sm, Some(accel), light)?;
             triangle_offsets.push(tri0);
             model_places.push((root, records_at));
         }
@@ -334,31 +442,22 @@ impl GpuScene {
             let (root, records_at) = model_places[scene.instances[e[0] as usize].model as usize];
             e[1] = placed(e[1], root, records_at, RECORD_ENTRIES);
         }
-        push_instances(&mut f, scene, accel, lb_scales);
+        push_instances(&mut f, scene, &accel.to_model, lb_scales);
         push_clouds(&mut f, &light.clouds)?;
-        let mut ground = ([0.0; 4], [0; 4]);
-        if let Some(g) = &light.ground {
-            anyhow::ensure!(
-                g.nx >= 2 && g.nz >= 2 && g.rgb.len() == 3 * g.nx * g.nz,
-                "the ground's light has the wrong size"
-            );
-            ground = (
-                [g.origin[0], g.origin[1], g.cell, 0.0],
-                [g.nx as u32, g.nz as u32, f.lb.len() as u32, 1],
-            );
-            f.lb.extend_from_slice(&g.rgb);
-        }
-        let mut scene =
-            Self::create(ctx, f, triangle_offsets, matches!(accel.top, Accel::Kd(_)) as u32)?;
+        let ground = push_ground(&mut f, light)?;
+        let mut scene = Self::create(ctx, f, triangle_offsets, accel.kind.into(), &[])?;
         scene.ground = ground;
         Ok(scene)
     }
 
+    /// The buffers and the bind group; with ray queries, the device's
+    /// structures over `instances` (to world, model) too.
     fn create(
         ctx: &GpuContext,
         mut f: Flat,
         triangle_offsets: Vec<u32>,
-        accel_kind: u32,
+        backend: Backend,
+        instances: &[(glam::Affine3A, u32)],
     ) -> anyhow::Result<Self> {
         let device = &ctx.device;
         // wgpu refuses empty bindings: give every array at least one element.
@@ -383,8 +482,15 @@ impl GpuScene {
         if f.envelope.is_empty() {
             f.envelope.push(0.0);
         }
+        if f.rq_indices.is_empty() {
+            f.rq_indices.extend([0; 3]);
+        }
+        if f.rq_triangles.is_empty() {
+            f.rq_triangles.push(0);
+        }
+        let rq = backend == Backend::Rq;
         let mut bytes = 0u64;
-        let mut buffer = |label: &str, contents: &[u8]| {
+        let mut buffer = |label: &str, contents: &[u8], usage: wgpu::BufferUsages| {
             bytes += contents.len() as u64;
             anyhow::ensure!(
                 contents.len() as u64 <= ctx.limits.max_storage_buffer_binding_size,
@@ -395,28 +501,46 @@ impl GpuScene {
             Ok(device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
                 contents,
-                usage: wgpu::BufferUsages::STORAGE,
+                usage,
             }))
         };
-        let buffers = [
-            buffer("nodes", bytemuck::cast_slice(&f.nodes))?,
-            buffer("prims", bytemuck::cast_slice(&f.prims))?,
-            buffer("positions", bytemuck::cast_slice(&f.positions))?,
-            buffer("uvs", bytemuck::cast_slice(&f.uvs))?,
-            buffer("triangles", bytemuck::cast_slice(&f.triangles))?,
-            buffer("materials", bytemuck::cast_slice(&f.materials))?,
-            buffer("textures", bytemuck::cast_slice(&f.textures))?,
-            buffer("texels", bytemuck::cast_slice(&f.texels))?,
-            buffer("instances", bytemuck::cast_slice(&f.instances))?,
-            buffer("models", bytemuck::cast_slice(&f.models))?,
-            buffer("lb", bytemuck::cast_slice(&f.lb))?,
-            buffer("clouds", bytemuck::cast_slice(&f.clouds))?,
-            buffer("cloud data", bytemuck::cast_slice(&f.cloud_data))?,
-            buffer("leaf envelopes", bytemuck::cast_slice(&f.envelope))?,
+        let storage = wgpu::BufferUsages::STORAGE;
+        // The device's structures read the positions as vertices.
+        let positions_usage =
+            if rq { storage | wgpu::BufferUsages::BLAS_INPUT } else { storage };
+        let mut buffers = vec![
+            buffer("nodes", bytemuck::cast_slice(&f.nodes), storage)?,
+            buffer("prims", bytemuck::cast_slice(&f.prims), storage)?,
+            buffer("positions", bytemuck::cast_slice(&f.positions), positions_usage)?,
+            buffer("uvs", bytemuck::cast_slice(&f.uvs), storage)?,
+            buffer("triangles", bytemuck::cast_slice(&f.triangles), storage)?,
+            buffer("materials", bytemuck::cast_slice(&f.materials), storage)?,
+            buffer("textures", bytemuck::cast_slice(&f.textures), storage)?,
+            buffer("texels", bytemuck::cast_slice(&f.texels), storage)?,
+            buffer("instances", bytemuck::cast_slice(&f.instances), storage)?,
+            buffer("models", bytemuck::cast_slice(&f.models), storage)?,
+            buffer("lb", bytemuck::cast_slice(&f.lb), storage)?,
+            buffer("clouds", bytemuck::cast_slice(&f.clouds), storage)?,
+            buffer("cloud data", bytemuck::cast_slice(&f.cloud_data), storage)?,
+            buffer("leaf envelopes", bytemuck::cast_slice(&f.envelope), storage)?,
         ];
-        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0..buffers.len() as u32)
-            .map(|binding| wgpu::BindGroupLayoutEntry {
-                binding,
+        let rq_structures = if rq {
+            let indices = buffer(
+                "rq indices",
+                bytemuck::cast_slice(&f.rq_indices),
+                wgpu::BufferUsages::BLAS_INPUT,
+            )?;
+            let s = rq::build(ctx, &buffers[2], &indices, &f.rq_models, instances)?;
+            // Binding 15 (binding 14 is the TLAS).
+            buffers.push(buffer("rq triangles", bytemuck::cast_slice(&f.rq_triangles), storage)?);
+            Some(s)
+        } else {
+            None
+        };
+        let binding_of = |i: usize| if rq && i >= 14 { i as u32 + 1 } else { i as u32 };
+        let mut entries: Vec<wgpu::BindGroupLayoutEntry> = (0..buffers.len())
+            .map(|i| wgpu::BindGroupLayoutEntry {
+                binding: binding_of(i),
                 visibility: wgpu::ShaderStages::COMPUTE,
                 ty: wgpu::BindingType::Buffer {
                     ty: wgpu::BufferBindingType::Storage { read_only: true },
@@ -426,18 +550,29 @@ impl GpuScene {
                 count: None,
             })
             .collect();
+        if rq {
+            entries.push(wgpu::BindGroupLayoutEntry {
+                binding: 14,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::AccelerationStructure { vertex_return: false },
+                count: None,
+            });
+        }
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("scene"),
             entries: &entries,
         });
-        let bg_entries: Vec<wgpu::BindGroupEntry> = buffers
+        let mut bg_entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
+                binding: binding_of(i),
                 resource: b.as_entire_binding(),
             })
             .collect();
+        if let Some(s) = &rq_structures {
+            bg_entries.push(wgpu::BindGroupEntry { binding: 14, resource: s.tlas.as_binding() });
+        }
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("scene"),
             layout: &layout,
@@ -447,39 +582,67 @@ impl GpuScene {
             layout,
             bind_group,
             triangle_offsets,
-            bytes,
-            accel_kind,
+            bytes: bytes + rq_structures.as_ref().and_then(|s| s.bytes).unwrap_or(0),
+            backend,
+            rq: rq_structures,
             ground: ([0.0; 4], [0; 4]),
         })
     }
+
+    /// `ACCEL_KIND` for pipelines over this scene.
+    pub fn accel_kind(&self) -> u32 {
+        accel_kind(self.backend)
+    }
 }
 
-/// One model into the flat buffers: its structure (records placed after
-/// the triangles before it), vertices, triangles, materials, textures, LB
-/// grid and Boulanger envelope. Returns its first triangle, its structure's
-/// root and where its records start.
+/// The ground's light under the stand into the LB buffer: where it lies,
+/// `(origin x, origin z, cell, 0)` and `(nx, nz, offset, 1)`; zeros when
+/// there is none.
+fn push_ground(f: &mut Flat, light: &SceneLight) -> anyhow::Result<([f32; 4], [u32; 4])> {
+    let Some(g) = &light.ground else { return Ok(([0.0; 4], [0; 4])) };
+    anyhow::ensure!(
+        g.nx >= 2 && g.nz >= 2 && g.rgb.len() == 3 * g.nx * g.nz,
+        "the ground's light has the wrong size"
+    );
+    let place = ([g.origin[0], g.origin[1], g.cell, 0.0], [g.nx as u32, g.nz as u32, f.lb.len() as u32, 1]);
+    f.lb.extend_from_slice(&g.rgb);
+    Ok(place)
+}
+
+/// One model into the flat buffers: its walked structure if any (records
+/// placed after the triangles before it), vertices, triangles, materials,
+/// textures, LB grid and Boulanger envelope. Returns its first triangle,
+/// its structure's root and where its records start (zeros without one).
 fn push_model(
     f: &mut Flat,
     m: usize,
     sm: &sylva_scene::SceneModel,
-    accel: &SceneAccel,
+    accel: Option<&SceneAccel>,
     light: &SceneLight,
 ) -> anyhow::Result<(u32, u32, u32)> {
     let model = &sm.model;
     let (tri0, vert0) = (f.triangles.len() as u32, (f.positions.len() / 3) as u32);
     let (mat0, tex0) = (f.materials.len() as u32, f.textures.len() as u32);
-    let records: Vec<[u32; 4]> = accel
-        .records
-        .get(m)
-        .map_or(&[][..], |r| r.as_slice())
-        .iter()
-        .flat_map(|r| {
-            let r =
-                TriangleRecord { triangle: r.triangle + tri0, material: r.material + mat0, ..*r };
-            bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
-        })
-        .collect();
-    let (root, records_at) = f.push_accel(&accel.models[m], tri0, &records, RECORD_ENTRIES)?;
+    let (root, records_at) = match accel {
+        Some(accel) => {
+            let records: Vec<[u32; 4]> = accel
+                .records
+                .get(m)
+                .map_or(&[][..], |r| r.as_slice())
+                .iter()
+                .flat_map(|r| {
+                    let r = TriangleRecord {
+                        triangle: r.triangle + tri0,
+                        material: r.material + mat0,
+                        ..*r
+                    };
+                    bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
+                })
+                .collect();
+            f.push_accel(&accel.models[m], tri0, &records, RECORD_ENTRIES)?
+        }
+        None => (0, 0),
+    };
     f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
     f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));
     f.triangles.extend(
@@ -546,9 +709,9 @@ fn push_model(
 
 /// Each instance's transforms (world to model, and its orientation for
 /// the LB grid) and the forest grid's scale of its light.
-fn push_instances(f: &mut Flat, scene: &Scene, accel: &SceneAccel, lb_scales: &[f32]) {
+fn push_instances(f: &mut Flat, scene: &Scene, to_model: &[glam::Affine3A], lb_scales: &[f32]) {
     for (i, inst) in scene.instances.iter().enumerate() {
-        let m = accel.to_model[i];
+        let m = to_model[i];
         let c = [m.matrix3.x_axis, m.matrix3.y_axis, m.matrix3.z_axis];
         let to_model = std::array::from_fn(|r| [c[0][r], c[1][r], c[2][r], m.translation[r]]);
         // The instance's own orientation, scale removed.

@@ -1,20 +1,25 @@
 //! The GPU ray tracer: the scene uploaded as flat buffers
-//! ([`GpuScene`]), the traversal kernel on its own ([`RayCaster`]) and the
+//! ([`GpuScene`]) with Sylva's structures or the device's (ray queries,
+//! `rq.rs`), the traversal kernel on its own ([`RayCaster`]) and the
 //! strip renderer, which draws every lighting method (`crate::lighting`
 //! declares them). WGSL in `shaders/trace/`.
 
+mod choose;
 mod gpu_scene;
 mod raycast;
 pub(crate) mod render;
+mod rq;
 mod shaders;
 
+pub use choose::{BackendChoice, ProbeTime, candidates, choose};
 pub use gpu_scene::{
     CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle,
-    GroundLight, SceneLight,
+    GroundLight, SceneLight, SceneStructure,
 };
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use render::MAX_BOUNCES;
 pub use render::{
     FrameUniform, GpuRayCounts, RenderSettings, RenderedStrip, SampleMeans, StripRenderer,
 };
+pub use rq::RqStructures;
 pub use shaders::tracer_source;

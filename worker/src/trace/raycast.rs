@@ -65,7 +65,7 @@ impl RayCaster {
 
     fn build(ctx: &GpuContext, scene: &GpuScene, any_hit: bool) -> Self {
         let device = &ctx.device;
-        let module = ctx.trusted_module("rays", tracer_source(SOURCE));
+        let module = ctx.trusted_module("rays", tracer_source(SOURCE, scene.backend));
         let entry = |binding, read_only| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
@@ -92,7 +92,7 @@ impl RayCaster {
             entry_point: Some("cast_rays"),
             compilation_options: wgpu::PipelineCompilationOptions {
                 constants: &[
-                    ("ACCEL_KIND", scene.accel_kind as f64),
+                    ("ACCEL_KIND", scene.accel_kind() as f64),
                     ("ANY_HIT", any_hit as u8 as f64),
                 ],
                 ..Default::default()

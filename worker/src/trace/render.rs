@@ -210,7 +210,7 @@ pub(crate) struct Kernels {
     layout: wgpu::BindGroupLayout,
 }
 
-/// Kernels by (structure kind, clouds), shared by every scene of a device:
+/// Kernels by (`ACCEL_KIND`, clouds), shared by every scene of a device:
 /// scenes' bind-group layouts are alike, and wgpu gives alike layouts one
 /// identity, so a kernel built for one scene binds every other.
 pub(crate) type KernelCache = std::sync::Arc<
@@ -234,7 +234,7 @@ impl StripRenderer {
     }
 
     fn build(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> Self {
-        let key = (gpu_scene.accel_kind, !scene.clouds.is_empty());
+        let key = (gpu_scene.accel_kind(), !scene.clouds.is_empty());
         let cached = ctx.render_kernels.lock().expect("lock").get(&key).cloned();
         let kernels = cached.unwrap_or_else(|| {
             let k = std::sync::Arc::new(Self::kernels(ctx, &gpu_scene, key.1));
@@ -271,7 +271,7 @@ impl StripRenderer {
     /// Compiles the render kernels for a scene's structure and clouds.
     fn kernels(ctx: &GpuContext, gpu_scene: &GpuScene, clouds: bool) -> Kernels {
         let device = &ctx.device;
-        let module = ctx.trusted_module("render", render_source());
+        let module = ctx.trusted_module("render", render_source(gpu_scene.backend));
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
@@ -299,7 +299,7 @@ impl StripRenderer {
                 entry_point: Some("render_strip"),
                 compilation_options: wgpu::PipelineCompilationOptions {
                     constants: &[
-                        ("ACCEL_KIND", gpu_scene.accel_kind as f64),
+                        ("ACCEL_KIND", gpu_scene.accel_kind() as f64),
                         ("LIGHTING_FAMILY", kernel as u32 as f64),
                         ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
                     ],
@@ -543,13 +543,16 @@ impl StripRenderer {
 
 /// The whole render module: scene, traversal, the direct methods and the
 /// reference integrator.
-pub fn render_source() -> String {
-    tracer_source(&format!(
-        "{}\n{SOURCE}\n{}\n{}",
-        lighting::wgsl_constants(),
-        lighting::reference::WGSL,
-        lighting::boulanger::WGSL
-    ))
+pub fn render_source(backend: sylva_scene::frame::Backend) -> String {
+    tracer_source(
+        &format!(
+            "{}\n{SOURCE}\n{}\n{}",
+            lighting::wgsl_constants(),
+            lighting::reference::WGSL,
+            lighting::boulanger::WGSL
+        ),
+        backend,
+    )
 }
 
 /// How far secondary rays start off the surface they leave: a millimetre,

@@ -1,10 +1,15 @@
-//! Assembles the tracer's WGSL: the scene and traversal code shared by
-//! every entry point, with the kd-tree's traversal template instantiated
-//! per level and the BVH's two-level loop.
+//! Assembles the tracer's WGSL: the scene code shared by every entry
+//! point, then one traversal backend: the compute walk (the kd-tree's
+//! traversal template instantiated per level, the BVH's two-level loop) or
+//! ray queries.
+
+use sylva_scene::frame::Backend;
 
 const SCENE: &str = include_str!("../../../shaders/trace/scene.wgsl");
 const TRAVERSE: &str = include_str!("../../../shaders/trace/traverse.wgsl");
 const BVH: &str = include_str!("../../../shaders/trace/bvh.wgsl");
+const WALK: &str = include_str!("../../../shaders/trace/walk.wgsl");
+const RQ: &str = include_str!("../../../shaders/trace/rq.wgsl");
 
 /// The constants the tracer's WGSL shares with the Rust that builds and
 /// uploads what it reads, written from the Rust values so the two cannot
@@ -33,20 +38,34 @@ pub fn shared_constants() -> String {
         + "\n"
 }
 
-/// The full module for an entry-point file's source.
-pub fn tracer_source(entry: &str) -> String {
+/// The full module for an entry-point file's source, tracing with
+/// `backend` (the kd-tree and the BVH share one module, chosen between by
+/// the `ACCEL_KIND` override; ray queries need a module of their own,
+/// which only a device with the feature accepts).
+pub fn tracer_source(entry: &str, backend: Backend) -> String {
     let constants = shared_constants();
     let mut s = String::with_capacity(
-        constants.len() + SCENE.len() + 2 * TRAVERSE.len() + BVH.len() + entry.len(),
+        constants.len() + SCENE.len() + 2 * TRAVERSE.len() + BVH.len() + WALK.len() + entry.len(),
     );
+    if backend == Backend::Rq {
+        // A directive must come before every declaration.
+        s.push_str("enable wgpu_ray_query;\n");
+    }
     s.push_str(&constants);
     s.push_str(SCENE);
-    for level in ["top", "model"] {
+    if backend == Backend::Rq {
         s.push('\n');
-        s.push_str(&TRAVERSE.replace("LEVEL", level));
+        s.push_str(RQ);
+    } else {
+        for level in ["top", "model"] {
+            s.push('\n');
+            s.push_str(&TRAVERSE.replace("LEVEL", level));
+        }
+        s.push('\n');
+        s.push_str(BVH);
+        s.push('\n');
+        s.push_str(WALK);
     }
-    s.push('\n');
-    s.push_str(BVH);
     s.push('\n');
     s.push_str(entry);
     s
@@ -71,8 +90,10 @@ mod tests {
 
     #[test]
     fn ray_casting_and_render_modules_are_valid_wgsl() {
-        validate(&tracer_source(include_str!("../../../shaders/trace/rays.wgsl")));
-        validate(&crate::trace::render::render_source());
+        for backend in [Backend::Bvh, Backend::Rq] {
+            validate(&tracer_source(include_str!("../../../shaders/trace/rays.wgsl"), backend));
+            validate(&crate::trace::render::render_source(backend));
+        }
     }
 
     /// The WGSL structs the Rust side uploads have the Rust layouts.
@@ -81,7 +102,7 @@ mod tests {
         use crate::trace::{
             FrameUniform, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuTexture, GpuTriangle,
         };
-        let m = validate(&crate::trace::render::render_source());
+        let m = validate(&crate::trace::render::render_source(Backend::Bvh));
         let size_of_struct = |name: &str| -> u32 {
             let (_, ty) = m
                 .types

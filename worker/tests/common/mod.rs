@@ -13,6 +13,21 @@ pub fn ctx() -> GpuContext {
         .expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
 }
 
+/// Whether the adapter offers ray queries; lavapipe (Mesa 25, which the
+/// install scripts give) must, so only a GPU without them skips.
+#[allow(dead_code)] // not every test file traces with ray queries
+pub fn ray_queries(ctx: &GpuContext) -> bool {
+    if !ctx.has_ray_queries() {
+        assert_ne!(
+            ctx.adapter.get_info().device_type,
+            wgpu::DeviceType::Cpu,
+            "lavapipe should offer ray queries: is Mesa older than 25?"
+        );
+        eprintln!("ray queries skipped: {} offers none", ctx.adapter_name());
+    }
+    ctx.has_ray_queries()
+}
+
 /// A fresh folder for one test's files.
 pub fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("sylva-gpu-{name}-{}", std::process::id()));

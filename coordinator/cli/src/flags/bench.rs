@@ -62,9 +62,10 @@ pub struct TraceBenchArgs {
     /// Skip the CPU traversal (slow on big scenes).
     #[arg(long)]
     pub no_cpu: bool,
-    /// Structures to measure, in order.
-    #[arg(long, value_delimiter = ',', default_value = "kd,bvh")]
-    pub accel: Vec<sylva_scene::frame::AccelKind>,
+    /// Backends to measure, in order (`rq` is left out, and says so, where
+    /// the adapter has no ray queries).
+    #[arg(long, value_delimiter = ',', default_value = "kd,bvh,rq")]
+    pub accel: Vec<sylva_scene::frame::Backend>,
     /// Skip the whole frames.
     #[arg(long)]
     pub no_frames: bool,

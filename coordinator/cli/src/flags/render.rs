@@ -4,7 +4,6 @@
 use anyhow::{Context, bail};
 use clap::Args;
 use std::path::PathBuf;
-use sylva_accel::AccelKind;
 use sylva_coordinator::schedule::ScheduleKind;
 use sylva_scene::LightingMode;
 use sylva_scene::format::SceneFile;
@@ -23,9 +22,13 @@ pub struct FrameArgs {
     /// Rays per pixel.
     #[arg(long, default_value_t = 1)]
     pub spp: u32,
-    /// Acceleration structure.
-    #[arg(long, value_enum, default_value = "bvh")]
-    pub accel: AccelKind,
+    /// How rays traverse the scene: ray queries (`rq`, the device's own
+    /// structures, traced in hardware where it has them), Sylva's BVH or
+    /// kd-tree walked by a compute kernel, or `auto`: each worker measures
+    /// ray queries against the BVH where its adapter has them, and says
+    /// what it chose.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub accel: sylva_scene::frame::AccelChoice,
     /// Lighting method; default the scene's. `auto` (`render` in this
     /// process only) picks one with its parameters from a short pilot on
     /// the scene, for --time-budget or --max-error.

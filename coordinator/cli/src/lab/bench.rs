@@ -299,18 +299,20 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     // Shadow rays toward the sun from the first structure's primary hits:
     // the same rays for every structure.
     let mut shadow: Option<(Vec<Ray>, Vec<GpuRay>)> = None;
-    for kind in a.accel.iter().copied() {
+    let backends = measurable(&ctx, &a.accel);
+    for &backend in &backends {
         traversal.push(trace_structure(
             &ctx,
             &scene,
-            kind,
+            backend,
             &rays,
             &gpu_rays,
             &mut shadow,
             a.no_cpu,
         )?);
     }
-    let frames = if a.no_frames { Vec::new() } else { bench_frames(&ctx, &scene, &a)? };
+    let frames =
+        if a.no_frames { Vec::new() } else { bench_frames(&ctx, &scene, &a, &backends)? };
     let out = json!({
         "benchmark": "trace",
         "scene": { "scale": a.scale, "triangle_scale": a.triangle_scale, "instances": scene.instances.len(),
@@ -327,7 +329,8 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             "cpu_flat_opaque": "with --flat: the CPU BVH built over every instance's triangles flattened to world space as one level, opaque: the same triangles and rays benchmarks/embree.py gives Embree",
             "cpu_opaque": "the CPU's closest hits on the same rays with every triangle opaque (no alpha test), as the Embree baseline of benchmarks/embree.py traces them",
             "shadow": "one shadow ray toward the sun from each primary hit, stopping at the first opaque hit; the same rays for every structure",
-            "bytes_per_triangle": "nodes, primitive lists and triangle records of both levels over the scene's unique triangles",
+            "bytes_per_triangle": "nodes, primitive lists and triangle records of both levels over the scene's unique triangles; for rq, the device's BLASes (compacted) and TLAS as its memory allocator reports them",
+            "build_ms": "the CPU's structures (for rq, each triangle's coverage class) plus, for rq, the device's build and compaction",
             "frames": "a whole frame rendered as one strip with LB lighting: primary and shadow rays, shading, read-back; after a warm-up dispatch",
         },
     });
@@ -335,14 +338,34 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One structure's traversal figures: build, bytes, GPU and (unless
-/// `no_cpu`) CPU closest hits, and shadow rays toward the sun from the first
-/// structure's primary hits (kept in `shadow`, so every structure traces
-/// the same rays).
+/// The asked backends this adapter can run: ray queries only where it
+/// has them (said on stderr where it has not).
+fn measurable(
+    ctx: &sylva_worker::GpuContext,
+    asked: &[sylva_scene::frame::Backend],
+) -> Vec<sylva_scene::frame::Backend> {
+    use sylva_scene::frame::Backend;
+    asked
+        .iter()
+        .copied()
+        .filter(|&b| {
+            let runs = b != Backend::Rq || ctx.has_ray_queries();
+            if !runs {
+                eprintln!("rq left out: {} offers no ray queries", ctx.adapter_name());
+            }
+            runs
+        })
+        .collect()
+}
+
+/// One backend's traversal figures: build, bytes, GPU and (unless
+/// `no_cpu`, and but for ray queries, which have no CPU twin) CPU closest
+/// hits, and shadow rays toward the sun from the first backend's primary
+/// hits (kept in `shadow`, so every backend traces the same rays).
 fn trace_structure(
     ctx: &sylva_worker::GpuContext,
     scene: &sylva_scene::Scene,
-    kind: sylva_scene::frame::AccelKind,
+    backend: sylva_scene::frame::Backend,
     rays: &[sylva_accel::Ray],
     gpu_rays: &[sylva_worker::trace::GpuRay],
     shadow: &mut Option<(Vec<sylva_accel::Ray>, Vec<sylva_worker::trace::GpuRay>)>,
@@ -350,11 +373,35 @@ fn trace_structure(
 ) -> anyhow::Result<serde_json::Value> {
     use rayon::prelude::*;
     use sylva_accel::{Ray, SceneAccel};
-    use sylva_worker::trace::{GpuRay, GpuScene, RayCaster};
+    use sylva_worker::trace::{GpuRay, GpuScene, RayCaster, SceneStructure};
     let t = Instant::now();
-    let accel = SceneAccel::build(scene, kind);
-    let build_ms = t.elapsed().as_secs_f64() * 1e3;
-    let gpu_scene = GpuScene::upload(ctx, scene, &accel, &Default::default())?;
+    let (accel, coverage) = match backend.structure() {
+        Some(kind) => (Some(SceneAccel::build(scene, kind)), Vec::new()),
+        None => (
+            None,
+            scene
+                .models
+                .par_iter()
+                .map(|m| sylva_accel::coverage::triangle_coverage(&m.model))
+                .collect(),
+        ),
+    };
+    let structure = match &accel {
+        Some(a) => SceneStructure::Walk(a),
+        None => SceneStructure::RayQuery(&coverage),
+    };
+    let cpu_build_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let gpu_scene = GpuScene::upload(ctx, scene, structure, &Default::default())?;
+    let upload_ms = t.elapsed().as_secs_f64() * 1e3;
+    // Ray queries: the device builds (and compacts) during the upload.
+    let device_build_ms = gpu_scene.rq.as_ref().map_or(0.0, |r| r.build_seconds * 1e3);
+    let build_ms = cpu_build_ms + device_build_ms;
+    let bytes = match (&accel, &gpu_scene.rq) {
+        (Some(a), _) => Some(a.bytes() as u64),
+        (None, Some(rq)) => rq.bytes,
+        (None, None) => None,
+    };
     let caster = RayCaster::new(ctx, &gpu_scene)?;
     caster.cast(ctx, &gpu_scene, &gpu_rays[..gpu_rays.len().min(4096)])?; // warm-up: lavapipe compiles on first dispatch
     let t = Instant::now();
@@ -389,9 +436,7 @@ fn trace_structure(
     let s = t.elapsed().as_secs_f64();
     let gpu_shadow = json!({ "mrays_per_second": shadow_gpu.len() as f64 / s / 1e6, "ms": s * 1e3,
                              "blocked": blocked.iter().filter(|h| h.triangle != u32::MAX).count() });
-    let (cpu, cpu_opaque, cpu_shadow) = if no_cpu {
-        (serde_json::Value::Null, serde_json::Value::Null, serde_json::Value::Null)
-    } else {
+    let (cpu, cpu_opaque, cpu_shadow) = if let (false, Some(accel)) = (no_cpu, &accel) {
         let threads = rayon::current_num_threads();
         let time = |alpha: bool| {
             let t = Instant::now();
@@ -419,12 +464,17 @@ fn trace_structure(
             cpu_opaque,
             json!({ "mrays_per_second": shadow_cpu.len() as f64 / s / 1e6, "ms": s * 1e3, "blocked": blocked, "threads": threads }),
         )
+    } else {
+        (serde_json::Value::Null, serde_json::Value::Null, serde_json::Value::Null)
     };
     Ok(json!({
-        "accel": kind,
+        "accel": backend,
         "build_ms": build_ms,
-        "bytes": accel.bytes(),
-        "bytes_per_triangle": accel.bytes() as f64 / scene.unique_triangles().max(1) as f64,
+        "cpu_build_ms": cpu_build_ms,
+        "device_build_ms": device_build_ms,
+        "upload_ms": upload_ms,
+        "bytes": bytes,
+        "bytes_per_triangle": bytes.map(|b| b as f64 / scene.unique_triangles().max(1) as f64),
         "cpu": cpu,
         "cpu_opaque": cpu_opaque,
         "gpu": gpu,
@@ -434,18 +484,19 @@ fn trace_structure(
     }))
 }
 
-/// Whole frames with LB lighting at 1 and 4 spp on each structure, after a
+/// Whole frames with LB lighting at 1 and 4 spp on each backend, after a
 /// warm-up dispatch.
 fn bench_frames(
     ctx: &sylva_worker::GpuContext,
     scene: &sylva_scene::Scene,
     a: &TraceBenchArgs,
+    backends: &[sylva_scene::frame::Backend],
 ) -> anyhow::Result<Vec<serde_json::Value>> {
     use sylva_scene::LightingMode;
     use sylva_worker::prepare::prepare;
     use sylva_worker::trace::RenderSettings;
     let mut frames = Vec::new();
-    for kind in a.accel.iter().copied() {
+    for &kind in backends {
         let prepared = prepare(ctx, scene, kind, LightingMode::Lb, &|_| {})?;
         for spp in [1u32, 4] {
             let frame = FrameSettings {

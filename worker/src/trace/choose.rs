@@ -1,0 +1,167 @@
+//! `--accel auto`: which traversal backend a worker's adapter runs faster.
+//! Ray queries are a candidate only where the device has them; then both
+//! are uploaded, the same probe rays (the camera's, and shadow rays toward
+//! the sun from their hits) are cast through each, and the faster is kept.
+//!
+//! The probe grows its batches fourfold until one backend is clearly the
+//! faster or its time is spent: on lavapipe ray queries trace some 300
+//! times slower than the BVH (benchmarks/results/issue-28), and a fixed
+//! batch big enough to time the BVH would take the other seconds.
+
+use super::{GpuRay, GpuScene, RayCaster};
+use crate::gpu::GpuContext;
+use serde::Serialize;
+use std::time::Instant;
+use sylva_scene::Scene;
+use sylva_scene::frame::{AccelChoice, Backend};
+
+/// Probe image: one camera ray per pixel of this many columns and rows.
+const PROBE_SIZE: (u32, u32) = (128, 64);
+/// Camera rays (and as many shadow rays) in the first timed batch.
+const FIRST_BATCH: usize = 256;
+/// Speed ratio at which one backend is clearly the faster.
+const CLEAR_RATIO: f64 = 1.5;
+/// Seconds the probe may spend on timed batches before it settles on what
+/// it has measured.
+const PROBE_SECONDS: f64 = 1.0;
+
+/// One backend's speed on the probe rays.
+#[derive(Clone, Debug, Serialize)]
+pub struct ProbeTime {
+    /// The backend.
+    pub backend: Backend,
+    /// Camera and shadow rays per second, millions (best round).
+    pub mrays_per_second: f64,
+}
+
+/// The backend a preparation chose, and why.
+#[derive(Clone, Debug, Serialize)]
+pub struct BackendChoice {
+    /// What the frame asked for.
+    pub asked: AccelChoice,
+    /// What rays traverse.
+    pub backend: Backend,
+    /// Why, in a sentence.
+    pub why: String,
+    /// `auto`'s measurement (empty when nothing was measured).
+    pub probe: Vec<ProbeTime>,
+}
+
+impl BackendChoice {
+    /// The choice when only one backend was a candidate.
+    pub fn asked(asked: AccelChoice, backend: Backend, ctx: &GpuContext) -> Self {
+        let why = match asked {
+            AccelChoice::Auto => format!(
+                "auto: {} offers no ray queries, so the BVH, the faster compute walk",
+                ctx.adapter_name()
+            ),
+            _ => format!("asked for {}", backend.name()),
+        };
+        Self { asked, backend, why, probe: Vec::new() }
+    }
+}
+
+/// The backends a preparation builds for `asked` on this device.
+pub fn candidates(ctx: &GpuContext, asked: AccelChoice) -> anyhow::Result<Vec<Backend>> {
+    Ok(match asked.backend() {
+        Some(Backend::Rq) if !ctx.has_ray_queries() => anyhow::bail!(
+            "--accel rq: {} offers no ray queries (wgpu's EXPERIMENTAL_RAY_QUERY); use auto, bvh or kd",
+            ctx.adapter_name()
+        ),
+        Some(b) => vec![b],
+        // The BVH first: its hits make the probe's shadow rays (the walk is
+        // never pathologically slow).
+        None if ctx.has_ray_queries() => vec![Backend::Bvh, Backend::Rq],
+        None => vec![Backend::Bvh],
+    })
+}
+
+/// Casts the probe through each upload and keeps the fastest.
+pub fn choose(
+    ctx: &GpuContext,
+    scene: &Scene,
+    asked: AccelChoice,
+    uploads: Vec<GpuScene>,
+) -> anyhow::Result<(GpuScene, BackendChoice)> {
+    let (w, h) = PROBE_SIZE;
+    let cam = scene.camera;
+    let primary: Vec<GpuRay> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| GpuRay {
+            origin: cam.position.to_array(),
+            t_min: 0.0,
+            dir: cam.direction(x as f32 + 0.5, y as f32 + 0.5, w, h).to_array(),
+            t_max: f32::MAX,
+        })
+        .collect();
+    let mut shadow: Option<Vec<GpuRay>> = None;
+    let mut casters = Vec::new();
+    for g in &uploads {
+        let closest = RayCaster::new(ctx, g)?;
+        let blocked = RayCaster::shadow(ctx, g)?;
+        // The first structure's hits give every structure's shadow rays.
+        if shadow.is_none() {
+            let hits = closest.cast(ctx, g, &primary)?;
+            let towards = scene.sun.towards;
+            shadow = Some(
+                primary
+                    .iter()
+                    .zip(&hits)
+                    .filter(|(_, h)| h.triangle != super::raycast::NO_HIT)
+                    .map(|(r, h)| {
+                        let o = glam::Vec3::from(r.origin) + glam::Vec3::from(r.dir) * h.t;
+                        GpuRay {
+                            origin: o.to_array(),
+                            t_min: 1e-3,
+                            dir: towards.to_array(),
+                            t_max: f32::MAX,
+                        }
+                    })
+                    .collect(),
+            );
+        }
+        // The first dispatches compile the kernels.
+        closest.cast(ctx, g, &primary[..64])?;
+        let s = shadow.as_deref().expect("made above");
+        blocked.cast(ctx, g, &s[..s.len().min(64)])?;
+        casters.push((closest, blocked));
+    }
+    let shadow = shadow.expect("one candidate at least");
+    let start = Instant::now();
+    let mut n = FIRST_BATCH;
+    let mut best: Vec<f64>;
+    loop {
+        let (p, s) = (&primary[..n.min(primary.len())], &shadow[..n.min(shadow.len())]);
+        best = Vec::with_capacity(uploads.len());
+        for (g, (closest, blocked)) in uploads.iter().zip(&casters) {
+            let t = Instant::now();
+            closest.cast(ctx, g, p)?;
+            blocked.cast(ctx, g, s)?;
+            best.push((p.len() + s.len()) as f64 / t.elapsed().as_secs_f64() / 1e6);
+        }
+        let (lo, hi) = best.iter().fold((f64::INFINITY, 0f64), |(l, h), &m| (l.min(m), h.max(m)));
+        let all = n >= primary.len().max(shadow.len());
+        if hi > CLEAR_RATIO * lo || all || start.elapsed().as_secs_f64() > PROBE_SECONDS {
+            break;
+        }
+        n *= 4;
+    }
+    let k = (0..uploads.len()).max_by(|&a, &b| best[a].total_cmp(&best[b])).expect("candidates");
+    let probe: Vec<ProbeTime> = uploads
+        .iter()
+        .zip(&best)
+        .map(|(g, &m)| ProbeTime { backend: g.backend, mrays_per_second: m })
+        .collect();
+    let figures: Vec<String> =
+        probe.iter().map(|p| format!("{} {:.2}", p.backend.name(), p.mrays_per_second)).collect();
+    let chosen = uploads[k].backend;
+    let why = format!(
+        "auto: {} is the faster on {} (Mrays/s on camera rays and their shadow rays: {})",
+        chosen.name(),
+        ctx.adapter_name(),
+        figures.join(", ")
+    );
+    tracing::info!("{why}");
+    let gpu_scene = uploads.into_iter().nth(k).expect("chosen");
+    Ok((gpu_scene, BackendChoice { asked, backend: chosen, why, probe }))
+}
