@@ -277,6 +277,61 @@ async fn strip_bits(
     .rgb_f32
 }
 
+/// `auto` chooses on the worker, measured, and says so; ray queries need
+/// no structure from the CPU, so their prepared data carries only the LB
+/// light, and the worker taking it builds its own structures.
+#[tokio::test]
+async fn workers_choose_their_traversal_and_share_what_ray_queries_need() {
+    let dir = std::env::temp_dir().join(format!("sylva-grpc-rq-{}", std::process::id()));
+    let b = bundle::pack(&scene_file(&dir)).unwrap();
+    let (wa, wb) = (WorkerProcess::start(&[]), WorkerProcess::start(&[]));
+    let (mut a, mut bw) = (wa.client().await, wb.client().await);
+    for c in [&mut a, &mut bw] {
+        c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
+    }
+    let with = |accel: pb::Accel| pb::FrameSettings { accel: accel.into(), ..frame() };
+    let ask = |f: pb::FrameSettings, build| pb::PrepareRequest {
+        scene_hash: b.hash.clone(),
+        frame: Some(f),
+        build,
+        job: String::new(),
+    };
+    assert!(a.prepare(ask(with(pb::Accel::Auto), true)).await.unwrap().into_inner().held);
+    let s = a.status(pb::StatusRequest {}).await.unwrap().into_inner();
+    if !s.ray_queries {
+        // Lavapipe offers them; a GPU without them has nothing to choose.
+        assert!(!s.adapter.contains("llvmpipe"), "{s:?}");
+        assert!(s.backend_why.contains("offers no ray queries"), "{s:?}");
+        return;
+    }
+    // Both measured, the faster kept (on lavapipe, the BVH by far).
+    assert!(s.backend_why.starts_with("auto:") && s.backend_why.contains("rq "), "{s:?}");
+    if s.adapter.contains("llvmpipe") {
+        assert_eq!(s.backend, "bvh", "{s:?}");
+    }
+    // The LB light is what there is to share; each device builds its own
+    // structures as its first strip is prepared.
+    let rq = with(pb::Accel::Rq);
+    assert!(a.prepare(ask(rq.clone(), true)).await.unwrap().into_inner().held);
+    let shared = export(&mut a, &b.hash, rq.clone()).await;
+    bw.import_prepared(tokio_stream::iter(shared)).await.unwrap();
+    assert!(bw.prepare(ask(rq.clone(), false)).await.unwrap().into_inner().held);
+    let got = bw
+        .render_strip(pb::RenderStripRequest {
+            scene_hash: b.hash.clone(),
+            frame: Some(rq),
+            x0: 0,
+            x1: 48,
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(got.rgb_f32.len(), 48 * 24 * 12);
+    let s = bw.status(pb::StatusRequest {}).await.unwrap().into_inner();
+    assert_eq!((s.lb_solves, s.backend.as_str()), (0, "rq"), "{s:?}");
+}
+
 /// Prepared data made on one worker and taken by another: the second builds
 /// and solves nothing and renders the same bits. Data that does not match
 /// its hash, is cut short, is over the limit or walks in a loop is refused
@@ -300,6 +355,9 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
     let e = a.export_prepared(ask(frame(), false)).await.unwrap_err();
     assert_eq!(e.code(), Code::NotFound, "{e:?}");
     assert!(a.prepare(ask(frame(), true)).await.unwrap().into_inner().held);
+    // The worker says which traversal it prepared with, and why.
+    let s = a.status(pb::StatusRequest {}).await.unwrap().into_inner();
+    assert_eq!((s.backend.as_str(), s.backend_why.as_str()), ("bvh", "asked for bvh"));
     let good = export(&mut a, &b.hash, frame()).await;
     assert!(good[0].total_size > 0 && good[0].content_hash.len() == 64);
 

@@ -130,8 +130,7 @@ pub fn prepare_reusing(
     let mut uploads = Vec::new();
     for &b in &candidates {
         let name = if b == Backend::Rq { "rq build" } else { "upload" };
-        let gpu_scene =
-            phases.time(name, || GpuScene::upload(ctx, scene, structure(b), &light))?;
+        let gpu_scene = phases.time(name, || GpuScene::upload(ctx, scene, structure(b), &light))?;
         uploads.push(gpu_scene);
     }
     let (gpu_scene, backend) = if uploads.len() == 1 {
@@ -149,13 +148,5 @@ pub fn prepare_reusing(
         ctx.wait()?;
         Ok(r)
     })?;
-    Ok(PreparedScene {
-        renderer,
-        phases,
-        backend,
-        accel_bytes,
-        light: reports,
-        forest,
-        boulanger,
-    })
+    Ok(PreparedScene { renderer, phases, backend, accel_bytes, light: reports, forest, boulanger })
 }

@@ -213,10 +213,8 @@ fn check_against_cpu(
                 t_max: f32::MAX,
             })
             .collect();
-        let blocked = RayCaster::shadow(ctx, gpu_scene)
-            .unwrap()
-            .cast(ctx, gpu_scene, &shadow_gpu)
-            .unwrap();
+        let blocked =
+            RayCaster::shadow(ctx, gpu_scene).unwrap().cast(ctx, gpu_scene, &shadow_gpu).unwrap();
         // Where the two disagree, the closest hits say why.
         let gpu_closest = caster.cast(ctx, gpu_scene, &shadow_gpu).unwrap();
         let (mut shadow_mismatches, mut grazing) = (Vec::new(), 0);

@@ -160,6 +160,11 @@ struct WorkerRow {
     addr: String,
     alive: bool,
     adapter: String,
+    /// Whether the adapter offers ray queries.
+    ray_queries: bool,
+    /// The traversal its latest preparation chose, and why.
+    backend: String,
+    backend_why: String,
     gpu_memory_bytes: u64,
     busy_strips: u32,
     strips_done: u64,
@@ -182,6 +187,9 @@ pub fn run_workers(a: WorkersArgs) -> anyhow::Result<()> {
             addr: w.addr,
             alive: w.alive,
             adapter: w.adapter,
+            ray_queries: w.ray_queries,
+            backend: w.backend,
+            backend_why: w.backend_why,
             gpu_memory_bytes: w.gpu_memory_bytes,
             busy_strips: w.busy_strips,
             strips_done: w.strips_done,
@@ -201,6 +209,12 @@ pub fn run_workers(a: WorkersArgs) -> anyhow::Result<()> {
                 w.addr.clone(),
                 if w.alive { "yes" } else { "no" }.into(),
                 w.adapter.clone(),
+                // The choice, and whether ray queries were there to choose.
+                format!(
+                    "{}{}",
+                    if w.backend.is_empty() { "–" } else { &w.backend },
+                    if w.ray_queries { " (rq offered)" } else { "" }
+                ),
                 w.busy_strips.to_string(),
                 w.strips_done.to_string(),
                 w.strips_failed.to_string(),
@@ -213,7 +227,13 @@ pub fn run_workers(a: WorkersArgs) -> anyhow::Result<()> {
             ]
         })
         .collect();
-    print!("{}", table(&["ADDR", "ALIVE", "ADAPTER", "BUSY", "DONE", "FAILED", "CACHED"], &cells));
+    print!(
+        "{}",
+        table(
+            &["ADDR", "ALIVE", "ADAPTER", "TRAVERSAL", "BUSY", "DONE", "FAILED", "CACHED"],
+            &cells
+        )
+    );
     Ok(())
 }
 

@@ -95,7 +95,9 @@ function renderWorkers(snap) {
   for (const w of snap.workers) {
     const tr = document.createElement('tr');
     tr.dataset.worker = w.addr;
-    tr.append(text('td', w.addr), text('td', w.adapter || '–'), text('td', w.alive ? 'yes' : 'no', w.alive ? '' : 'state-failed'),
+    const traversal = text('td', (w.backend || '–') + (w.ray_queries ? ' (rq offered)' : ''));
+    traversal.title = w.backend_why || '';
+    tr.append(text('td', w.addr), text('td', w.adapter || '–'), traversal, text('td', w.alive ? 'yes' : 'no', w.alive ? '' : 'state-failed'),
       text('td', w.busy_strips), text('td', w.strips_done), text('td', w.strips_failed),
       text('td', w.cached_scenes.map((h) => h.slice(0, 12)).join(', ')));
     body.append(tr);

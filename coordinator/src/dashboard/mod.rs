@@ -207,6 +207,7 @@ async fn snapshot(service: &CoordinatorService, caller: &Caller) -> Value {
             "addr": w.addr, "adapter": w.adapter, "alive": w.alive, "busy_strips": w.busy_strips,
             "strips_done": w.strips_done, "strips_failed": w.strips_failed, "cached_scenes": w.cached_scenes,
             "gpu_memory_bytes": w.gpu_memory_bytes,
+            "ray_queries": w.ray_queries, "backend": w.backend, "backend_why": w.backend_why,
         })).collect::<Vec<_>>(),
     })
 }

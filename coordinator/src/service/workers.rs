@@ -145,6 +145,9 @@ impl State {
                             w.info.cached_scenes =
                                 s.cached_scenes.iter().take(1024).map(|h| clip(h)).collect();
                             w.info.busy_strips = s.busy_strips;
+                            w.info.ray_queries = s.ray_queries;
+                            w.info.backend = clip(&s.backend);
+                            w.info.backend_why = clip(&s.backend_why);
                         }
                         None => w.info.alive = false,
                     }

@@ -25,6 +25,11 @@ pub(super) type LbKey = (String, Option<[u32; 3]>);
 /// rendered and the one before, as strips of two frames overlap).
 pub(super) const PREPARED_SUNS: usize = 2;
 
+/// What a worker holds of a frame's preparation that can be shared: the
+/// structure the CPU built (none for ray queries), and the LB light where
+/// the lighting needs it.
+pub(super) type Held = (Option<Arc<sylva_accel::SceneAccel>>, Option<Arc<SceneLb>>);
+
 /// What one frame of a loaded scene needs prepared.
 pub(super) struct Preparation {
     /// The bundle's hash.
@@ -182,6 +187,8 @@ impl State {
         let p = Arc::new(prepare_reusing(&self.ctx, &scene, accel, lighting, &mut reuse, &|m| {
             tracing::info!("{m}")
         })?);
+        tracing::info!(backend = p.backend.backend.name(), "{}", p.backend.why);
+        *lock(&self.backend) = Some(p.backend.clone());
         if let (Some(a), false) = (reuse.accel, built_before) {
             self.accel_builds.fetch_add(1, Ordering::Relaxed);
             lock(&self.accels).insert((hash.to_string(), a.kind), a);
@@ -269,7 +276,7 @@ impl State {
     pub(super) fn held(
         &self,
         p: &Preparation,
-    ) -> Option<(Option<Arc<sylva_accel::SceneAccel>>, Option<Arc<SceneLb>>)> {
+    ) -> Option<Held> {
         let accel = match p.structure {
             Some(k) => Some(lock(&self.accels).get(&(p.hash.clone(), k)).cloned()?),
             None => None,

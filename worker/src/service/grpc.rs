@@ -168,6 +168,7 @@ impl Worker for WorkerService {
             let bundles = lock(&self.state.bundles);
             self.state.held_bytes(&bundles).values().sum()
         };
+        let backend = lock(&self.state.backend).clone();
         Ok(Response::new(pb::WorkerStatus {
             adapter: self.state.ctx.adapter_name(),
             gpu_memory_bytes: gpu_bytes,
@@ -178,6 +179,9 @@ impl Worker for WorkerService {
             prepared_imports: self.state.prepared_imports.load(Ordering::Relaxed),
             held_bytes: held,
             scenes_evicted: self.state.evictions.load(Ordering::Relaxed),
+            ray_queries: self.state.ctx.has_ray_queries(),
+            backend: backend.as_ref().map_or(String::new(), |b| b.backend.name().to_string()),
+            backend_why: backend.map_or(String::new(), |b| b.why),
         }))
     }
 
@@ -226,12 +230,13 @@ impl Worker for WorkerService {
         let (accel, lb) = self.state.held(&p).ok_or_else(|| {
             Status::not_found("this worker does not hold that frame's prepared data")
         })?;
-        let out = tokio::task::spawn_blocking(move || crate::share::export(accel.as_deref(), lb.as_deref()))
-            .await
-            .map_err(|e| Status::internal(format!("exporting panicked: {e}")))?
-            .map_err(|e| Status::internal(format!("{e:#}")))?;
-        let (total, hash, frame, scene_hash) =
-            (out.bytes.len() as u64, out.hash, r.frame, p.hash);
+        let out = tokio::task::spawn_blocking(move || {
+            crate::share::export(accel.as_deref(), lb.as_deref())
+        })
+        .await
+        .map_err(|e| Status::internal(format!("exporting panicked: {e}")))?
+        .map_err(|e| Status::internal(format!("{e:#}")))?;
+        let (total, hash, frame, scene_hash) = (out.bytes.len() as u64, out.hash, r.frame, p.hash);
         let chunks: Vec<Result<pb::PreparedChunk, Status>> = out
             .bytes
             .chunks(EXPORT_CHUNK)

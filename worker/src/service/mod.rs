@@ -22,12 +22,12 @@ use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use sylva_accel::AccelKind;
-use sylva_scene::frame::AccelChoice;
 use sylva_proto::pb;
 use sylva_proto::pb::worker_identity_server::{WorkerIdentity, WorkerIdentityServer};
 use sylva_proto::pb::worker_server::{Worker, WorkerServer};
 use sylva_proto::sync::lock;
 use sylva_scene::bundle;
+use sylva_scene::frame::AccelChoice;
 use sylva_scene::frame::FrameSettings;
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene, SceneLimits};
@@ -152,6 +152,8 @@ struct State {
     prepared_imports: AtomicU64,
     /// Scenes let go to stay within the memory budget.
     evictions: AtomicU64,
+    /// The traversal the latest preparation chose, and why.
+    backend: Mutex<Option<crate::trace::BackendChoice>>,
     /// Scenes whose prepared data came from another worker, and the job
     /// it serves: another job's strips drop it first.
     imported: Mutex<HashMap<String, String>>,
@@ -186,6 +188,7 @@ impl WorkerService {
                 accel_builds: AtomicU64::new(0),
                 prepared_imports: AtomicU64::new(0),
                 evictions: AtomicU64::new(0),
+                backend: Mutex::default(),
                 imported: Mutex::default(),
                 ambient: Mutex::new(HashMap::new()),
                 gpu: Mutex::new(()),

@@ -506,8 +506,7 @@ impl GpuScene {
         };
         let storage = wgpu::BufferUsages::STORAGE;
         // The device's structures read the positions as vertices.
-        let positions_usage =
-            if rq { storage | wgpu::BufferUsages::BLAS_INPUT } else { storage };
+        let positions_usage = if rq { storage | wgpu::BufferUsages::BLAS_INPUT } else { storage };
         let mut buffers = vec![
             buffer("nodes", bytemuck::cast_slice(&f.nodes), storage)?,
             buffer("prims", bytemuck::cast_slice(&f.prims), storage)?,
@@ -604,7 +603,8 @@ fn push_ground(f: &mut Flat, light: &SceneLight) -> anyhow::Result<([f32; 4], [u
         g.nx >= 2 && g.nz >= 2 && g.rgb.len() == 3 * g.nx * g.nz,
         "the ground's light has the wrong size"
     );
-    let place = ([g.origin[0], g.origin[1], g.cell, 0.0], [g.nx as u32, g.nz as u32, f.lb.len() as u32, 1]);
+    let place =
+        ([g.origin[0], g.origin[1], g.cell, 0.0], [g.nx as u32, g.nz as u32, f.lb.len() as u32, 1]);
     f.lb.extend_from_slice(&g.rgb);
     Ok(place)
 }

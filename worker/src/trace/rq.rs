@@ -82,18 +82,19 @@ pub(super) fn build(
     let id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
     let ours = format!("sylva rq {id} ");
     let (blas_label, tlas_label) = (format!("{ours}blas"), format!("{ours}tlas"));
-    let geometry = |count: u32, vertices: u32, opaque: bool| wgpu::BlasTriangleGeometrySizeDescriptor {
-        vertex_format: wgpu::VertexFormat::Float32x3,
-        vertex_count: vertices,
-        index_format: Some(wgpu::IndexFormat::Uint32),
-        index_count: Some(3 * count),
-        flags: if opaque {
-            wgpu::AccelerationStructureGeometryFlags::OPAQUE
-        } else {
-            // Each candidate once: its alpha test counts it as passed.
-            wgpu::AccelerationStructureGeometryFlags::NO_DUPLICATE_ANY_HIT_INVOCATION
-        },
-    };
+    let geometry =
+        |count: u32, vertices: u32, opaque: bool| wgpu::BlasTriangleGeometrySizeDescriptor {
+            vertex_format: wgpu::VertexFormat::Float32x3,
+            vertex_count: vertices,
+            index_format: Some(wgpu::IndexFormat::Uint32),
+            index_count: Some(3 * count),
+            flags: if opaque {
+                wgpu::AccelerationStructureGeometryFlags::OPAQUE
+            } else {
+                // Each candidate once: its alpha test counts it as passed.
+                wgpu::AccelerationStructureGeometryFlags::NO_DUPLICATE_ANY_HIT_INVOCATION
+            },
+        };
     // Per model: its geometries' sizes and where their indices start.
     let sizes: Vec<Vec<(wgpu::BlasTriangleGeometrySizeDescriptor, u32)>> = models
         .iter()
@@ -163,9 +164,7 @@ pub(super) fn build(
     ctx.wait()?;
     let blases: Vec<Option<wgpu::Blas>> = blases
         .into_iter()
-        .map(|b| {
-            b.map(|b| if b.ready_for_compaction() { ctx.queue.compact_blas(&b) } else { b })
-        })
+        .map(|b| b.map(|b| if b.ready_for_compaction() { ctx.queue.compact_blas(&b) } else { b }))
         .collect();
     let mut tlas = device.create_tlas(&wgpu::CreateTlasDescriptor {
         label: Some(&tlas_label),

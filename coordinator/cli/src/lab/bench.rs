@@ -311,8 +311,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             a.no_cpu,
         )?);
     }
-    let frames =
-        if a.no_frames { Vec::new() } else { bench_frames(&ctx, &scene, &a, &backends)? };
+    let frames = if a.no_frames { Vec::new() } else { bench_frames(&ctx, &scene, &a, &backends)? };
     let out = json!({
         "benchmark": "trace",
         "scene": { "scale": a.scale, "triangle_scale": a.triangle_scale, "instances": scene.instances.len(),
