@@ -273,10 +273,7 @@ impl State {
     }
 
     /// The structures and LB light held for `p`, if all it needs is held.
-    pub(super) fn held(
-        &self,
-        p: &Preparation,
-    ) -> Option<Held> {
+    pub(super) fn held(&self, p: &Preparation) -> Option<Held> {
         let accel = match p.structure {
             Some(k) => Some(lock(&self.accels).get(&(p.hash.clone(), k)).cloned()?),
             None => None,
