@@ -117,6 +117,7 @@ async fn three_workers_render_the_frame_a_single_process_renders() {
     let shared = shared.lock().unwrap().clone();
     assert!(shared.len() == 1 && shared[0].1 == 2 && shared[0].2 > 0, "{shared:?}");
     let mut totals = [0u64; 3];
+    let mut backends = Vec::new();
     for a in &addrs {
         let mut w = sylva_proto::pb::worker_client::WorkerClient::connect(format!("http://{a}"))
             .await
@@ -124,8 +125,14 @@ async fn three_workers_render_the_frame_a_single_process_renders() {
         let s = w.status(sylva_proto::pb::StatusRequest {}).await.unwrap().into_inner();
         totals =
             [totals[0] + s.accel_builds, totals[1] + s.lb_solves, totals[2] + s.prepared_imports];
+        backends.push((s.backend, s.backend_why));
     }
     assert_eq!(totals, [1, 1, 2], "structure builds, LB solves and imports over the farm");
+    // `auto` was measured once, by the worker that prepared, and the others
+    // took its choice with its data: every strip traced alike.
+    assert!(backends.iter().all(|b| !b.0.is_empty() && b.0 == backends[0].0), "{backends:?}");
+    let took = backends.iter().filter(|b| b.1.contains("measured before")).count();
+    assert_eq!(took, 2, "{backends:?}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -48,6 +48,7 @@ fn in_background(args: &[String]) -> std::process::Child {
     std::process::Command::new(env!("CARGO_BIN_EXE_sylva"))
         .args(args)
         .env("XDG_RUNTIME_DIR", common::runtime())
+        .env("SYLVA_PREPARED_CACHE_MIB", "0")
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()

@@ -14,9 +14,13 @@ struct WorkerProcess(Proc);
 
 impl WorkerProcess {
     fn start(extra: &[&str]) -> Self {
+        Self::start_with(extra, &[])
+    }
+
+    fn start_with(extra: &[&str], env: &[(&str, &str)]) -> Self {
         let mut args = vec!["worker", "--listen", "127.0.0.1:0"];
         args.extend_from_slice(extra);
-        Self(spawn(&args, &[]))
+        Self(spawn(&args, env))
     }
 
     async fn client(&self) -> WorkerClient<tonic::transport::Channel> {
@@ -277,6 +281,71 @@ async fn strip_bits(
     .rgb_f32
 }
 
+/// A worker that restarts finds its prepared data on disk: it builds and
+/// solves nothing and renders the same bits. An entry damaged on disk is
+/// refused, deleted and prepared again.
+#[tokio::test]
+async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
+    let dir = std::env::temp_dir().join(format!("sylva-grpc-disk-{}", std::process::id()));
+    let cache = dir.join("prepared");
+    let _ = std::fs::remove_dir_all(&cache);
+    let b = bundle::pack(&scene_file(&dir)).unwrap();
+    let cache_arg = cache.display().to_string();
+    let env = [("SYLVA_PREPARED_CACHE_MIB", "64")];
+    let entries = || -> Vec<PathBuf> {
+        std::fs::read_dir(&cache)
+            .map(|d| {
+                d.flatten()
+                    .map(|e| e.path())
+                    .filter(|p| p.extension().is_some_and(|x| x == "prepared"))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    // Prepares and renders one strip on a fresh worker; its status after.
+    let run = async || {
+        let w = WorkerProcess::start_with(&["--prepared-cache-dir", &cache_arg], &env);
+        let mut c = w.client().await;
+        c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
+        let strip = c
+            .render_strip(pb::RenderStripRequest {
+                scene_hash: b.hash.clone(),
+                frame: Some(frame()),
+                x0: 0,
+                x1: 48,
+                job: String::new(),
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .rgb_f32;
+        let s = c.status(pb::StatusRequest {}).await.unwrap().into_inner();
+        // The entries are written beside the first strip, not before it.
+        let t = std::time::Instant::now();
+        while entries().len() < 2 && t.elapsed().as_secs() < 60 {
+            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+        }
+        (strip, (s.accel_builds, s.lb_solves, s.disk_hits))
+    };
+    let (first, did) = run().await;
+    assert_eq!(did, (1, 1, 0), "builds, solves and disk reads of a cold start");
+    assert_eq!(entries().len(), 2, "the structures and the LB light, one entry each");
+    let (again, did) = run().await;
+    assert_eq!(did, (0, 0, 1), "a restart reads both from disk");
+    assert_eq!(again, first);
+    // One byte changed in each entry: both refused, deleted, prepared again.
+    for e in entries() {
+        let mut bytes = std::fs::read(&e).unwrap();
+        let k = bytes.len() / 2;
+        bytes[k] ^= 0x40;
+        std::fs::write(&e, bytes).unwrap();
+    }
+    let (third, did) = run().await;
+    assert_eq!(did, (1, 1, 0), "damaged entries are not used");
+    assert_eq!(third, first);
+    assert_eq!(entries().len(), 2, "and are written again");
+}
+
 /// `auto` chooses on the worker, measured, and says so; ray queries need
 /// no structure from the CPU, so their prepared data carries only the LB
 /// light, and the worker taking it builds its own structures.
@@ -389,7 +458,7 @@ async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
     let sylva_accel::Accel::Bvh(bvh) = &mut accel.models[0] else { unreachable!() };
     let inner = bvh.nodes[0].child.iter().position(|&c| c & sylva_accel::bvh::LEAF == 0).unwrap();
     bvh.nodes[0].child[inner] = 0;
-    let loop_data = sylva_worker::share::export(Some(&accel), None).unwrap();
+    let loop_data = sylva_worker::share::export(Some(&accel), None, None).unwrap();
     let looped = pb::PreparedChunk {
         scene_hash: b.hash.clone(),
         frame: Some(local.clone()),

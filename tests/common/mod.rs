@@ -70,6 +70,9 @@ fn command(args: &[&str], env: &[(&str, &str)]) -> Command {
         cmd.arg("--ephemeral");
     }
     cmd.env_remove("SYLVA_STATE_DIR").env_remove("SYLVA_DATABASE_URL");
+    // Prepared data kept on disk would carry one test's work into the next
+    // (and the user's cache into the tests): off, unless a test turns it on.
+    cmd.env("SYLVA_PREPARED_CACHE_MIB", "0").env_remove("SYLVA_PREPARED_CACHE_DIR");
     for (k, v) in env {
         cmd.env(k, v);
     }

@@ -19,6 +19,7 @@
 //! # anyhow::Ok(())
 //! ```
 
+pub mod disk_cache;
 pub mod gpu;
 pub mod lb;
 pub mod lighting;
@@ -27,5 +28,6 @@ pub mod service;
 pub mod share;
 pub mod trace;
 
+pub use disk_cache::DiskCache;
 pub use gpu::GpuContext;
 pub use lb::GpuSolver;

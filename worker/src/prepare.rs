@@ -37,6 +37,17 @@ pub struct PreparedScene {
     pub boulanger: Vec<ModelEnvelope>,
 }
 
+impl PreparedScene {
+    /// Milliseconds of the lighting method's own pre-process: every phase
+    /// but the traversal's (building, classifying, uploading, choosing).
+    pub fn lighting_ms(&self) -> f64 {
+        self.phases.0.iter().filter(|p| !TRAVERSAL_PHASES.contains(&p.name)).map(|p| p.ms).sum()
+    }
+}
+
+/// The phases that prepare the traversal, whatever the lighting.
+pub const TRAVERSAL_PHASES: [&str; 4] = ["build", "coverage", "upload", "choose backend"];
+
 /// What a worker keeps from one preparation for the next frames: the
 /// scene's acceleration structures (the same for every view), and the LB
 /// light for the sun it was solved under.
@@ -77,22 +88,45 @@ pub fn prepare_reusing(
     let candidates = crate::trace::candidates(ctx, asked)?;
     let needs = lighting::method(lighting).needs;
     let mut phases = PhaseTimer::default();
-    for &b in &candidates {
-        match b.structure() {
-            Some(kind) if reuse.accel.as_ref().is_none_or(|a| a.kind != kind) => {
-                progress("building acceleration structures");
-                let a = phases.time("build", || SceneAccel::build(scene, kind));
-                reuse.accel = Some(Arc::new(a));
+    // The structures are built on another thread while this one solves the
+    // LB light: neither needs the other (phases then overlap in time).
+    let structures = {
+        let (accel, coverage) = (reuse.accel.clone(), reuse.coverage.clone());
+        let candidates = candidates.clone();
+        move || {
+            let (mut accel, mut coverage, mut phases) = (accel, coverage, PhaseTimer::default());
+            for &b in &candidates {
+                match b.structure() {
+                    Some(kind) if accel.as_ref().is_none_or(|a| a.kind != kind) => {
+                        let a = phases.time("build", || SceneAccel::build(scene, kind));
+                        accel = Some(Arc::new(a));
+                    }
+                    None if coverage.is_none() => {
+                        use rayon::prelude::*;
+                        let c = phases.time("coverage", || {
+                            scene.models.par_iter().map(|m| triangle_coverage(&m.model)).collect()
+                        });
+                        coverage = Some(Arc::new(c));
+                    }
+                    _ => {}
+                }
             }
-            None if reuse.coverage.is_none() => {
-                use rayon::prelude::*;
-                let c = phases.time("coverage", || {
-                    scene.models.par_iter().map(|m| triangle_coverage(&m.model)).collect()
-                });
-                reuse.coverage = Some(Arc::new(c));
-            }
-            _ => {}
+            (accel, coverage, phases)
         }
+    };
+    progress("building acceleration structures");
+    let lb_now = needs.lb && reuse.lb.is_none();
+    let (built, lb) = std::thread::scope(|s| {
+        let builder = s.spawn(structures);
+        let lb = lb_now.then(|| lighting::lb::prepare(ctx, scene, &mut phases, progress));
+        (builder.join(), lb)
+    });
+    let (accel, coverage, built_phases) =
+        built.map_err(|_| anyhow::anyhow!("building the acceleration structures panicked"))?;
+    phases.0.extend(built_phases.0);
+    (reuse.accel, reuse.coverage) = (accel, coverage);
+    if let Some(lb) = lb {
+        reuse.lb = Some(Arc::new(lb?));
     }
     let mut light = SceneLight {
         models: vec![None; scene.models.len()],
@@ -101,14 +135,7 @@ pub fn prepare_reusing(
     };
     let (mut reports, mut forest, mut boulanger) = (Vec::new(), None, Vec::new());
     if needs.lb {
-        let lb = match &reuse.lb {
-            Some(lb) => lb.clone(),
-            None => {
-                let lb = Arc::new(lighting::lb::prepare(ctx, scene, &mut phases, progress)?);
-                reuse.lb = Some(lb.clone());
-                lb
-            }
-        };
+        let lb = reuse.lb.clone().expect("solved above");
         (light.models, light.instance_scales, light.ground) =
             (lb.grids.clone(), lb.scales.clone(), lb.ground.clone());
         (reports, forest) = (lb.light.clone(), Some(lb.forest.clone()));
@@ -129,8 +156,8 @@ pub fn prepare_reusing(
     };
     let mut uploads = Vec::new();
     for &b in &candidates {
-        let name = if b == Backend::Rq { "rq build" } else { "upload" };
-        let gpu_scene = phases.time(name, || GpuScene::upload(ctx, scene, structure(b), &light))?;
+        let gpu_scene =
+            phases.time("upload", || GpuScene::upload(ctx, scene, structure(b), &light))?;
         uploads.push(gpu_scene);
     }
     let (gpu_scene, backend) = if uploads.len() == 1 {
@@ -143,7 +170,7 @@ pub fn prepare_reusing(
         Backend::Rq => gpu_scene.rq.as_ref().and_then(|r| r.bytes).unwrap_or(0) as usize,
         _ => reuse.accel.as_ref().map_or(0, |a| a.bytes()),
     };
-    let renderer = phases.time("pipeline", || -> anyhow::Result<StripRenderer> {
+    let renderer = phases.time("upload", || -> anyhow::Result<StripRenderer> {
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
         ctx.wait()?;
         Ok(r)

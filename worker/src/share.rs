@@ -16,7 +16,7 @@ use sylva_accel::{Accel, AccelKind, SceneAccel};
 use sylva_scene::Scene;
 
 /// The layout's version: data of another version is refused, not misread.
-const FORMAT: u32 = 1;
+const FORMAT: u32 = 2;
 
 /// What goes over the wire, borrowed for encoding.
 #[derive(Serialize)]
@@ -24,6 +24,7 @@ struct Outgoing<'a> {
     format: u32,
     models: &'a [Accel],
     lb: Option<&'a SceneLb>,
+    choice: Option<&'a SharedChoice>,
 }
 
 /// The same fields, owned, as they are decoded.
@@ -32,6 +33,30 @@ struct Incoming {
     format: u32,
     models: Vec<Accel>,
     lb: Option<SceneLb>,
+    choice: Option<SharedChoice>,
+}
+
+/// `--accel auto`'s choice as the preparing worker measured it: workers
+/// with the same adapter take it instead of measuring again, so a farm of
+/// alike GPUs traces every strip of a frame alike.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct SharedChoice {
+    /// The adapter it was measured on (`GpuContext::adapter_name`).
+    pub adapter: String,
+    /// What it chose.
+    pub backend: sylva_scene::frame::Backend,
+    /// Why (the measurement).
+    pub why: String,
+}
+
+/// What prepared data holds, checked.
+pub struct Imported {
+    /// Both levels, built around the received model structures.
+    pub accel: Option<SceneAccel>,
+    /// The LB light.
+    pub lb: Option<SceneLb>,
+    /// The preparing worker's `auto` choice, if it made one.
+    pub choice: Option<SharedChoice>,
 }
 
 /// Prepared data as one worker exports it.
@@ -44,25 +69,27 @@ pub struct Exported {
 
 /// Serializes a scene's model structures (none for ray queries: each
 /// device builds its own) and, when given, its LB light.
-pub fn export(accel: Option<&SceneAccel>, lb: Option<&SceneLb>) -> anyhow::Result<Exported> {
+pub fn export(
+    accel: Option<&SceneAccel>,
+    lb: Option<&SceneLb>,
+    choice: Option<&SharedChoice>,
+) -> anyhow::Result<Exported> {
     let models = accel.map_or(&[][..], |a| a.models.as_slice());
-    let bytes = postcard::to_stdvec(&Outgoing { format: FORMAT, models, lb })?;
+    let bytes = postcard::to_stdvec(&Outgoing { format: FORMAT, models, lb, choice })?;
     let hash = blake3::hash(&bytes).to_hex().to_string();
     Ok(Exported { bytes, hash })
 }
 
 /// Reads prepared data for `scene`: its hash must be `hash`, its
 /// structures of `kind` (none when `None`) and fit the scene's models, and
-/// its LB light (which it must hold when `want_lb`) fit the scene. Returns
-/// both levels, built around the received model structures, and the LB
-/// light.
+/// its LB light (which it must hold when `want_lb`) fit the scene.
 pub fn import(
     bytes: &[u8],
     hash: &str,
     scene: &Scene,
     kind: Option<AccelKind>,
     want_lb: bool,
-) -> Result<(Option<SceneAccel>, Option<SceneLb>), String> {
+) -> Result<Imported, String> {
     if blake3::hash(bytes).to_hex().as_str() != hash {
         return Err("the prepared data's bytes do not match its hash".into());
     }
@@ -91,7 +118,13 @@ pub fn import(
         None if d.models.is_empty() => None,
         None => return Err("the prepared data holds structures where none was asked for".into()),
     };
-    Ok((accel, lb))
+    // Another worker's words: bounded before they are kept and shown.
+    let choice = d.choice.map(|c| SharedChoice {
+        adapter: c.adapter.chars().take(256).collect(),
+        why: c.why.chars().take(1024).collect(),
+        ..c
+    });
+    Ok(Imported { accel, lb, choice })
 }
 
 /// Checks LB light received for `scene`: one entry per model and per

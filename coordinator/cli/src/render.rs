@@ -182,13 +182,17 @@ fn render_here(
         phases.push(("lb grid choice", ms(t)));
         choices = Some(c);
     }
+    let mut keep = None;
     let prepared = match prepared {
         Some(p) => p,
         None => {
-            let p = prepare(&ctx, &scene, accel, lighting, &|m| progress::stage(&bar, m))?;
+            let t = Instant::now();
+            let (p, k) = prepare_here(a, &ctx, &scene, accel, lighting, &bar)?;
             for p in &p.phases.0 {
                 phases.push((p.name, p.ms));
             }
+            phases.push(("prepare", ms(t)));
+            keep = k;
             p
         }
     };
@@ -225,6 +229,9 @@ fn render_here(
     bar.finish_and_clear();
 
     let (tone, exr) = write_image(a, &frame, &mut phases)?;
+    if let Some(keep) = keep {
+        keep();
+    }
     let mut stats = with_head(
         a,
         exr,
@@ -267,6 +274,39 @@ fn render_here(
         how += &format!("; --lighting auto chose {}", r.why);
     }
     report(a, &stats, accel, lighting, &how)
+}
+
+/// Prepares the scene in this process, reading what the prepared-data
+/// cache holds of it; returns what to write to that cache once the frame
+/// is out (so the first frame does not wait for the disk).
+fn prepare_here(
+    a: &RenderArgs,
+    ctx: &GpuContext,
+    scene: &Scene,
+    accel: AccelChoice,
+    lighting: LightingMode,
+    bar: &ProgressBar,
+) -> anyhow::Result<(PreparedScene, Option<impl FnOnce() + use<>>)> {
+    use sylva_worker::prepare::{Reuse, prepare_reusing};
+    let progress = |m: &str| progress::stage(bar, m);
+    let Some(cache) = a.prepared_cache.open()? else {
+        return Ok((prepare(ctx, scene, accel, lighting, &progress)?, None));
+    };
+    // Entries are named by the bundle's content, as a worker names them.
+    let hash = sylva_scene::bundle::pack(&a.scene)?.hash;
+    let needs_lb = sylva_worker::lighting::method(lighting).needs.lb;
+    let mut reuse = Reuse::default();
+    let found =
+        cache.fill(&hash, scene, accel.walked_structure(), needs_lb.then_some(None), &mut reuse);
+    if found.accel || found.lb {
+        tracing::info!(structures = found.accel, lb = found.lb, dir = %cache.dir().display(), "prepared data read from the disk cache");
+    }
+    let prepared = prepare_reusing(ctx, scene, accel, lighting, &mut reuse, &progress)?;
+    let built = reuse.accel.filter(|_| !found.accel);
+    let solved = reuse.lb.filter(|_| !found.lb);
+    let name = sylva_worker::disk_cache::LbName::of(&hash, scene, None);
+    let keep = move || cache.keep(&hash, built.as_deref(), solved.as_deref().map(|l| (&name, l)));
+    Ok((prepared, Some(keep)))
 }
 
 /// The reference in this process: path traced in batches until its own
@@ -489,7 +529,8 @@ fn render_through_coordinator(
     let (workers, token) = if a.workers.is_empty() {
         // Other users of this machine must not be able to use our processes.
         let token = random_token();
-        (processes.start_workers(a.local_workers, &token)?, token)
+        let cache = a.prepared_cache.to_args();
+        (processes.start_workers_with(a.local_workers, &token, &cache)?, token)
     } else {
         // The coordinator sends its own token to the workers, so it is theirs.
         flags.extend(a.tls.to_args());

@@ -29,6 +29,7 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
             lb_cache_entries: a.lb_cache_entries,
             lb_cache_bytes: a.lb_cache_mib << 20,
             memory_bytes: a.memory_mib << 20,
+            disk_cache: a.prepared_cache.open()?,
             ..WorkerConfig::default()
         };
         if let Some(d) = &a.cache_dir {

@@ -71,6 +71,7 @@ impl State {
         lock(&self.prepared).retain(|k, _| k.0 != hash);
         lock(&self.accels).retain(|k, _| k.0 != hash);
         lock(&self.lbs).retain(|k, _| k.0 != hash);
+        lock(&self.choices).remove(hash);
         let _ = std::fs::remove_dir_all(self.config.cache_dir.join(hash));
         self.evictions.fetch_add(1, Ordering::Relaxed);
         // glibc keeps freed memory in its arenas; a scene's hundreds of MB
@@ -97,6 +98,7 @@ impl State {
         lock(&self.prepared).retain(|k, _| k.0 != hash);
         lock(&self.accels).retain(|k, _| k.0 != hash);
         lock(&self.lbs).retain(|k, _| k.0 != hash);
+        lock(&self.choices).remove(hash);
         tracing::info!(%hash, job = %sylva_scene::sandbox::clip(&was), "dropped prepared data imported for another job");
     }
 
@@ -184,18 +186,75 @@ impl State {
         };
         let (solved_before, built_before) = (reuse.lb.is_some(), reuse.accel.is_some());
         let scene = scene.with_view(view);
-        let p = Arc::new(prepare_reusing(&self.ctx, &scene, accel, lighting, &mut reuse, &|m| {
+        // What memory lacks, the disk may hold from before a restart.
+        let from_disk = match &self.config.disk_cache {
+            Some(d) => {
+                d.fill(hash, &scene, accel.walked_structure(), needs.lb.then_some(sun), &mut reuse)
+            }
+            None => Default::default(),
+        };
+        if from_disk.accel || from_disk.lb {
+            self.disk_hits.fetch_add(1, Ordering::Relaxed);
+            tracing::info!(
+                structures = from_disk.accel,
+                lb = from_disk.lb,
+                "prepared data read from the disk cache"
+            );
+        }
+        // `auto` is measured once per scene and adapter: by this worker, or
+        // by the one whose prepared data it took.
+        let adopted = (accel == AccelChoice::Auto)
+            .then(|| lock(&self.choices).get(hash).cloned())
+            .flatten()
+            .filter(|c| c.adapter == self.ctx.adapter_name());
+        let asked = adopted.as_ref().map_or(accel, |c| c.backend.into());
+        let mut p = prepare_reusing(&self.ctx, &scene, asked, lighting, &mut reuse, &|m| {
             tracing::info!("{m}")
-        })?);
+        })?;
+        match adopted {
+            Some(c) => {
+                p.backend = crate::trace::BackendChoice {
+                    asked: accel,
+                    backend: c.backend,
+                    why: format!("{} (measured before, for this scene)", c.why),
+                    probe: Vec::new(),
+                }
+            }
+            None if accel == AccelChoice::Auto => {
+                lock(&self.choices).insert(
+                    hash.to_string(),
+                    crate::share::SharedChoice {
+                        adapter: self.ctx.adapter_name(),
+                        backend: p.backend.backend,
+                        why: p.backend.why.clone(),
+                    },
+                );
+            }
+            None => {}
+        }
+        let p = Arc::new(p);
         tracing::info!(backend = p.backend.backend.name(), "{}", p.backend.why);
         *lock(&self.backend) = Some(p.backend.clone());
+        let built = reuse.accel.clone().filter(|_| !built_before && !from_disk.accel);
+        let solved = reuse.lb.clone().filter(|_| !solved_before && !from_disk.lb);
         if let (Some(a), false) = (reuse.accel, built_before) {
-            self.accel_builds.fetch_add(1, Ordering::Relaxed);
+            self.accel_builds.fetch_add(built.is_some() as u64, Ordering::Relaxed);
             lock(&self.accels).insert((hash.to_string(), a.kind), a);
         }
         if let (Some(lb), false) = (reuse.lb, solved_before) {
-            self.lb_solves.fetch_add(1, Ordering::Relaxed);
+            self.lb_solves.fetch_add(solved.is_some() as u64, Ordering::Relaxed);
             self.keep_lb(lb_key, lb);
+        }
+        // Written for the next start on a thread of its own: the strips
+        // need not wait for the disk.
+        if let Some(d) = self.config.disk_cache.clone()
+            && (built.is_some() || solved.is_some())
+        {
+            let hash = hash.to_string();
+            let name = crate::disk_cache::LbName::of(&hash, &scene, sun);
+            std::thread::spawn(move || {
+                d.keep(&hash, built.as_deref(), solved.as_deref().map(|l| (&name, l)))
+            });
         }
         {
             let mut prepared = lock(&self.prepared);

@@ -179,6 +179,7 @@ impl Worker for WorkerService {
             prepared_imports: self.state.prepared_imports.load(Ordering::Relaxed),
             held_bytes: held,
             scenes_evicted: self.state.evictions.load(Ordering::Relaxed),
+            disk_hits: self.state.disk_hits.load(Ordering::Relaxed),
             ray_queries: self.state.ctx.has_ray_queries(),
             backend: backend.as_ref().map_or(String::new(), |b| b.backend.name().to_string()),
             backend_why: backend.map_or(String::new(), |b| b.why),
@@ -230,8 +231,9 @@ impl Worker for WorkerService {
         let (accel, lb) = self.state.held(&p).ok_or_else(|| {
             Status::not_found("this worker does not hold that frame's prepared data")
         })?;
+        let choice = lock(&self.state.choices).get(&p.hash).cloned();
         let out = tokio::task::spawn_blocking(move || {
-            crate::share::export(accel.as_deref(), lb.as_deref())
+            crate::share::export(accel.as_deref(), lb.as_deref(), choice.as_ref())
         })
         .await
         .map_err(|e| Status::internal(format!("exporting panicked: {e}")))?
@@ -282,7 +284,7 @@ impl Worker for WorkerService {
             .receive("prepared data", first.total_size, first.data, &mut stream, |c| c.data)
             .await?;
         let (scene, kind, needs_lb) = (p.scene.clone(), p.structure, p.needs_lb);
-        let (accel, lb) = tokio::task::spawn_blocking(move || {
+        let crate::share::Imported { accel, lb, choice } = tokio::task::spawn_blocking(move || {
             crate::share::import(&bytes, &content_hash, &scene, kind, needs_lb)
         })
         .await
@@ -294,6 +296,10 @@ impl Worker for WorkerService {
         lock(&self.state.imported).insert(p.hash.clone(), first.job.clone());
         if let (Some(k), Some(accel)) = (p.structure, accel) {
             lock(&self.state.accels).entry((p.hash.clone(), k)).or_insert_with(|| Arc::new(accel));
+        }
+        // The exporter's `auto` choice, where it measured this adapter.
+        if let Some(c) = choice.filter(|c| c.adapter == self.state.ctx.adapter_name()) {
+            lock(&self.state.choices).entry(p.hash.clone()).or_insert(c);
         }
         if let Some(lb) = lb
             && !lock(&self.state.lbs).contains_key(&p.lb_key)

@@ -68,6 +68,8 @@ pub struct WorkerConfig {
     /// together (models, structures, LB light, GPU copies); the least
     /// recently used scenes go first (the one in use stays, whatever its size).
     pub memory_bytes: u64,
+    /// Prepared data kept on disk across restarts (none: not kept).
+    pub disk_cache: Option<crate::DiskCache>,
 }
 
 impl Default for WorkerConfig {
@@ -83,6 +85,7 @@ impl Default for WorkerConfig {
             lb_cache_entries: 64,
             lb_cache_bytes: 1 << 30,
             memory_bytes: 8 << 30,
+            disk_cache: None,
             session: Session::default(),
         }
     }
@@ -152,8 +155,13 @@ struct State {
     prepared_imports: AtomicU64,
     /// Scenes let go to stay within the memory budget.
     evictions: AtomicU64,
+    /// Preparations that read structures or LB light from the disk cache.
+    disk_hits: AtomicU64,
     /// The traversal the latest preparation chose, and why.
     backend: Mutex<Option<crate::trace::BackendChoice>>,
+    /// `--accel auto`'s choice per scene, measured here or taken with
+    /// another worker's prepared data (same adapter only).
+    choices: Mutex<HashMap<String, crate::share::SharedChoice>>,
     /// Scenes whose prepared data came from another worker, and the job
     /// it serves: another job's strips drop it first.
     imported: Mutex<HashMap<String, String>>,
@@ -188,7 +196,9 @@ impl WorkerService {
                 accel_builds: AtomicU64::new(0),
                 prepared_imports: AtomicU64::new(0),
                 evictions: AtomicU64::new(0),
+                disk_hits: AtomicU64::new(0),
                 backend: Mutex::default(),
+                choices: Mutex::default(),
                 imported: Mutex::default(),
                 ambient: Mutex::new(HashMap::new()),
                 gpu: Mutex::new(()),

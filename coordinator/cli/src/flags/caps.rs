@@ -34,3 +34,44 @@ impl LimitArgs {
         }
     }
 }
+
+/// Where prepared data (the structures the CPU builds, the LB light) is
+/// kept on disk between runs, and how much: a worker that restarts, or a
+/// second render of a scene, reads it instead of preparing again.
+#[derive(Debug, Args)]
+pub struct PreparedCacheArgs {
+    /// Folder of the prepared-data cache (default
+    /// `$XDG_CACHE_HOME/sylva/prepared`, or `~/.cache/sylva/prepared`).
+    #[arg(long, env = "SYLVA_PREPARED_CACHE_DIR")]
+    pub prepared_cache_dir: Option<std::path::PathBuf>,
+    /// MiB the prepared-data cache may hold (least recently used entries
+    /// go first); 0 turns it off.
+    #[arg(long, env = "SYLVA_PREPARED_CACHE_MIB", default_value_t = 8192)]
+    pub prepared_cache_mib: u64,
+}
+
+impl PreparedCacheArgs {
+    /// The cache, or `None` when turned off or without a home to put it in.
+    pub fn open(&self) -> anyhow::Result<Option<sylva_worker::DiskCache>> {
+        if self.prepared_cache_mib == 0 {
+            return Ok(None);
+        }
+        let Some(dir) =
+            self.prepared_cache_dir.clone().or_else(sylva_worker::DiskCache::default_dir)
+        else {
+            tracing::warn!("no prepared-data cache: neither XDG_CACHE_HOME nor HOME is set");
+            return Ok(None);
+        };
+        Ok(Some(sylva_worker::DiskCache::open(&dir, self.prepared_cache_mib << 20)?))
+    }
+
+    /// The flags again, for a worker this process starts.
+    pub fn to_args(&self) -> Vec<String> {
+        let mut args =
+            vec!["--prepared-cache-mib".to_string(), self.prepared_cache_mib.to_string()];
+        if let Some(d) = &self.prepared_cache_dir {
+            args.extend(["--prepared-cache-dir".to_string(), d.display().to_string()]);
+        }
+        args
+    }
+}

@@ -173,6 +173,10 @@ pub struct RenderArgs {
     pub out: PathBuf,
     #[command(flatten)]
     pub frame: FrameArgs,
+    /// The prepared-data cache of this process (`--local-workers 0`) and
+    /// of the local workers it starts.
+    #[command(flatten)]
+    pub prepared_cache: crate::flags::caps::PreparedCacheArgs,
     /// `--lighting reference` in this process: stop once the image's own
     /// relative standard error is below this (each batch has --spp samples, at least 16).
     #[arg(long, default_value_t = 0.02)]

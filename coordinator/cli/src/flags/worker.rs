@@ -47,4 +47,6 @@ pub struct WorkerArgs {
     /// recently used scenes are let go beyond it.
     #[arg(long, default_value_t = 8192)]
     pub memory_mib: u64,
+    #[command(flatten)]
+    pub prepared_cache: crate::flags::caps::PreparedCacheArgs,
 }

@@ -401,7 +401,6 @@ fn reference(
     Ok(match cached {
         Some(r) => (r, 0.0, 0.0, true),
         None => {
-            let t = Instant::now();
             let prepared = prepare(ctx, scene, AccelKind::Bvh, LightingMode::Reference, &|m| {
                 bar.set_message(m.to_string())
             })?;
@@ -411,7 +410,7 @@ fn reference(
                 ..Default::default()
             };
             let build_ms = prepared.phases.ms("build");
-            let pre = ms(t) - build_ms - prepared.phases.ms("upload");
+            let pre = prepared.lighting_ms();
             let r = render_reference(ctx, &prepared.renderer, settings, &opts, &|s| {
                 bar.set_message(format!(
                     "reference: {} spp, relative standard error {:.4} (target {})",
@@ -541,13 +540,7 @@ impl Preparation {
         say: &dyn Fn(&str),
     ) -> anyhow::Result<Self> {
         let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
-        let preprocess_ms = prepared
-            .phases
-            .0
-            .iter()
-            .filter(|p| !matches!(p.name, "build" | "upload"))
-            .map(|p| p.ms)
-            .sum::<f64>();
+        let preprocess_ms = prepared.lighting_ms();
         Ok(Self { prepared, preprocess_ms })
     }
 }

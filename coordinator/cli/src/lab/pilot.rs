@@ -207,8 +207,7 @@ pub fn choose(
         say(&format!("pilot: preparing {}", grid_name(g)));
         reuse.lb = None;
         let p = prepare_reusing(ctx, &s, AccelKind::Bvh, LightingMode::Gather, &mut reuse, say)?;
-        let pre = p.phases.0.iter().filter(|p| !matches!(p.name, "build" | "upload"));
-        let pre_ms: f64 = pre.map(|p| p.ms).sum();
+        let pre_ms = p.lighting_ms();
         preparations.push((g, s, p, pre_ms));
     }
 

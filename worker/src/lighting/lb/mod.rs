@@ -281,10 +281,12 @@ pub fn prepare(
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<SceneLb> {
     progress("voxelizing models");
+    // Each model's medium on its own: voxelized in parallel.
     let media = phases.time("voxelize", || {
+        use rayon::prelude::*;
         scene
             .models
-            .iter()
+            .par_iter()
             .map(|m| medium_of(scene, m, m.lb.grid))
             .collect::<anyhow::Result<Vec<_>>>()
     })?;

@@ -1,0 +1,267 @@
+//! Prepared data kept on disk, so a worker that restarts (or a second
+//! `sylva render` of the same scene) does not build and solve again: the
+//! acceleration structures the CPU builds, and the LB light per sun.
+//!
+//! Entries are content-addressed: a file's name is the BLAKE3 hash of what
+//! it was made from (the bundle's hash, this format and build, the
+//! structure kind, or the sun and every LB setting), so a changed scene or
+//! setting misses instead of reading stale data. What is read back is
+//! checked, not trusted, exactly as prepared data from another worker is
+//! (`crate::share::import`: its bytes against the hash recorded with them,
+//! then every structure against its model and every grid's shape and
+//! values); an entry that fails is deleted and prepared again. Writes go
+//! to a temporary file renamed into place, so a reader never sees half an
+//! entry, and the folder is held under its bound by removing the least
+//! recently used entries.
+
+use crate::lighting::lb::SceneLb;
+use std::path::{Path, PathBuf};
+use std::time::SystemTime;
+use sylva_accel::{AccelKind, SceneAccel};
+use sylva_scene::Scene;
+
+/// The layout's version: entries of another are misses (their names differ).
+const FORMAT: u32 = 1;
+/// An entry file's extension.
+const EXT: &str = "prepared";
+
+/// A folder of prepared data, bounded in bytes.
+#[derive(Clone, Debug)]
+pub struct DiskCache {
+    dir: PathBuf,
+    limit: u64,
+}
+
+/// What a lookup found, for logs and status.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Found {
+    /// The structures came from disk.
+    pub accel: bool,
+    /// The LB light came from disk.
+    pub lb: bool,
+}
+
+impl DiskCache {
+    /// The folder used unless one is named: `$XDG_CACHE_HOME/sylva/prepared`,
+    /// or `~/.cache/sylva/prepared`.
+    pub fn default_dir() -> Option<PathBuf> {
+        let base = std::env::var_os("XDG_CACHE_HOME")
+            .map(PathBuf::from)
+            .filter(|p| p.is_absolute())
+            .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))?;
+        Some(base.join("sylva").join("prepared"))
+    }
+
+    /// Opens (creating it, private to this user) a cache of at most
+    /// `limit` bytes in `dir`.
+    pub fn open(dir: &Path, limit: u64) -> anyhow::Result<Self> {
+        use anyhow::Context;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the prepared-data cache", dir.display()))?;
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let _ = std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o700));
+        }
+        Ok(Self { dir: dir.to_path_buf(), limit })
+    }
+
+    /// The folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Fills what `reuse` lacks of a scene's structures (for `kind`) and
+    /// LB light (when `lb_for` names the sun it is for) from disk.
+    pub fn fill(
+        &self,
+        bundle: &str,
+        scene: &Scene,
+        kind: Option<AccelKind>,
+        lb_for: Option<Option<[u32; 3]>>,
+        reuse: &mut crate::prepare::Reuse,
+    ) -> Found {
+        let mut found = Found::default();
+        if let (Some(kind), None) = (kind, &reuse.accel)
+            && let Some(bytes) = self.read(&accel_key(bundle, kind))
+        {
+            match crate::share::import(&bytes.1, &bytes.0, scene, Some(kind), false) {
+                Ok(crate::share::Imported { accel: Some(a), .. }) => {
+                    reuse.accel = Some(std::sync::Arc::new(a));
+                    found.accel = true;
+                }
+                other => self.discard(&accel_key(bundle, kind), other.err()),
+            }
+        }
+        if let (Some(sun), None) = (lb_for, &reuse.lb) {
+            let key = lb_key(bundle, scene, sun);
+            if let Some(bytes) = self.read(&key) {
+                match crate::share::import(&bytes.1, &bytes.0, scene, None, true) {
+                    Ok(crate::share::Imported { lb: Some(lb), .. }) => {
+                        reuse.lb = Some(std::sync::Arc::new(lb));
+                        found.lb = true;
+                    }
+                    other => self.discard(&key, other.err()),
+                }
+            }
+        }
+        found
+    }
+
+    /// Writes what a preparation built or solved (`accel`; `lb`, under the
+    /// name [`LbName::of`] gave it), then holds the folder under its bound.
+    /// Failures are logged: the cache only ever saves work.
+    pub fn keep(&self, bundle: &str, accel: Option<&SceneAccel>, lb: Option<(&LbName, &SceneLb)>) {
+        if let Some(a) = accel {
+            self.write(&accel_key(bundle, a.kind), crate::share::export(Some(a), None, None));
+        }
+        if let Some((name, lb)) = lb {
+            self.write(&name.0, crate::share::export(None, Some(lb), None));
+        }
+        self.bound();
+    }
+
+    fn path(&self, key: &str) -> PathBuf {
+        self.dir.join(format!("{key}.{EXT}"))
+    }
+
+    /// An entry's recorded hash and bytes, marked used; `None` if absent
+    /// or unreadable.
+    fn read(&self, key: &str) -> Option<(String, Vec<u8>)> {
+        let path = self.path(key);
+        let data = std::fs::read(&path).ok()?;
+        // Recency for eviction: the modification time, set on use.
+        let _ = std::fs::File::options()
+            .append(true)
+            .open(&path)
+            .and_then(|f| f.set_modified(SystemTime::now()));
+        // 64 hex digits of the content's BLAKE3, then the content.
+        if data.len() < 64 {
+            self.discard(key, Some("shorter than its header".into()));
+            return None;
+        }
+        let (hash, body) = data.split_at(64);
+        let hash = String::from_utf8(hash.to_vec()).ok()?;
+        Some((hash, body.to_vec()))
+    }
+
+    fn write(&self, key: &str, exported: anyhow::Result<crate::share::Exported>) {
+        let result = exported.and_then(|e| {
+            let tmp = self.dir.join(format!(".{key}.{}.tmp", std::process::id()));
+            let mut data = e.hash.into_bytes();
+            data.extend_from_slice(&e.bytes);
+            std::fs::write(&tmp, &data)?;
+            std::fs::rename(&tmp, self.path(key))?;
+            Ok(())
+        });
+        if let Err(e) = result {
+            tracing::warn!(dir = %self.dir.display(), "prepared data not cached: {e:#}");
+        }
+    }
+
+    /// Removes an entry that failed its checks.
+    fn discard(&self, key: &str, why: Option<String>) {
+        tracing::warn!(
+            entry = key,
+            "cached prepared data refused, preparing again: {}",
+            why.unwrap_or_else(|| "it holds the wrong parts".into())
+        );
+        let _ = std::fs::remove_file(self.path(key));
+    }
+
+    /// Removes the least recently used entries (and temporary files older
+    /// than an hour, left by a killed writer) until the folder is within
+    /// its bound.
+    fn bound(&self) {
+        let Ok(dir) = std::fs::read_dir(&self.dir) else { return };
+        let now = SystemTime::now();
+        let mut entries: Vec<(SystemTime, u64, PathBuf)> = Vec::new();
+        for e in dir.flatten() {
+            let (path, Ok(meta)) = (e.path(), e.metadata()) else { continue };
+            let modified = meta.modified().unwrap_or(now);
+            if path.extension().is_some_and(|x| x == "tmp") {
+                if now.duration_since(modified).is_ok_and(|d| d.as_secs() > 3600) {
+                    let _ = std::fs::remove_file(&path);
+                }
+                continue;
+            }
+            if path.extension().is_some_and(|x| x == EXT) {
+                entries.push((modified, meta.len(), path));
+            }
+        }
+        entries.sort();
+        let mut total: u64 = entries.iter().map(|e| e.1).sum();
+        for (_, len, path) in entries {
+            if total <= self.limit {
+                break;
+            }
+            if std::fs::remove_file(&path).is_ok() {
+                total -= len;
+            }
+        }
+    }
+}
+
+/// The name of a scene's structures of `kind`.
+fn accel_key(bundle: &str, kind: AccelKind) -> String {
+    let mut h = blake3::Hasher::new();
+    h.update(
+        format!("sylva accel {FORMAT} {} {bundle} {kind:?}", env!("CARGO_PKG_VERSION")).as_bytes(),
+    );
+    h.finalize().to_hex().to_string()
+}
+
+/// The name a scene's LB light is kept under.
+#[derive(Clone, Debug)]
+pub struct LbName(String);
+
+impl LbName {
+    /// The name of `scene`'s light under `sun` (its view's sun key).
+    pub fn of(bundle: &str, scene: &Scene, sun: Option<[u32; 3]>) -> Self {
+        Self(lb_key(bundle, scene, sun))
+    }
+}
+
+/// The name of a scene's LB light under `sun`: every setting the solve
+/// reads that a frame can change after loading (the models' LB settings,
+/// chosen grids included, the sun and sky) is part of it.
+fn lb_key(bundle: &str, scene: &Scene, sun: Option<[u32; 3]>) -> String {
+    let mut h = blake3::Hasher::new();
+    h.update(
+        format!("sylva lb {FORMAT} {} {bundle} {sun:?}", env!("CARGO_PKG_VERSION")).as_bytes(),
+    );
+    for m in &scene.models {
+        h.update(format!("{:?}", m.lb).as_bytes());
+    }
+    h.update(format!("{:?} {:?} {:?}", scene.sun, scene.sky, scene.file.lb_model).as_bytes());
+    h.finalize().to_hex().to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Beyond its bound, the least recently used entries go first.
+    #[test]
+    fn the_least_recently_used_entries_go_beyond_the_bound() {
+        let dir = std::env::temp_dir().join(format!("sylva-disk-cache-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let c = DiskCache::open(&dir, 2 * (64 + 100)).unwrap();
+        let entry =
+            |n: u8| Ok(crate::share::Exported { bytes: vec![n; 100], hash: format!("{:064}", n) });
+        let names = ["a", "b", "c"];
+        for (i, k) in names.iter().enumerate() {
+            c.write(k, entry(i as u8));
+            // Distinct times for the recency order.
+            let f = std::fs::File::options().append(true).open(c.path(k)).unwrap();
+            f.set_modified(SystemTime::UNIX_EPOCH + std::time::Duration::from_secs(100 + i as u64))
+                .unwrap();
+        }
+        // Reading "a" makes it the most recent: "b" is now the oldest.
+        assert_eq!(c.read("a").unwrap().1, vec![0; 100]);
+        c.bound();
+        let left: Vec<bool> = names.iter().map(|k| c.path(k).exists()).collect();
+        assert_eq!(left, [true, false, true]);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
