@@ -305,6 +305,17 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
         b.eval(&format!("document.querySelector('tr[data-job=\"{first}\"] progress').max")).await,
     );
     assert!(done == total && total.as_f64().unwrap() >= 1.0, "{done} of {total}");
+    // The worker's row says which traversal `auto` chose there, and why.
+    b.wait_for(
+        &format!(
+            "(() => {{ const c = document.querySelector('tr[data-worker=\"{}\"]').children[2]; \
+             return /^(rq|bvh|kd)/.test(c.textContent) && c.title.startsWith('auto:'); }})()",
+            w.addr
+        ),
+        "the worker's traversal",
+        Duration::from_secs(60),
+    )
+    .await;
     // Its frame: the preview loaded, every column's worker drawn, and the charts.
     b.eval(&format!("document.querySelector('tr[data-job=\"{first}\"]').click(), true")).await;
     b.wait_for(

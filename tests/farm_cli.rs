@@ -87,8 +87,23 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
         "{workers}"
     );
     assert_eq!(wk["strips_failed"], 0);
-    // The table for people names the same worker.
-    assert!(ok_as_alice(&["workers", "--coordinator", &addr]).contains(&w.addr));
+    // It says which traversal `auto` chose there, and why (the coordinator
+    // hears it with the worker's next heartbeat).
+    let t = std::time::Instant::now();
+    loop {
+        let ws: Value =
+            serde_json::from_str(&ok_as_alice(&["workers", "--coordinator", &addr, "--json"]))
+                .unwrap();
+        if ws[0]["backend"].as_str().is_some_and(|b| !b.is_empty()) {
+            assert!(ws[0]["backend_why"].as_str().unwrap().starts_with("auto:"), "{ws}");
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(60), "no traversal reported: {ws}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    // The table for people names the same worker, and its traversal.
+    let table = ok_as_alice(&["workers", "--coordinator", &addr]);
+    assert!(table.contains(&w.addr) && table.contains("TRAVERSAL"), "{table}");
 
     // `fetch` gives back the image `submit` wrote, and its HDR frame.
     let fetched = dir.join("fetched.png");

@@ -760,7 +760,7 @@ async fn bad_specs_and_strings_are_refused_at_submit() {
         .unwrap_err();
     assert!(e.code() == Code::InvalidArgument && e.message().contains("lighting 42"), "{e:?}");
     let mut unknown = spec(16, 8);
-    unknown.frame.as_mut().unwrap().accel = 3;
+    unknown.frame.as_mut().unwrap().accel = 9;
     let e = c
         .submit_job(tokio_stream::iter(submission(
             unknown,
@@ -770,7 +770,7 @@ async fn bad_specs_and_strings_are_refused_at_submit() {
         )))
         .await
         .unwrap_err();
-    assert!(e.message().contains("accel 3"), "{e:?}");
+    assert!(e.message().contains("accel 9"), "{e:?}");
     let mut unknown = spec(16, 8);
     unknown.schedule = 9;
     let e = c

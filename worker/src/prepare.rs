@@ -46,7 +46,8 @@ impl PreparedScene {
 }
 
 /// The phases that prepare the traversal, whatever the lighting.
-pub const TRAVERSAL_PHASES: [&str; 4] = ["build", "coverage", "upload", "choose backend"];
+pub const TRAVERSAL_PHASES: [&str; 6] =
+    ["build", "coverage", "upload", "upload rq", "choose backend", "pipeline"];
 
 /// What a worker keeps from one preparation for the next frames: the
 /// scene's acceleration structures (the same for every view), and the LB
@@ -156,8 +157,9 @@ pub fn prepare_reusing(
     };
     let mut uploads = Vec::new();
     for &b in &candidates {
-        let gpu_scene =
-            phases.time("upload", || GpuScene::upload(ctx, scene, structure(b), &light))?;
+        // Ray queries: the device builds its structures as the scene goes up.
+        let name = if b == Backend::Rq { "upload rq" } else { "upload" };
+        let gpu_scene = phases.time(name, || GpuScene::upload(ctx, scene, structure(b), &light))?;
         uploads.push(gpu_scene);
     }
     let (gpu_scene, backend) = if uploads.len() == 1 {
@@ -170,7 +172,7 @@ pub fn prepare_reusing(
         Backend::Rq => gpu_scene.rq.as_ref().and_then(|r| r.bytes).unwrap_or(0) as usize,
         _ => reuse.accel.as_ref().map_or(0, |a| a.bytes()),
     };
-    let renderer = phases.time("upload", || -> anyhow::Result<StripRenderer> {
+    let renderer = phases.time("pipeline", || -> anyhow::Result<StripRenderer> {
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
         ctx.wait()?;
         Ok(r)

@@ -69,6 +69,14 @@ pub struct TraceBenchArgs {
     /// Skip the whole frames.
     #[arg(long)]
     pub no_frames: bool,
+    /// Backends whose whole frames are rendered (default: those of
+    /// `--accel`); ray queries on lavapipe take minutes a frame.
+    #[arg(long, value_delimiter = ',')]
+    pub frames_accel: Option<Vec<sylva_scene::frame::Backend>>,
+    /// Skip the time to the first frame (two `sylva render` processes, cold
+    /// and then warm from the prepared-data cache).
+    #[arg(long)]
+    pub no_first_frame: bool,
     /// Also write the rays (`rays.npy`: origin and direction per row) and
     /// every instance's triangles that a ray can hit, flattened to world
     /// space (`triangles.npy`), for `benchmarks/embree.py`.

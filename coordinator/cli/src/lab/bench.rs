@@ -311,7 +311,14 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             a.no_cpu,
         )?);
     }
-    let frames = if a.no_frames { Vec::new() } else { bench_frames(&ctx, &scene, &a, &backends)? };
+    let frame_backends = match &a.frames_accel {
+        Some(f) => measurable(&ctx, f),
+        None => backends.clone(),
+    };
+    let frames =
+        if a.no_frames { Vec::new() } else { bench_frames(&ctx, &scene, &a, &frame_backends)? };
+    let first_frame =
+        if a.no_first_frame { serde_json::Value::Null } else { bench_first_frame(&a)? };
     let out = json!({
         "benchmark": "trace",
         "scene": { "scale": a.scale, "triangle_scale": a.triangle_scale, "instances": scene.instances.len(),
@@ -323,6 +330,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         "traversal": traversal,
         "cpu_flat_opaque": cpu_flat_opaque,
         "frames": frames,
+        "first_frame": first_frame,
         "figures": {
             "traversal": "closest hits of one primary ray per pixel, the same rays for every structure and machine; GPU time includes upload of the rays and read-back of the hits",
             "cpu_flat_opaque": "with --flat: the CPU BVH built over every instance's triangles flattened to world space as one level, opaque: the same triangles and rays benchmarks/embree.py gives Embree",
@@ -331,6 +339,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             "bytes_per_triangle": "nodes, primitive lists and triangle records of both levels over the scene's unique triangles; for rq, the device's BLASes (compacted) and TLAS as its memory allocator reports them",
             "build_ms": "the CPU's structures (for rq, each triangle's coverage class) plus, for rq, the device's build and compaction",
             "frames": "a whole frame rendered as one strip with LB lighting: primary and shadow rays, shading, read-back; after a warm-up dispatch",
+            "first_frame": "`sylva render --local-workers 0 --accel auto` of the same forest at 1 spp with LB lighting, in a process of its own: cold (an empty prepared-data cache) and then warm (a restart that finds the cache). scene_to_frame_ms is the process's load, preparation and tracing (its phases); wall_ms adds starting, opening the GPU, tone mapping and writing the PNG. The targets: cold at most 2 × the frame's trace plus its upload, warm at most the trace plus the upload",
         },
     });
     println!("{}", serde_json::to_string_pretty(&out)?);
@@ -480,6 +489,69 @@ fn trace_structure(
         "shadow_rays": shadow_cpu.len(),
         "cpu_shadow": cpu_shadow,
         "gpu_shadow": gpu_shadow,
+    }))
+}
+
+/// Time to the first frame: the forest rendered by `sylva render` in a
+/// process of its own, cold and then warm from the prepared-data cache the
+/// first left behind.
+fn bench_first_frame(a: &TraceBenchArgs) -> anyhow::Result<serde_json::Value> {
+    use sylva_scene::table2::{ForestOptions, forest};
+    let dir = std::env::temp_dir().join(format!("sylva-first-frame-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    let file = forest(&ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: 1 })
+        .map_err(anyhow::Error::msg)?;
+    let scene = dir.join("forest.json");
+    std::fs::write(&scene, serde_json::to_string(&file)?)?;
+    let run = |name: &str| -> anyhow::Result<serde_json::Value> {
+        let out = dir.join(format!("{name}.png"));
+        let t = Instant::now();
+        let done = std::process::Command::new(std::env::current_exe()?)
+            .args(["render", &scene.display().to_string(), "--local-workers", "0"])
+            .args(["--accel", "auto", "--lighting", "lb", "--spp", "1", "--json"])
+            .args(["--width", &a.width.to_string(), "--height", &a.height.to_string()])
+            .args(["--out", &out.display().to_string()])
+            .args(["--prepared-cache-dir", &dir.join("cache").display().to_string()])
+            .args(["--prepared-cache-mib", "65536"])
+            .stderr(std::process::Stdio::null())
+            .output()?;
+        let wall_ms = t.elapsed().as_secs_f64() * 1e3;
+        anyhow::ensure!(done.status.success(), "the {name} render failed");
+        let stats: serde_json::Value = serde_json::from_slice(&done.stdout)?;
+        let phase = |p: &str| -> f64 {
+            stats["phases_ms"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter(|e| e["phase"] == p)
+                .filter_map(|e| e["ms"].as_f64())
+                .sum()
+        };
+        Ok(json!({
+            "wall_ms": wall_ms,
+            "scene_to_frame_ms": phase("load") + phase("prepare") + phase("trace"),
+            "trace_ms": phase("trace"),
+            // The chosen backend's buffers (and structures, for rq) and
+            // its pipeline: what the issue calls the upload.
+            "upload_ms": phase(if stats["backend"]["backend"] == "rq" { "upload rq" } else { "upload" })
+                + phase("pipeline"),
+            "backend": stats["backend"]["backend"],
+            "phases_ms": stats["phases_ms"],
+        }))
+    };
+    let cold = run("cold")?;
+    let warm = run("warm")?;
+    let _ = std::fs::remove_dir_all(&dir);
+    let ms = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap_or(0.0);
+    let (trace, upload) = (ms(&warm, "trace_ms"), ms(&warm, "upload_ms"));
+    Ok(json!({
+        "cold": cold,
+        "warm": warm,
+        "target_cold_ms": 2.0 * trace + upload,
+        "target_warm_ms": trace + upload,
+        "cold_over_target": ms(&cold, "scene_to_frame_ms") / (2.0 * trace + upload),
+        "warm_over_target": ms(&warm, "scene_to_frame_ms") / (trace + upload),
     }))
 }
 
