@@ -53,6 +53,8 @@ pub struct RqStructures {
     /// Bytes the device's allocator gave the structures, after compaction
     /// (`None` where the allocator does not report by name).
     pub bytes: Option<u64>,
+    /// Bytes of the BLASes as built, before compaction.
+    pub built_bytes: Option<u64>,
     /// Triangles in the BLASes, each counted once per model.
     pub triangles: u64,
     /// Wall time of the build and compaction, seconds.
@@ -162,6 +164,7 @@ pub(super) fn build(
         b.prepare_compaction_async(|_| {});
     }
     ctx.wait()?;
+    let built_bytes = allocated(device, &ours);
     let blases: Vec<Option<wgpu::Blas>> = blases
         .into_iter()
         .map(|b| b.map(|b| if b.ready_for_compaction() { ctx.queue.compact_blas(&b) } else { b }))
@@ -185,18 +188,24 @@ pub(super) fn build(
     enc.build_acceleration_structures(std::iter::empty(), std::iter::once(&tlas));
     ctx.queue.submit([enc.finish()]);
     ctx.wait()?;
-    let bytes = device.generate_allocator_report().and_then(|r| {
-        // Uncompacted BLASes were given back by the wait above.
-        let ours = r.allocations.iter().filter(|a| a.name.starts_with(&ours));
-        let (n, total) = ours.fold((0, 0), |(n, s), a| (n + 1, s + a.size));
-        (n > 0).then_some(total)
-    });
+    // Uncompacted BLASes were given back by the wait above.
+    let bytes = allocated(device, &ours);
     let triangles = models.iter().map(|m| (m.opaque + m.mixed) as u64).sum();
     Ok(RqStructures {
         tlas,
         blases,
         bytes,
+        built_bytes,
         triangles,
         build_seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// Bytes the device's allocator holds under labels starting `prefix`
+/// (`None` where it reports none by name).
+fn allocated(device: &wgpu::Device, prefix: &str) -> Option<u64> {
+    let r = device.generate_allocator_report()?;
+    let ours = r.allocations.iter().filter(|a| a.name.starts_with(prefix));
+    let (n, total) = ours.fold((0, 0), |(n, s), a| (n + 1, s + a.size));
+    (n > 0).then_some(total)
 }

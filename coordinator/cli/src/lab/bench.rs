@@ -405,6 +405,7 @@ fn trace_structure(
     // Ray queries: the device builds (and compacts) during the upload.
     let device_build_ms = gpu_scene.rq.as_ref().map_or(0.0, |r| r.build_seconds * 1e3);
     let build_ms = cpu_build_ms + device_build_ms;
+    let built_bytes = gpu_scene.rq.as_ref().and_then(|r| r.built_bytes);
     let bytes = match (&accel, &gpu_scene.rq) {
         (Some(a), _) => Some(a.bytes() as u64),
         (None, Some(rq)) => rq.bytes,
@@ -482,6 +483,7 @@ fn trace_structure(
         "device_build_ms": device_build_ms,
         "upload_ms": upload_ms,
         "bytes": bytes,
+        "bytes_before_compaction": built_bytes,
         "bytes_per_triangle": bytes.map(|b| b as f64 / scene.unique_triangles().max(1) as f64),
         "cpu": cpu,
         "cpu_opaque": cpu_opaque,
