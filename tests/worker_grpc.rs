@@ -46,6 +46,24 @@ fn scene_file(dir: &Path) -> PathBuf {
     p
 }
 
+type Client = WorkerClient<tonic::transport::Channel>;
+
+/// Two fresh workers (the second with `extra` flags), both holding the
+/// test scene's bundle (packed in a folder named for `test`).
+async fn two_loaded_workers(
+    test: &str,
+    extra: &[&str],
+) -> (bundle::SceneBundle, (WorkerProcess, WorkerProcess), Client, Client) {
+    let dir = std::env::temp_dir().join(format!("sylva-grpc-{test}-{}", std::process::id()));
+    let b = bundle::pack(&scene_file(&dir)).unwrap();
+    let (wa, wb) = (WorkerProcess::start(&[]), WorkerProcess::start(extra));
+    let (mut a, mut bw) = (wa.client().await, wb.client().await);
+    for c in [&mut a, &mut bw] {
+        c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
+    }
+    (b, (wa, wb), a, bw)
+}
+
 fn chunks(b: &bundle::SceneBundle, size: usize) -> Vec<pb::SceneChunk> {
     b.bytes
         .chunks(size)
@@ -302,15 +320,17 @@ async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
             })
             .unwrap_or_default()
     };
-    // Prepares and renders one strip on a fresh worker; its status after.
-    let run = async || {
+    // Prepares and renders one strip on a fresh worker; its status after
+    // (and why it traced as it did, in `last_why`).
+    let last_why = std::cell::Cell::new(String::new());
+    let run_with = async |f: pb::FrameSettings| {
         let w = WorkerProcess::start_with(&["--prepared-cache-dir", &cache_arg], &env);
         let mut c = w.client().await;
         c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
         let strip = c
             .render_strip(pb::RenderStripRequest {
                 scene_hash: b.hash.clone(),
-                frame: Some(frame()),
+                frame: Some(f),
                 x0: 0,
                 x1: 48,
                 job: String::new(),
@@ -320,6 +340,7 @@ async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
             .into_inner()
             .rgb_f32;
         let s = c.status(pb::StatusRequest {}).await.unwrap().into_inner();
+        last_why.replace(s.backend_why.clone());
         // The entries are written beside the first strip, not before it.
         let t = std::time::Instant::now();
         while entries().len() < 2 && t.elapsed().as_secs() < 60 {
@@ -327,6 +348,7 @@ async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
         }
         (strip, (s.accel_builds, s.lb_solves, s.disk_hits))
     };
+    let run = async || run_with(frame()).await;
     let (first, did) = run().await;
     assert_eq!(did, (1, 1, 0), "builds, solves and disk reads of a cold start");
     assert_eq!(entries().len(), 2, "the structures and the LB light, one entry each");
@@ -344,6 +366,13 @@ async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
     assert_eq!(did, (1, 1, 0), "damaged entries are not used");
     assert_eq!(third, first);
     assert_eq!(entries().len(), 2, "and are written again");
+    // `auto`'s measured choice is kept too: a restart takes it unmeasured.
+    let auto = pb::FrameSettings { accel: pb::Accel::Auto.into(), ..frame() };
+    run_with(auto.clone()).await;
+    let measured = last_why.take();
+    assert!(measured.starts_with("auto:") && !measured.contains("measured before"), "{measured}");
+    run_with(auto).await;
+    assert!(last_why.take().contains("measured before"), "the choice was measured again");
 }
 
 /// `auto` chooses on the worker, measured, and says so; ray queries need
@@ -351,13 +380,7 @@ async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
 /// light, and the worker taking it builds its own structures.
 #[tokio::test]
 async fn workers_choose_their_traversal_and_share_what_ray_queries_need() {
-    let dir = std::env::temp_dir().join(format!("sylva-grpc-rq-{}", std::process::id()));
-    let b = bundle::pack(&scene_file(&dir)).unwrap();
-    let (wa, wb) = (WorkerProcess::start(&[]), WorkerProcess::start(&[]));
-    let (mut a, mut bw) = (wa.client().await, wb.client().await);
-    for c in [&mut a, &mut bw] {
-        c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
-    }
+    let (b, _workers, mut a, mut bw) = two_loaded_workers("rq", &[]).await;
     let with = |accel: pb::Accel| pb::FrameSettings { accel: accel.into(), ..frame() };
     let ask = |f: pb::FrameSettings, build| pb::PrepareRequest {
         scene_hash: b.hash.clone(),
@@ -408,12 +431,8 @@ async fn workers_choose_their_traversal_and_share_what_ray_queries_need() {
 #[tokio::test]
 async fn prepared_data_moves_between_workers_and_bad_data_is_refused() {
     let dir = std::env::temp_dir().join(format!("sylva-grpc-share-{}", std::process::id()));
-    let b = bundle::pack(&scene_file(&dir)).unwrap();
-    let (wa, wb) = (WorkerProcess::start(&[]), WorkerProcess::start(&["--max-bundle-mib", "4"]));
-    let (mut a, mut bw) = (wa.client().await, wb.client().await);
-    for c in [&mut a, &mut bw] {
-        c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
-    }
+    let (b, _workers, mut a, mut bw) =
+        two_loaded_workers("share", &["--max-bundle-mib", "4"]).await;
     let ask = |f: pb::FrameSettings, build| pb::PrepareRequest {
         scene_hash: b.hash.clone(),
         frame: Some(f),
@@ -572,12 +591,7 @@ async fn a_worker_keeps_what_its_scenes_hold_within_its_memory_budget() {
 #[tokio::test]
 async fn imported_prepared_data_serves_only_the_job_that_brought_it() {
     let dir = std::env::temp_dir().join(format!("sylva-grpc-scope-{}", std::process::id()));
-    let b = bundle::pack(&scene_file(&dir)).unwrap();
-    let (wa, wb) = (WorkerProcess::start(&[]), WorkerProcess::start(&[]));
-    let (mut a, mut bw) = (wa.client().await, wb.client().await);
-    for c in [&mut a, &mut bw] {
-        c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
-    }
+    let (b, _workers, mut a, mut bw) = two_loaded_workers("scope", &[]).await;
     let ask = |job: &str| pb::PrepareRequest {
         scene_hash: b.hash.clone(),
         frame: Some(frame()),

@@ -121,6 +121,29 @@ impl DiskCache {
         self.bound();
     }
 
+    /// `--accel auto`'s choice for a scene on this adapter, if one was
+    /// kept: a restart need not build both backends and measure again.
+    pub fn choice(&self, bundle: &str, adapter: &str) -> Option<crate::share::SharedChoice> {
+        let key = choice_key(bundle, adapter);
+        let (hash, body) = self.read(&key)?;
+        let checked = (blake3::hash(&body).to_hex().as_str() == hash)
+            .then(|| postcard::from_bytes::<crate::share::SharedChoice>(&body).ok())
+            .flatten()
+            .filter(|c| c.adapter == adapter && c.why.len() <= 1024);
+        if checked.is_none() {
+            self.discard(&key, Some("not a choice made on this adapter".into()));
+        }
+        checked
+    }
+
+    /// Keeps `auto`'s choice for a scene (on the adapter it names).
+    pub fn keep_choice(&self, bundle: &str, choice: &crate::share::SharedChoice) {
+        let exported = postcard::to_stdvec(choice).map_err(anyhow::Error::from).map(|bytes| {
+            crate::share::Exported { hash: blake3::hash(&bytes).to_hex().to_string(), bytes }
+        });
+        self.write(&choice_key(bundle, &choice.adapter), exported);
+    }
+
     fn path(&self, key: &str) -> PathBuf {
         self.dir.join(format!("{key}.{EXT}"))
     }
@@ -208,6 +231,14 @@ fn accel_key(bundle: &str, kind: AccelKind) -> String {
     h.update(
         format!("sylva accel {FORMAT} {} {bundle} {kind:?}", env!("CARGO_PKG_VERSION")).as_bytes(),
     );
+    h.finalize().to_hex().to_string()
+}
+
+/// The name of `auto`'s choice for a scene on an adapter.
+fn choice_key(bundle: &str, adapter: &str) -> String {
+    let mut h = blake3::Hasher::new();
+    h.update(format!("sylva choice {FORMAT} {} {bundle} ", env!("CARGO_PKG_VERSION")).as_bytes());
+    h.update(adapter.as_bytes());
     h.finalize().to_hex().to_string()
 }
 

@@ -26,6 +26,11 @@ pub unsafe fn prefer_narrow_lavapipe_lanes() {
     }
 }
 
+/// Set to 1, the device is opened without ray queries even where the
+/// adapter has them (a driver whose ray queries misbehave; measuring what
+/// the feature costs the other kernels).
+pub const NO_RAY_QUERIES_VAR: &str = "SYLVA_NO_RAY_QUERIES";
+
 /// An open GPU device (cheap to clone: wgpu's handles are shared).
 #[derive(Clone)]
 pub struct GpuContext {
@@ -63,7 +68,10 @@ impl GpuContext {
         // Ray queries where the adapter has them (the `rq` backend). wgpu
         // calls the feature experimental: its API may change between
         // releases, which this crate's pinned wgpu version absorbs.
-        let ray_queries = adapter.features() & wgpu::Features::EXPERIMENTAL_RAY_QUERY;
+        let mut ray_queries = adapter.features() & wgpu::Features::EXPERIMENTAL_RAY_QUERY;
+        if std::env::var_os(NO_RAY_QUERIES_VAR).is_some_and(|v| v == "1") {
+            ray_queries = wgpu::Features::empty();
+        }
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("sylva"),

@@ -301,11 +301,33 @@ fn prepare_here(
     if found.accel || found.lb {
         tracing::info!(structures = found.accel, lb = found.lb, dir = %cache.dir().display(), "prepared data read from the disk cache");
     }
-    let prepared = prepare_reusing(ctx, scene, accel, lighting, &mut reuse, &progress)?;
+    // `auto` measured before on this adapter need not measure again.
+    let adapter = ctx.adapter_name();
+    let kept = (accel == AccelChoice::Auto).then(|| cache.choice(&hash, &adapter)).flatten();
+    let asked = kept.as_ref().map_or(accel, |c| c.backend.into());
+    let mut prepared = prepare_reusing(ctx, scene, asked, lighting, &mut reuse, &progress)?;
+    let measured = match kept {
+        Some(c) => {
+            prepared.backend.asked = accel;
+            prepared.backend.why = format!("{} (measured before, for this scene)", c.why);
+            None
+        }
+        None if accel == AccelChoice::Auto => Some(sylva_worker::share::SharedChoice {
+            adapter,
+            backend: prepared.backend.backend,
+            why: prepared.backend.why.clone(),
+        }),
+        None => None,
+    };
     let built = reuse.accel.filter(|_| !found.accel);
     let solved = reuse.lb.filter(|_| !found.lb);
     let name = sylva_worker::disk_cache::LbName::of(&hash, scene, None);
-    let keep = move || cache.keep(&hash, built.as_deref(), solved.as_deref().map(|l| (&name, l)));
+    let keep = move || {
+        cache.keep(&hash, built.as_deref(), solved.as_deref().map(|l| (&name, l)));
+        if let Some(c) = measured {
+            cache.keep_choice(&hash, &c);
+        }
+    };
     Ok((prepared, Some(keep)))
 }
 

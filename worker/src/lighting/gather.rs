@@ -43,11 +43,15 @@ pub fn filtered(f: &crate::trace::RenderSettings) -> bool {
 /// another crown or on the ground behind, whose indirect light the filter
 /// must not mix in (docs/lighting.md, "Filtering the gather").
 pub fn crown_depth(scene: &sylva_scene::Scene) -> f32 {
+    // Each model's bounds once: a forest's instances share a few models,
+    // and walking a model's vertices per instance cost the full forest's
+    // first frame 2.3 s (benchmarks/results/issue-28).
+    let bounds: Vec<_> = scene.models.iter().map(|m| m.model.bounds()).collect();
     scene
         .instances
         .iter()
         .filter_map(|i| {
-            let (lo, hi) = scene.models[i.model as usize].model.bounds()?;
+            let (lo, hi) = bounds[i.model as usize]?;
             let size = i.to_world.matrix3 * (hi - lo);
             let half = 0.5 * glam::Vec2::new(size.x.abs(), size.z.abs()).min_element();
             (half > 0.0).then_some(half)

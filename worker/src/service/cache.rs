@@ -203,10 +203,14 @@ impl State {
         }
         // `auto` is measured once per scene and adapter: by this worker, or
         // by the one whose prepared data it took.
+        let adapter = self.ctx.adapter_name();
         let adopted = (accel == AccelChoice::Auto)
-            .then(|| lock(&self.choices).get(hash).cloned())
+            .then(|| {
+                let held = lock(&self.choices).get(hash).cloned();
+                held.or_else(|| self.config.disk_cache.as_ref()?.choice(hash, &adapter))
+            })
             .flatten()
-            .filter(|c| c.adapter == self.ctx.adapter_name());
+            .filter(|c| c.adapter == adapter);
         let asked = adopted.as_ref().map_or(accel, |c| c.backend.into());
         let mut p = prepare_reusing(&self.ctx, &scene, asked, lighting, &mut reuse, &|m| {
             tracing::info!("{m}")
@@ -221,14 +225,15 @@ impl State {
                 }
             }
             None if accel == AccelChoice::Auto => {
-                lock(&self.choices).insert(
-                    hash.to_string(),
-                    crate::share::SharedChoice {
-                        adapter: self.ctx.adapter_name(),
-                        backend: p.backend.backend,
-                        why: p.backend.why.clone(),
-                    },
-                );
+                let c = crate::share::SharedChoice {
+                    adapter,
+                    backend: p.backend.backend,
+                    why: p.backend.why.clone(),
+                };
+                if let Some(d) = &self.config.disk_cache {
+                    d.keep_choice(hash, &c);
+                }
+                lock(&self.choices).insert(hash.to_string(), c);
             }
             None => {}
         }
