@@ -46,8 +46,8 @@ impl PreparedScene {
 }
 
 /// The phases that prepare the traversal, whatever the lighting.
-pub const TRAVERSAL_PHASES: [&str; 6] =
-    ["build", "coverage", "upload", "upload rq", "choose backend", "pipeline"];
+pub const TRAVERSAL_PHASES: [&str; 7] =
+    ["build", "coverage", "upload", "upload rq", "choose backend", "kernels", "pipeline"];
 
 /// What a worker keeps from one preparation for the next frames: the
 /// scene's acceleration structures (the same for every view), and the LB
@@ -60,6 +60,23 @@ pub struct Reuse {
     pub coverage: Option<Arc<Vec<Vec<Coverage>>>>,
     /// LB light solved before for this scene, lighting and sun.
     pub lb: Option<Arc<SceneLb>>,
+    /// Where on disk to look for what is missing before building or
+    /// solving it.
+    pub disk: Option<DiskSource>,
+    /// What was found there.
+    pub found: crate::disk_cache::Found,
+}
+
+/// A scene's prepared data on disk: the cache, the bundle's hash that names
+/// its entries, and the sun key of the light asked for.
+#[derive(Clone)]
+pub struct DiskSource {
+    /// The cache.
+    pub cache: crate::DiskCache,
+    /// The bundle's hash.
+    pub bundle: String,
+    /// The frame's sun key (`None`: the scene's own sun).
+    pub sun: Option<[u32; 3]>,
 }
 
 /// Prepares `scene` for tracing with the `accel` backend (`auto`: this
@@ -89,6 +106,21 @@ pub fn prepare_reusing(
     let candidates = crate::trace::candidates(ctx, asked)?;
     let needs = lighting::method(lighting).needs;
     let mut phases = PhaseTimer::default();
+    // Where the backend is known, its render kernels compile from the
+    // start, beside everything else until the pipeline needs them.
+    let compiler = (candidates.len() == 1).then(|| {
+        let (ctx, backend, clouds) = (ctx.clone(), candidates[0], !scene.clouds.is_empty());
+        std::thread::spawn(move || {
+            let t = std::time::Instant::now();
+            // An error here is the pipeline's to report, below.
+            let _ = StripRenderer::kernels_for(&ctx, backend, clouds);
+            t.elapsed().as_secs_f64() * 1e3
+        })
+    });
+    if let Some(d) = reuse.disk.clone() {
+        let lb_for = needs.lb.then_some(d.sun);
+        reuse.found = d.cache.fill(&d.bundle, scene, asked.walked_structure(), lb_for, reuse);
+    }
     // The structures are built on another thread while this one solves the
     // LB light: neither needs the other (phases then overlap in time).
     let structures = {
@@ -172,6 +204,9 @@ pub fn prepare_reusing(
         Backend::Rq => gpu_scene.rq.as_ref().and_then(|r| r.bytes).unwrap_or(0) as usize,
         _ => reuse.accel.as_ref().map_or(0, |a| a.bytes()),
     };
+    if let Some(Ok(ms)) = compiler.map(|c| c.join()) {
+        phases.0.push(sylva_light::lb::solver::Phase { name: "kernels", ms });
+    }
     let renderer = phases.time("pipeline", || -> anyhow::Result<StripRenderer> {
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
         ctx.wait()?;

@@ -287,25 +287,26 @@ fn prepare_here(
     lighting: LightingMode,
     bar: &ProgressBar,
 ) -> anyhow::Result<(PreparedScene, Option<impl FnOnce() + use<>>)> {
-    use sylva_worker::prepare::{Reuse, prepare_reusing};
+    use sylva_worker::prepare::{DiskSource, Reuse, prepare_reusing};
     let progress = |m: &str| progress::stage(bar, m);
     let Some(cache) = a.prepared_cache.open()? else {
         return Ok((prepare(ctx, scene, accel, lighting, &progress)?, None));
     };
     // Entries are named by the bundle's content, as a worker names them.
     let hash = sylva_scene::bundle::pack(&a.scene)?.hash;
-    let needs_lb = sylva_worker::lighting::method(lighting).needs.lb;
-    let mut reuse = Reuse::default();
-    let found =
-        cache.fill(&hash, scene, accel.walked_structure(), needs_lb.then_some(None), &mut reuse);
-    if found.accel || found.lb {
-        tracing::info!(structures = found.accel, lb = found.lb, dir = %cache.dir().display(), "prepared data read from the disk cache");
-    }
+    let mut reuse = Reuse {
+        disk: Some(DiskSource { cache: cache.clone(), bundle: hash.clone(), sun: None }),
+        ..Default::default()
+    };
     // `auto` measured before on this adapter need not measure again.
     let adapter = ctx.adapter_name();
     let kept = (accel == AccelChoice::Auto).then(|| cache.choice(&hash, &adapter)).flatten();
     let asked = kept.as_ref().map_or(accel, |c| c.backend.into());
     let mut prepared = prepare_reusing(ctx, scene, asked, lighting, &mut reuse, &progress)?;
+    let found = reuse.found;
+    if found.accel || found.lb {
+        tracing::info!(structures = found.accel, lb = found.lb, dir = %cache.dir().display(), "prepared data read from the disk cache");
+    }
     let measured = match kept {
         Some(c) => {
             prepared.backend.asked = accel;

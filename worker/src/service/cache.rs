@@ -183,24 +183,16 @@ impl State {
             } else {
                 None
             },
+            ..Default::default()
         };
         let (solved_before, built_before) = (reuse.lb.is_some(), reuse.accel.is_some());
         let scene = scene.with_view(view);
         // What memory lacks, the disk may hold from before a restart.
-        let from_disk = match &self.config.disk_cache {
-            Some(d) => {
-                d.fill(hash, &scene, accel.walked_structure(), needs.lb.then_some(sun), &mut reuse)
-            }
-            None => Default::default(),
-        };
-        if from_disk.accel || from_disk.lb {
-            self.disk_hits.fetch_add(1, Ordering::Relaxed);
-            tracing::info!(
-                structures = from_disk.accel,
-                lb = from_disk.lb,
-                "prepared data read from the disk cache"
-            );
-        }
+        reuse.disk = self.config.disk_cache.clone().map(|cache| crate::prepare::DiskSource {
+            cache,
+            bundle: hash.to_string(),
+            sun,
+        });
         // `auto` is measured once per scene and adapter: by this worker, or
         // by the one whose prepared data it took.
         let adapter = self.ctx.adapter_name();
@@ -236,6 +228,15 @@ impl State {
                 lock(&self.choices).insert(hash.to_string(), c);
             }
             None => {}
+        }
+        let from_disk = reuse.found;
+        if from_disk.accel || from_disk.lb {
+            self.disk_hits.fetch_add(1, Ordering::Relaxed);
+            tracing::info!(
+                structures = from_disk.accel,
+                lb = from_disk.lb,
+                "prepared data read from the disk cache"
+            );
         }
         let p = Arc::new(p);
         tracing::info!(backend = p.backend.backend.name(), "{}", p.backend.why);

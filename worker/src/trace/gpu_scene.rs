@@ -537,30 +537,8 @@ impl GpuScene {
             None
         };
         let binding_of = |i: usize| if rq && i >= 14 { i as u32 + 1 } else { i as u32 };
-        let mut entries: Vec<wgpu::BindGroupLayoutEntry> = (0..buffers.len())
-            .map(|i| wgpu::BindGroupLayoutEntry {
-                binding: binding_of(i),
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage { read_only: true },
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            })
-            .collect();
-        if rq {
-            entries.push(wgpu::BindGroupLayoutEntry {
-                binding: 14,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::AccelerationStructure { vertex_return: false },
-                count: None,
-            });
-        }
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("scene"),
-            entries: &entries,
-        });
+        debug_assert_eq!(buffers.len(), if rq { 15 } else { 14 });
+        let layout = Self::layout_for(device, backend);
         let mut bg_entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
@@ -585,6 +563,37 @@ impl GpuScene {
             backend,
             rq: rq_structures,
             ground: ([0.0; 4], [0; 4]),
+        })
+    }
+
+    /// Group 0's layout for a scene traced by `backend`: 14 storage buffers
+    /// (bindings 0–13), and with ray queries the TLAS (14) and the BLAS
+    /// order's triangles (15). Alike layouts are one to wgpu, so kernels
+    /// can be built from this before any scene is uploaded.
+    pub fn layout_for(device: &wgpu::Device, backend: Backend) -> wgpu::BindGroupLayout {
+        let storage = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let mut entries: Vec<wgpu::BindGroupLayoutEntry> = (0..14).map(storage).collect();
+        if backend == Backend::Rq {
+            entries.push(wgpu::BindGroupLayoutEntry {
+                binding: 14,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::AccelerationStructure { vertex_return: false },
+                count: None,
+            });
+            entries.push(storage(15));
+        }
+        device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("scene"),
+            entries: &entries,
         })
     }
 

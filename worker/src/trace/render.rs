@@ -8,7 +8,7 @@ use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 use sylva_scene::film::RayCounts;
-use sylva_scene::frame::FrameSettings;
+use sylva_scene::frame::{Backend, FrameSettings};
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
@@ -230,17 +230,11 @@ pub struct StripRenderer {
 impl StripRenderer {
     /// Builds the pipeline for an uploaded scene.
     pub fn new(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> anyhow::Result<Self> {
-        ctx.checked("building the render pipeline", || Ok(Self::build(ctx, gpu_scene, scene)))
+        let kernels = Self::kernels_for(ctx, gpu_scene.backend, !scene.clouds.is_empty())?;
+        Ok(Self::build(gpu_scene, scene, kernels))
     }
 
-    fn build(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> Self {
-        let key = (gpu_scene.accel_kind(), !scene.clouds.is_empty());
-        let cached = ctx.render_kernels.lock().expect("lock").get(&key).cloned();
-        let kernels = cached.unwrap_or_else(|| {
-            let k = std::sync::Arc::new(Self::kernels(ctx, &gpu_scene, key.1));
-            ctx.render_kernels.lock().expect("lock").insert(key, k.clone());
-            k
-        });
+    fn build(gpu_scene: GpuScene, scene: &Scene, kernels: std::sync::Arc<Kernels>) -> Self {
         let mut base = FrameUniform {
             sun_radiance: scene.sun.radiance,
             sky_zenith: scene.sky.zenith,
@@ -268,10 +262,31 @@ impl StripRenderer {
         Self { scene: gpu_scene, kernels, base, crown_depth }
     }
 
-    /// Compiles the render kernels for a scene's structure and clouds.
-    fn kernels(ctx: &GpuContext, gpu_scene: &GpuScene, clouds: bool) -> Kernels {
+    /// The render kernels for a backend, with or without clouds: compiled
+    /// on first use and kept in the device's cache. A preparation calls it
+    /// early, on a thread of its own, so compiling overlaps its other work.
+    pub(crate) fn kernels_for(
+        ctx: &GpuContext,
+        backend: Backend,
+        clouds: bool,
+    ) -> anyhow::Result<std::sync::Arc<Kernels>> {
+        let key = (super::gpu_scene::accel_kind(backend), clouds);
+        if let Some(k) = ctx.render_kernels.lock().expect("lock").get(&key) {
+            return Ok(k.clone());
+        }
+        // Kept only once compiled without an error.
+        let k = ctx.checked("building the render pipeline", || {
+            Ok(std::sync::Arc::new(Self::kernels(ctx, backend, clouds)))
+        })?;
+        ctx.render_kernels.lock().expect("lock").insert(key, k.clone());
+        Ok(k)
+    }
+
+    /// Compiles the render kernels for a backend and clouds.
+    fn kernels(ctx: &GpuContext, backend: Backend, clouds: bool) -> Kernels {
         let device = &ctx.device;
-        let module = ctx.trusted_module("render", render_source(gpu_scene.backend));
+        let module = ctx.trusted_module("render", render_source(backend));
+        let scene_layout = GpuScene::layout_for(device, backend);
         let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
@@ -288,7 +303,7 @@ impl StripRenderer {
         });
         let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("render"),
-            bind_group_layouts: &[Some(&gpu_scene.layout), Some(&layout)],
+            bind_group_layouts: &[Some(&scene_layout), Some(&layout)],
             immediate_size: 0,
         });
         let pipelines = Kernel::ALL.map(|kernel| {
@@ -299,7 +314,7 @@ impl StripRenderer {
                 entry_point: Some("render_strip"),
                 compilation_options: wgpu::PipelineCompilationOptions {
                     constants: &[
-                        ("ACCEL_KIND", gpu_scene.accel_kind() as f64),
+                        ("ACCEL_KIND", super::gpu_scene::accel_kind(backend) as f64),
                         ("LIGHTING_FAMILY", kernel as u32 as f64),
                         ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
                     ],
