@@ -539,7 +539,8 @@ fn bench_first_frame(a: &TraceBenchArgs) -> anyhow::Result<serde_json::Value> {
             // issue calls the upload.
             "upload_ms": phase(if stats["backend"]["backend"] == "rq" { "upload rq" } else { "upload" })
                 + phase("kernels") + phase("pipeline"),
-            "backend": stats["backend"]["backend"],
+            // What `auto` chose, and why (its probe's figures).
+            "backend": stats["backend"],
             "phases_ms": stats["phases_ms"],
         }))
     };
