@@ -152,7 +152,12 @@ impl DiskCache {
     /// or unreadable.
     fn read(&self, key: &str) -> Option<(String, Vec<u8>)> {
         let path = self.path(key);
-        let data = std::fs::read(&path).ok()?;
+        // Nothing larger than the whole cache was written here.
+        if std::fs::metadata(&path).ok()?.len() > self.limit {
+            self.discard(key, Some("larger than the cache's bound".into()));
+            return None;
+        }
+        let mut data = std::fs::read(&path).ok()?;
         // Recency for eviction: the modification time, set on use.
         let _ = std::fs::File::options()
             .append(true)
@@ -163,9 +168,8 @@ impl DiskCache {
             self.discard(key, Some("shorter than its header".into()));
             return None;
         }
-        let (hash, body) = data.split_at(64);
-        let hash = String::from_utf8(hash.to_vec()).ok()?;
-        Some((hash, body.to_vec()))
+        let body = data.split_off(64);
+        Some((String::from_utf8(data).ok()?, body))
     }
 
     fn write(&self, key: &str, exported: anyhow::Result<crate::share::Exported>) {
@@ -187,7 +191,10 @@ impl DiskCache {
         tracing::warn!(
             entry = key,
             "cached prepared data refused, preparing again: {}",
-            why.unwrap_or_else(|| "it holds the wrong parts".into())
+            // The checks' words may quote the scene's names.
+            sylva_scene::sandbox::escaped(
+                &why.unwrap_or_else(|| "it holds the wrong parts".into())
+            )
         );
         let _ = std::fs::remove_file(self.path(key));
     }

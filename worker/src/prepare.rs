@@ -22,7 +22,8 @@ use sylva_scene::{LightingMode, Scene};
 pub struct PreparedScene {
     /// The renderer.
     pub renderer: StripRenderer,
-    /// Wall time per phase: build, voxelize, lb, upload.
+    /// Wall time per phase (build, voxelize, lb, upload, …); the structures'
+    /// phases overlap the lighting's.
     pub phases: PhaseTimer,
     /// Bytes of the acceleration structures rays traverse (the device's,
     /// with ray queries, where its allocator reports them).
@@ -65,6 +66,30 @@ pub struct Reuse {
     pub disk: Option<DiskSource>,
     /// What was found there.
     pub found: crate::disk_cache::Found,
+    /// `--accel auto`'s choice for this scene on this adapter, known
+    /// before (measured here or taken with another worker's data); after
+    /// an `auto` preparation, the choice it made or took.
+    pub choice: Option<crate::share::SharedChoice>,
+    /// Whether the last preparation built the structures itself.
+    pub built: bool,
+    /// Whether the last preparation solved the LB light itself.
+    pub solved: bool,
+}
+
+impl Reuse {
+    /// What writes to the disk cache what the last preparation built or
+    /// solved itself (nothing when it has no cache or made nothing): the
+    /// caller runs it when the first frame no longer waits for it.
+    pub fn keeper(&self, scene: &Scene) -> Option<impl FnOnce() + Send + 'static + use<>> {
+        let d = self.disk.clone()?;
+        let accel = self.accel.clone().filter(|_| self.built);
+        let lb = self.lb.clone().filter(|_| self.solved);
+        if accel.is_none() && lb.is_none() {
+            return None;
+        }
+        let name = crate::disk_cache::LbName::of(&d.bundle, scene, d.sun);
+        Some(move || d.cache.keep(&d.bundle, accel.as_deref(), lb.as_deref().map(|l| (&name, l))))
+    }
 }
 
 /// A scene's prepared data on disk: the cache, the bundle's hash that names
@@ -103,7 +128,17 @@ pub fn prepare_reusing(
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<PreparedScene> {
     let asked = accel.into();
-    let candidates = crate::trace::candidates(ctx, asked)?;
+    // `auto` measured before for this scene on this adapter (in memory, or
+    // on disk from before a restart) is not measured again.
+    let adapter = ctx.adapter_name();
+    let adopted = (asked == AccelChoice::Auto)
+        .then(|| {
+            let known = reuse.choice.clone().filter(|c| c.adapter == adapter);
+            known.or_else(|| reuse.disk.as_ref().and_then(|d| d.cache.choice(&d.bundle, &adapter)))
+        })
+        .flatten();
+    let resolved = adopted.as_ref().map_or(asked, |c| c.backend.into());
+    let candidates = crate::trace::candidates(ctx, resolved)?;
     let needs = lighting::method(lighting).needs;
     let mut phases = PhaseTimer::default();
     // Where the backend is known, its render kernels compile from the
@@ -119,8 +154,9 @@ pub fn prepare_reusing(
     });
     if let Some(d) = reuse.disk.clone() {
         let lb_for = needs.lb.then_some(d.sun);
-        reuse.found = d.cache.fill(&d.bundle, scene, asked.walked_structure(), lb_for, reuse);
+        reuse.found = d.cache.fill(&d.bundle, scene, resolved.walked_structure(), lb_for, reuse);
     }
+    let had_accel = reuse.accel.clone();
     // The structures are built on another thread while this one solves the
     // LB light: neither needs the other (phases then overlap in time).
     let structures = {
@@ -157,7 +193,12 @@ pub fn prepare_reusing(
     let (accel, coverage, built_phases) =
         built.map_err(|_| anyhow::anyhow!("building the acceleration structures panicked"))?;
     phases.0.extend(built_phases.0);
+    reuse.built = match (&accel, &had_accel) {
+        (Some(a), Some(h)) => !Arc::ptr_eq(a, h),
+        (a, _) => a.is_some(),
+    };
     (reuse.accel, reuse.coverage) = (accel, coverage);
+    reuse.solved = lb.is_some();
     if let Some(lb) = lb {
         reuse.lb = Some(Arc::new(lb?));
     }
@@ -195,11 +236,27 @@ pub fn prepare_reusing(
         uploads.push(gpu_scene);
     }
     let (gpu_scene, backend) = if uploads.len() == 1 {
-        (uploads.pop().expect("one"), crate::trace::BackendChoice::asked(asked, candidates[0], ctx))
+        let mut b = crate::trace::BackendChoice::asked(asked, candidates[0], ctx);
+        if let Some(c) = &adopted {
+            b.why = format!("{} (measured before, for this scene)", c.why);
+        }
+        (uploads.pop().expect("one"), b)
     } else {
         progress("measuring the traversal backends");
         phases.time("choose backend", || crate::trace::choose(ctx, scene, asked, uploads))?
     };
+    if asked == AccelChoice::Auto {
+        let measured = adopted.is_none();
+        let c = adopted.unwrap_or_else(|| crate::share::SharedChoice {
+            adapter,
+            backend: backend.backend,
+            why: backend.why.clone(),
+        });
+        if let (true, Some(d)) = (measured, &reuse.disk) {
+            d.cache.keep_choice(&d.bundle, &c);
+        }
+        reuse.choice = Some(c);
+    }
     let accel_bytes = match gpu_scene.backend {
         Backend::Rq => gpu_scene.rq.as_ref().and_then(|r| r.bytes).unwrap_or(0) as usize,
         _ => reuse.accel.as_ref().map_or(0, |a| a.bytes()),

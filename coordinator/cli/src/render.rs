@@ -294,42 +294,15 @@ fn prepare_here(
     };
     // Entries are named by the bundle's content, as a worker names them.
     let hash = sylva_scene::bundle::pack(&a.scene)?.hash;
-    let mut reuse = Reuse {
-        disk: Some(DiskSource { cache: cache.clone(), bundle: hash.clone(), sun: None }),
-        ..Default::default()
-    };
-    // `auto` measured before on this adapter need not measure again.
-    let adapter = ctx.adapter_name();
-    let kept = (accel == AccelChoice::Auto).then(|| cache.choice(&hash, &adapter)).flatten();
-    let asked = kept.as_ref().map_or(accel, |c| c.backend.into());
-    let mut prepared = prepare_reusing(ctx, scene, asked, lighting, &mut reuse, &progress)?;
+    let dir = cache.dir().display().to_string();
+    let mut reuse =
+        Reuse { disk: Some(DiskSource { cache, bundle: hash, sun: None }), ..Default::default() };
+    let prepared = prepare_reusing(ctx, scene, accel, lighting, &mut reuse, &progress)?;
     let found = reuse.found;
     if found.accel || found.lb {
-        tracing::info!(structures = found.accel, lb = found.lb, dir = %cache.dir().display(), "prepared data read from the disk cache");
+        tracing::info!(structures = found.accel, lb = found.lb, %dir, "prepared data read from the disk cache");
     }
-    let measured = match kept {
-        Some(c) => {
-            prepared.backend.asked = accel;
-            prepared.backend.why = format!("{} (measured before, for this scene)", c.why);
-            None
-        }
-        None if accel == AccelChoice::Auto => Some(sylva_worker::share::SharedChoice {
-            adapter,
-            backend: prepared.backend.backend,
-            why: prepared.backend.why.clone(),
-        }),
-        None => None,
-    };
-    let built = reuse.accel.filter(|_| !found.accel);
-    let solved = reuse.lb.filter(|_| !found.lb);
-    let name = sylva_worker::disk_cache::LbName::of(&hash, scene, None);
-    let keep = move || {
-        cache.keep(&hash, built.as_deref(), solved.as_deref().map(|l| (&name, l)));
-        if let Some(c) = measured {
-            cache.keep_choice(&hash, &c);
-        }
-    };
-    Ok((prepared, Some(keep)))
+    Ok((prepared, reuse.keeper(scene)))
 }
 
 /// The reference in this process: path traced in batches until its own

@@ -183,51 +183,24 @@ impl State {
             } else {
                 None
             },
+            // `auto` is measured once per scene and adapter: by this worker,
+            // or by the one whose prepared data it took.
+            choice: lock(&self.choices).get(hash).cloned(),
+            // What memory lacks, the disk may hold from before a restart.
+            disk: self.config.disk_cache.clone().map(|cache| crate::prepare::DiskSource {
+                cache,
+                bundle: hash.to_string(),
+                sun,
+            }),
             ..Default::default()
         };
         let (solved_before, built_before) = (reuse.lb.is_some(), reuse.accel.is_some());
         let scene = scene.with_view(view);
-        // What memory lacks, the disk may hold from before a restart.
-        reuse.disk = self.config.disk_cache.clone().map(|cache| crate::prepare::DiskSource {
-            cache,
-            bundle: hash.to_string(),
-            sun,
-        });
-        // `auto` is measured once per scene and adapter: by this worker, or
-        // by the one whose prepared data it took.
-        let adapter = self.ctx.adapter_name();
-        let adopted = (accel == AccelChoice::Auto)
-            .then(|| {
-                let held = lock(&self.choices).get(hash).cloned();
-                held.or_else(|| self.config.disk_cache.as_ref()?.choice(hash, &adapter))
-            })
-            .flatten()
-            .filter(|c| c.adapter == adapter);
-        let asked = adopted.as_ref().map_or(accel, |c| c.backend.into());
-        let mut p = prepare_reusing(&self.ctx, &scene, asked, lighting, &mut reuse, &|m| {
+        let p = prepare_reusing(&self.ctx, &scene, accel, lighting, &mut reuse, &|m| {
             tracing::info!("{m}")
         })?;
-        match adopted {
-            Some(c) => {
-                p.backend = crate::trace::BackendChoice {
-                    asked: accel,
-                    backend: c.backend,
-                    why: format!("{} (measured before, for this scene)", c.why),
-                    probe: Vec::new(),
-                }
-            }
-            None if accel == AccelChoice::Auto => {
-                let c = crate::share::SharedChoice {
-                    adapter,
-                    backend: p.backend.backend,
-                    why: p.backend.why.clone(),
-                };
-                if let Some(d) = &self.config.disk_cache {
-                    d.keep_choice(hash, &c);
-                }
-                lock(&self.choices).insert(hash.to_string(), c);
-            }
-            None => {}
+        if let Some(c) = reuse.choice.take() {
+            lock(&self.choices).insert(hash.to_string(), c);
         }
         let from_disk = reuse.found;
         if from_disk.accel || from_disk.lb {
@@ -241,26 +214,18 @@ impl State {
         let p = Arc::new(p);
         tracing::info!(backend = p.backend.backend.name(), "{}", p.backend.why);
         *lock(&self.backend) = Some(p.backend.clone());
-        let built = reuse.accel.clone().filter(|_| !built_before && !from_disk.accel);
-        let solved = reuse.lb.clone().filter(|_| !solved_before && !from_disk.lb);
+        self.accel_builds.fetch_add(reuse.built as u64, Ordering::Relaxed);
+        self.lb_solves.fetch_add(reuse.solved as u64, Ordering::Relaxed);
+        // Written for the next start on a thread of its own: the strips
+        // need not wait for the disk.
+        if let Some(keep) = reuse.keeper(&scene) {
+            std::thread::spawn(keep);
+        }
         if let (Some(a), false) = (reuse.accel, built_before) {
-            self.accel_builds.fetch_add(built.is_some() as u64, Ordering::Relaxed);
             lock(&self.accels).insert((hash.to_string(), a.kind), a);
         }
         if let (Some(lb), false) = (reuse.lb, solved_before) {
-            self.lb_solves.fetch_add(solved.is_some() as u64, Ordering::Relaxed);
             self.keep_lb(lb_key, lb);
-        }
-        // Written for the next start on a thread of its own: the strips
-        // need not wait for the disk.
-        if let Some(d) = self.config.disk_cache.clone()
-            && (built.is_some() || solved.is_some())
-        {
-            let hash = hash.to_string();
-            let name = crate::disk_cache::LbName::of(&hash, &scene, sun);
-            std::thread::spawn(move || {
-                d.keep(&hash, built.as_deref(), solved.as_deref().map(|l| (&name, l)))
-            });
         }
         {
             let mut prepared = lock(&self.prepared);

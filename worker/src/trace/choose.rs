@@ -55,10 +55,11 @@ impl BackendChoice {
     /// The choice when only one backend was a candidate.
     pub fn asked(asked: AccelChoice, backend: Backend, ctx: &GpuContext) -> Self {
         let why = match asked {
-            AccelChoice::Auto => format!(
+            AccelChoice::Auto if !ctx.has_ray_queries() => format!(
                 "auto: {} offers no ray queries, so the BVH, the faster compute walk",
                 ctx.adapter_name()
             ),
+            AccelChoice::Auto => format!("auto: {}", backend.name()),
             _ => format!("asked for {}", backend.name()),
         };
         Self { asked, backend, why, probe: Vec::new() }
