@@ -136,7 +136,9 @@ pub fn prepare_reusing(
             let known = reuse.choice.clone().filter(|c| c.adapter == adapter);
             known.or_else(|| reuse.disk.as_ref().and_then(|d| d.cache.choice(&d.bundle, &adapter)))
         })
-        .flatten();
+        .flatten()
+        // Another worker's word: only a backend this device can run.
+        .filter(|c| c.backend != Backend::Rq || ctx.has_ray_queries());
     let resolved = adopted.as_ref().map_or(asked, |c| c.backend.into());
     let candidates = crate::trace::candidates(ctx, resolved)?;
     let needs = lighting::method(lighting).needs;
