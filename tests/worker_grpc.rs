@@ -327,18 +327,7 @@ async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
         let w = WorkerProcess::start_with(&["--prepared-cache-dir", &cache_arg], &env);
         let mut c = w.client().await;
         c.load_scene(tokio_stream::iter(chunks(&b, 1 << 20))).await.unwrap();
-        let strip = c
-            .render_strip(pb::RenderStripRequest {
-                scene_hash: b.hash.clone(),
-                frame: Some(f),
-                x0: 0,
-                x1: 48,
-                job: String::new(),
-            })
-            .await
-            .unwrap()
-            .into_inner()
-            .rgb_f32;
+        let strip = strip_bits(&mut c, &b.hash, f).await;
         let s = c.status(pb::StatusRequest {}).await.unwrap().into_inner();
         last_why.replace(s.backend_why.clone());
         // The entries are written beside the first strip, not before it.
@@ -408,18 +397,7 @@ async fn workers_choose_their_traversal_and_share_what_ray_queries_need() {
     let shared = export(&mut a, &b.hash, rq.clone()).await;
     bw.import_prepared(tokio_stream::iter(shared)).await.unwrap();
     assert!(bw.prepare(ask(rq.clone(), false)).await.unwrap().into_inner().held);
-    let got = bw
-        .render_strip(pb::RenderStripRequest {
-            scene_hash: b.hash.clone(),
-            frame: Some(rq),
-            x0: 0,
-            x1: 48,
-            ..Default::default()
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    assert_eq!(got.rgb_f32.len(), 48 * 24 * 12);
+    assert_eq!(strip_bits(&mut bw, &b.hash, rq).await.len(), 48 * 24 * 12);
     let s = bw.status(pb::StatusRequest {}).await.unwrap().into_inner();
     assert_eq!((s.lb_solves, s.backend.as_str()), (0, "rq"), "{s:?}");
 }
