@@ -73,6 +73,7 @@ fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
         view: Default::default(),
         gather_bounces: 1,
         gather_filter: 0,
+        passes: Default::default(),
     };
     p.renderer
         .render_strip(&ctx, &f, 0, 96)

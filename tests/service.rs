@@ -294,6 +294,7 @@ async fn submit_raw(
             view: None,
             gather_bounces: 0,
             gather_filter: None,
+            passes: vec![],
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,

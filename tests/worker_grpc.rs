@@ -89,6 +89,7 @@ fn frame() -> pb::FrameSettings {
         view: None,
         gather_bounces: 0,
         gather_filter: None,
+        passes: vec![],
     }
 }
 
@@ -157,6 +158,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
         view: Default::default(),
         gather_bounces: 1,
         gather_filter: 0,
+        passes: Default::default(),
     };
     let local = p.renderer.render_strip(&ctx, &f, 0, 48).unwrap();
     let local: Vec<u32> = local.pixels.iter().flatten().map(|v| v.to_bits()).collect();

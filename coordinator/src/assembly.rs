@@ -5,6 +5,7 @@
 
 use crate::schedule::Strip;
 use sylva_scene::film::{HdrImage, RayCounts};
+use sylva_scene::passes::{PassImage, PassSet};
 
 /// A strip's pixels, decoded and checked.
 #[derive(Clone, Debug)]
@@ -17,6 +18,8 @@ pub struct StripPixels {
     pub coverage: Vec<f32>,
     /// Rays traced.
     pub rays: RayCounts,
+    /// The frame's passes beside the image, when it asks for any.
+    pub passes: Option<PassImage>,
 }
 
 impl StripPixels {
@@ -51,6 +54,12 @@ impl StripPixels {
         if self.coverage.iter().any(|c| !(0.0..=1.0).contains(c)) {
             return Err(format!("strip [{x0}, {x1}) has a coverage outside [0, 1]"));
         }
+        if let Some(p) = &self.passes {
+            if (p.width, p.height) != (x1 - x0, height) {
+                return Err(format!("strip [{x0}, {x1}) came back with passes of another size"));
+            }
+            p.check().map_err(|e| format!("strip [{x0}, {x1}): {e}"))?;
+        }
         Ok(())
     }
 }
@@ -64,17 +73,20 @@ pub struct Assembly {
     pub coverage: Vec<f32>,
     /// Rays traced.
     pub rays: RayCounts,
+    /// The passes beside the image, when the frame asks for any.
+    pub passes: Option<PassImage>,
     /// Columns filled so far.
     filled: Vec<bool>,
 }
 
 impl Assembly {
-    /// An empty frame.
-    pub fn new(width: u32, height: u32) -> Self {
+    /// An empty frame, with room for `passes`.
+    pub fn new(width: u32, height: u32, passes: PassSet) -> Self {
         Self {
             image: HdrImage::new(width, height),
             coverage: vec![0.0; (width * height) as usize],
             rays: RayCounts::default(),
+            passes: (!passes.is_empty()).then(|| PassImage::new(width, height, passes)),
             filled: vec![false; width as usize],
         }
     }
@@ -89,6 +101,19 @@ impl Assembly {
             ));
         }
         s.check(self.image.height)?;
+        match (&mut self.passes, &s.passes) {
+            (None, None) => {}
+            (Some(frame), Some(strip)) => frame.paste_strip(x0, strip)?,
+            (Some(frame), None) => {
+                return Err(format!(
+                    "strip [{x0}, {x1}) came back without the passes {}",
+                    frame.set
+                ));
+            }
+            (None, Some(_)) => {
+                return Err(format!("strip [{x0}, {x1}) came back with passes nobody asked for"));
+            }
+        }
         let w = x1 - x0;
         self.image.paste_strip(x0, w, &s.rgb);
         for y in 0..self.image.height {
@@ -139,12 +164,13 @@ mod tests {
             rgb: vec![[0.5; 3]; n],
             coverage: vec![1.0; n],
             rays: RayCounts { primary: n as u64, ..RayCounts::default() },
+            passes: None,
         }
     }
 
     #[test]
     fn a_frame_begun_before_leaves_only_its_open_columns() {
-        let mut a = Assembly::new(10, 2);
+        let mut a = Assembly::new(10, 2, PassSet::NONE);
         a.add(&strip(2, 4, 2)).unwrap();
         a.add(&strip(6, 10, 2)).unwrap();
         assert_eq!(a.open_columns(&[(0, 5), (5, 10)]), vec![(0, 2), (4, 5), (5, 6)]);
@@ -155,7 +181,7 @@ mod tests {
 
     #[test]
     fn wrong_strips_are_refused_and_right_ones_fill_the_frame() {
-        let mut a = Assembly::new(10, 4);
+        let mut a = Assembly::new(10, 4, PassSet::NONE);
         let mut short = strip(0, 5, 4);
         short.rgb.pop();
         assert!(a.add(&short).is_err());
@@ -165,7 +191,8 @@ mod tests {
                 strip: (3, 3),
                 rgb: vec![],
                 coverage: vec![],
-                rays: RayCounts::default()
+                rays: RayCounts::default(),
+                passes: None,
             })
             .is_err(),
             "zero width"

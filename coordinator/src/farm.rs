@@ -19,6 +19,7 @@ use sylva_proto::pb::worker_client::WorkerClient;
 use sylva_scene::bundle::SceneBundle;
 use sylva_scene::film::RayCounts;
 use sylva_scene::frame::FrameSettings;
+use sylva_scene::passes::{PassImage, PassSet};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, ClientTlsConfig};
 
@@ -158,6 +159,8 @@ struct Shared {
     remaining: Mutex<usize>,
     /// Every frame's width and height.
     size: (u32, u32),
+    /// Each frame's passes beside the image.
+    passes: Vec<PassSet>,
     upload_ms: f64,
     prepared: Option<PreparedShare>,
     out: tokio::sync::mpsc::Sender<Finished>,
@@ -201,6 +204,7 @@ pub fn decode_reply(
     r: &pb::RenderStripReply,
     strip: Strip,
     height: u32,
+    passes: PassSet,
 ) -> Result<StripPixels, String> {
     if r.x0 != strip.0 || r.width != strip.1 - strip.0 || r.height != height {
         return Err(format!(
@@ -236,7 +240,15 @@ pub fn decode_reply(
         shadow: c.shadow,
         transparent: c.transparent,
     });
-    let px = StripPixels { strip, rgb, coverage, rays };
+    let passes = if passes.is_empty() {
+        if !r.passes_f32.is_empty() {
+            return Err("worker replied with passes nobody asked for".into());
+        }
+        None
+    } else {
+        Some(PassImage::from_bytes(strip.1 - strip.0, height, passes, &r.passes_f32)?)
+    };
+    let px = StripPixels { strip, rgb, coverage, rays, passes };
     px.check(height)?;
     Ok(px)
 }
@@ -417,7 +429,7 @@ pub async fn render_frames(
         let mut out: Vec<Option<RenderedFrame>> = vec![None; n];
         while let Some(f) = rx.recv().await {
             if let Finished::Frame { frame, rendered } = f {
-                out[frame] = Some(rendered);
+                out[frame] = Some(*rendered);
             }
         }
         out
@@ -453,7 +465,7 @@ pub enum Finished {
         /// Frame number.
         frame: usize,
         /// The frame.
-        rendered: RenderedFrame,
+        rendered: Box<RenderedFrame>,
     },
 }
 
@@ -518,7 +530,9 @@ pub async fn render_streamed(
         if frame >= frames.len() || resume.done.get(frame) == Some(&true) {
             continue;
         }
-        let f = open.entry(frame).or_insert_with(|| OpenFrame::new(width, height));
+        let f = open
+            .entry(frame)
+            .or_insert_with(|| OpenFrame::new(width, height, frames[frame].passes));
         if f.assembly.add(&px).is_ok() {
             f.times.push(StripTime { strip: px.strip, render_ms, call_ms: render_ms });
         }
@@ -542,7 +556,7 @@ pub async fn render_streamed(
     let mut ready = Vec::new();
     for i in whole {
         let f = open.remove(&i).expect("open frame");
-        ready.push(Finished::Frame { frame: i, rendered: f.rendered(0.0, None) });
+        ready.push(Finished::Frame { frame: i, rendered: Box::new(f.rendered(0.0, None)) });
     }
     for f in ready {
         out.send(f).await.map_err(|_| anyhow::anyhow!("the frames' receiver is gone"))?;
@@ -586,6 +600,7 @@ pub async fn render_streamed(
         left: Mutex::new(left),
         remaining: Mutex::new(total),
         size: (width, height),
+        passes: frames.iter().map(|f| f.passes).collect(),
         upload_ms,
         prepared: prepared.clone(),
         out,
@@ -637,8 +652,8 @@ struct OpenFrame {
 }
 
 impl OpenFrame {
-    fn new(width: u32, height: u32) -> Self {
-        Self { assembly: Assembly::new(width, height), times: Vec::new(), left: 0 }
+    fn new(width: u32, height: u32, passes: PassSet) -> Self {
+        Self { assembly: Assembly::new(width, height, passes), times: Vec::new(), left: 0 }
     }
 
     fn rendered(mut self, upload_ms: f64, prepared: Option<PreparedShare>) -> RenderedFrame {
@@ -651,6 +666,7 @@ impl OpenFrame {
             strip_times: self.times,
             upload_ms,
             prepared,
+            passes: self.assembly.passes,
         }
     }
 }
@@ -720,6 +736,7 @@ async fn pull_strips(
 ) -> WorkerReport {
     let Some(mut client) = client else { return report };
     let (width, height) = shared.size;
+    let passes_of = &shared.passes;
     loop {
         let next = {
             // In a sequence each worker prefers the frames that
@@ -757,7 +774,7 @@ async fn pull_strips(
             {
                 Ok(Ok(reply)) => {
                     let r = reply.into_inner();
-                    decode_reply(&r, strip, height).map(|px| (r, px))
+                    decode_reply(&r, strip, height, passes_of[frame]).map(|px| (r, px))
                 }
                 Ok(Err(status)) => Err(format!("{:?}: {}", status.code(), said(status.message()))),
                 Err(_) => Err("deadline passed".to_string()),
@@ -767,7 +784,7 @@ async fn pull_strips(
                 report.strips += 1;
                 report.render_ms += r.render_ms;
                 report.prepare_ms += r.prepare_ms;
-                let bytes = (r.rgb_f32.len() + r.coverage_f32.len()) as u64;
+                let bytes = (r.rgb_f32.len() + r.coverage_f32.len() + r.passes_f32.len()) as u64;
                 events(FarmEvent::StripDone {
                     frame,
                     strip,
@@ -784,7 +801,9 @@ async fn pull_strips(
                 // Put in place now; the frame leaves the farm when whole.
                 let whole = {
                     let mut open = shared.open.lock().expect("lock");
-                    let f = open.entry(frame).or_insert_with(|| OpenFrame::new(width, height));
+                    let f = open
+                        .entry(frame)
+                        .or_insert_with(|| OpenFrame::new(width, height, passes_of[frame]));
                     // decode_reply checked the strip against its request,
                     // and the queue hands each columns out once.
                     let _ = f.assembly.add(&px);
@@ -797,7 +816,7 @@ async fn pull_strips(
                 let handed = match whole {
                     Some(f) => Finished::Frame {
                         frame,
-                        rendered: f.rendered(shared.upload_ms, shared.prepared.clone()),
+                        rendered: Box::new(f.rendered(shared.upload_ms, shared.prepared.clone())),
                     },
                     None => Finished::Strip {
                         frame,

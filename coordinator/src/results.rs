@@ -53,14 +53,10 @@ pub fn encode_exr(img: &HdrImage) -> anyhow::Result<Vec<u8>> {
     Ok(out.into_inner())
 }
 
-/// An EXR this module wrote, read back.
+/// The beauty image of an EXR this module (or, with passes,
+/// [`sylva_scene::passes::encode_layers`]) wrote, read back.
 pub fn decode_exr(bytes: &[u8]) -> anyhow::Result<HdrImage> {
-    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::OpenExr)?.to_rgb32f();
-    Ok(HdrImage {
-        width: img.width(),
-        height: img.height(),
-        pixels: img.as_raw().as_chunks::<3>().0.to_vec(),
-    })
+    sylva_scene::passes::ExrLayers::read(bytes)?.beauty()
 }
 
 /// Writes `bytes` to `path` whole or not at all: a crash leaves the old

@@ -7,6 +7,7 @@ use crate::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::format::CameraSpec;
 use sylva_scene::frame::{AccelChoice, Backend, FrameSettings, ScheduleKind};
+use sylva_scene::passes::{Pass, PassSet};
 use sylva_scene::sequence::View;
 use tonic::Status;
 
@@ -127,6 +128,7 @@ impl TryFrom<&pb::FrameSettings> for FrameSettings {
                 f.gather_bounces
             },
             gather_filter: f.gather_filter.unwrap_or(sylva_scene::frame::DEFAULT_GATHER_FILTER),
+            passes: passes_from_wire(&f.passes)?,
         };
         frame.check().map_err(|e| Status::invalid_argument(e.to_string()))?;
         Ok(frame)
@@ -147,8 +149,49 @@ impl From<&FrameSettings> for pb::FrameSettings {
             view: (f.view != View::default()).then(|| pb::FrameView::from(&f.view)),
             gather_bounces: f.gather_bounces,
             gather_filter: Some(f.gather_filter),
+            passes: passes_to_wire(f.passes),
         }
     }
+}
+
+/// The passes a frame's wire numbers name.
+pub fn passes_from_wire(v: &[i32]) -> Result<PassSet, Status> {
+    let mut out = Vec::with_capacity(v.len());
+    for &n in v {
+        out.push(match pb::Pass::try_from(n) {
+            Ok(pb::Pass::Beauty) => Pass::Beauty,
+            Ok(pb::Pass::Direct) => Pass::Direct,
+            Ok(pb::Pass::Indirect) => Pass::Indirect,
+            Ok(pb::Pass::Albedo) => Pass::Albedo,
+            Ok(pb::Pass::Normal) => Pass::Normal,
+            Ok(pb::Pass::Depth) => Pass::Depth,
+            Ok(pb::Pass::Instance) => Pass::Instance,
+            Ok(pb::Pass::Species) => Pass::Species,
+            Ok(pb::Pass::Sky) => Pass::Sky,
+            Err(_) => return Err(Status::invalid_argument(format!("pass {n}: no such pass"))),
+        });
+    }
+    Ok(PassSet::of(out))
+}
+
+/// A frame's passes as wire numbers.
+pub fn passes_to_wire(set: PassSet) -> Vec<i32> {
+    set.extra()
+        .map(|p| {
+            match p {
+                Pass::Beauty => pb::Pass::Beauty,
+                Pass::Direct => pb::Pass::Direct,
+                Pass::Indirect => pb::Pass::Indirect,
+                Pass::Albedo => pb::Pass::Albedo,
+                Pass::Normal => pb::Pass::Normal,
+                Pass::Depth => pb::Pass::Depth,
+                Pass::Instance => pb::Pass::Instance,
+                Pass::Species => pb::Pass::Species,
+                Pass::Sky => pb::Pass::Sky,
+            }
+            .into()
+        })
+        .collect()
 }
 
 /// Three values from the wire, or why not.

@@ -202,7 +202,7 @@ fn seed_path(x: u32, y: u32, s: u32) {
 // One path per invocation: on lavapipe (Mesa 22.3) a loop over samples
 // around the loop over bounces silently dropped samples of lanes whose paths
 // ended early (up to 20 % of the samples of a forest frame).
-fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 4> {
+fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 5> {
     var depth = 0u;
     var ray = camera_ray(x, y, s);
     seed_path(x, y, s);
@@ -215,6 +215,9 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 4> {
     var first_depth = 0.0;
     var first_albedo = vec3<f32>(0.0);
     var first_surface_hit = 0.0;
+    // The passes' split of the first event (docs/passes.md): the sun's
+    // light off a first surface, or the sky seen directly (w = 1).
+    var first_split = vec4<f32>(0.0);
     var alive = true;
     loop {
         if !alive || depth > frame.max_bounces {
@@ -243,6 +246,9 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 4> {
             ray = make_ray(p, hg_direction(d, c.g));
         } else if surf.kind == KIND_SKY {
             light += beta * sky(d);
+            if depth == 0u {
+                first_split = vec4<f32>(sky(d), 1.0);
+            }
             alive = false;
         } else {
             if depth == 0u && surf.kind != KIND_GROUND {
@@ -295,7 +301,12 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 4> {
             }
         }
         if any(sun_light > vec3<f32>(0.0)) {
-            light += sun_light * sun_visibility(sun_from);
+            let sun = sun_light * sun_visibility(sun_from);
+            light += sun;
+            // At the camera's own surface (not a cloud), the direct pass.
+            if depth == 0u && !(HAS_CLOUDS && hit.x >= 0.0) {
+                first_split = vec4<f32>(sun, 0.0);
+            }
         }
         if depth == 0u {
             first_light += light;
@@ -318,5 +329,5 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 4> {
     // (divided by the few leaf samples' albedo) it whitened the crowns
     // in front of a cloud.
     let surface_indirect = select(vec3<f32>(0.0), light - first_light, first_surface_hit > 0.0);
-    return array<vec4<f32>, 4>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit), vec4<f32>(surface_indirect, 0.0));
+    return array<vec4<f32>, 5>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit), vec4<f32>(surface_indirect, 0.0), first_split);
 }

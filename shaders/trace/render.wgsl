@@ -61,6 +61,12 @@ struct Frame {
     sample_base: u32,
     // ... and how many samples it renders.
     batch_spp: u32,
+    // 1: write the light split (direct, indirect, sky) beside the image
+    // (docs/passes.md).
+    passes: u32,
+    pad4: u32,
+    pad5: u32,
+    pad6: u32,
 }
 
 // Rays traced, by kind: primary, shadow, transparent texels passed.
@@ -297,12 +303,14 @@ fn march_cloud(c: Cloud, ray: Ray, t0: f32, t1: f32) -> vec4<f32> {
     return vec4<f32>(light, transmittance);
 }
 
-// Composites the clouds a ray crosses before distance `t_max` over the
-// radiance behind them, nearest cloud in front.
-fn through_clouds(ray: Ray, t_max: f32, behind: vec3<f32>) -> vec3<f32> {
+// Composites the clouds a ray crosses before what it met (`behind.t`) over
+// the light behind them, nearest cloud in front: what the clouds let
+// through of each part, and their own light as indirect.
+fn through_clouds(ray: Ray, behind: Light) -> Light {
     if !HAS_CLOUDS {
         return behind;
     }
+    let t_max = behind.t;
     var color = behind;
     var done = 0u;
     let count = arrayLength(&clouds);
@@ -328,21 +336,34 @@ fn through_clouds(ray: Ray, t_max: f32, behind: vec3<f32>) -> vec3<f32> {
         let c = clouds[pick];
         let span = clip_box(c.min, c.min + vec3<f32>(c.size), ray, 0.0, t_max);
         let m = march_cloud(c, ray, span.x, span.y);
-        color = m.rgb + m.a * color;
+        color.direct *= m.a;
+        color.sky *= m.a;
+        color.indirect = m.rgb + m.a * color.indirect;
     }
     return color;
 }
 
-// Radiance along one primary ray, clouds included; alpha is 1 where it hit a model.
-fn radiance(ray: Ray) -> vec4<f32> {
-    let r = surface_radiance(ray);
-    return vec4<f32>(through_clouds(ray, r.t, r.color.rgb), r.color.a);
+// What a primary ray brings back, split as the passes split it
+// (docs/passes.md): the sun's light off the first surface, all other light
+// off it (and what clouds in front add), and the sky seen directly. Their
+// sum is the radiance.
+struct Light {
+    direct: vec3<f32>,
+    // 1 where the ray met a model (not the ground or the sky).
+    hit: f32,
+    indirect: vec3<f32>,
+    // Distance to what the ray met (ground or model), or 3e38.
+    t: f32,
+    sky: vec3<f32>,
 }
 
-struct Surface {
-    color: vec4<f32>,
-    // Distance to what the ray hit (ground or model), or 3e38.
-    t: f32,
+fn light_total(l: Light) -> vec3<f32> {
+    return l.direct + l.indirect + l.sky;
+}
+
+// Radiance along one primary ray, clouds included.
+fn radiance(ray: Ray) -> Light {
+    return through_clouds(ray, surface_radiance(ray));
 }
 
 const KIND_LEAF: u32 = 0u;
@@ -407,12 +428,12 @@ fn leaf_coefficients(albedo: vec3<f32>) -> array<vec3<f32>, 4> {
     return array<vec3<f32>, 4>(rf / front, rb / back, tf / front, tb / back);
 }
 
-// Radiance of the first surface (or the sky) along a primary ray; alpha is
-// 1 where it hit a model.
-fn surface_radiance(ray: Ray) -> Surface {
+// The light of the first surface (or the sky) along a primary ray.
+fn surface_radiance(ray: Ray) -> Light {
     let s = first_surface(ray);
+    let none = vec3<f32>(0.0);
     if s.kind == KIND_SKY {
-        return Surface(vec4<f32>(sky(ray.dir), 0.0), 3.0e38);
+        return Light(none, 0.0, none, 3.0e38, sky(ray.dir));
     }
     if s.kind == KIND_GROUND {
         var direct = vec3<f32>(0.0);
@@ -422,24 +443,24 @@ fn surface_radiance(ray: Ray) -> Surface {
                 direct = frame.sun_radiance * frame.sun_towards.y;
             }
         }
-        return Surface(vec4<f32>(frame.ground_color * (direct + ground_indirect(s.p)), 0.0), s.t);
+        return Light(frame.ground_color * direct, 0.0, frame.ground_color * ground_indirect(s.p), s.t, none);
     }
     let inst = instances[s.instance];
     let n = select(s.n, -s.n, dot(s.n, ray.dir) > 0.0);
     let p_model = to_model_point(inst, s.p);
     if frame.lighting == LIGHTING_LB_VISUALIZE {
-        return Surface(vec4<f32>(lb_indirect(inst, p_model), 1.0), s.t);
+        return Light(none, 1.0, lb_indirect(inst, p_model), s.t, none);
     }
-    var color = direct_sun(s, n);
+    let direct = direct_sun(s, n);
+    var indirect = none;
     if LIGHTING_FAMILY == KERNEL_BOULANGER && models[inst.model].has_envelope == 1u {
-        return Surface(vec4<f32>(color + boulanger_light(s, ray.dir), 1.0), s.t);
-    }
-    if frame.lighting == LIGHTING_LB {
-        color += diffuse_albedo(s, n) * lb_indirect(inst, p_model);
+        indirect = boulanger_light(s, ray.dir);
+    } else if frame.lighting == LIGHTING_LB {
+        indirect = diffuse_albedo(s, n) * lb_indirect(inst, p_model);
     } else if frame.lighting == LIGHTING_AMBIENT {
-        color += diffuse_albedo(s, n) * frame.ambient;
+        indirect = diffuse_albedo(s, n) * frame.ambient;
     }
-    return Surface(vec4<f32>(color, 1.0), s.t);
+    return Light(direct, 1.0, indirect, s.t, none);
 }
 
 // Camera ray of sample `s` of pixel (x, y). One sample sits at the pixel
@@ -482,7 +503,8 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         // whose first event is a surface (reference.wgsl).
         let r = reference_sample(x, y, frame.sample_base + gid.z);
         let slots = frame.strip_width * frame.height;
-        for (var k = 0u; k < 4u; k++) {
+        // The fifth image, the first event's split, only for passes.
+        for (var k = 0u; k < select(4u, 5u, frame.passes != 0u); k++) {
             out_pixels[pixel + (k * frame.batch_spp + gid.z) * slots] = r[k];
         }
         atomicAdd(&counters.transparent, transparent_passed);
@@ -490,13 +512,68 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         return;
     } else {
         var sum = vec4<f32>(0.0);
+        var direct = vec3<f32>(0.0);
+        var indirect = vec3<f32>(0.0);
+        var sky_seen = vec3<f32>(0.0);
         for (var s = 0u; s < frame.spp; s++) {
-            sum += radiance(camera_ray(x, y, s));
+            let l = radiance(camera_ray(x, y, s));
+            sum += vec4<f32>(light_total(l), l.hit);
+            direct += l.direct;
+            indirect += l.indirect;
+            sky_seen += l.sky;
         }
         // Box filter: the mean of the samples; alpha is the fraction that hit a model.
-        out_pixels[pixel] = sum / f32(frame.spp);
+        let spp = f32(frame.spp);
+        out_pixels[pixel] = sum / spp;
+        if frame.passes != 0u {
+            let slots = frame.strip_width * frame.height;
+            out_pixels[pixel + slots] = vec4<f32>(direct / spp, 0.0);
+            out_pixels[pixel + 2u * slots] = vec4<f32>(indirect / spp, 0.0);
+            out_pixels[pixel + 3u * slots] = vec4<f32>(sky_seen / spp, 0.0);
+        }
     }
     // One atomic per invocation, outside the loops.
     atomicAdd(&counters.transparent, transparent_passed);
     atomicAdd(&counters.primary, frame.spp);
+}
+
+// The guide passes of the strip's pixels (docs/passes.md), for any lighting
+// method: the mean albedo and camera-facing normal of the first surface
+// over the pixel's camera rays (the image's own), and its depth along the
+// camera's axis, instance and model from the first of them. Three images
+// of `strip_width × height`: (albedo, depth), (normal, 0), (instance + 1,
+// model + 1, 0, 0); 0 ids for the ground and the sky.
+@compute @workgroup_size(8, 8)
+fn render_guides(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= frame.strip_width || gid.y >= frame.height {
+        return;
+    }
+    let x = frame.x0 + gid.x;
+    let y = gid.y;
+    var albedo = vec3<f32>(0.0);
+    var normal = vec3<f32>(0.0);
+    var depth = 1.0e10;
+    var ids = vec2<f32>(0.0);
+    for (var s = 0u; s < frame.spp; s++) {
+        let ray = camera_ray(x, y, s);
+        let surf = first_surface(ray);
+        if surf.kind == KIND_SKY {
+            continue;
+        }
+        let n = select(surf.n, -surf.n, dot(surf.n, ray.dir) > 0.0);
+        albedo += diffuse_albedo(surf, n);
+        normal += n;
+        if s == 0u {
+            depth = dot(surf.p - frame.cam_position, frame.cam_forward);
+            if surf.kind != KIND_GROUND {
+                ids = vec2<f32>(f32(surf.instance + 1u), f32(instances[surf.instance].model + 1u));
+            }
+        }
+    }
+    let spp = f32(frame.spp);
+    let pixel = gid.x + gid.y * frame.strip_width;
+    let slots = frame.strip_width * frame.height;
+    out_pixels[pixel] = vec4<f32>(albedo / spp, depth);
+    out_pixels[pixel + slots] = vec4<f32>(normal / spp, 0.0);
+    out_pixels[pixel + 2u * slots] = vec4<f32>(ids, 0.0, 0.0);
 }

@@ -197,6 +197,7 @@ pub fn spec(width: u32, height: u32) -> pb::JobSpec {
             view: None,
             gather_bounces: 0,
             gather_filter: None,
+            passes: vec![],
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,

@@ -49,6 +49,7 @@ fn frame(w: u32, h: u32) -> RenderSettings {
         view: Default::default(),
         gather_bounces: 1,
         gather_filter: 0,
+        passes: Default::default(),
     }
 }
 

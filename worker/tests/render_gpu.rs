@@ -52,6 +52,7 @@ fn a_lit_quad_matches_the_shading_formula() {
             view: Default::default(),
             gather_bounces: 1,
             gather_filter: 0,
+            passes: Default::default(),
         };
         let s = p.renderer.render_strip(&ctx, &f, 0, 33).unwrap();
         let centre = s.pixels[16 * 33 + 16];
@@ -99,6 +100,7 @@ fn a_frame_is_bit_identical_however_it_is_split_and_repeated() {
         view: Default::default(),
         gather_bounces: 1,
         gather_filter: 0,
+        passes: Default::default(),
     };
     let whole = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
     let again = p.renderer.render_strip(&ctx, &f, 0, 70).unwrap();
@@ -137,6 +139,7 @@ fn ray_queries_render_the_frame_the_bvh_renders() {
         view: Default::default(),
         gather_bounces: 1,
         gather_filter: 0,
+        passes: Default::default(),
     };
     let frame = |kind: AccelChoice| {
         let p = prepare(&ctx, &scene, kind, LightingMode::Reference, &|_| {}).unwrap();
@@ -172,6 +175,7 @@ fn leaves_have_holes_where_their_texture_is_transparent() {
         view: Default::default(),
         gather_bounces: 1,
         gather_filter: 0,
+        passes: Default::default(),
     };
     let s = p.renderer.render_strip(&ctx, &f, 0, 96).unwrap();
     assert!(s.rays.transparent > 100, "rays passed {} transparent texels", s.rays.transparent);
@@ -208,6 +212,7 @@ fn a_cloud_dims_what_lies_behind_it_and_glows_where_lit() {
             view: Default::default(),
             gather_bounces: 1,
             gather_filter: 0,
+            passes: Default::default(),
         };
         p.renderer.render_strip(&ctx, &f, 0, 32).unwrap()
     };

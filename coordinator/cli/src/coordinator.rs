@@ -115,8 +115,10 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
         &a.scene.display().to_string(),
     );
     let rt = tokio::runtime::Runtime::new()?;
+    // Passes live in the EXR: asking for them asks for it.
+    let exr = a.exr || !frame.passes.is_empty();
     let done =
-        rt.block_on(submit_and_follow(&a.coordinator, token, tls.as_ref(), spec, &bundle, a.exr))?;
+        rt.block_on(submit_and_follow(&a.coordinator, token, tls.as_ref(), spec, &bundle, exr))?;
     if !views.is_empty() {
         let written =
             sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;

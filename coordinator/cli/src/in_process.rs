@@ -28,14 +28,19 @@ impl StripExecutor for InProcess<'_> {
         on_strip: &(dyn Fn(Strip) + Send + Sync),
     ) -> anyhow::Result<RenderedFrame> {
         let f = &self.settings;
-        let mut frame = Assembly::new(f.width, f.height);
+        let mut frame = Assembly::new(f.width, f.height, f.passes);
         let mut strip_times = Vec::with_capacity(plan.len());
         for &(x0, x1) in plan {
             let t = Instant::now();
             let s = self.renderer.render_strip(self.ctx, f, x0, x1)?;
             let ms = t.elapsed().as_secs_f64() * 1e3;
-            let px =
-                StripPixels { strip: (x0, x1), rgb: s.pixels, coverage: s.coverage, rays: s.rays };
+            let px = StripPixels {
+                strip: (x0, x1),
+                rgb: s.pixels,
+                coverage: s.coverage,
+                rays: s.rays,
+                passes: s.passes,
+            };
             frame.add(&px).map_err(|e| {
                 anyhow::anyhow!("the renderer returned a strip that does not fit: {e}")
             })?;
@@ -51,6 +56,7 @@ impl StripExecutor for InProcess<'_> {
             strip_times,
             upload_ms: 0.0,
             prepared: None,
+            passes: frame.passes,
         })
     }
 }

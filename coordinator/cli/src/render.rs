@@ -223,12 +223,12 @@ fn render_here(
     let rendered =
         InProcess::new(&ctx, &prepared.renderer, settings).render(&plan, &|_| bar.inc(1))?;
     let sylva_scene::film::RayCounts { primary, shadow, transparent } = rendered.rays;
-    let (frame, coverage) = (rendered.image, rendered.coverage);
+    let (frame, coverage, passes) = (rendered.image, rendered.coverage, rendered.passes);
     let trace_ms = ms(t);
     phases.push(("trace", trace_ms));
     bar.finish_and_clear();
 
-    let (tone, exr) = write_image(a, &frame, &mut phases)?;
+    let (tone, exr) = write_image(a, &frame, passes.as_ref(), &mut phases)?;
     if let Some(keep) = keep {
         keep();
     }
@@ -355,7 +355,7 @@ fn render_reference_here(
     )?;
     phases.push(("trace", ms(t)));
     bar.finish_and_clear();
-    let (tone, exr) = write_image(a, &r.image, &mut phases)?;
+    let (tone, exr) = write_image(a, &r.image, r.passes.as_ref(), &mut phases)?;
     // Beside the reference, what `local` shows along its own samples:
     // the difference is its indirect light, without edge aliasing.
     let local_exr = match &exr {
@@ -393,10 +393,12 @@ fn render_reference_here(
     report(a, &stats, accel, lighting, &how)
 }
 
-/// Tone-maps the whole frame once and writes the PNG (and the EXR when asked).
+/// Tone-maps the whole frame once and writes the PNG, and the EXR when
+/// asked or when the frame has passes (a multi-layer EXR holds them).
 fn write_image(
     a: &RenderArgs,
     frame: &HdrImage,
+    passes: Option<&sylva_scene::passes::PassImage>,
     phases: &mut Vec<(&'static str, f64)>,
 ) -> anyhow::Result<(sylva_scene::film::ToneMapStats, Option<PathBuf>)> {
     let t = Instant::now();
@@ -404,12 +406,18 @@ fn write_image(
     create_parent(&a.out)?;
     write_png(&a.out, a.frame.width, a.frame.height, &ldr)?;
     phases.push(("tone map", ms(t)));
-    let exr = if a.exr {
-        let p = a.out.with_extension("exr");
-        frame.write_exr(&p)?;
-        Some(p)
-    } else {
-        None
+    let p = a.out.with_extension("exr");
+    let exr = match passes {
+        Some(passes) => {
+            let bytes = sylva_scene::passes::encode_layers(frame, passes)?;
+            std::fs::write(&p, bytes).with_context(|| format!("{}: cannot write", p.display()))?;
+            Some(p)
+        }
+        None if a.exr => {
+            frame.write_exr(&p)?;
+            Some(p)
+        }
+        None => None,
     };
     Ok((tone, exr))
 }
@@ -543,7 +551,8 @@ fn render_through_coordinator(
         None,
         spec,
         &bundle,
-        a.exr,
+        // Passes live in the EXR: asking for them asks for it.
+        a.exr || !a.frame.passes.is_empty(),
     ))?;
     let frame_ms = ms(t);
     phases.push((if views.is_empty() { "frame" } else { "sequence" }, frame_ms));

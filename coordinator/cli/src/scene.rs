@@ -10,6 +10,18 @@ use sylva_scene::trees::Species;
 pub fn run(cmd: SceneCommand) -> anyhow::Result<()> {
     match cmd {
         SceneCommand::Export(a) => export(a),
+        SceneCommand::Pack(a) => {
+            let b = sylva_scene::bundle::pack(&a.scene)?;
+            create_parent(&a.out)?;
+            std::fs::write(&a.out, &b.bytes)
+                .with_context(|| format!("{}: cannot write", a.out.display()))?;
+            if a.json {
+                println!("{}", json!({ "bundle": a.out, "hash": b.hash, "bytes": b.bytes.len() }));
+            } else {
+                println!("wrote {}: {} bytes, {}", a.out.display(), b.bytes.len(), b.hash);
+            }
+            Ok(())
+        }
         SceneCommand::Import(a) => {
             let dir = a
                 .out

@@ -30,6 +30,8 @@ pub struct RenderedFrame {
     pub upload_ms: f64,
     /// How the scene was prepared once for the farm, when it was.
     pub prepared: Option<crate::farm::PreparedShare>,
+    /// The passes beside the image, when the frame asks for any.
+    pub passes: Option<sylva_scene::passes::PassImage>,
 }
 
 /// Renders the strips of a plan and assembles them into a frame.

@@ -44,7 +44,7 @@ impl State {
         };
         let (plans, cost_key, cost_source) =
             self.plan(&bundle.hash, &frames, schedule, addrs.len());
-        let resume = self.resume_of(id, frames.len(), frame.height).await;
+        let resume = self.resume_of(id, frames.len(), frame.height, frame.passes).await;
         let kept = resume.done.iter().filter(|d| **d).count();
         if let Some(j) = lock(&self.jobs).get_mut(id) {
             j.summary.strips_total = plans.iter().map(Vec::len).sum::<usize>() as u32;
@@ -152,7 +152,13 @@ impl State {
     /// What earlier runs of a job stored: its frames, and the strips of
     /// frames they did not finish (each read back and checked as a
     /// worker's reply is; one that does not pass is rendered again).
-    async fn resume_of(&self, id: &str, frames: usize, height: u32) -> farm::Resume {
+    async fn resume_of(
+        &self,
+        id: &str,
+        frames: usize,
+        height: u32,
+        passes: sylva_scene::passes::PassSet,
+    ) -> farm::Resume {
         use prost::Message;
         let mut resume = farm::Resume { done: vec![false; frames], strips: Vec::new() };
         if let Ok(rows) = self.store.frames(id).await {
@@ -170,7 +176,7 @@ impl State {
                 .filter_map(|s| {
                     let bytes = std::fs::read(dir.join(&s.path)).ok()?;
                     let r = pb::RenderStripReply::decode(bytes.as_slice()).ok()?;
-                    let px = farm::decode_reply(&r, (s.x0, s.x1), height).ok()?;
+                    let px = farm::decode_reply(&r, (s.x0, s.x1), height, passes).ok()?;
                     Some((s.frame as usize, px, r.render_ms))
                 })
                 .collect::<Vec<_>>()
@@ -227,7 +233,11 @@ impl State {
                     let name = format!("{frame:05}.exr");
                     let path = dir.join(&name);
                     let bytes = tokio::task::spawn_blocking(move || {
-                        let exr = crate::results::encode_exr(&rendered.image)?;
+                        // With passes, one multi-layer file holds them all.
+                        let exr = match &rendered.passes {
+                            Some(p) => sylva_scene::passes::encode_layers(&rendered.image, p)?,
+                            None => crate::results::encode_exr(&rendered.image)?,
+                        };
                         crate::results::write_whole(&path, &exr)?;
                         anyhow::Ok(exr.len() as u64)
                     })

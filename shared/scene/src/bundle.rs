@@ -5,11 +5,17 @@
 //! endian), the manifest (JSON: the scene with model paths rewritten to
 //! blob names, and each blob's name and length), then the blobs in order.
 //! The hash is BLAKE3 of the whole bundle, in hex.
+//!
+//! The manifest is canonical JSON, so that other packers (the Python
+//! client's `sylva_client.bundle`) write the same bytes: the scene is kept
+//! as its file wrote it (no defaults filled in), keys sorted, no spaces,
+//! numbers as `serde_json` prints them (shortest round-trip floats). See
+//! docs/scene-format.md, "Bundles".
 
 use crate::{FileAccess, Scene, SceneError, SceneFile, SceneLimits};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
-use std::path::{Component, Path, PathBuf};
+use std::path::{Component, Path};
 
 const MAGIC: &[u8; 8] = b"SYLVABN1";
 
@@ -22,10 +28,18 @@ pub struct SceneBundle {
     pub hash: String,
 }
 
-#[derive(Serialize, Deserialize)]
+#[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Manifest {
     scene: SceneFile,
+    blobs: Vec<BlobEntry>,
+}
+
+/// What [`pack_with`] writes as the manifest: the scene as its file gave
+/// it (a JSON value, whose objects serialize with sorted keys).
+#[derive(Serialize)]
+struct PackedManifest {
+    scene: serde_json::Value,
     blobs: Vec<BlobEntry>,
 }
 
@@ -53,9 +67,12 @@ pub fn pack(path: &Path) -> anyhow::Result<SceneBundle> {
 pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle> {
     let label = path.display().to_string();
     let text = std::fs::read_to_string(path).with_context(|| format!("{label}: cannot read"))?;
-    let mut scene = crate::parse(&text, &label)?;
+    // Parsed once as a scene, for its errors and its models, and kept as
+    // written for the manifest.
+    let scene = crate::parse(&text, &label)?;
+    let mut written: serde_json::Value = serde_json::from_str(&text)?;
     let mut blobs: Vec<(String, Vec<u8>)> = Vec::new();
-    for (i, (name, spec)) in scene.models.iter_mut().enumerate() {
+    for (i, (name, spec)) in scene.models.iter().enumerate() {
         let Some(rel) = spec.gltf.clone() else { continue };
         let full = access
             .resolve(access.base(), &rel)
@@ -83,10 +100,10 @@ pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle
             }
         }
         blobs.push((format!("{dir}/{file}"), bytes));
-        spec.gltf = Some(PathBuf::from(format!("{dir}/{file}")));
+        written["models"][name]["gltf"] = serde_json::Value::from(format!("{dir}/{file}"));
     }
-    let manifest = Manifest {
-        scene,
+    let manifest = PackedManifest {
+        scene: written,
         blobs: blobs
             .iter()
             .map(|(n, b)| BlobEntry { name: n.clone(), len: b.len() as u64 })

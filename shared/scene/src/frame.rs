@@ -190,6 +190,9 @@ pub struct FrameSettings {
     /// indirect light, within one crown (docs/lighting.md); 0: none.
     #[serde(default = "default_gather_filter")]
     pub gather_filter: u32,
+    /// Render passes beside the beauty image (docs/passes.md).
+    #[serde(default)]
+    pub passes: crate::passes::PassSet,
 }
 
 impl Default for FrameSettings {
@@ -206,6 +209,7 @@ impl Default for FrameSettings {
             view: Default::default(),
             gather_bounces: DEFAULT_GATHER_BOUNCES,
             gather_filter: DEFAULT_GATHER_FILTER,
+            passes: crate::passes::PassSet::NONE,
         }
     }
 }

@@ -29,6 +29,7 @@ pub mod interchange;
 pub mod leaf;
 mod load;
 pub mod model;
+pub mod passes;
 pub mod rng;
 pub mod sandbox;
 pub mod sequence;

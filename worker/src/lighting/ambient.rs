@@ -31,6 +31,7 @@ pub fn matched(
         height: (f.height / 4).max(8),
         spp: 1,
         lighting: LightingMode::LbVisualize,
+        passes: Default::default(),
         ..*f
     };
     let s = renderer.render_strip(ctx, &small, 0, small.width)?;

@@ -167,6 +167,8 @@ mod tests {
             surface_indirect: ind.iter().map(|&v| [v, v, v, 0.0]).collect(),
             guide: alb.iter().map(|&a| [a, a, a, if a > 0.0 { 1.0 } else { 0.0 }]).collect(),
             indirect_variance: alb.iter().map(|&a| [noise * a * a; 3]).collect(),
+            direct: Vec::new(),
+            sky: Vec::new(),
         }
     }
 

@@ -14,6 +14,7 @@ use sylva_proto::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::color::luminance;
 use sylva_scene::film::HdrImage;
+use sylva_scene::passes::PassImage;
 
 /// The reference integrator, called from `render.wgsl`.
 pub const WGSL: &str = include_str!("../../../shaders/lighting/reference.wgsl");
@@ -78,6 +79,10 @@ pub struct ReferenceImage {
     pub indirect_variance: Vec<[f32; 3]>,
     /// What was rendered and how close it is.
     pub stats: ReferenceStats,
+    /// The passes the frame asked for: the light split as the mean of
+    /// every batch's, the guides from the first batch.
+    #[serde(skip)]
+    pub passes: Option<PassImage>,
 }
 
 /// How a reference was made.
@@ -139,6 +144,7 @@ pub fn render_reference_columns(
     let mut ind_sq = vec![[0.0f64; 3]; n];
     let mut coverage = vec![0.0f64; n];
     let mut local = vec![[0.0f64; 3]; n];
+    let mut passes = (!f.passes.is_empty()).then(|| PassImage::new(width, f.height, f.passes));
     let mut stats = ReferenceStats {
         spp: 0,
         batches: 0,
@@ -149,7 +155,8 @@ pub fn render_reference_columns(
     // Each sample of a batch has its own output slot: as many samples and
     // columns per dispatch as the adapter binds, with a margin.
     let budget = (ctx.limits.max_storage_buffer_binding_size / 2).max(1 << 20);
-    let per_sample_column = crate::trace::render::SAMPLE_BYTES_PER_PIXEL * f.height as u64;
+    let per_sample_column =
+        crate::trace::render::sample_bytes_per_pixel(f.passes) * f.height as u64;
     let batch_spp =
         (opts.batch_spp as u64).min((budget / (per_sample_column * width as u64)).max(1)) as u32;
     let columns = ((budget / (per_sample_column * batch_spp as u64)).max(1) as u32).min(f.width);
@@ -174,10 +181,16 @@ pub fn render_reference_columns(
             } else {
                 LightingMode::Reference
             },
+            // The guides once, from the first batch.
+            passes: if batch == 0 { f.passes } else { f.passes.split_only() },
             ..*f
         };
         for &(x0, x1, out) in &chunks {
             let s = renderer.render_strip(ctx, &settings, x0, x1)?;
+            if let (Some(acc), Some(p)) = (&mut passes, &s.passes) {
+                // Summed now, divided by the batches at the end.
+                acc.add_strip(out, p, 1.0).map_err(anyhow::Error::msg)?;
+            }
             for (k, p) in s.pixels.iter().enumerate() {
                 let i = (k as u32 / s.width * width + out + k as u32 % s.width) as usize;
                 for c in 0..3 {
@@ -212,6 +225,13 @@ pub fn render_reference_columns(
         }
     }
     let b = batch as f64;
+    if let Some(acc) = &mut passes {
+        for (p, plane) in acc.set.extra().zip(&mut acc.planes) {
+            if f.passes.split_only().contains(p) {
+                plane.iter_mut().for_each(|v| *v /= b as f32);
+            }
+        }
+    }
     let image = HdrImage {
         width,
         height: f.height,
@@ -243,5 +263,6 @@ pub fn render_reference_columns(
         std_error,
         indirect_variance,
         stats,
+        passes,
     })
 }

@@ -154,6 +154,7 @@ impl Worker for WorkerService {
             }),
             render_ms,
             prepare_ms,
+            passes_f32: strip.passes.map(|p| p.to_bytes()).unwrap_or_default(),
         }))
     }
 

@@ -9,6 +9,7 @@ use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 use sylva_scene::film::RayCounts;
 use sylva_scene::frame::{Backend, FrameSettings};
+use sylva_scene::passes::{Pass, PassImage, PassSet};
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
@@ -17,8 +18,10 @@ const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
 /// Bytes one sample of the per-sample kernel writes per pixel: four
 /// images of four floats (the path, `local` along it, the first
 /// surface's guides and its indirect light; `reference.wgsl`'s
-/// `reference_sample`).
-pub const SAMPLE_BYTES_PER_PIXEL: u64 = 4 * 16;
+/// `reference_sample`), and a fifth with passes (the first event's split).
+pub fn sample_bytes_per_pixel(passes: PassSet) -> u64 {
+    if passes.wants_split() { 5 * 16 } else { 4 * 16 }
+}
 /// Longest path the reference integrator follows.
 pub const MAX_BOUNCES: u32 = 16;
 
@@ -66,6 +69,8 @@ pub struct FrameUniform {
     pub gather_bounces: u32,
     pub sample_base: u32,
     pub batch_spp: u32,
+    pub passes: u32,
+    pub pad4: [u32; 3],
 }
 
 impl FrameUniform {
@@ -115,6 +120,8 @@ pub struct RenderSettings {
     /// The gather methods: radius in pixels of the filter over their
     /// indirect light (0: none).
     pub gather_filter: u32,
+    /// Render passes beside the image.
+    pub passes: PassSet,
 }
 
 impl RenderSettings {
@@ -135,6 +142,7 @@ impl RenderSettings {
             view: frame.view,
             gather_bounces: frame.gather_bounces,
             gather_filter: frame.gather_filter,
+            passes: frame.passes,
         }
     }
 }
@@ -179,6 +187,8 @@ pub struct RenderedStrip {
     pub first_light: Vec<[f32; 3]>,
     /// Rays traced.
     pub rays: RayCounts,
+    /// The passes the frame asked for beside the image, if any.
+    pub passes: Option<PassImage>,
 }
 
 /// Per pixel, the means over its samples of the per-sample kernel's four
@@ -200,6 +210,11 @@ pub struct SampleMeans {
     /// Per channel, the variance of the mean of `surface_indirect` from
     /// its samples' spread; 0 with one sample.
     pub indirect_variance: Vec<[f32; 3]>,
+    /// With passes (empty otherwise): the sun's light off the first
+    /// surface, and the sky seen directly (docs/passes.md).
+    pub direct: Vec<[f32; 3]>,
+    /// ... and the sky seen directly.
+    pub sky: Vec<[f32; 3]>,
 }
 
 /// The render kernels for one specialisation (structure, clouds): one
@@ -208,6 +223,11 @@ pub struct SampleMeans {
 pub(crate) struct Kernels {
     pipelines: [wgpu::ComputePipeline; 3],
     layout: wgpu::BindGroupLayout,
+    /// The guide passes' kernel, compiled on the first frame that asks.
+    guides: std::sync::OnceLock<wgpu::ComputePipeline>,
+    module: wgpu::ShaderModule,
+    pipeline_layout: wgpu::PipelineLayout,
+    constants: Vec<(&'static str, f64)>,
 }
 
 /// Kernels by (`ACCEL_KIND`, clouds), shared by every scene of a device:
@@ -306,24 +326,55 @@ impl StripRenderer {
             bind_group_layouts: &[Some(&scene_layout), Some(&layout)],
             immediate_size: 0,
         });
+        let constants = vec![
+            ("ACCEL_KIND", super::gpu_scene::accel_kind(backend) as f64),
+            ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
+        ];
         let pipelines = Kernel::ALL.map(|kernel| {
+            let mut c = constants.clone();
+            c.push(("LIGHTING_FAMILY", kernel as u32 as f64));
             device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("render"),
                 layout: Some(&pl),
                 module: &module,
                 entry_point: Some("render_strip"),
                 compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &[
-                        ("ACCEL_KIND", super::gpu_scene::accel_kind(backend) as f64),
-                        ("LIGHTING_FAMILY", kernel as u32 as f64),
-                        ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
-                    ],
+                    constants: &c,
                     ..Default::default()
                 },
                 cache: None,
             })
         });
-        Kernels { pipelines, layout }
+        Kernels {
+            pipelines,
+            layout,
+            guides: std::sync::OnceLock::new(),
+            module,
+            pipeline_layout: pl,
+            constants,
+        }
+    }
+
+    /// The guide passes' kernel: compiled once, on first use.
+    fn guides_pipeline(&self, ctx: &GpuContext) -> anyhow::Result<&wgpu::ComputePipeline> {
+        if let Some(p) = self.kernels.guides.get() {
+            return Ok(p);
+        }
+        let k = &self.kernels;
+        let p = ctx.checked("building the guide passes' kernel", || {
+            Ok(ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("guides"),
+                layout: Some(&k.pipeline_layout),
+                module: &k.module,
+                entry_point: Some("render_guides"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &k.constants,
+                    ..Default::default()
+                },
+                cache: None,
+            }))
+        })?;
+        Ok(k.guides.get_or_init(|| p))
     }
 
     /// Bytes of scene data on the GPU.
@@ -373,19 +424,27 @@ impl StripRenderer {
             lb_strength: f.lb_strength,
             gather_bounces: f.gather_bounces,
             batch_spp: 1,
+            passes: f.passes.wants_split() as u32,
             ..base
         };
         ctx.checked("rendering a strip", || {
             if method.kernel != Kernel::Reference {
                 let n = (strip_width * f.height) as usize;
-                let (px, counts) = self.dispatch(ctx, method.kernel, &uniform, n as u64 * 16, 1)?;
+                let images = if f.passes.wants_split() { 4 } else { 1 };
+                let (px, counts) =
+                    self.dispatch(ctx, method.kernel, &uniform, images * n as u64 * 16, 1)?;
+                let rgb = |k: usize| px[k * n..(k + 1) * n].iter().map(|p| [p[0], p[1], p[2]]);
+                let passes = self.passes(ctx, f, &uniform, || {
+                    (rgb(1).collect(), rgb(2).collect(), rgb(3).collect())
+                })?;
                 return Ok(RenderedStrip {
                     x0,
                     width: strip_width,
-                    pixels: px.iter().map(|p| [p[0], p[1], p[2]]).collect(),
-                    coverage: px.iter().map(|p| p[3]).collect(),
+                    pixels: rgb(0).collect(),
+                    coverage: px[..n].iter().map(|p| p[3]).collect(),
                     first_light: Vec::new(),
                     rays: counts.into(),
+                    passes,
                 });
             }
             let (mut means, rays) = self.sample_means(ctx, method.kernel, &uniform)?;
@@ -399,22 +458,74 @@ impl StripRenderer {
             }
             // The strip's own columns.
             let aw = (a1 - a0) as usize;
-            let crop = |image: &[[f32; 4]]| -> Vec<[f32; 4]> {
-                image
-                    .chunks_exact(aw)
-                    .flat_map(|row| row[(x0 - a0) as usize..(x1 - a0) as usize].iter().copied())
-                    .collect()
-            };
-            let (px, first) = (crop(&means.paths), crop(&means.first));
+            fn crop<T: Copy>(image: &[T], aw: usize, cols: std::ops::Range<usize>) -> Vec<T> {
+                image.chunks_exact(aw).flat_map(|row| row[cols.clone()].iter().copied()).collect()
+            }
+            let cols = (x0 - a0) as usize..(x1 - a0) as usize;
+            let crop4 = |image: &[[f32; 4]]| crop(image, aw, cols.clone());
+            let (px, first) = (crop4(&means.paths), crop4(&means.first));
+            let pixels: Vec<[f32; 3]> = px.iter().map(|p| [p[0], p[1], p[2]]).collect();
+            // The guides over the strip's own columns.
+            let own = FrameUniform { x0, strip_width, ..uniform };
+            let passes = self.passes(ctx, f, &own, || {
+                let (direct, sky) =
+                    (crop(&means.direct, aw, cols.clone()), crop(&means.sky, aw, cols.clone()));
+                // The rest of each path's light is indirect: the split is
+                // exact per sample, so its means split the image.
+                let indirect = (0..pixels.len())
+                    .map(|i| std::array::from_fn(|c| pixels[i][c] - direct[i][c] - sky[i][c]))
+                    .collect();
+                (direct, indirect, sky)
+            })?;
             Ok(RenderedStrip {
                 x0,
                 width: strip_width,
-                pixels: px.iter().map(|p| [p[0], p[1], p[2]]).collect(),
+                pixels,
                 coverage: px.iter().map(|p| p[3]).collect(),
                 first_light: first.iter().map(|p| [p[0], p[1], p[2]]).collect(),
                 rays,
+                passes,
             })
         })
+    }
+
+    /// The strip's passes, if the frame asks for any: the light split
+    /// (`split` gives direct, indirect and sky, called only when asked)
+    /// and the guides, from their own kernel over `uniform`'s columns.
+    fn passes(
+        &self,
+        ctx: &GpuContext,
+        f: &RenderSettings,
+        uniform: &FrameUniform,
+        split: impl FnOnce() -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>),
+    ) -> anyhow::Result<Option<PassImage>> {
+        if f.passes.is_empty() {
+            return Ok(None);
+        }
+        let mut image = PassImage::new(uniform.strip_width, uniform.height, f.passes);
+        let mut put = |p: Pass, v: &mut dyn Iterator<Item = f32>| {
+            if let Some(plane) = image.plane_mut(p) {
+                plane.iter_mut().zip(v).for_each(|(d, s)| *d = s);
+            }
+        };
+        if f.passes.wants_split() {
+            let (direct, indirect, sky) = split();
+            put(Pass::Direct, &mut direct.iter().flatten().copied());
+            put(Pass::Indirect, &mut indirect.iter().flatten().copied());
+            put(Pass::Sky, &mut sky.iter().flatten().copied());
+        }
+        if f.passes.wants_guides() {
+            let n = (uniform.strip_width * uniform.height) as usize;
+            let guides = self.guides_pipeline(ctx)?;
+            let (g, _) = self.dispatch_with(ctx, guides, uniform, 3 * n as u64 * 16, 1)?;
+            let (a, nrm, ids) = (&g[..n], &g[n..2 * n], &g[2 * n..]);
+            put(Pass::Albedo, &mut a.iter().flat_map(|p| [p[0], p[1], p[2]]));
+            put(Pass::Normal, &mut nrm.iter().flat_map(|p| [p[0], p[1], p[2]]));
+            put(Pass::Depth, &mut a.iter().map(|p| p[3]));
+            put(Pass::Instance, &mut ids.iter().map(|p| p[0]));
+            put(Pass::Species, &mut ids.iter().map(|p| p[1]));
+        }
+        Ok(Some(image))
     }
 
     /// The per-sample kernel over the columns `uniform` names, every
@@ -427,7 +538,9 @@ impl StripRenderer {
         uniform: &FrameUniform,
     ) -> anyhow::Result<(SampleMeans, RayCounts)> {
         let n = (uniform.strip_width * uniform.height) as usize;
-        let sample_bytes = n as u64 * SAMPLE_BYTES_PER_PIXEL;
+        let split = uniform.passes != 0;
+        let images = if split { 5 } else { 4 };
+        let sample_bytes = n as u64 * images as u64 * 16;
         let spp = uniform.spp;
         let batch =
             (ctx.limits.max_storage_buffer_binding_size / sample_bytes).min(spp as u64) as u32;
@@ -439,6 +552,9 @@ impl StripRenderer {
             sample_bytes
         );
         let mut sums = vec![[0.0f32; 4]; 4 * n];
+        // With passes: per pixel, the sums of the first event's sun light
+        // and of the sky it saw.
+        let (mut direct, mut sky) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
         // Per pixel and channel, Σ (surface indirect)² over its samples:
         // the spread of its indirect light, which the gathers' filter weighs.
         let mut ind_sq = vec![[0.0f64; 3]; n];
@@ -448,8 +564,19 @@ impl StripRenderer {
             let u = FrameUniform { sample_base: base, batch_spp, ..*uniform };
             let (all, counts) =
                 self.dispatch(ctx, kernel, &u, batch_spp as u64 * sample_bytes, batch_spp)?;
-            // Four images, each `batch_spp` slots of `n` pixels.
-            let indirect = &all[3 * n * batch_spp as usize..];
+            // Four (five) images, each `batch_spp` slots of `n` pixels.
+            let slots = n * batch_spp as usize;
+            let indirect = &all[3 * slots..4 * slots];
+            if split {
+                for slot in all[4 * slots..].chunks_exact(n) {
+                    for ((d, s), v) in direct.iter_mut().zip(&mut sky).zip(slot) {
+                        let to = if v[3] > 0.5 { s } else { d };
+                        for c in 0..3 {
+                            to[c] += v[c];
+                        }
+                    }
+                }
+            }
             for slot in indirect.chunks_exact(n) {
                 for (a, v) in ind_sq.iter_mut().zip(slot) {
                     for c in 0..3 {
@@ -457,9 +584,7 @@ impl StripRenderer {
                     }
                 }
             }
-            for (image, sum) in
-                all.chunks_exact(n * batch_spp as usize).zip(sums.chunks_exact_mut(n))
-            {
+            for (image, sum) in all[..4 * slots].chunks_exact(slots).zip(sums.chunks_exact_mut(n)) {
                 for slot in image.chunks_exact(n) {
                     for (a, v) in sum.iter_mut().zip(slot) {
                         for c in 0..4 {
@@ -489,7 +614,18 @@ impl StripRenderer {
                 })
             })
             .collect();
-        Ok((SampleMeans { paths, first, guide, surface_indirect, indirect_variance }, rays))
+        let mean3 = |v: Vec<[f32; 3]>| -> Vec<[f32; 3]> {
+            if split {
+                v.into_iter().map(|p| p.map(|x| x / spp as f32)).collect()
+            } else {
+                Vec::new()
+            }
+        };
+        let (direct, sky) = (mean3(direct), mean3(sky));
+        Ok((
+            SampleMeans { paths, first, guide, surface_indirect, indirect_variance, direct, sky },
+            rays,
+        ))
     }
 
     /// One dispatch of the method's kernel with `uniform`, `depth` samples
@@ -499,6 +635,18 @@ impl StripRenderer {
         &self,
         ctx: &GpuContext,
         kernel: Kernel,
+        uniform: &FrameUniform,
+        bytes: u64,
+        depth: u32,
+    ) -> anyhow::Result<(Vec<[f32; 4]>, GpuRayCounts)> {
+        self.dispatch_with(ctx, &self.kernels.pipelines[kernel as usize], uniform, bytes, depth)
+    }
+
+    /// One dispatch of `pipeline` (a render kernel or the guides').
+    fn dispatch_with(
+        &self,
+        ctx: &GpuContext,
+        pipeline: &wgpu::ComputePipeline,
         uniform: &FrameUniform,
         bytes: u64,
         depth: u32,
@@ -539,7 +687,7 @@ impl StripRenderer {
         let mut enc = device.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.kernels.pipelines[kernel as usize]);
+            pass.set_pipeline(pipeline);
             pass.set_bind_group(0, &self.scene.bind_group, &[]);
             pass.set_bind_group(1, &bg, &[]);
             pass.dispatch_workgroups(

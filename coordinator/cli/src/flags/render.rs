@@ -50,6 +50,11 @@ pub struct FrameArgs {
     /// indirect light, within one crown (0: none).
     #[arg(long, default_value_t = sylva_scene::frame::DEFAULT_GATHER_FILTER)]
     pub gather_filter: u32,
+    /// Render passes written beside the image as one multi-layer OpenEXR:
+    /// beauty, direct, indirect, albedo, normal, depth, instance,
+    /// species, sky, separated by commas, or `all` (docs/passes.md).
+    #[arg(long, value_parser = sylva_scene::passes::PassSet::parse, default_value = "beauty")]
+    pub passes: sylva_scene::passes::PassSet,
     /// Render a sequence of this many frames (with --sun-from/--sun-to, a
     /// --camera-path, or the scene's own `sequence`).
     #[arg(long)]
@@ -127,6 +132,7 @@ impl FrameArgs {
             view: Default::default(),
             gather_bounces: self.gather_bounces,
             gather_filter: self.gather_filter,
+            passes: self.passes,
         }
     }
 

@@ -12,6 +12,20 @@ pub enum SceneCommand {
     Export(ExportArgs),
     /// Write a scene file for an instanced glTF scene (each mesh a model).
     Import(ImportArgs),
+    /// Pack a scene file and its models into the bundle `submit` sends.
+    Pack(PackArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct PackArgs {
+    /// Scene file.
+    pub scene: PathBuf,
+    /// Where to write the bundle.
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// Print the bundle's hash and size as JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Formats `sylva scene export` writes.
