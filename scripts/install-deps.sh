@@ -40,6 +40,9 @@ if ((tests)); then
   # The durable queue's tests run once more on a PostgreSQL server
   # (scripts/postgres-check.sh starts a throwaway one).
   ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || missing+=(postgresql)
+  # The Python client's tests (python/run-tests.sh) run in a venv of their own.
+  command -v python3 >/dev/null 2>&1 || missing+=(python3)
+  python3 -c "import ensurepip, venv" >/dev/null 2>&1 || missing+=(python3-venv)
 fi
 sudo=""
 [ "$(id -u)" -eq 0 ] || sudo="sudo"

@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # Every check: formatting, lints, the docs (warnings are errors), the fuzz
 # targets built, then every test on the machine's real GPU adapter
-# (lavapipe on a machine without a GPU), and the durable queue's tests once
-# more on a PostgreSQL server. Extra arguments go to `cargo test`.
+# (lavapipe on a machine without a GPU), the Python client's tests against
+# the binary just built, and the durable queue's tests once more on a
+# PostgreSQL server. Extra arguments go to `cargo test`. The Blender
+# add-on's tests download Blender (`bpy`, about 400 MB): they are
+# blender/run-tests.sh, not run here.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh --test
@@ -19,5 +22,7 @@ if cargo tree --locked -p sylva-coordinator -e normal --prefix none | grep -q '^
   exit 1
 fi
 cargo test --workspace --locked "$@"
+# The Python client (python/) against real processes of that binary.
+SYLVA_BIN="$PWD/target/debug/sylva" bash python/run-tests.sh
 # The same durable-queue tests on PostgreSQL (a throwaway local server).
 bash scripts/postgres-check.sh

@@ -273,3 +273,81 @@ fn a_pbrt_export_instances_each_model_and_writes_its_meshes() {
     assert_eq!(faces, want);
     assert_eq!(said["summary"]["triangles"].as_u64(), Some(want));
 }
+
+/// A scene file may import a glTF scene (what the Blender add-on sends):
+/// it is the scene `sylva scene import` writes, with the file's own fields
+/// in place of the import's, and it travels in a bundle with its glTF; an
+/// import must lie inside the scene's folder, and its buffers too.
+#[test]
+fn a_scene_importing_a_gltf_scene_is_that_scene_and_packs_with_it() {
+    let dir = scratch("gltf-import-field");
+    let scene_path = grove(&dir);
+    let glb = dir.join("grove.glb");
+    ok(&[
+        "scene",
+        "export",
+        scene_path.to_str().unwrap(),
+        "--format",
+        "gltf",
+        "-o",
+        glb.to_str().unwrap(),
+    ]);
+    let imported = dir.join("imported.json");
+    ok(&["scene", "import", glb.to_str().unwrap(), "-o", imported.to_str().unwrap()]);
+    let wrapper = dir.join("wrapper.json");
+    std::fs::write(&wrapper, r#"{ "import": "grove.glb", "lighting": "local", "ground": null }"#)
+        .unwrap();
+    let (a, b) = (Scene::load(&imported).unwrap(), Scene::load(&wrapper).unwrap());
+    assert_eq!(a.models.len(), b.models.len());
+    assert_eq!(a.instances.len(), b.instances.len());
+    assert_eq!(a.unique_triangles(), b.unique_triangles());
+    assert_eq!(a.camera.position, b.camera.position);
+    // The file's own fields win.
+    assert_eq!(b.file.lighting, sylva_scene::LightingMode::Local);
+    assert!(a.ground.is_some() && b.ground.is_none());
+
+    // Packed, the glTF goes along; unpacked elsewhere, the same scene.
+    std::fs::write(&wrapper, r#"{ "import": "grove.glb", "lighting": "local" }"#).unwrap();
+    let bundle = sylva_scene::bundle::pack(&wrapper).unwrap();
+    let there = dir.join("unpacked");
+    let c = sylva_scene::bundle::unpack(&bundle.bytes, &there).unwrap();
+    assert_eq!(
+        (c.instances.len(), c.unique_triangles()),
+        (b.instances.len(), b.unique_triangles())
+    );
+
+    // Rendered, the two files are one frame.
+    let frame =
+        ["--local-workers", "0", "--width", "48", "--height", "32", "--lighting", "local", "--exr"];
+    let (pa, pb) = (dir.join("a.png"), dir.join("b.png"));
+    for (scene, out) in [(&imported, &pa), (&wrapper, &pb)] {
+        let mut args = vec!["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap()];
+        args.extend(frame);
+        ok(&args);
+    }
+    assert_eq!(
+        std::fs::read(dir.join("a.exr")).unwrap(),
+        std::fs::read(dir.join("b.exr")).unwrap()
+    );
+
+    // An import outside the folder, or whose buffer is, is refused.
+    std::fs::write(&wrapper, r#"{ "import": "../grove.glb" }"#).unwrap();
+    let e = Scene::load(&wrapper).unwrap_err().to_string();
+    assert!(e.contains("import") && e.contains("not a file inside"), "{e}");
+    let inner = dir.join("inner");
+    std::fs::create_dir_all(&inner).unwrap();
+    std::fs::write(dir.join("secret.bin"), [0u8; 64]).unwrap();
+    std::fs::write(
+        inner.join("leak.gltf"),
+        r#"{ "asset": { "version": "2.0" }, "buffers": [ { "byteLength": 64, "uri": "../secret.bin" } ] }"#,
+    )
+    .unwrap();
+    std::fs::write(inner.join("s.json"), r#"{ "import": "leak.gltf" }"#).unwrap();
+    let e = Scene::load(&inner.join("s.json")).unwrap_err().to_string();
+    assert!(e.contains("not a file inside"), "{e}");
+    // It tells nothing of outside: a file that is not there reads the same.
+    let gltf = std::fs::read_to_string(inner.join("leak.gltf")).unwrap();
+    std::fs::write(inner.join("leak.gltf"), gltf.replace("secret", "absent")).unwrap();
+    let absent = Scene::load(&inner.join("s.json")).unwrap_err().to_string();
+    assert_eq!(e.replace("secret", "absent"), absent);
+}

@@ -849,3 +849,47 @@ async fn pull_strips(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A worker's reply to a 2 × 3 strip at column 4, with `passes`' bytes.
+    fn reply(passes: Vec<u8>) -> pb::RenderStripReply {
+        pb::RenderStripReply {
+            x0: 4,
+            width: 2,
+            height: 3,
+            rgb_f32: [0.5f32; 18].iter().flat_map(|v| v.to_le_bytes()).collect(),
+            coverage_f32: [1.0f32; 6].iter().flat_map(|v| v.to_le_bytes()).collect(),
+            passes_f32: passes,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_workers_passes_are_checked_before_use() {
+        let set = PassSet::parse("depth,instance").unwrap();
+        let mut good = PassImage::new(2, 3, set);
+        good.planes[1].fill(2.0);
+        let px = decode_reply(&reply(good.to_bytes()), (4, 6), 3, set).unwrap();
+        assert_eq!(px.passes.as_ref(), Some(&good));
+        // Passes nobody asked for, too few bytes, an id that is no index,
+        // a NaN depth: each the worker's failure, said so.
+        let no = decode_reply(&reply(good.to_bytes()), (4, 6), 3, PassSet::NONE).unwrap_err();
+        assert!(no.contains("nobody asked for"), "{no}");
+        let short =
+            decode_reply(&reply(good.to_bytes()[4..].to_vec()), (4, 6), 3, set).unwrap_err();
+        assert!(short.contains("bytes where"), "{short}");
+        let mut bad = good.clone();
+        bad.planes[1][0] = 0.5;
+        let e = decode_reply(&reply(bad.to_bytes()), (4, 6), 3, set).unwrap_err();
+        assert!(e.contains("instance"), "{e}");
+        bad = good.clone();
+        bad.planes[0][0] = f32::NAN;
+        assert!(
+            decode_reply(&reply(bad.to_bytes()), (4, 6), 3, set).unwrap_err().contains("depth")
+        );
+        assert!(decode_reply(&reply(Vec::new()), (4, 6), 3, set).is_err(), "passes missing");
+    }
+}

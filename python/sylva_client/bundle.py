@@ -9,10 +9,13 @@ model files it names, so that workers cache it by hash
 * the manifest, JSON: ``{"scene": SCENE, "blobs": [{"name": N, "len": L}, ...]}``
   where SCENE is the scene file's JSON as written, except that each
   model's ``gltf`` path is replaced by its blob's name ``m{i}/{file name}``
-  (``i`` counts every model, in sorted-name order);
-* the blobs, in the manifest's order. A ``.gltf`` model's external
-  buffers and images (relative URIs, not ``data:``) come first, as
-  ``m{i}/{uri}``, then the model file itself.
+  (``i`` counts every model, in sorted-name order), and an ``import``
+  (a glTF scene the file takes its models, placements, camera and sun
+  from) by ``i/{file name}``;
+* the blobs, in the manifest's order: each model's, then the import's. A
+  ``.gltf`` file's external buffers and images (relative URIs, not
+  ``data:``) come first, as ``m{i}/{uri, percent-decoded}``, then the
+  glTF file itself.
 
 The hash is BLAKE3 of the whole bundle, in hex. The Python and Rust
 packers must agree to the byte: the same scene packed by either is the
@@ -189,6 +192,45 @@ def _external_uris(gltf_json: bytes) -> list[str]:
     return out
 
 
+def _pack_gltf(
+    access: _Inside, folder: Path, rel: str, dir_name: str, field: str, blobs: list[tuple[str, bytes]]
+) -> str:
+    """Packs the glTF file `rel` (named by the scene's `field`) into `blobs`
+    under `dir_name`, after the files a ``.gltf`` names (as the reader
+    finds them: their URIs percent-decoded); returns the blob name the
+    scene's field becomes."""
+    try:
+        full = access.resolve(folder, rel)
+    except BundleError as e:
+        raise BundleError(f"{field}: {e}") from None
+    try:
+        data = full.read_bytes()
+    except OSError:
+        raise BundleError(f"{field}: cannot read {rel}") from None
+    # The real file's name: a symbolic link inside the folder is packed
+    # under its target's name, as Rust's canonical path gives it.
+    file = _lossy(full.name) or "model.glb"
+    if file[-5:].translate(_ASCII_LOWER) == ".gltf":
+        try:
+            uris = _external_uris(data)
+        except ValueError as e:
+            raise BundleError(f"{rel}: not glTF JSON: {e}") from None
+        for uri in uris:
+            try:
+                dep = access.resolve_uri(full.parent, uri)
+            except BundleError as e:
+                raise BundleError(f"{rel}: {e}") from None
+            assert dep is not None, "data: URIs are not external"
+            decoded = _percent_decode(uri)
+            assert decoded is not None, "resolve_uri decoded it"
+            try:
+                blobs.append((f"{dir_name}/{decoded}", dep.read_bytes()))
+            except OSError:
+                raise BundleError(f"{rel}: cannot read {uri}") from None
+    blobs.append((f"{dir_name}/{file}", data))
+    return f"{dir_name}/{file}"
+
+
 def pack(scene_path: str | os.PathLike[str]) -> Bundle:
     """Packs the scene file at `scene_path` and the glTF files it names
     (with the buffers and images a ``.gltf`` refers to by relative path),
@@ -216,8 +258,8 @@ def pack(scene_path: str | os.PathLike[str]) -> Bundle:
         raise BundleError(f"{label}: {e}") from None
     if not isinstance(written, dict):
         raise BundleError(f"{label}: a scene file is a JSON object")
-    models = written.get("models")
-    if not isinstance(models, dict):
+    models = written.get("models", {})
+    if not isinstance(models, dict) or ("models" not in written and "import" not in written):
         raise BundleError(f"{label}: models: missing, or not an object of models by name")
 
     blobs: list[tuple[str, bytes]] = []
@@ -232,35 +274,14 @@ def pack(scene_path: str | os.PathLike[str]) -> Bundle:
             continue
         if not isinstance(rel, str):
             raise BundleError(f"{label}: models.{name}.gltf: not a path")
-        try:
-            full = access.resolve(folder, rel)
-        except BundleError as e:
-            raise BundleError(f"{label}: models.{name}.gltf: {e}") from None
-        try:
-            data = full.read_bytes()
-        except OSError:
-            raise BundleError(f"{label}: models.{name}.gltf: cannot read {rel}") from None
-        folder_name = f"m{i}"
-        # The real file's name: a symbolic link inside the folder is packed
-        # under its target's name, as Rust's canonical path gives it.
-        file = _lossy(full.name) or "model.glb"
-        if file[-5:].translate(_ASCII_LOWER) == ".gltf":
-            try:
-                uris = _external_uris(data)
-            except ValueError as e:
-                raise BundleError(f"{rel}: not glTF JSON: {e}") from None
-            for uri in uris:
-                try:
-                    dep = access.resolve_uri(full.parent, uri)
-                except BundleError as e:
-                    raise BundleError(f"{rel}: {e}") from None
-                assert dep is not None, "data: URIs are not external"
-                try:
-                    blobs.append((f"{folder_name}/{uri}", dep.read_bytes()))
-                except OSError:
-                    raise BundleError(f"{rel}: cannot read {uri}") from None
-        blobs.append((f"{folder_name}/{file}", data))
-        spec["gltf"] = f"{folder_name}/{file}"
+        spec["gltf"] = _pack_gltf(access, folder, rel, f"m{i}", f"{label}: models.{name}.gltf", blobs)
+    # A glTF scene the scene file imports (its meshes, placements, camera
+    # and sun): packed under "i/".
+    if "import" in written:
+        rel = written["import"]
+        if not isinstance(rel, str):
+            raise BundleError(f"{label}: import: a path to a glTF scene (.glb or .gltf)")
+        written["import"] = _pack_gltf(access, folder, rel, "i", f"{label}: import", blobs)
 
     # The manifest's own two levels are Rust structs: their fields in
     # declaration order ("scene", "blobs"; "name", "len"), not sorted.

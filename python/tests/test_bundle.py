@@ -232,8 +232,32 @@ def test_a_gltf_with_external_files_packs_as_the_cli_packs_it(sylva: Path, tmp_p
     scene = gltf_scene(tmp_path / "g")
     rust = assert_same(sylva, scene, tmp_path)
     m = json.loads(manifest(rust))
-    assert [b["name"] for b in m["blobs"]] == ["m1/tri.bin", "m1/tex%201.png", "m1/tri.gltf"]
+    # Blobs are named as the worker's reader looks for them: URIs decoded.
+    assert [b["name"] for b in m["blobs"]] == ["m1/tri.bin", "m1/tex 1.png", "m1/tri.gltf"]
     assert m["scene"]["models"]["b tri"]["gltf"] == "m1/tri.gltf"
+
+
+def test_a_scene_importing_a_gltf_scene_packs_as_the_cli_packs_it(
+    sylva: Path, tmp_path: Path
+) -> None:
+    # The Blender add-on's form: a glTF scene, and what the file overrides.
+    folder = tmp_path / "i"
+    folder.mkdir()
+    r = run_sylva(
+        sylva, "scene", "export", str(EXAMPLES / "ferns.json"), "--format", "gltf",
+        "--out", str(folder / "forest.glb"),
+    )
+    assert r.returncode == 0, r.stderr
+    scene = folder / "scene.json"
+    scene.write_text(json.dumps({"import": "forest.glb", "lighting": "local"}))
+    rust = assert_same(sylva, scene, tmp_path)
+    m = json.loads(manifest(rust))
+    assert [b["name"] for b in m["blobs"]] == ["i/forest.glb"]
+    assert m["scene"] == {"import": "i/forest.glb", "lighting": "local"}
+    scene.write_text(json.dumps({"import": "../forest.glb"}))
+    assert rust_refusal(sylva, scene, tmp_path / "b").endswith("without \"..\")")
+    with pytest.raises(BundleError, match="without"):
+        pack(scene)
 
 
 def test_a_bare_scene_file_name_packs_from_the_current_folder(

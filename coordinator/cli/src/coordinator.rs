@@ -106,7 +106,9 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     frame.check()?;
     let text = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("{}: cannot read", a.scene.display()))?;
-    let views = a.frame.views(&sylva_scene::parse(&text, &a.scene.display().to_string())?)?;
+    let access = sylva_scene::FileAccess::Inside(sylva_scene::folder_of(&a.scene));
+    let views =
+        a.frame.views(&sylva_scene::parse_with(&text, &a.scene.display().to_string(), &access)?)?;
     let spec = super::render::job_spec(
         &frame,
         &views,

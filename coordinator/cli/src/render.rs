@@ -79,7 +79,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let goal = a.goal()?;
     let mut phases: Vec<(&str, f64)> = Vec::new();
     let t = Instant::now();
-    let folder = a.scene.parent().map(Path::to_path_buf).unwrap_or_default();
+    let folder = sylva_scene::folder_of(&a.scene);
     let remote = a.local_workers > 0 || !a.workers.is_empty();
     if a.allow_files_outside_scene && remote {
         bail!(

@@ -31,7 +31,9 @@ pub struct SceneBundle {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Manifest {
-    scene: SceneFile,
+    /// The scene file's JSON (its `import`, if any, is read once the blobs
+    /// are written).
+    scene: serde_json::Value,
     blobs: Vec<BlobEntry>,
 }
 
@@ -59,48 +61,39 @@ pub fn hash_of(bytes: &[u8]) -> String {
 /// buffers and images a `.gltf` refers to by relative path), all of which
 /// must lie inside the scene file's folder.
 pub fn pack(path: &Path) -> anyhow::Result<SceneBundle> {
-    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    pack_with(path, &FileAccess::Inside(base))
+    pack_with(path, &FileAccess::Inside(crate::folder_of(path)))
 }
 
 /// Packs the scene file at `path`, reading its models as `access` allows.
 pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle> {
     let label = path.display().to_string();
     let text = std::fs::read_to_string(path).with_context(|| format!("{label}: cannot read"))?;
-    // Parsed once as a scene, for its errors and its models, and kept as
-    // written for the manifest.
-    let scene = crate::parse(&text, &label)?;
+    // Parsed once as a scene, for its errors, and kept as written for the
+    // manifest: the glTF files it names itself (its models', its import)
+    // are packed, and their paths rewritten to the blobs' names.
+    crate::parse_with(&text, &label, access)?;
     let mut written: serde_json::Value = serde_json::from_str(&text)?;
     let mut blobs: Vec<(String, Vec<u8>)> = Vec::new();
-    for (i, (name, spec)) in scene.models.iter().enumerate() {
-        let Some(rel) = spec.gltf.clone() else { continue };
-        let full = access
-            .resolve(access.base(), &rel)
-            .map_err(|e| anyhow::anyhow!("{label}: models.{name}.gltf: {e}"))?;
-        let bytes = std::fs::read(&full).with_context(|| {
-            format!("{label}: models.{name}.gltf: cannot read {}", rel.display())
-        })?;
-        let dir = format!("m{i}");
-        let file = full
-            .file_name()
-            .map(|f| f.to_string_lossy().to_string())
-            .unwrap_or_else(|| "model.glb".into());
-        if file.to_ascii_lowercase().ends_with(".gltf") {
-            let folder = full.parent().unwrap_or(Path::new("."));
-            for uri in external_uris(&bytes)
-                .with_context(|| format!("{}: not glTF JSON", rel.display()))?
-            {
-                let dep = access
-                    .resolve_uri(folder, &uri)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", rel.display()))?
-                    .expect("not a data: URI");
-                let data = std::fs::read(&dep)
-                    .with_context(|| format!("{}: cannot read {uri}", rel.display()))?;
-                blobs.push((format!("{dir}/{uri}"), data));
-            }
-        }
-        blobs.push((format!("{dir}/{file}"), bytes));
-        written["models"][name]["gltf"] = serde_json::Value::from(format!("{dir}/{file}"));
+    let models: Vec<(String, String)> = written
+        .get("models")
+        .and_then(|m| m.as_object())
+        .into_iter()
+        .flatten()
+        .map(|(name, spec)| (name.clone(), spec.get("gltf").and_then(|g| g.as_str())))
+        .enumerate()
+        .filter_map(|(i, (name, gltf))| gltf.map(|g| (name, format!("m{i}"), g.to_string())))
+        .map(|(name, dir, gltf)| {
+            let field = format!("models.{name}.gltf");
+            let blob = pack_gltf(access, &gltf, &dir, &label, &field, &mut blobs)?;
+            anyhow::Ok((name, blob))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    for (name, blob) in models {
+        written["models"][&name]["gltf"] = serde_json::Value::from(blob);
+    }
+    if let Some(rel) = written.get("import").and_then(|v| v.as_str()).map(str::to_string) {
+        let blob = pack_gltf(access, &rel, "i", &label, "import", &mut blobs)?;
+        written["import"] = serde_json::Value::from(blob);
     }
     let manifest = PackedManifest {
         scene: written,
@@ -120,6 +113,43 @@ pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle
     }
     let hash = hash_of(&bytes);
     Ok(SceneBundle { bytes, hash })
+}
+
+/// Packs the glTF file `rel` (named by the scene's `field`) into blobs
+/// under `dir`, with the files a `.gltf` names: the blob name the scene's
+/// field becomes.
+fn pack_gltf(
+    access: &FileAccess,
+    rel: &str,
+    dir: &str,
+    label: &str,
+    field: &str,
+    blobs: &mut Vec<(String, Vec<u8>)>,
+) -> anyhow::Result<String> {
+    let full = access
+        .resolve(access.base(), Path::new(rel))
+        .map_err(|e| anyhow::anyhow!("{label}: {field}: {e}"))?;
+    let bytes =
+        std::fs::read(&full).with_context(|| format!("{label}: {field}: cannot read {rel}"))?;
+    let file = full
+        .file_name()
+        .map(|f| f.to_string_lossy().to_string())
+        .unwrap_or_else(|| "model.glb".into());
+    if file.to_ascii_lowercase().ends_with(".gltf") {
+        let folder = full.parent().unwrap_or(Path::new("."));
+        for uri in external_uris(&bytes).with_context(|| format!("{rel}: not glTF JSON"))? {
+            let dep = access
+                .resolve_uri(folder, &uri)
+                .map_err(|e| anyhow::anyhow!("{rel}: {e}"))?
+                .expect("not a data: URI");
+            let data = std::fs::read(&dep).with_context(|| format!("{rel}: cannot read {uri}"))?;
+            // Named as the reader finds it: the URI percent-decoded.
+            let decoded = crate::sandbox::percent_decode(&uri).expect("resolve_uri decoded it");
+            blobs.push((format!("{dir}/{decoded}"), data));
+        }
+    }
+    blobs.push((format!("{dir}/{file}"), bytes));
+    Ok(format!("{dir}/{file}"))
 }
 
 /// Relative URIs of a `.gltf` file's buffers and images.
@@ -159,8 +189,13 @@ pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> anyhow::Re
     }
     let manifest: Manifest =
         serde_json::from_slice(&body[..len]).context("malformed bundle manifest")?;
-    // The cheap checks first: a scene that would be refused costs no disk.
-    Scene::check(&manifest.scene, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))?;
+    // The cheap checks first: a scene that would be refused costs no disk
+    // (one that imports a glTF scene is known once its blobs are written).
+    if manifest.scene.get("import").is_none() {
+        let file: SceneFile =
+            serde_json::from_value(manifest.scene.clone()).context("malformed bundle manifest")?;
+        Scene::check(&file, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))?;
+    }
     let mut at = len;
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     for b in &manifest.blobs {
@@ -183,8 +218,9 @@ pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> anyhow::Re
     if at != body.len() {
         bail!("scene bundle has {} stray bytes after its blobs", body.len() - at);
     }
-    Scene::build_with(manifest.scene, &FileAccess::Inside(dir.to_path_buf()), "bundle", limits)
-        .map_err(|e: SceneError| anyhow::anyhow!(e))
+    let access = FileAccess::Inside(dir.to_path_buf());
+    let file = crate::expand(manifest.scene, "bundle", &access).map_err(anyhow::Error::new)?;
+    Scene::build_with(file, &access, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))
 }
 
 #[cfg(test)]

@@ -112,7 +112,7 @@ impl Scene {
     /// Reads, parses and checks a scene file; glTF paths are relative to it
     /// and must lie inside its folder; default limits.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let base = folder_of(path);
         Scene::load_with(path, &FileAccess::Inside(base), &SceneLimits::default())
     }
 
@@ -129,7 +129,7 @@ impl Scene {
             field: String::new(),
             message: format!("cannot read: {e}"),
         })?;
-        let file = parse(&text, &label)?;
+        let file = parse_with(&text, &label, access)?;
         Scene::build_with(file, access, &label, limits)
     }
 
@@ -358,6 +358,58 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
         ));
     }
     Ok(Checked { instances, camera, sun, declared_triangles: declared })
+}
+
+/// The folder a file lies in: `.` for a bare file name.
+pub fn folder_of(path: &Path) -> std::path::PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    }
+}
+
+/// Parses a scene file, reading the glTF scene its `import` names, if any
+/// (docs/scene-format.md, "Importing a glTF scene"): that scene as
+/// `sylva scene import` reads it, with every other field the file gives
+/// in place of the import's. Files are read as `access` allows.
+pub fn parse_with(text: &str, label: &str, access: &FileAccess) -> Result<SceneFile, SceneError> {
+    match serde_json::from_str::<serde_json::Value>(text) {
+        Ok(v) => expand(v, label, access),
+        // Syntax errors, with their place, as `parse` reports them.
+        Err(_) => parse(text, label),
+    }
+}
+
+/// A scene file's JSON as a scene, its `import` read (see [`parse_with`]).
+pub fn expand(
+    value: serde_json::Value,
+    label: &str,
+    access: &FileAccess,
+) -> Result<SceneFile, SceneError> {
+    let err =
+        |message: String| SceneError { file: label.to_string(), field: "import".into(), message };
+    let Some(import) = value.get("import") else { return from_value(value, label) };
+    let rel =
+        import.as_str().ok_or_else(|| err("a path to a glTF scene (.glb or .gltf)".into()))?;
+    let full = access.resolve(access.base(), Path::new(rel)).map_err(err)?;
+    let imported = crate::interchange::import::import_gltf_with(&full, access.base(), access)
+        .map_err(|e| err(format!("{e:#}")))?;
+    let mut merged = serde_json::to_value(imported).map_err(|e| err(e.to_string()))?;
+    for (k, v) in value.as_object().into_iter().flatten().filter(|(k, _)| *k != "import") {
+        merged[k] = v.clone();
+    }
+    from_value(merged, label)
+}
+
+fn from_value(value: serde_json::Value, label: &str) -> Result<SceneFile, SceneError> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = e.path().to_string();
+        SceneError {
+            file: label.to_string(),
+            field: if path == "." { String::new() } else { path },
+            message: e.into_inner().to_string(),
+        }
+    })
 }
 
 /// Parses scene JSON; errors carry the path of the offending field.

@@ -356,7 +356,7 @@ fn load_unguarded(
 
 /// A glTF file's name in messages: inside a bundle, as the bundle names it
 /// (its folder is ours), so no path outside the job shows.
-fn shown_name(path: &Path, access: &FileAccess) -> String {
+pub(crate) fn shown_name(path: &Path, access: &FileAccess) -> String {
     match access {
         FileAccess::Inside(base) => path
             .strip_prefix(base.canonicalize().unwrap_or_else(|_| base.clone()))
@@ -370,7 +370,7 @@ fn shown_name(path: &Path, access: &FileAccess) -> String {
 
 /// The files the document's buffers and images name, each checked against
 /// what the scene may read before any is read.
-fn files_named(
+pub(crate) fn files_named(
     doc: &gltf::Document,
     access: &FileAccess,
     folder: &Path,
@@ -516,7 +516,7 @@ fn mesh_triangles(m: &gltf::Mesh) -> u64 {
 /// component type the reader expects, a count of at least one, a stride
 /// and offsets inside its view — since the glTF reader asserts rather
 /// than erring on these.
-fn check_accessors(doc: &gltf::Document) -> Result<(), String> {
+pub(crate) fn check_accessors(doc: &gltf::Document) -> Result<(), String> {
     use gltf::accessor::{DataType as D, Dimensions as N};
     for m in doc.meshes() {
         let mesh = m.name().unwrap_or("?");

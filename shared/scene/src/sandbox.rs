@@ -53,6 +53,8 @@ impl FileAccess {
                     return Err(outside());
                 }
                 let full = from.join(rel);
+                // A bare file name's folder is the empty path: the current one.
+                let root = if root.as_os_str().is_empty() { Path::new(".") } else { root };
                 let (Ok(canon), Ok(root)) = (full.canonicalize(), root.canonicalize()) else {
                     return Err(outside());
                 };
@@ -120,7 +122,7 @@ pub fn escaped(s: &str) -> String {
 }
 
 /// Decodes `%XX` escapes as the glTF loader does; `None` if the result is not UTF-8.
-fn percent_decode(s: &str) -> Option<String> {
+pub(crate) fn percent_decode(s: &str) -> Option<String> {
     let b = s.as_bytes();
     let mut out = Vec::with_capacity(b.len());
     let mut i = 0;

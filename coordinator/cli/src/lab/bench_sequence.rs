@@ -95,7 +95,8 @@ pub fn run(a: SequenceBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(a.frames >= 2, "--frames {}: a sequence of at least 2", a.frames);
     let text = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("{}: cannot read", a.scene.display()))?;
-    let file = sylva_scene::parse(&text, &a.scene.display().to_string())?;
+    let access = sylva_scene::FileAccess::Inside(sylva_scene::folder_of(&a.scene));
+    let file = sylva_scene::parse_with(&text, &a.scene.display().to_string(), &access)?;
     let bundle = sylva_scene::bundle::pack(&a.scene)?;
     let rt = tokio::runtime::Runtime::new()?;
     let frame = FrameSettings {

@@ -4,7 +4,7 @@
 //! the first directional light the sun. What [`super::gltf`] writes comes
 //! back as it went; Blender's exports work too.
 
-use crate::SceneFile;
+use crate::{FileAccess, SceneFile};
 use anyhow::{Context, bail};
 use glam::{Mat4, Quat, Vec3, Vec4};
 use serde_json::{Map, Value, json};
@@ -28,10 +28,38 @@ struct Gathered {
 /// The scene file for the glTF scene at `gltf_path`, which the scene file
 /// names relative to `scene_dir`.
 pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFile> {
-    let shown = gltf_path.display();
+    let folder = gltf_path.parent().filter(|f| !f.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    import_gltf_with(gltf_path, scene_dir, &FileAccess::Anywhere(folder.to_path_buf()))
+}
+
+/// [`import_gltf`], reading the glTF's buffers only where `access` allows
+/// (a scene file's `import`, which may come from a hostile bundle).
+pub fn import_gltf_with(
+    gltf_path: &Path,
+    scene_dir: &Path,
+    access: &FileAccess,
+) -> anyhow::Result<SceneFile> {
+    // The glTF crates assert on some malformed accessors instead of
+    // returning errors; a hostile file must cost its scene, not the process.
+    std::panic::catch_unwind(|| import_unguarded(gltf_path, scene_dir, access)).unwrap_or_else(
+        |_| bail!("{}: malformed glTF: the importer failed on it", gltf_path.display()),
+    )
+}
+
+fn import_unguarded(
+    gltf_path: &Path,
+    scene_dir: &Path,
+    access: &FileAccess,
+) -> anyhow::Result<SceneFile> {
+    let shown = crate::model::shown_name(gltf_path, access);
+    let bytes = std::fs::read(gltf_path).with_context(|| format!("{shown}: cannot read glTF"))?;
     let gltf::Gltf { document: doc, blob } =
-        gltf::Gltf::open(gltf_path).with_context(|| format!("{shown}: cannot read glTF"))?;
+        gltf::Gltf::from_slice(&bytes).with_context(|| format!("{shown}: cannot read glTF"))?;
+    drop(bytes);
     let folder = gltf_path.parent().unwrap_or(Path::new("."));
+    // Every file the document names must be one we may read, before any is.
+    crate::model::files_named(&doc, access, folder, &shown)?;
+    crate::model::check_accessors(&doc).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     let buffers = gltf::import_buffers(&doc, Some(folder), blob)
         .with_context(|| format!("{shown}: cannot read its buffers"))?;
     let scene = doc
