@@ -10,20 +10,31 @@ pub fn load_token(
     flag: Option<&str>,
     file: Option<&std::path::Path>,
 ) -> std::io::Result<Option<String>> {
-    if let Some(t) = flag.filter(|t| !t.is_empty()) {
-        return Ok(Some(t.to_string()));
-    }
-    if let Ok(t) = std::env::var("SYLVA_TOKEN")
+    let token = if let Some(t) = flag.filter(|t| !t.is_empty()) {
+        Some(t.to_string())
+    } else if let Ok(t) = std::env::var("SYLVA_TOKEN")
         && !t.is_empty()
     {
-        return Ok(Some(t));
-    }
-    match file {
-        Some(p) => {
-            Ok(Some(std::fs::read_to_string(p)?.trim_end().to_string()).filter(|t| !t.is_empty()))
+        Some(t)
+    } else {
+        match file {
+            Some(p) => {
+                Some(std::fs::read_to_string(p)?.trim_end().to_string()).filter(|t| !t.is_empty())
+            }
+            None => None,
         }
-        None => Ok(None),
+    };
+    // A token travels as an HTTP header value: one that cannot would be
+    // dropped from every call, and the server would say none was sent.
+    if let Some(t) = &token
+        && !t.bytes().all(|b| b.is_ascii_graphic())
+    {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "the token must be printable ASCII without spaces (it travels as an HTTP header)",
+        ));
     }
+    Ok(token)
 }
 
 /// A server interceptor: with a token configured, calls must carry

@@ -202,11 +202,12 @@ impl CoordinatorService {
         let who = caller(&self.state.access, &request)?;
         let id = request.into_inner().id;
         let id = job_id(&id)?;
-        let (summary, tx) = {
+        let (summary, tx, now) = {
             let mut jobs = lock(&self.state.jobs);
             let j = jobs.get_mut(id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
             owner(&who, id, &j.summary.submitter)?;
-            if j.set_state(JobState::Cancelled).is_ok() {
+            let now = j.set_state(JobState::Cancelled).is_ok();
+            if now {
                 if let Some(t) = j.task.take() {
                     t.abort();
                 }
@@ -214,8 +215,13 @@ impl CoordinatorService {
                 j.summary.finished_unix_ms = unix_ms();
                 j.live.preview = Vec::new();
             }
-            (j.summary.clone(), j.events.clone())
+            (j.summary.clone(), j.events.clone(), now)
         };
+        // A job that had ended already is left as it was: cancelling it
+        // again records nothing and tells its watchers nothing.
+        if !now {
+            return Ok(Response::new(summary));
+        }
         if wire_ended(summary.state) {
             self.state.ended(id).await;
             self.state.audit(&who.user, "cancel", id, "").await;

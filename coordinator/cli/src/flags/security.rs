@@ -19,7 +19,7 @@ impl TokenArgs {
     /// The token from the flag, `SYLVA_TOKEN` or the file, if any.
     pub fn load(&self) -> anyhow::Result<Option<String>> {
         sylva_proto::auth::load_token(self.token.as_deref(), self.token_file.as_deref())
-            .context("cannot read the token file")
+            .context("cannot take the token")
     }
 }
 

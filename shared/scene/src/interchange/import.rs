@@ -103,22 +103,10 @@ fn import_unguarded(
             g.camera = Some((world, p.yfov()));
         }
         if g.sun.is_none()
-            && let Some(light) = node
-                .extension_value("KHR_lights_punctual")
-                .and_then(|v| v.get("light"))
-                .and_then(Value::as_u64)
-            && let Some(l) = doc
-                .extension_value("KHR_lights_punctual")
-                .and_then(|v| v.get("lights"))
-                .and_then(|v| v.get(light as usize))
-            && l.get("type").and_then(Value::as_str) == Some("directional")
+            && let Some(light) = node.light()
+            && matches!(light.kind(), gltf::khr_lights_punctual::Kind::Directional)
         {
-            let colour = l
-                .get("color")
-                .and_then(|c| serde_json::from_value::<[f32; 3]>(c.clone()).ok())
-                .unwrap_or([1.0; 3]);
-            let intensity = l.get("intensity").and_then(Value::as_f64).unwrap_or(1.0) as f32;
-            g.sun = Some((world, colour, intensity));
+            g.sun = Some((world, light.color(), light.intensity()));
         }
         stack.extend(node.children().map(|c| (c, world, depth + 1)));
     }
@@ -199,7 +187,19 @@ fn import_unguarded(
     if let Some(o) = extras.as_ref().and_then(|e| e.get("leaf_optics")) {
         out["leaf_optics"] = o.clone();
     }
-    serde_json::from_value(out).context("the imported scene is not a valid scene file")
+    serde_path_to_error::deserialize(out).map_err(|e| {
+        let field = e.path().to_string();
+        // Fields Sylva's own export records in the scene's extras: a
+        // Blender custom property of the same name lands there too.
+        let from_extras = ["sky", "ground", "lighting", "leaf_optics", "sun"]
+            .iter()
+            .any(|k| field == *k || field.starts_with(&format!("{k}.")));
+        let whence = if from_extras { " (from the glTF scene's extras \"sylva\")" } else { "" };
+        anyhow::anyhow!(
+            "{shown}: the imported scene is not a valid scene file: {field}{whence}: {}",
+            e.into_inner()
+        )
+    })
 }
 
 /// Placements of one `EXT_mesh_gpu_instancing` extension: translation,

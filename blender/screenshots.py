@@ -1,0 +1,147 @@
+"""Takes the add-on's screenshots for docs/images/ in a GUI Blender (run
+by blender/screenshots.sh under Xvfb): installs the add-on from its zip,
+builds the test forest (plus a few more collection instances of the tree,
+which every Blender exports as instances), runs "Render on Sylva" as a
+user would (the modal operator, against the farm in $SYLVA_COORDINATOR
+with $SYLVA_TOKEN), and once the image is back takes
+  blender-panel.png   the Properties editor's Sylva panel, and
+  blender-passes.png  the window, its Image Editor showing the EXR's passes.
+Arguments after `--`: the zip, the output folder."""
+
+import math
+import os
+import sys
+import time
+
+import bpy
+
+argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+ZIP, OUT = argv[0], argv[1]
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "tests"))
+import scene_builder  # noqa: E402
+
+started = time.monotonic()
+
+
+def log(*a):
+    print("screenshots:", *a, flush=True)
+
+
+def areas(kind):
+    win = bpy.context.window_manager.windows[0]
+    return win, [a for a in win.screen.areas if a.type == kind]
+
+
+def setup():
+    bpy.ops.preferences.addon_install(filepath=ZIP, overwrite=True)
+    bpy.ops.preferences.addon_enable(module="sylva_blender")
+    objs = scene_builder.build_scene(480, 270)
+    # More trees, placed by collection instances.
+    coll = bpy.data.collections["TreeSource"]
+    for i in range(10):
+        e = bpy.data.objects.new(f"TreeInstance.{i}", None)
+        e.instance_type = "COLLECTION"
+        e.instance_collection = coll
+        a = i * 2.4
+        e.location = (math.cos(a) * (4 + i * 1.1), math.sin(a) * (4 + i * 1.1) + 4, 0)
+        e.rotation_euler = (0, 0, a)
+        bpy.context.scene.collection.objects.link(e)
+    prefs = bpy.context.preferences.addons["sylva_blender"].preferences
+    prefs.address = os.environ["SYLVA_COORDINATOR"]
+    prefs.token = os.environ["SYLVA_TOKEN"]
+    s = bpy.context.scene.sylva_farm
+    s.spp, s.all_passes, s.lighting = 4, True, "scene"
+    import tempfile
+
+    s.output_dir = tempfile.mkdtemp(prefix="sylva-shots-")
+    bpy.context.scene.render.engine = "BLENDER_WORKBENCH"  # fewer panels above ours
+    win, view3d = areas("VIEW_3D")
+    view3d[0].type = "IMAGE_EDITOR"
+    _, props = areas("PROPERTIES")
+    for a in props:
+        a.spaces.active.context = "RENDER"
+    del objs
+
+
+def start_render():
+    win, props = areas("PROPERTIES")
+    with bpy.context.temp_override(window=win, area=props[0]):
+        r = bpy.ops.sylva.render("INVOKE_DEFAULT")
+    log("operator:", r)
+
+
+def scroll_panel():
+    win, props = areas("PROPERTIES")
+    area = props[0]
+    region = [r for r in area.regions if r.type == "WINDOW"][0]
+    with bpy.context.temp_override(window=win, area=area, region=region):
+        for _ in range(40):
+            bpy.ops.view2d.scroll_down(deltax=0, deltay=200)
+
+
+def show_pass():
+    """Fits the loaded image in the Image Editor."""
+    win, eds = areas("IMAGE_EDITOR")
+    for a in eds:
+        if a.spaces.active.image is not None:
+            with bpy.context.temp_override(window=win, area=a,
+                                           region=[r for r in a.regions if r.type == "WINDOW"][0]):
+                bpy.ops.image.view_all(fit_view=True)
+
+
+def shoot():
+    win, props = areas("PROPERTIES")
+    with bpy.context.temp_override(window=win, area=props[0]):
+        bpy.ops.screen.screenshot_area(filepath=os.path.join(OUT, "blender-panel.png"))
+    with bpy.context.temp_override(window=win):
+        bpy.ops.screen.screenshot(filepath=os.path.join(OUT, "blender-passes.png"))
+    log("wrote", OUT)
+
+
+state = {"step": 0, "t": 0.0}
+
+
+def quit_now(code):
+    sys.stdout.flush()
+    os._exit(code)  # quit_blender from a timer does not always quit
+
+
+def tick():
+    step = state["step"]
+    try:
+        if step == 0:
+            setup()
+        elif step == 1:
+            start_render()
+        elif step == 2:
+            st = bpy.context.window_manager.sylva_status
+            if time.monotonic() - started > 240:
+                log("timed out:", st.stage)
+                quit_now(1)
+            if st.running:
+                log("progress:", st.stage, round(st.progress, 2))
+                return 0.5
+            log("finished:", st.stage, st.job, st.image)
+            show_pass()
+            scroll_panel()
+        elif step == 3:
+            shoot()
+        elif os.environ.get("SYLVA_SHOT_READY"):
+            # screenshots.sh opens the pass menu and takes the screen itself,
+            # then ends this Blender.
+            open(os.environ["SYLVA_SHOT_READY"], "w").write("ready\n")
+            return None
+        else:
+            quit_now(0)
+    except Exception as e:  # noqa: BLE001
+        import traceback
+
+        traceback.print_exc()
+        log("failed:", e)
+        quit_now(1)
+    state["step"] += 1
+    return 2.0
+
+
+bpy.app.timers.register(tick, first_interval=2.0)

@@ -1,0 +1,84 @@
+"""Exports the open scene for Sylva: a .glb with its instancing kept, and
+the small scene file beside it that imports it (``{"import": "scene.glb"}``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import bpy
+
+from . import glb
+
+#: The glTF exporter's options, where this Blender's exporter has them:
+#: geometry-node instances as instances (``export_gn_mesh``), shared
+#: meshes as EXT_mesh_gpu_instancing (``export_gpu_instances``), the
+#: camera and the sun, modifiers applied, what renders only, custom
+#: properties as extras (the ground marker), Blender's sun strength as
+#: the light's intensity unconverted (Sylva's sun ``intensity``).
+OPTIONS: dict[str, Any] = {
+    "export_format": "GLB",
+    "export_gpu_instances": True,
+    "export_gn_mesh": True,
+    "export_cameras": True,
+    "export_lights": True,
+    "export_apply": True,
+    "export_extras": True,
+    "export_yup": True,
+    "use_visible": True,
+    "use_renderable": True,
+    "use_selection": False,
+    "export_animations": False,
+    "export_import_convert_lighting_mode": "RAW",
+    "convert_lighting_mode": "RAW",  # its name in Blender 3.4
+    "export_materials": "EXPORT",
+    "export_image_format": "AUTO",
+}
+
+
+def exporter_options() -> tuple[dict[str, Any], list[str]]:
+    """`OPTIONS` that this Blender's glTF exporter takes, and the names of
+    those it lacks (instancing ones lost are worth a warning)."""
+    props = bpy.ops.export_scene.gltf.get_rna_type().properties
+    have = {k: v for k, v in OPTIONS.items() if k in props}
+    return have, [k for k in OPTIONS if k not in props]
+
+
+def ground_objects(scene: bpy.types.Scene) -> list[bpy.types.Object]:
+    """Objects marked as Sylva's ground (custom property sylva = "ground")."""
+    return [o for o in scene.objects if o.get("sylva") == "ground"]
+
+
+def export_scene(
+    context: bpy.types.Context, folder: str | Path, overrides: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """Exports `context`'s scene into `folder` as ``scene.glb`` and writes
+    ``scene.json`` importing it (plus `overrides`, scene-file fields that
+    replace the imported ones). Returns {"scene": path of the JSON,
+    "glb": path, "fixes": what glb.fix_glb changed, "lacking": exporter
+    options this Blender lacks, "summary": glb.summary}. Raises
+    RuntimeError with the reason where it cannot."""
+    scene = context.scene
+    if scene.camera is None:
+        raise RuntimeError("the scene has no active camera: Sylva renders from the scene's camera")
+    if scene.camera.type != "CAMERA" or scene.camera.data.type != "PERSP":
+        raise RuntimeError("the scene's camera must be a perspective camera")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    glb_path = folder / "scene.glb"
+    opts, lacking = exporter_options()
+    # The exporter runs on the view layer's objects; object mode keeps
+    # edit-mode changes in.
+    if context.object is not None and context.object.mode != "OBJECT":
+        bpy.ops.object.mode_set(mode="OBJECT")
+    result = bpy.ops.export_scene.gltf(filepath=str(glb_path), **opts)
+    if "FINISHED" not in result or not glb_path.is_file():
+        raise RuntimeError(f"the glTF exporter did not finish ({result})")
+    fixes = glb.fix_glb(glb_path, camera=scene.camera.name)
+    file: dict[str, Any] = {"import": glb_path.name}
+    file.update(overrides or {})
+    scene_path = folder / "scene.json"
+    scene_path.write_text(json.dumps(file, indent=2) + "\n")
+    return {"scene": scene_path, "glb": glb_path, "fixes": fixes, "lacking": lacking,
+            "summary": glb.summary(glb_path)}
