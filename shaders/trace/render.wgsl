@@ -538,11 +538,12 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
 }
 
 // The guide passes of the strip's pixels (docs/passes.md), for any lighting
-// method: the mean albedo and camera-facing normal of the first surface
-// over the pixel's camera rays (the image's own), and its depth along the
-// camera's axis, instance and model from the first of them. Three images
-// of `strip_width × height`: (albedo, depth), (normal, 0), (instance + 1,
-// model + 1, 0, 0); 0 ids for the ground and the sky.
+// method: the albedo and camera-facing normal of the first surface summed
+// over the pixel's camera rays (the image's own) sample_base to
+// sample_base + batch_spp (the worker sums the batches and divides), and
+// the depth along the camera's axis, instance and model of sample 0. Three
+// images of `strip_width × height`: (albedo, depth), (normal, 0),
+// (instance + 1, model + 1, 0, 0); 0 ids for the ground and the sky.
 @compute @workgroup_size(8, 8)
 fn render_guides(@builtin(global_invocation_id) gid: vec3<u32>) {
     if gid.x >= frame.strip_width || gid.y >= frame.height {
@@ -554,7 +555,8 @@ fn render_guides(@builtin(global_invocation_id) gid: vec3<u32>) {
     var normal = vec3<f32>(0.0);
     var depth = 1.0e10;
     var ids = vec2<f32>(0.0);
-    for (var s = 0u; s < frame.spp; s++) {
+    let end = min(frame.sample_base + frame.batch_spp, frame.spp);
+    for (var s = frame.sample_base; s < end; s++) {
         let ray = camera_ray(x, y, s);
         let surf = first_surface(ray);
         if surf.kind == KIND_SKY {
@@ -570,10 +572,9 @@ fn render_guides(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
     }
-    let spp = f32(frame.spp);
     let pixel = gid.x + gid.y * frame.strip_width;
     let slots = frame.strip_width * frame.height;
-    out_pixels[pixel] = vec4<f32>(albedo / spp, depth);
-    out_pixels[pixel + slots] = vec4<f32>(normal / spp, 0.0);
+    out_pixels[pixel] = vec4<f32>(albedo, depth);
+    out_pixels[pixel + slots] = vec4<f32>(normal, 0.0);
     out_pixels[pixel + 2u * slots] = vec4<f32>(ids, 0.0, 0.0);
 }

@@ -173,7 +173,8 @@ fn ids_depth_normals_and_albedo_name_what_each_pixel_sees() {
     let scene = Scene::build(parse(text, "ids.json").unwrap(), &dir, "ids.json").unwrap();
     let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Local, &|_| {}).unwrap();
     let (w, h) = (64u32, 32u32);
-    let f = RenderSettings { passes: PassSet::all(), ..settings(w, h, 4, LightingMode::Local) };
+    // More samples than one dispatch of the guides' kernel takes.
+    let f = RenderSettings { passes: PassSet::all(), ..settings(w, h, 70, LightingMode::Local) };
     // Two strips, as a farm cuts the frame: the passes land by column.
     let mut frame = PassImage::new(w, h, PassSet::all());
     for (x0, x1) in [(0, 29), (29, 64)] {

@@ -107,8 +107,12 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("{}: cannot read", a.scene.display()))?;
     let access = sylva_scene::FileAccess::Inside(sylva_scene::folder_of(&a.scene));
-    let views =
-        a.frame.views(&sylva_scene::parse_with(&text, &a.scene.display().to_string(), &access)?)?;
+    let views = a.frame.views(&sylva_scene::parse_with(
+        &text,
+        &a.scene.display().to_string(),
+        &access,
+        &Default::default(),
+    )?)?;
     let spec = super::render::job_spec(
         &frame,
         &views,

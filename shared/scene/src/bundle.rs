@@ -71,7 +71,7 @@ pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle
     // Parsed once as a scene, for its errors, and kept as written for the
     // manifest: the glTF files it names itself (its models', its import)
     // are packed, and their paths rewritten to the blobs' names.
-    crate::parse_with(&text, &label, access)?;
+    crate::parse_with(&text, &label, access, &SceneLimits::default())?;
     let mut written: serde_json::Value = serde_json::from_str(&text)?;
     let mut blobs: Vec<(String, Vec<u8>)> = Vec::new();
     let models: Vec<(String, String)> = written
@@ -219,7 +219,8 @@ pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> anyhow::Re
         bail!("scene bundle has {} stray bytes after its blobs", body.len() - at);
     }
     let access = FileAccess::Inside(dir.to_path_buf());
-    let file = crate::expand(manifest.scene, "bundle", &access).map_err(anyhow::Error::new)?;
+    let file =
+        crate::expand(manifest.scene, "bundle", &access, limits).map_err(anyhow::Error::new)?;
     Scene::build_with(file, &access, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))
 }
 

@@ -129,7 +129,7 @@ impl Scene {
             field: String::new(),
             message: format!("cannot read: {e}"),
         })?;
-        let file = parse_with(&text, &label, access)?;
+        let file = parse_with(&text, &label, access, limits)?;
         Scene::build_with(file, access, &label, limits)
     }
 
@@ -371,20 +371,28 @@ pub fn folder_of(path: &Path) -> std::path::PathBuf {
 /// Parses a scene file, reading the glTF scene its `import` names, if any
 /// (docs/scene-format.md, "Importing a glTF scene"): that scene as
 /// `sylva scene import` reads it, with every other field the file gives
-/// in place of the import's. Files are read as `access` allows.
-pub fn parse_with(text: &str, label: &str, access: &FileAccess) -> Result<SceneFile, SceneError> {
+/// in place of the import's. Files are read as `access` allows, and at
+/// most `limits.instances` placements.
+pub fn parse_with(
+    text: &str,
+    label: &str,
+    access: &FileAccess,
+    limits: &SceneLimits,
+) -> Result<SceneFile, SceneError> {
     match serde_json::from_str::<serde_json::Value>(text) {
-        Ok(v) => expand(v, label, access),
+        Ok(v) => expand(v, label, access, limits),
         // Syntax errors, with their place, as `parse` reports them.
         Err(_) => parse(text, label),
     }
 }
 
-/// A scene file's JSON as a scene, its `import` read (see [`parse_with`]).
+/// A scene file's JSON as a scene, its `import` read (see [`parse_with`])
+/// with at most `limits.instances` placements.
 pub fn expand(
     value: serde_json::Value,
     label: &str,
     access: &FileAccess,
+    limits: &SceneLimits,
 ) -> Result<SceneFile, SceneError> {
     let err =
         |message: String| SceneError { file: label.to_string(), field: "import".into(), message };
@@ -392,8 +400,13 @@ pub fn expand(
     let rel =
         import.as_str().ok_or_else(|| err("a path to a glTF scene (.glb or .gltf)".into()))?;
     let full = access.resolve(access.base(), Path::new(rel)).map_err(err)?;
-    let imported = crate::interchange::import::import_gltf_with(&full, access.base(), access)
-        .map_err(|e| err(format!("{e:#}")))?;
+    let imported = crate::interchange::import::import_gltf_with(
+        &full,
+        access.base(),
+        access,
+        limits.instances,
+    )
+    .map_err(|e| err(format!("{e:#}")))?;
     let mut merged = serde_json::to_value(imported).map_err(|e| err(e.to_string()))?;
     for (k, v) in value.as_object().into_iter().flatten().filter(|(k, _)| *k != "import") {
         merged[k] = v.clone();

@@ -14,7 +14,7 @@ use sylva_proto::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::color::luminance;
 use sylva_scene::film::HdrImage;
-use sylva_scene::passes::PassImage;
+use sylva_scene::passes::{PassImage, PassSet};
 
 /// The reference integrator, called from `render.wgsl`.
 pub const WGSL: &str = include_str!("../../../shaders/lighting/reference.wgsl");
@@ -155,8 +155,10 @@ pub fn render_reference_columns(
     // Each sample of a batch has its own output slot: as many samples and
     // columns per dispatch as the adapter binds, with a margin.
     let budget = (ctx.limits.max_storage_buffer_binding_size / 2).max(1 << 20);
+    // Sized as without passes (their fifth image fits the margin), so the
+    // batches, their seeds and so the image are the same with passes.
     let per_sample_column =
-        crate::trace::render::sample_bytes_per_pixel(f.passes) * f.height as u64;
+        crate::trace::render::sample_bytes_per_pixel(PassSet::NONE) * f.height as u64;
     let batch_spp =
         (opts.batch_spp as u64).min((budget / (per_sample_column * width as u64)).max(1)) as u32;
     let columns = ((budget / (per_sample_column * batch_spp as u64)).max(1) as u32).min(f.width);

@@ -22,6 +22,8 @@ const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
 pub fn sample_bytes_per_pixel(passes: PassSet) -> u64 {
     if passes.wants_split() { 5 * 16 } else { 4 * 16 }
 }
+/// Samples per pixel of one dispatch of the guide passes' kernel.
+const GUIDE_BATCH_SPP: u32 = 64;
 /// Longest path the reference integrator follows.
 pub const MAX_BOUNCES: u32 = 16;
 
@@ -517,13 +519,31 @@ impl StripRenderer {
         if f.passes.wants_guides() {
             let n = (uniform.strip_width * uniform.height) as usize;
             let guides = self.guides_pipeline(ctx)?;
-            let (g, _) = self.dispatch_with(ctx, guides, uniform, 3 * n as u64 * 16, 1)?;
-            let (a, nrm, ids) = (&g[..n], &g[n..2 * n], &g[2 * n..]);
-            put(Pass::Albedo, &mut a.iter().flat_map(|p| [p[0], p[1], p[2]]));
-            put(Pass::Normal, &mut nrm.iter().flat_map(|p| [p[0], p[1], p[2]]));
-            put(Pass::Depth, &mut a.iter().map(|p| p[3]));
-            put(Pass::Instance, &mut ids.iter().map(|p| p[0]));
-            put(Pass::Species, &mut ids.iter().map(|p| p[1]));
+            // In batches of samples, as the per-sample kernel's, so no
+            // dispatch of a many-sample frame runs long; the first holds
+            // sample 0's depth and ids.
+            let (mut sums, mut first) = (vec![[0.0f32; 3]; 2 * n], Vec::new());
+            for base in (0..uniform.spp).step_by(GUIDE_BATCH_SPP as usize) {
+                let u = FrameUniform {
+                    sample_base: base,
+                    batch_spp: GUIDE_BATCH_SPP.min(uniform.spp - base),
+                    ..*uniform
+                };
+                let (g, _) = self.dispatch_with(ctx, guides, &u, 3 * n as u64 * 16, 1)?;
+                for (s, v) in sums.iter_mut().zip(&g[..2 * n]) {
+                    (0..3).for_each(|c| s[c] += v[c]);
+                }
+                if base == 0 {
+                    first = g;
+                }
+            }
+            let spp = uniform.spp as f32;
+            let (a, nrm) = sums.split_at(n);
+            put(Pass::Albedo, &mut a.iter().flat_map(|p| p.map(|v| v / spp)));
+            put(Pass::Normal, &mut nrm.iter().flat_map(|p| p.map(|v| v / spp)));
+            put(Pass::Depth, &mut first[..n].iter().map(|p| p[3]));
+            put(Pass::Instance, &mut first[2 * n..].iter().map(|p| p[0]));
+            put(Pass::Species, &mut first[2 * n..].iter().map(|p| p[1]));
         }
         Ok(Some(image))
     }

@@ -96,7 +96,12 @@ pub fn run(a: SequenceBenchArgs) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("{}: cannot read", a.scene.display()))?;
     let access = sylva_scene::FileAccess::Inside(sylva_scene::folder_of(&a.scene));
-    let file = sylva_scene::parse_with(&text, &a.scene.display().to_string(), &access)?;
+    let file = sylva_scene::parse_with(
+        &text,
+        &a.scene.display().to_string(),
+        &access,
+        &Default::default(),
+    )?;
     let bundle = sylva_scene::bundle::pack(&a.scene)?;
     let rt = tokio::runtime::Runtime::new()?;
     let frame = FrameSettings {

@@ -186,8 +186,10 @@ pub fn choose(
     say: &dyn Fn(&str),
 ) -> anyhow::Result<Choice> {
     let t = Instant::now();
+    // The pilot measures images; the frame it chooses carries the passes.
     let base = RenderSettings {
         lighting: LightingMode::Local,
+        passes: Default::default(),
         ..RenderSettings::resolve(frame, scene.lighting)
     };
     // One preparation per grid (the acceleration structures built once):

@@ -29,19 +29,27 @@ struct Gathered {
 /// names relative to `scene_dir`.
 pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFile> {
     let folder = gltf_path.parent().filter(|f| !f.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    import_gltf_with(gltf_path, scene_dir, &FileAccess::Anywhere(folder.to_path_buf()))
+    import_gltf_with(
+        gltf_path,
+        scene_dir,
+        &FileAccess::Anywhere(folder.to_path_buf()),
+        MAX_PLACEMENTS,
+    )
 }
 
 /// [`import_gltf`], reading the glTF's buffers only where `access` allows
-/// (a scene file's `import`, which may come from a hostile bundle).
+/// and at most `max_placements` placements (a scene file's `import`, which
+/// may come from a hostile bundle).
 pub fn import_gltf_with(
     gltf_path: &Path,
     scene_dir: &Path,
     access: &FileAccess,
+    max_placements: usize,
 ) -> anyhow::Result<SceneFile> {
+    let max = max_placements.min(MAX_PLACEMENTS);
     // The glTF crates assert on some malformed accessors instead of
     // returning errors; a hostile file must cost its scene, not the process.
-    std::panic::catch_unwind(|| import_unguarded(gltf_path, scene_dir, access)).unwrap_or_else(
+    std::panic::catch_unwind(|| import_unguarded(gltf_path, scene_dir, access, max)).unwrap_or_else(
         |_| bail!("{}: malformed glTF: the importer failed on it", gltf_path.display()),
     )
 }
@@ -50,6 +58,7 @@ fn import_unguarded(
     gltf_path: &Path,
     scene_dir: &Path,
     access: &FileAccess,
+    max_placements: usize,
 ) -> anyhow::Result<SceneFile> {
     let shown = crate::model::shown_name(gltf_path, access);
     let bytes = std::fs::read(gltf_path).with_context(|| format!("{shown}: cannot read glTF"))?;
@@ -70,9 +79,15 @@ fn import_unguarded(
     let mut stack: Vec<(gltf::Node, Mat4, usize)> =
         scene.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect();
     let mut count = 0usize;
+    // glTF's nodes form trees: a node reached twice (a child of two
+    // parents, or listed twice) would multiply the walk without end.
+    let mut seen = vec![false; doc.nodes().len()];
     while let Some((node, parent, depth)) = stack.pop() {
         if depth >= MAX_DEPTH {
             bail!("{shown}: the node hierarchy is deeper than {MAX_DEPTH}");
+        }
+        if std::mem::replace(&mut seen[node.index()], true) {
+            bail!("{shown}: node {} is reached twice (glTF nodes form trees)", node.index());
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         let sylva_role =
@@ -84,14 +99,15 @@ fn import_unguarded(
                 g.ground = ground_colour(&mesh);
             } else {
                 let places = match node.extension_value("EXT_mesh_gpu_instancing") {
-                    Some(ext) => instancing(&doc, &buffers, ext).with_context(|| {
-                        format!("{shown}: node {}: EXT_mesh_gpu_instancing", node.index())
-                    })?,
+                    Some(ext) => instancing(&doc, &buffers, ext, max_placements - count)
+                        .with_context(|| {
+                            format!("{shown}: node {}: EXT_mesh_gpu_instancing", node.index())
+                        })?,
                     None => vec![Mat4::IDENTITY],
                 };
                 count += places.len();
-                if count > MAX_PLACEMENTS {
-                    bail!("{shown}: more than {MAX_PLACEMENTS} placements");
+                if count > max_placements {
+                    bail!("{shown}: more than {max_placements} placements");
                 }
                 g.placements[mesh.index()].extend(places.into_iter().map(|p| world * p));
             }
@@ -208,6 +224,7 @@ fn instancing(
     doc: &gltf::Document,
     buffers: &[gltf::buffer::Data],
     ext: &Value,
+    max_placements: usize,
 ) -> anyhow::Result<Vec<Mat4>> {
     let attrs = ext.get("attributes").and_then(Value::as_object).context("no attributes")?;
     let read = |name: &str, n: usize| -> anyhow::Result<Option<Vec<f32>>> {
@@ -229,6 +246,17 @@ fn instancing(
             buffers.get(view.buffer().index()).with_context(|| format!("{name}: no buffer"))?;
         let stride = view.stride().unwrap_or(4 * n);
         let start = view.offset() + a.offset();
+        // The count is the file's word: checked against the bytes there
+        // before anything is reserved for it.
+        let last = a
+            .count()
+            .checked_sub(1)
+            .map(|k| k.checked_mul(stride).and_then(|o| o.checked_add(start + 4 * n)));
+        if a.count() > max_placements
+            || last.is_some_and(|end| end.is_none_or(|e| e > data.0.len()))
+        {
+            bail!("{name}: accessor {i} holds more placements than its buffer or the scene's cap");
+        }
         let mut out = Vec::with_capacity(a.count() * n);
         for k in 0..a.count() {
             let at = start + k * stride;
@@ -277,4 +305,75 @@ fn pathdiff(path: &Path, dir: &Path) -> String {
     let abs = |p: &Path| p.canonicalize().unwrap_or_else(|_| p.to_path_buf());
     let (p, d) = (abs(path), abs(dir));
     p.strip_prefix(&d).map(Path::to_path_buf).unwrap_or(p).to_string_lossy().into_owned()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use base64::Engine;
+
+    /// A `.gltf` (buffer inline) of one triangle mesh "t" on node 0 with
+    /// `placements` instancing translations whose accessor claims `count`,
+    /// a camera, and `extra` nodes; written into a fresh folder.
+    fn write(name: &str, placements: usize, count: u64, extra: Value) -> std::path::PathBuf {
+        let mut bytes: Vec<u8> =
+            [0f32, 0., 0., 1., 0., 0., 0., 1., 0.].iter().flat_map(|v| v.to_le_bytes()).collect();
+        for k in 0..placements {
+            bytes.extend([k as f32, 0., 0.].iter().flat_map(|v| v.to_le_bytes()));
+        }
+        let data = base64::engine::general_purpose::STANDARD.encode(&bytes);
+        let mut nodes = vec![
+            json!({ "mesh": 0, "extensions": { "EXT_mesh_gpu_instancing": { "attributes": { "TRANSLATION": 1 } } } }),
+            json!({ "camera": 0, "translation": [0, 0, 5] }),
+        ];
+        nodes.extend(extra.as_array().cloned().unwrap_or_default());
+        let roots: Vec<usize> = (0..2).collect();
+        let gltf = json!({
+            "asset": { "version": "2.0" },
+            "extensionsUsed": ["EXT_mesh_gpu_instancing"],
+            "scene": 0, "scenes": [ { "nodes": roots.iter().chain([2usize].iter().filter(|_| nodes.len() > 2)).collect::<Vec<_>>() } ],
+            "nodes": nodes,
+            "cameras": [ { "type": "perspective", "perspective": { "yfov": 0.8, "znear": 0.1 } } ],
+            "meshes": [ { "name": "t", "primitives": [ { "attributes": { "POSITION": 0 } } ] } ],
+            "buffers": [ { "byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{data}") } ],
+            "bufferViews": [
+                { "buffer": 0, "byteOffset": 0, "byteLength": 36 },
+                { "buffer": 0, "byteOffset": 36, "byteLength": bytes.len() - 36 }
+            ],
+            "accessors": [
+                { "bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0] },
+                { "bufferView": 1, "componentType": 5126, "count": count, "type": "VEC3" }
+            ]
+        });
+        let dir = std::env::temp_dir().join(format!("sylva-import-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("s.gltf");
+        std::fs::write(&p, gltf.to_string()).unwrap();
+        p
+    }
+
+    fn import(p: &Path, max: usize) -> anyhow::Result<SceneFile> {
+        let dir = p.parent().unwrap();
+        import_gltf_with(p, dir, &FileAccess::Inside(dir.to_path_buf()), max)
+    }
+
+    #[test]
+    fn hostile_scenes_are_refused_before_they_cost_time_or_memory() {
+        let ok = write("ok", 5, 5, json!([]));
+        assert_eq!(import(&ok, 100).unwrap().instances.len(), 5);
+        // More placements than the scene may have: refused, not built.
+        let e = format!("{:#}", import(&ok, 4).unwrap_err());
+        assert!(e.contains("the scene's cap"), "{e}");
+        // An accessor that claims more than its bytes: refused before any
+        // memory is reserved for it.
+        let liar = write("liar", 5, 1 << 40, json!([]));
+        let e = format!("{:#}", import(&liar, usize::MAX).unwrap_err());
+        assert!(e.contains("more placements than its buffer"), "{e}");
+        // Nodes listing a child twice would multiply the walk: 2^60 visits.
+        let chain: Vec<Value> =
+            (0..60).map(|i| json!({ "children": [3 + i, 3 + i] })).chain([json!({})]).collect();
+        let fork = write("fork", 1, 1, Value::Array(chain));
+        let e = import(&fork, 100).unwrap_err().to_string();
+        assert!(e.contains("reached twice"), "{e}");
+    }
 }
