@@ -183,7 +183,7 @@ async fn bad_requests_get_their_codes_and_the_worker_stays_up() {
         Code::InvalidArgument
     );
     // Truncated upload.
-    let mut short = chunks(&b, 512);
+    let mut short = chunks(&b, 64);
     short.pop();
     let e = c.load_scene(tokio_stream::iter(short)).await.unwrap_err();
     assert!(e.code() == Code::InvalidArgument && e.message().contains("truncated"), "{e:?}");

@@ -1,7 +1,7 @@
 """The Blender add-on's tests: bpy (from PyPI) in this venv, the add-on
 installed from the zip blender/build-zip.sh builds, and a real farm on
-loopback (a coordinator and one worker, with a token), started as
-python/tests/conftest.py starts them.
+loopback (a coordinator and one worker, with a token), started by the
+client's `sylva_client.local`.
 
 Environment: SYLVA_BIN (the `sylva` binary, default target/release/sylva),
 SYLVA_BLENDER_ZIP (the add-on's zip; default: built here into the test's
@@ -11,13 +11,9 @@ temporary folder).
 from __future__ import annotations
 
 import os
-import secrets
-import signal
 import subprocess
 import sys
 import tempfile
-import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -36,6 +32,7 @@ os.environ["BLENDER_USER_EXTENSIONS"] = str(_USER / "extensions")
 os.environ.setdefault("SYLVA_BLENDER_DEPS", str(_USER / "deps"))
 
 import bpy  # noqa: E402
+from sylva_client.local import LocalFarm, child_env  # noqa: E402, F401 (child_env: the tests')
 
 sys.path.insert(0, str(HERE))
 
@@ -50,49 +47,6 @@ def sylva() -> Path:
     if not os.access(b, os.X_OK):
         pytest.fail(f"no sylva binary at {b}: build it (cargo build --release) or set SYLVA_BIN")
     return b
-
-
-def child_env(**extra: str) -> dict[str, str]:
-    """The environment of a `sylva` process (python/tests/conftest.py's)."""
-    env = dict(os.environ)
-    for k in ("SYLVA_TOKEN", "SYLVA_STATE_DIR", "SYLVA_DATABASE_URL",
-              "SYLVA_PREPARED_CACHE_DIR", "SYLVA_COORDINATOR"):
-        env.pop(k, None)
-    runtime = Path(os.environ.get("SYLVA_TEST_RUNTIME_DIR", "/tmp/sylva-runtime-0"))
-    runtime.mkdir(mode=0o700, parents=True, exist_ok=True)
-    env.update(XDG_RUNTIME_DIR=str(runtime), SYLVA_PREPARED_CACHE_MIB="0")
-    env.update(extra)
-    return env
-
-
-class Proc:
-    """A `sylva` process serving on loopback: its address and its log."""
-
-    def __init__(self, binary: Path, args: list[str], log: Path, **env: str) -> None:
-        self.log = log
-        with open(log, "wb") as err:
-            self.child = subprocess.Popen([str(binary), *args], env=child_env(**env),
-                                          stdout=subprocess.PIPE, stderr=err,
-                                          stdin=subprocess.DEVNULL)
-        line: list[bytes] = []
-        reader = threading.Thread(target=lambda: line.append(self.child.stdout.readline()))
-        reader.start()
-        reader.join(60)
-        said = line[0].decode(errors="replace") if line else ""
-        if " listening on " not in said:
-            self.stop()
-            raise RuntimeError(f"sylva {args} did not start: {said!r}\n{log.read_text()[-4000:]}")
-        self.addr = said.strip().rsplit(" ", 1)[-1]
-        threading.Thread(target=self.child.stdout.read, daemon=True).start()
-
-    def stop(self) -> None:
-        if self.child.poll() is None:
-            self.child.send_signal(signal.SIGTERM)
-            try:
-                self.child.wait(5)
-            except subprocess.TimeoutExpired:
-                self.child.kill()
-                self.child.wait()
 
 
 @pytest.fixture(scope="session")
@@ -121,24 +75,5 @@ def addon(addon_zip: Path):  # noqa: ANN201 (the add-on's module)
 def farm(sylva: Path, addon, tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
     """A coordinator and one worker on loopback, both with a fresh token."""
     logs = tmp_path_factory.mktemp("farm")
-    token = secrets.token_hex(16)
-    coord = Proc(sylva, ["coordinator", "--listen", "127.0.0.1:0", "--token", token,
-                         "--ephemeral", "--max-running", "1"], logs / "coordinator.log")
-    try:
-        worker = Proc(sylva, ["worker", "--listen", "127.0.0.1:0", "--coordinator", coord.addr],
-                      logs / "worker.log", SYLVA_TOKEN=token)
-    except BaseException:
-        coord.stop()
-        raise
-    try:
-        client = addon.deps.client_module()  # the vendored client
-        with client.Client(coord.addr, token=token) as c:
-            t = time.monotonic()
-            while sum(w.alive for w in c.workers()) < 1:
-                if time.monotonic() - t > 60:
-                    raise RuntimeError("the worker did not register")
-                time.sleep(0.05)
-        yield {"addr": coord.addr, "token": token, "logs": logs}
-    finally:
-        worker.stop()
-        coord.stop()
+    with LocalFarm.start(sylva, 1, logs=logs, coordinator_args=["--max-running", "1"]) as f:
+        yield {"addr": f.addr, "token": f.token, "logs": logs}

@@ -85,7 +85,7 @@ def test_a_job_is_submitted_watched_fetched_and_listed(
         assert j.submitted_unix_ms <= (j.started_unix_ms or 0) <= (j.finished_unix_ms or 0)
         # The worker did the strips and holds the scene.
         (w,) = c.workers()
-        assert w.alive and w.addr == farm.worker.addr and w.strips_done >= j.strips_total
+        assert w.alive and w.addr == farm.workers[0].addr and w.strips_done >= j.strips_total
 
         with pytest.raises(SylvaError) as e:
             c.fetch_bytes("no-such-job")
