@@ -61,12 +61,6 @@ struct Frame {
     sample_base: u32,
     // ... and how many samples it renders.
     batch_spp: u32,
-    // 1: write the light split (direct, indirect, sky) beside the image
-    // (docs/passes.md).
-    passes: u32,
-    pad4: u32,
-    pad5: u32,
-    pad6: u32,
 }
 
 // Rays traced, by kind: primary, shadow, transparent texels passed.
@@ -94,6 +88,10 @@ override LIGHTING_FAMILY: u32 = 0u;
 // code at all (on lavapipe the reference's unused cloud loops, merely
 // present, made some primary rays miss geometry; see docs/lighting.md).
 override HAS_CLOUDS: bool = false;
+// Whether the kernel writes the light split (direct, indirect, sky) beside
+// the image (docs/passes.md): a pipeline of its own, compiled on the first
+// frame that asks, so frames without passes carry none of it.
+override SPLIT: bool = false;
 
 // PCG hash (Jarzynski & Olano 2020); shared/scene/src/sampler.rs mirrors it.
 fn pcg(v: u32) -> u32 {
@@ -504,7 +502,7 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         let r = reference_sample(x, y, frame.sample_base + gid.z);
         let slots = frame.strip_width * frame.height;
         // The fifth image, the first event's split, only for passes.
-        for (var k = 0u; k < select(4u, 5u, frame.passes != 0u); k++) {
+        for (var k = 0u; k < select(4u, 5u, SPLIT); k++) {
             out_pixels[pixel + (k * frame.batch_spp + gid.z) * slots] = r[k];
         }
         atomicAdd(&counters.transparent, transparent_passed);
@@ -518,14 +516,16 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         for (var s = 0u; s < frame.spp; s++) {
             let l = radiance(camera_ray(x, y, s));
             sum += vec4<f32>(light_total(l), l.hit);
-            direct += l.direct;
-            indirect += l.indirect;
-            sky_seen += l.sky;
+            if SPLIT {
+                direct += l.direct;
+                indirect += l.indirect;
+                sky_seen += l.sky;
+            }
         }
         // Box filter: the mean of the samples; alpha is the fraction that hit a model.
         let spp = f32(frame.spp);
         out_pixels[pixel] = sum / spp;
-        if frame.passes != 0u {
+        if SPLIT {
             let slots = frame.strip_width * frame.height;
             out_pixels[pixel + slots] = vec4<f32>(direct / spp, 0.0);
             out_pixels[pixel + 2u * slots] = vec4<f32>(indirect / spp, 0.0);

@@ -71,8 +71,6 @@ pub struct FrameUniform {
     pub gather_bounces: u32,
     pub sample_base: u32,
     pub batch_spp: u32,
-    pub passes: u32,
-    pub pad4: [u32; 3],
 }
 
 impl FrameUniform {
@@ -225,6 +223,9 @@ pub struct SampleMeans {
 pub(crate) struct Kernels {
     pipelines: [wgpu::ComputePipeline; 3],
     layout: wgpu::BindGroupLayout,
+    /// The same kernels writing the light split too (`SPLIT`), compiled
+    /// on the first frame with passes.
+    split: std::sync::OnceLock<[wgpu::ComputePipeline; 3]>,
     /// The guide passes' kernel, compiled on the first frame that asks.
     guides: std::sync::OnceLock<wgpu::ComputePipeline>,
     module: wgpu::ShaderModule,
@@ -332,29 +333,72 @@ impl StripRenderer {
             ("ACCEL_KIND", super::gpu_scene::accel_kind(backend) as f64),
             ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
         ];
-        let pipelines = Kernel::ALL.map(|kernel| {
-            let mut c = constants.clone();
-            c.push(("LIGHTING_FAMILY", kernel as u32 as f64));
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some("render"),
-                layout: Some(&pl),
-                module: &module,
-                entry_point: Some("render_strip"),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &c,
-                    ..Default::default()
-                },
-                cache: None,
-            })
-        });
+        let pipelines = Kernel::ALL
+            .map(|kernel| Self::render_pipeline(device, &module, &pl, &constants, kernel, false));
         Kernels {
             pipelines,
             layout,
+            split: std::sync::OnceLock::new(),
             guides: std::sync::OnceLock::new(),
             module,
             pipeline_layout: pl,
             constants,
         }
+    }
+
+    /// One render kernel: a lighting family, with or without the split.
+    fn render_pipeline(
+        device: &wgpu::Device,
+        module: &wgpu::ShaderModule,
+        layout: &wgpu::PipelineLayout,
+        constants: &[(&'static str, f64)],
+        kernel: Kernel,
+        split: bool,
+    ) -> wgpu::ComputePipeline {
+        let mut c = constants.to_vec();
+        c.push(("LIGHTING_FAMILY", kernel as u32 as f64));
+        c.push(("SPLIT", if split { 1.0 } else { 0.0 }));
+        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("render"),
+            layout: Some(layout),
+            module,
+            entry_point: Some("render_strip"),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &c,
+                ..Default::default()
+            },
+            cache: None,
+        })
+    }
+
+    /// The kernel of `kernel`'s family, writing the light split or not
+    /// (those compiled once, on first use).
+    fn kernel(
+        &self,
+        ctx: &GpuContext,
+        kernel: Kernel,
+        split: bool,
+    ) -> anyhow::Result<&wgpu::ComputePipeline> {
+        if !split {
+            return Ok(&self.kernels.pipelines[kernel as usize]);
+        }
+        let k = &self.kernels;
+        if k.split.get().is_none() {
+            let built = ctx.checked("building the light split's kernels", || {
+                Ok(Kernel::ALL.map(|kernel| {
+                    Self::render_pipeline(
+                        &ctx.device,
+                        &k.module,
+                        &k.pipeline_layout,
+                        &k.constants,
+                        kernel,
+                        true,
+                    )
+                }))
+            })?;
+            let _ = k.split.set(built);
+        }
+        Ok(&k.split.get().expect("just built")[kernel as usize])
     }
 
     /// The guide passes' kernel: compiled once, on first use.
@@ -426,15 +470,15 @@ impl StripRenderer {
             lb_strength: f.lb_strength,
             gather_bounces: f.gather_bounces,
             batch_spp: 1,
-            passes: f.passes.wants_split() as u32,
             ..base
         };
+        let split = f.passes.wants_split();
         ctx.checked("rendering a strip", || {
             if method.kernel != Kernel::Reference {
                 let n = (strip_width * f.height) as usize;
-                let images = if f.passes.wants_split() { 4 } else { 1 };
+                let images = if split { 4 } else { 1 };
                 let (px, counts) =
-                    self.dispatch(ctx, method.kernel, &uniform, images * n as u64 * 16, 1)?;
+                    self.dispatch(ctx, method.kernel, split, &uniform, images * n as u64 * 16, 1)?;
                 let rgb = |k: usize| px[k * n..(k + 1) * n].iter().map(|p| [p[0], p[1], p[2]]);
                 let passes = self.passes(ctx, f, &uniform, || {
                     (rgb(1).collect(), rgb(2).collect(), rgb(3).collect())
@@ -449,7 +493,7 @@ impl StripRenderer {
                     passes,
                 });
             }
-            let (mut means, rays) = self.sample_means(ctx, method.kernel, &uniform)?;
+            let (mut means, rays) = self.sample_means(ctx, method.kernel, split, &uniform)?;
             if radius > 0 {
                 lighting::gather::filter_indirect(
                     &mut means,
@@ -555,10 +599,10 @@ impl StripRenderer {
         &self,
         ctx: &GpuContext,
         kernel: Kernel,
+        split: bool,
         uniform: &FrameUniform,
     ) -> anyhow::Result<(SampleMeans, RayCounts)> {
         let n = (uniform.strip_width * uniform.height) as usize;
-        let split = uniform.passes != 0;
         let images = if split { 5 } else { 4 };
         let sample_bytes = n as u64 * images as u64 * 16;
         let spp = uniform.spp;
@@ -583,7 +627,7 @@ impl StripRenderer {
             let batch_spp = batch.min(spp - base);
             let u = FrameUniform { sample_base: base, batch_spp, ..*uniform };
             let (all, counts) =
-                self.dispatch(ctx, kernel, &u, batch_spp as u64 * sample_bytes, batch_spp)?;
+                self.dispatch(ctx, kernel, split, &u, batch_spp as u64 * sample_bytes, batch_spp)?;
             // Four (five) images, each `batch_spp` slots of `n` pixels.
             let slots = n * batch_spp as usize;
             let indirect = &all[3 * slots..4 * slots];
@@ -648,18 +692,20 @@ impl StripRenderer {
         ))
     }
 
-    /// One dispatch of the method's kernel with `uniform`, `depth` samples
+    /// One dispatch of the method's kernel (writing the light split or
+    /// not) with `uniform`, `depth` samples
     /// deep (the per-sample kernel's z), into `bytes` of output: what it
     /// wrote and the rays it counted.
     fn dispatch(
         &self,
         ctx: &GpuContext,
         kernel: Kernel,
+        split: bool,
         uniform: &FrameUniform,
         bytes: u64,
         depth: u32,
     ) -> anyhow::Result<(Vec<[f32; 4]>, GpuRayCounts)> {
-        self.dispatch_with(ctx, &self.kernels.pipelines[kernel as usize], uniform, bytes, depth)
+        self.dispatch_with(ctx, self.kernel(ctx, kernel, split)?, uniform, bytes, depth)
     }
 
     /// One dispatch of `pipeline` (a render kernel or the guides').
