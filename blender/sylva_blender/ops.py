@@ -252,11 +252,4 @@ class SYLVA_OT_install_deps(bpy.types.Operator):
 CLASSES = (SYLVA_OT_render, SYLVA_OT_cancel, SYLVA_OT_install_deps)
 
 
-def register() -> None:
-    for c in CLASSES:
-        bpy.utils.register_class(c)
-
-
-def unregister() -> None:
-    for c in reversed(CLASSES):
-        bpy.utils.unregister_class(c)
+register, unregister = bpy.utils.register_classes_factory(CLASSES)

@@ -73,11 +73,4 @@ class SYLVA_PT_render(bpy.types.Panel):
 CLASSES = (SYLVA_PT_render,)
 
 
-def register() -> None:
-    for c in CLASSES:
-        bpy.utils.register_class(c)
-
-
-def unregister() -> None:
-    for c in reversed(CLASSES):
-        bpy.utils.unregister_class(c)
+register, unregister = bpy.utils.register_classes_factory(CLASSES)

@@ -14,7 +14,7 @@ use sylva_proto::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::color::luminance;
 use sylva_scene::film::HdrImage;
-use sylva_scene::passes::{PassImage, PassSet};
+use sylva_scene::passes::PassImage;
 
 /// The reference integrator, called from `render.wgsl`.
 pub const WGSL: &str = include_str!("../../../shaders/lighting/reference.wgsl");
@@ -157,8 +157,7 @@ pub fn render_reference_columns(
     let budget = (ctx.limits.max_storage_buffer_binding_size / 2).max(1 << 20);
     // Sized as without passes (their fifth image fits the margin), so the
     // batches, their seeds and so the image are the same with passes.
-    let per_sample_column =
-        crate::trace::render::sample_bytes_per_pixel(PassSet::NONE) * f.height as u64;
+    let per_sample_column = crate::trace::render::sample_bytes_per_pixel(false) * f.height as u64;
     let batch_spp =
         (opts.batch_spp as u64).min((budget / (per_sample_column * width as u64)).max(1)) as u32;
     let columns = ((budget / (per_sample_column * batch_spp as u64)).max(1) as u32).min(f.width);

@@ -18,9 +18,10 @@ const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
 /// Bytes one sample of the per-sample kernel writes per pixel: four
 /// images of four floats (the path, `local` along it, the first
 /// surface's guides and its indirect light; `reference.wgsl`'s
-/// `reference_sample`), and a fifth with passes (the first event's split).
-pub fn sample_bytes_per_pixel(passes: PassSet) -> u64 {
-    if passes.wants_split() { 5 * 16 } else { 4 * 16 }
+/// `reference_sample`), and a fifth in the `SPLIT` kernels (the first
+/// event's split, for passes).
+pub fn sample_bytes_per_pixel(split: bool) -> u64 {
+    if split { 5 * 16 } else { 4 * 16 }
 }
 /// Samples per pixel of one dispatch of the guide passes' kernel.
 const GUIDE_BATCH_SPP: u32 = 64;
@@ -603,8 +604,7 @@ impl StripRenderer {
         uniform: &FrameUniform,
     ) -> anyhow::Result<(SampleMeans, RayCounts)> {
         let n = (uniform.strip_width * uniform.height) as usize;
-        let images = if split { 5 } else { 4 };
-        let sample_bytes = n as u64 * images as u64 * 16;
+        let sample_bytes = n as u64 * sample_bytes_per_pixel(split);
         let spp = uniform.spp;
         let batch =
             (ctx.limits.max_storage_buffer_binding_size / sample_bytes).min(spp as u64) as u32;

@@ -204,7 +204,8 @@ fn import_unguarded(
         out["leaf_optics"] = o.clone();
     }
     serde_path_to_error::deserialize(out).map_err(|e| {
-        let field = e.path().to_string();
+        // The path names keys the file wrote.
+        let field = crate::sandbox::escaped(&e.path().to_string());
         // Fields Sylva's own export records in the scene's extras: a
         // Blender custom property of the same name lands there too.
         let from_extras = ["sky", "ground", "lighting", "leaf_optics", "sun"]
