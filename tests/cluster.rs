@@ -53,7 +53,7 @@ fn frame(seed: u32) -> FrameSettings {
 /// The same frame, rendered in this process without gRPC.
 fn reference(b: &bundle::SceneBundle, dir: &Path, seed: u32) -> Vec<u32> {
     let scene = bundle::unpack(&b.bytes, dir).unwrap();
-    let ctx = sylva_worker::GpuContext::new().unwrap();
+    let ctx = sylva_worker::trace::Tracer::new().unwrap();
     let p = sylva_worker::prepare::prepare(
         &ctx,
         &scene,

@@ -138,7 +138,7 @@ async fn a_worker_renders_strips_bit_identical_to_an_in_process_render() {
     }
     // The same frame rendered here, in this process.
     let scene = bundle::unpack(&b.bytes, &dir.join("local")).unwrap();
-    let ctx = sylva_worker::GpuContext::new().unwrap();
+    let ctx = sylva_worker::trace::Tracer::new().unwrap();
     let p = sylva_worker::prepare::prepare(
         &ctx,
         &scene,

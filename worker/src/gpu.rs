@@ -42,11 +42,6 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     /// The device's limits (the adapter's own).
     pub limits: wgpu::Limits,
-    /// The render kernels compiled so far, by what they are specialised
-    /// for: compiled once per process, not once per prepared scene (a
-    /// driver's compiled code is costly to make and, on lavapipe, is not
-    /// all given back when a pipeline is dropped).
-    pub(crate) render_kernels: crate::trace::render::KernelCache,
 }
 
 impl GpuContext {
@@ -85,7 +80,7 @@ impl GpuContext {
             .await
             .with_context(|| format!("cannot open a device on {}", adapter.get_info().name))?;
         device.on_uncaptured_error(std::sync::Arc::new(|e| tracing::error!("wgpu: {e}")));
-        let ctx = Self { adapter, device, queue, limits, render_kernels: Default::default() };
+        let ctx = Self { adapter, device, queue, limits };
         tracing::info!(adapter = %ctx.adapter_name(), "GPU opened");
         Ok(ctx)
     }

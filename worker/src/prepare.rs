@@ -3,13 +3,12 @@
 //! Boulanger's envelopes, the clouds: `crate::lighting`), and the upload.
 //! Reports time per phase.
 
-use crate::gpu::GpuContext;
 use crate::lighting::{
     self,
     boulanger::ModelEnvelope,
     lb::{ModelLight, SceneLb},
 };
-use crate::trace::{GpuScene, SceneLight, SceneStructure, StripRenderer};
+use crate::trace::{GpuScene, SceneLight, SceneStructure, StripRenderer, Tracer};
 use std::sync::Arc;
 use sylva_accel::SceneAccel;
 use sylva_accel::coverage::{Coverage, triangle_coverage};
@@ -108,7 +107,7 @@ pub struct DiskSource {
 /// adapter's choice, measured) and whatever the `lighting` method needs.
 /// `progress` hears each step.
 pub fn prepare(
-    ctx: &GpuContext,
+    ctx: &Tracer,
     scene: &Scene,
     accel: impl Into<AccelChoice>,
     lighting: LightingMode,
@@ -120,7 +119,7 @@ pub fn prepare(
 /// [`prepare`], taking what `reuse` holds instead of building it again and
 /// leaving in it what was built.
 pub fn prepare_reusing(
-    ctx: &GpuContext,
+    ctx: &Tracer,
     scene: &Scene,
     accel: impl Into<AccelChoice>,
     lighting: LightingMode,
@@ -150,7 +149,7 @@ pub fn prepare_reusing(
         std::thread::spawn(move || {
             let t = std::time::Instant::now();
             // An error here is the pipeline's to report, below.
-            let _ = StripRenderer::kernels_for(&ctx, backend, clouds);
+            let _ = ctx.kernels.get(&ctx, backend, clouds);
             t.elapsed().as_secs_f64() * 1e3
         })
     });

@@ -10,7 +10,7 @@ use std::path::Path;
 use sylva_accel::AccelKind;
 use sylva_scene::color::luminance;
 use sylva_scene::{LightingMode, Scene, parse};
-use sylva_worker::lighting::reference::{ReferenceOptions, render_reference};
+use sylva_worker::frame::reference::{ReferenceOptions, render_reference};
 use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
 
@@ -116,7 +116,7 @@ fn the_reference_error_falls_as_one_over_root_spp_and_it_says_so() {
         render_reference(&ctx, &p.renderer, &RenderSettings { seed, ..f }, &opts, &|_| {}).unwrap()
     };
     let truth = run(1_000_000, 256);
-    let rmse = |img: &sylva_worker::lighting::reference::ReferenceImage| -> f64 {
+    let rmse = |img: &sylva_worker::frame::reference::ReferenceImage| -> f64 {
         let se: f64 = img
             .image
             .pixels

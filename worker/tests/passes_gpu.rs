@@ -65,7 +65,7 @@ fn bits(v: &[[f32; 3]]) -> Vec<u32> {
 /// to the bit, and that direct + indirect + sky is the beauty to float
 /// precision. Returns the render with passes.
 fn split_checked(
-    ctx: &sylva_worker::GpuContext,
+    ctx: &sylva_worker::trace::Tracer,
     scene: &Scene,
     f: RenderSettings,
 ) -> RenderedStrip {

@@ -1,23 +1,20 @@
 //! Strips rendered on this process's GPU, one after another.
 
-use std::time::Instant;
 use sylva_coordinator::assembly::{Assembly, StripPixels};
 use sylva_coordinator::executor::{RenderedFrame, StripExecutor};
 use sylva_coordinator::schedule::{Strip, StripTime};
-use sylva_worker::GpuContext;
-use sylva_worker::trace::{RenderSettings, StripRenderer};
+use sylva_worker::frame::Frame;
 
-/// This process's GPU and a prepared scene.
+/// A frame composed on this process's GPU, its strips assembled as a
+/// farm's are.
 pub struct InProcess<'a> {
-    ctx: &'a GpuContext,
-    renderer: &'a StripRenderer,
-    settings: RenderSettings,
+    frame: &'a Frame,
 }
 
 impl<'a> InProcess<'a> {
-    /// Renders with `renderer` on `ctx` what `settings` asks for.
-    pub fn new(ctx: &'a GpuContext, renderer: &'a StripRenderer, settings: RenderSettings) -> Self {
-        Self { ctx, renderer, settings }
+    /// Renders `frame`'s strips.
+    pub fn new(frame: &'a Frame) -> Self {
+        Self { frame }
     }
 }
 
@@ -27,13 +24,11 @@ impl StripExecutor for InProcess<'_> {
         plan: &[Strip],
         on_strip: &(dyn Fn(Strip) + Send + Sync),
     ) -> anyhow::Result<RenderedFrame> {
-        let f = &self.settings;
+        let f = &self.frame.settings;
         let mut frame = Assembly::new(f.width, f.height, f.passes);
         let mut strip_times = Vec::with_capacity(plan.len());
-        for &(x0, x1) in plan {
-            let t = Instant::now();
-            let s = self.renderer.render_strip(self.ctx, f, x0, x1)?;
-            let ms = t.elapsed().as_secs_f64() * 1e3;
+        self.frame.strips(plan, &mut |s, ms| {
+            let (x0, x1) = (s.x0, s.x0 + s.width);
             let px = StripPixels {
                 strip: (x0, x1),
                 rgb: s.pixels,
@@ -46,7 +41,8 @@ impl StripExecutor for InProcess<'_> {
             })?;
             strip_times.push(StripTime { strip: (x0, x1), render_ms: ms, call_ms: ms });
             on_strip((x0, x1));
-        }
+            Ok(())
+        })?;
         anyhow::ensure!(frame.complete(), "the plan does not cover the frame");
         Ok(RenderedFrame {
             image: frame.image,

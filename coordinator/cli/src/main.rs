@@ -1,7 +1,8 @@
 //! `sylva`: the command-line program. Its flags are in [`flags`] (clap
 //! only); each command's module turns them into settings and runs it: the
 //! services and farm commands here, the studies (compare, bench, simulate)
-//! in [`lab`].
+//! in [`lab`]; `render --lighting auto`'s [`pilot`] is product, and
+//! measures with [`measure`] as the studies do.
 
 mod coordinator;
 mod flags;
@@ -10,6 +11,8 @@ mod jobs;
 mod lab;
 mod lb;
 mod loopback;
+mod measure;
+mod pilot;
 mod progress;
 mod render;
 mod scene;

@@ -6,7 +6,7 @@
 
 use crate::flags::render::*;
 use crate::in_process::InProcess;
-use crate::lab::pilot::{self, Goal};
+use crate::pilot::{self, Goal};
 use crate::progress;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -17,16 +17,16 @@ use sylva_coordinator::executor::{StripExecutor, even_strips};
 use sylva_scene::film::{HdrImage, reinhard, write_png};
 use sylva_scene::frame::AccelChoice;
 use sylva_scene::{LightingMode, Scene};
-use sylva_worker::GpuContext;
-use sylva_worker::prepare::{PreparedScene, prepare};
-use sylva_worker::trace::RenderSettings;
+use sylva_worker::frame::reference::{MIN_BATCH_SPP, ReferenceOptions};
+use sylva_worker::frame::{Frame, Fresh, Given, Preparer};
+use sylva_worker::prepare::DiskSource;
+use sylva_worker::trace::Tracer;
 
 use sylva_coordinator::schedule::ScheduleKind;
 use sylva_coordinator::service::MAX_NAME;
 use sylva_scene::frame::{FrameSettings, MAX_SPP};
 use sylva_scene::sequence::View;
 use sylva_scene::{FileAccess, SceneLimits};
-use sylva_worker::lighting::reference::MIN_BATCH_SPP;
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
 
@@ -132,9 +132,9 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     render_here(&a, &request, scene, grid_choice.is_some(), goal, phases)
 }
 
-/// The in-process pipeline: the scene prepared on this process's GPU, then
-/// traced as strips, or path traced until the reference's own error is low
-/// enough.
+/// The in-process pipeline: the frame composed on this process's GPU
+/// (`sylva_worker::frame`), then traced as strips, or path traced until
+/// the reference's own error is low enough.
 fn render_here(
     a: &RenderArgs,
     request: &FrameSettings,
@@ -148,33 +148,32 @@ fn render_here(
         ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
     );
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    let ctx = GpuContext::new()?;
-    let (request, prepared, auto) = match goal {
+    let say = |m: &str| progress::stage(&bar, m);
+    let tracer = Tracer::new()?;
+    // `--lighting auto`: the pilot prepares every grid it tries; the
+    // chosen one's preparation is the frame's.
+    let (request, mut given, auto) = match goal {
         Some(goal) => {
-            // The pilot prepares every grid it tries; the chosen one's
-            // preparation is the frame's.
             let t = Instant::now();
             let plan = even_strips(a.frame.width, STRIP);
-            let c =
-                pilot::choose(&ctx, &scene, request, &plan, goal, &|m| progress::stage(&bar, m))?;
+            let c = pilot::choose(&tracer, &scene, request, &plan, goal, &say)?;
             phases.push(("pilot", ms(t)));
             tracing::info!(chosen = %c.report.chosen.name, "--lighting auto: {}", c.report.why);
             scene = c.scene;
-            (c.frame, Some(c.prepared), Some(c.report))
+            (c.frame, Some(Given(c.prepared)), Some(c.report))
         }
         None => (*request, None, None),
     };
-    let request = &request;
     let (lighting, accel) = (request.lighting_or(scene.lighting), request.accel);
     let mut choices = None;
     if choose_grids && sylva_worker::lighting::method(lighting).needs.lb {
         let t = Instant::now();
         let c = sylva_worker::lighting::lb::auto::choose_lb_grids(
-            &ctx,
+            &tracer,
             &scene,
             &[16, 32, 64, 128],
             a.lb_auto_tolerance,
-            &|m| progress::stage(&bar, m),
+            &say,
         )?;
         for (m, c) in scene.models.iter_mut().zip(&c) {
             m.lb.grid = c.grid;
@@ -182,34 +181,32 @@ fn render_here(
         phases.push(("lb grid choice", ms(t)));
         choices = Some(c);
     }
-    let mut keep = None;
-    let prepared = match prepared {
-        Some(p) => p,
-        None => {
-            let t = Instant::now();
-            let (p, k) = prepare_here(a, &ctx, &scene, accel, lighting, &bar)?;
-            for p in &p.phases.0 {
-                phases.push((p.name, p.ms));
-            }
-            phases.push(("prepare", ms(t)));
-            keep = k;
-            p
+    // Otherwise prepared here, reading what the prepared-data cache holds
+    // of the scene (its entries named by the bundle's content, as a
+    // worker names them).
+    let mut fresh = match (&given, a.prepared_cache.open()?) {
+        (None, Some(cache)) => {
+            let bundle = sylva_scene::bundle::pack(&a.scene)?.hash;
+            Fresh::with_disk(DiskSource { cache, bundle, sun: None })
         }
+        _ => Fresh::default(),
     };
-    let mut settings = RenderSettings::resolve(request, scene.lighting);
-    if lighting.reads_matched_ambient() {
-        progress::stage(&bar, "matching the ambient constant to the LB image");
-        let t = Instant::now();
-        settings.ambient =
-            sylva_worker::lighting::ambient::matched(&prepared.renderer, &ctx, &settings)?;
-        phases.push(("ambient match", ms(t)));
+    let preparer: &mut dyn Preparer = match &mut given {
+        Some(g) => g,
+        None => &mut fresh,
+    };
+    let frame = Frame::compose(&tracer, &scene, &request, preparer, &say)?;
+    if given.is_none() {
+        phases.extend(frame.prepared.phases.0.iter().map(|p| (p.name, p.ms)));
     }
+    phases
+        .extend(frame.timings.iter().copied().filter(|(n, _)| given.is_none() || *n != "prepare"));
     bar.finish_and_clear();
 
     // The reference converges by its own error; `auto`'s path tracer
     // takes the samples the pilot chose, as a frame of strips.
     if lighting == LightingMode::Reference && auto.is_none() {
-        return render_reference_here(a, &ctx, &scene, &prepared, &settings, accel, phases);
+        return render_reference_here(a, &frame, &scene, accel, phases);
     }
     let plan = even_strips(a.frame.width, STRIP);
     let bar = ProgressBar::new(plan.len() as u64);
@@ -220,18 +217,19 @@ fn render_here(
     );
     progress::stage(&bar, &format!("tracing {} strips", plan.len()));
     let t = Instant::now();
-    let rendered =
-        InProcess::new(&ctx, &prepared.renderer, settings).render(&plan, &|_| bar.inc(1))?;
+    let rendered = InProcess::new(&frame).render(&plan, &|_| bar.inc(1))?;
     let sylva_scene::film::RayCounts { primary, shadow, transparent } = rendered.rays;
-    let (frame, coverage, passes) = (rendered.image, rendered.coverage, rendered.passes);
+    let (image, coverage, passes) = (rendered.image, rendered.coverage, rendered.passes);
     let trace_ms = ms(t);
     phases.push(("trace", trace_ms));
     bar.finish_and_clear();
 
-    let (tone, exr) = write_image(a, &frame, passes.as_ref(), &mut phases)?;
-    if let Some(keep) = keep {
+    let (tone, exr) = write_image(a, &image, passes.as_ref(), &mut phases)?;
+    // Written once the frame is out, so the first frame does not wait for the disk.
+    if let Some(keep) = fresh.reuse.keeper(&scene) {
         keep();
     }
+    let prepared = &frame.prepared;
     let mut stats = with_head(
         a,
         exr,
@@ -239,7 +237,7 @@ fn render_here(
         lighting,
         &phases,
         json!({
-            "adapter": ctx.summary(),
+            "adapter": tracer.summary(),
             "rays": {
                 "primary": primary,
                 "shadow": shadow,
@@ -255,7 +253,7 @@ fn render_here(
             "lb_grid_choice": choices,
             "boulanger": prepared.boulanger,
             "forest_grid": prepared.forest,
-            "ambient": settings.ambient,
+            "ambient": frame.settings.ambient,
             "tone_map": tone,
             "coverage": coverage.iter().map(|&c| c as f64).sum::<f64>() / coverage.len() as f64,
         }),
@@ -276,47 +274,16 @@ fn render_here(
     report(a, &stats, accel, lighting, &how)
 }
 
-/// Prepares the scene in this process, reading what the prepared-data
-/// cache holds of it; returns what to write to that cache once the frame
-/// is out (so the first frame does not wait for the disk).
-fn prepare_here(
-    a: &RenderArgs,
-    ctx: &GpuContext,
-    scene: &Scene,
-    accel: AccelChoice,
-    lighting: LightingMode,
-    bar: &ProgressBar,
-) -> anyhow::Result<(PreparedScene, Option<impl FnOnce() + use<>>)> {
-    use sylva_worker::prepare::{DiskSource, Reuse, prepare_reusing};
-    let progress = |m: &str| progress::stage(bar, m);
-    let Some(cache) = a.prepared_cache.open()? else {
-        return Ok((prepare(ctx, scene, accel, lighting, &progress)?, None));
-    };
-    // Entries are named by the bundle's content, as a worker names them.
-    let hash = sylva_scene::bundle::pack(&a.scene)?.hash;
-    let dir = cache.dir().display().to_string();
-    let mut reuse =
-        Reuse { disk: Some(DiskSource { cache, bundle: hash, sun: None }), ..Default::default() };
-    let prepared = prepare_reusing(ctx, scene, accel, lighting, &mut reuse, &progress)?;
-    let found = reuse.found;
-    if found.accel || found.lb {
-        tracing::info!(structures = found.accel, lb = found.lb, %dir, "prepared data read from the disk cache");
-    }
-    Ok((prepared, reuse.keeper(scene)))
-}
-
 /// The reference in this process: path traced in batches until its own
 /// relative standard error is below `--target-error`.
 fn render_reference_here(
     a: &RenderArgs,
-    ctx: &GpuContext,
+    frame: &Frame,
     scene: &Scene,
-    prepared: &PreparedScene,
-    settings: &RenderSettings,
     accel: AccelChoice,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
-    let lighting = settings.lighting;
+    let lighting = frame.settings.lighting;
     anyhow::ensure!(
         a.target_error.is_finite() && a.target_error > 0.0,
         "--target-error {}: must be a finite number > 0",
@@ -327,7 +294,7 @@ fn render_reference_here(
         "--max-seconds {}: must be a finite number > 0",
         a.max_seconds
     );
-    let opts = sylva_worker::lighting::reference::ReferenceOptions {
+    let opts = ReferenceOptions {
         batch_spp: a.frame.spp.max(MIN_BATCH_SPP),
         target_error: a.target_error,
         max_seconds: a.max_seconds,
@@ -341,18 +308,12 @@ fn render_reference_here(
     );
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let t = Instant::now();
-    let r = sylva_worker::lighting::reference::render_reference(
-        ctx,
-        &prepared.renderer,
-        settings,
-        &opts,
-        &|s| {
-            bar.set_message(format!(
-                "{} spp, relative error {:.4} (target {})",
-                s.spp, s.relative_error, a.target_error
-            ))
-        },
-    )?;
+    let r = frame.reference(&[(0, frame.settings.width)], &opts, &|s| {
+        bar.set_message(format!(
+            "{} spp, relative error {:.4} (target {})",
+            s.spp, s.relative_error, a.target_error
+        ))
+    })?;
     phases.push(("trace", ms(t)));
     bar.finish_and_clear();
     let (tone, exr) = write_image(a, &r.image, r.passes.as_ref(), &mut phases)?;
@@ -373,8 +334,8 @@ fn render_reference_here(
         lighting,
         &phases,
         json!({
-            "adapter": ctx.summary(),
-            "backend": prepared.backend,
+            "adapter": frame.tracer().summary(),
+            "backend": frame.prepared.backend,
             "reference": r.stats,
             "local_exr": local_exr,
             "leaf_optics": scene.file.leaf_optics,

@@ -5,7 +5,6 @@
 
 use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
-use crate::trace::CloudGrid;
 use sylva_light::lb::LbParams;
 use sylva_light::lb::{SolveOptions, Sun, solve};
 use sylva_scene::Scene;
@@ -42,4 +41,25 @@ pub fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<Cloud
             })
         })
         .collect()
+}
+
+/// A cloud's density and solved LB light.
+#[derive(Clone, Debug)]
+pub struct CloudGrid {
+    /// Lower corner of its cube, world space.
+    pub min: [f32; 3],
+    /// Cube edge.
+    pub size: f32,
+    /// Grid size N.
+    pub n: usize,
+    /// Density per node (N³).
+    pub density: Vec<f32>,
+    /// LB total density: three channel planes of N³ values.
+    pub light: Vec<f32>,
+    /// σ_t of the cloud's medium per lattice cell at density 1.
+    pub sigma_t: f32,
+    /// σ_s / σ_t.
+    pub albedo: f32,
+    /// Henyey–Greenstein asymmetry.
+    pub g: f32,
 }

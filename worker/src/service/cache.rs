@@ -3,7 +3,53 @@
 //! lighting needs, sun), acceleration structures across views, LB light per
 //! sun; and uploads counted against the limits as their bytes arrive.
 
-use super::*;
+use super::{State, normalize_hash};
+use crate::frame::{AmbientKey, Preparer};
+use crate::lighting::lb::SceneLb;
+use crate::prepare::{PreparedScene, Reuse, prepare_reusing};
+use crate::trace::Tracer;
+use std::collections::HashMap;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+use sylva_accel::AccelKind;
+use sylva_proto::pb;
+use sylva_proto::sync::lock;
+use sylva_scene::frame::{AccelChoice, FrameSettings};
+use sylva_scene::sequence::View;
+use sylva_scene::{LightingMode, Scene};
+use tokio_stream::StreamExt;
+use tonic::{Status, Streaming};
+
+/// The worker's caches as the frame layer's [`Preparer`], for one bundle:
+/// prepared scenes in memory (else on disk, else prepared here), and the
+/// ambient constants matched per frame shape.
+pub(super) struct BundleCaches<'a> {
+    pub(super) state: &'a State,
+    pub(super) hash: &'a str,
+}
+
+impl Preparer for BundleCaches<'_> {
+    fn prepared(
+        &mut self,
+        _: &Tracer,
+        scene: &Scene,
+        accel: AccelChoice,
+        lighting: LightingMode,
+        view: &View,
+        _: &dyn Fn(&str),
+    ) -> anyhow::Result<Arc<PreparedScene>> {
+        self.state.prepared_for(scene, self.hash, accel, lighting, view)
+    }
+
+    fn matched_ambient(&mut self, key: &AmbientKey) -> Option<[f32; 3]> {
+        lock(&self.state.ambient).get(&(self.hash.to_string(), key.clone())).copied()
+    }
+
+    fn keep_ambient(&mut self, key: AmbientKey, ambient: [f32; 3]) {
+        lock(&self.state.ambient).insert((self.hash.to_string(), key), ambient);
+    }
+}
 
 /// A cached bundle.
 pub(super) struct Cached {

@@ -1,7 +1,19 @@
 //! The `sylva.v1.Worker` API: load a bundle, render a strip, report status,
 //! prepare, and export or import prepared data.
 
-use super::*;
+use super::cache::{BundleCaches, Cached};
+use super::{Cancelled, Via, WorkerService, normalize_hash};
+use crate::frame::Frame;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+use sylva_proto::pb;
+use sylva_proto::pb::worker_server::Worker;
+use sylva_proto::sync::lock;
+use sylva_scene::bundle;
+use sylva_scene::frame::FrameSettings;
+use tokio_stream::StreamExt;
+use tonic::{Request, Response, Status, Streaming};
 
 /// Bytes per chunk of exported prepared data.
 const EXPORT_CHUNK: usize = 1 << 20;
@@ -84,10 +96,7 @@ impl Worker for WorkerService {
         let hash = normalize_hash(&r.scene_hash)?;
         self.state.scope(&hash, &r.job);
         let scene = self.state.scene(&hash)?;
-        let settings = RenderSettings::resolve(&f, scene.lighting);
-        let (lighting, accel) = (settings.lighting, f.accel);
-        let view = f.view;
-        let ambient_given = f.ambient.is_some();
+        let height = f.height;
         let cancelled = Arc::new(AtomicBool::new(false));
         let mut guard = CancelOnDrop(cancelled.clone(), false);
         let state = self.state.clone();
@@ -100,33 +109,15 @@ impl Worker for WorkerService {
             // not worth starting.
             anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
             let t = Instant::now();
-            let prepared = state.prepared_for(&scene, &hash, accel, lighting, &view)?;
-            let mut settings = settings;
-            if lighting.reads_matched_ambient() && !ambient_given {
-                // Matched here, once per frame shape, so every client gets
-                // the paper's ambient without a round of its own.
-                let key = format!(
-                    "{hash}/{accel:?}/{}x{}/{}/{}/{:?}",
-                    settings.width, settings.height, settings.seed, settings.lb_strength, view
-                );
-                let known = lock(&state.ambient).get(&key).copied();
-                settings.ambient = match known {
-                    Some(a) => a,
-                    None => {
-                        let a = crate::lighting::ambient::matched(
-                            &prepared.renderer,
-                            &state.ctx,
-                            &settings,
-                        )?;
-                        lock(&state.ambient).insert(key, a);
-                        a
-                    }
-                };
-            }
+            // The ambient is matched here, once per frame shape, so every
+            // client gets the paper's ambient without a round of its own.
+            let mut caches = BundleCaches { state: &state, hash: &hash };
+            let frame =
+                Frame::compose(&state.ctx, &scene, &f, &mut caches, &|m| tracing::info!("{m}"))?;
             let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
             anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
             let t = Instant::now();
-            let strip = prepared.renderer.render_strip(&state.ctx, &settings, r.x0, r.x1)?;
+            let strip = frame.strip(r.x0, r.x1)?;
             anyhow::Ok((strip, prepare_ms, t.elapsed().as_secs_f64() * 1e3))
         })
         .await;
@@ -144,7 +135,7 @@ impl Worker for WorkerService {
         Ok(Response::new(pb::RenderStripReply {
             x0: strip.x0,
             width: strip.width,
-            height: f.height,
+            height,
             rgb_f32: strip.pixels.iter().flatten().flat_map(|v| v.to_le_bytes()).collect(),
             coverage_f32: strip.coverage.iter().flat_map(|v| v.to_le_bytes()).collect(),
             rays: Some(pb::RayCounts {
@@ -267,8 +258,8 @@ impl Worker for WorkerService {
         // Prepared data is taken from the coordinator this worker
         // registered with, and no one else holding a token.
         let registered = self.state.config.session.read().expect("lock").is_some();
-        let via = request.extensions().get::<super::Via>().copied();
-        if registered && via != Some(super::Via::Coordinator) {
+        let via = request.extensions().get::<Via>().copied();
+        if registered && via != Some(Via::Coordinator) {
             return Err(Status::permission_denied(
                 "only the coordinator this worker registered with may push prepared data into it",
             ));

@@ -10,29 +10,23 @@
 mod cache;
 mod grpc;
 
-use cache::*;
+use cache::{Cached, LbKey, PreparedKey, Used};
 
+use crate::frame::AmbientKey;
 use crate::gpu::GpuContext;
 use crate::lighting::lb::SceneLb;
-use crate::prepare::{PreparedScene, Reuse, prepare_reusing};
-use crate::trace::RenderSettings;
+use crate::prepare::PreparedScene;
+use crate::trace::Tracer;
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64};
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
 use sylva_accel::AccelKind;
 use sylva_proto::pb;
 use sylva_proto::pb::worker_identity_server::{WorkerIdentity, WorkerIdentityServer};
-use sylva_proto::pb::worker_server::{Worker, WorkerServer};
-use sylva_proto::sync::lock;
-use sylva_scene::bundle;
-use sylva_scene::frame::AccelChoice;
-use sylva_scene::frame::FrameSettings;
-use sylva_scene::sequence::View;
-use sylva_scene::{LightingMode, Scene, SceneLimits};
-use tokio_stream::StreamExt;
-use tonic::{Request, Response, Status, Streaming};
+use sylva_proto::pb::worker_server::WorkerServer;
+use sylva_scene::SceneLimits;
+use tonic::{Request, Response, Status};
 
 pub use sylva_scene::frame::{MAX_SIDE, MAX_SPP};
 
@@ -135,7 +129,7 @@ fn authenticate(
 
 /// What the service shares between requests.
 struct State {
-    ctx: GpuContext,
+    ctx: Tracer,
     config: WorkerConfig,
     bundles: Mutex<HashMap<String, Cached>>,
     /// Prepared scenes by (hash, structure, what the lighting needs
@@ -166,7 +160,7 @@ struct State {
     /// it serves: another job's strips drop it first.
     imported: Mutex<HashMap<String, String>>,
     /// Matched ambient constants by scene and frame shape.
-    ambient: Mutex<HashMap<String, [f32; 3]>>,
+    ambient: Mutex<HashMap<(String, AmbientKey), [f32; 3]>>,
     /// One GPU job at a time: strips queue here.
     gpu: Mutex<()>,
     /// Bytes of uploads in progress, so concurrent uploads share the limit.
@@ -185,7 +179,7 @@ impl WorkerService {
     pub fn new(ctx: GpuContext, config: WorkerConfig) -> Self {
         Self {
             state: Arc::new(State {
-                ctx,
+                ctx: ctx.into(),
                 config,
                 bundles: Mutex::new(HashMap::new()),
                 prepared: Mutex::new(HashMap::new()),

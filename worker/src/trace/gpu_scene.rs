@@ -3,6 +3,8 @@
 
 use super::rq::{self, RqModel, RqStructures};
 use crate::gpu::GpuContext;
+use crate::lighting::clouds::CloudGrid;
+use crate::lighting::lb::forest::GroundLight;
 use bytemuck::{Pod, Zeroable};
 use sylva_accel::bvh::{self, BvhNode};
 use sylva_accel::coverage::Coverage;
@@ -156,23 +158,6 @@ pub struct GpuModel {
     pub pad2: u32,
 }
 
-/// The indirect light that reaches the ground under a stand: the forest
-/// grid's first layer above its shell, per channel.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct GroundLight {
-    /// World x and z of the corner of node (0, ·, 0).
-    pub origin: [f32; 2],
-    /// Cell edge.
-    pub cell: f32,
-    /// Nodes along x.
-    pub nx: usize,
-    /// Nodes along z.
-    pub nz: usize,
-    /// Indirect irradiance on the ground (sky and scattered sun) per node:
-    /// three channel planes of `nx × nz`, x fastest.
-    pub rgb: Vec<f32>,
-}
-
 /// A cloud as `scene.wgsl` reads it.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -192,27 +177,6 @@ pub struct GpuCloud {
     /// Henyey–Greenstein asymmetry of its medium (the reference integrator's phase function).
     pub g: f32,
     pub pad: [u32; 3],
-}
-
-/// A cloud's density and solved LB light.
-#[derive(Clone, Debug)]
-pub struct CloudGrid {
-    /// Lower corner of its cube, world space.
-    pub min: [f32; 3],
-    /// Cube edge.
-    pub size: f32,
-    /// Grid size N.
-    pub n: usize,
-    /// Density per node (N³).
-    pub density: Vec<f32>,
-    /// LB total density: three channel planes of N³ values.
-    pub light: Vec<f32>,
-    /// σ_t of the cloud's medium per lattice cell at density 1.
-    pub sigma_t: f32,
-    /// σ_s / σ_t.
-    pub albedo: f32,
-    /// Henyey–Greenstein asymmetry.
-    pub g: f32,
 }
 
 /// The solved light a scene is uploaded with.

@@ -5,7 +5,9 @@
 //! declares them). WGSL in `shaders/trace/`.
 
 mod choose;
+pub mod filter;
 mod gpu_scene;
+mod kernels;
 mod raycast;
 pub(crate) mod render;
 mod rq;
@@ -13,9 +15,10 @@ mod shaders;
 
 pub use choose::{BackendChoice, ProbeTime, candidates, choose};
 pub use gpu_scene::{
-    CloudGrid, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle,
-    GroundLight, SceneLight, SceneStructure,
+    GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, SceneLight,
+    SceneStructure,
 };
+pub use kernels::{KernelCache, Kernels, Tracer};
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use render::MAX_BOUNCES;
 pub use render::{

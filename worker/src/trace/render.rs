@@ -2,13 +2,15 @@
 //! the frame and reads them back as linear HDR.
 
 use super::gpu_scene::GpuScene;
+use super::kernels::{Kernels, Tracer};
 use super::shaders::tracer_source;
 use crate::gpu::GpuContext;
 use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
+use std::sync::Arc;
 use sylva_scene::film::RayCounts;
-use sylva_scene::frame::{Backend, FrameSettings};
+use sylva_scene::frame::FrameSettings;
 use sylva_scene::passes::{Pass, PassImage, PassSet};
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
@@ -218,34 +220,11 @@ pub struct SampleMeans {
     pub sky: Vec<[f32; 3]>,
 }
 
-/// The render kernels for one specialisation (structure, clouds): one
-/// pipeline per lighting family (direct methods, reference, Boulanger),
-/// each compiled on its first dispatch, and the frame's bind-group layout.
-pub(crate) struct Kernels {
-    pipelines: [wgpu::ComputePipeline; 3],
-    layout: wgpu::BindGroupLayout,
-    /// The same kernels writing the light split too (`SPLIT`), compiled
-    /// on the first frame with passes.
-    split: std::sync::OnceLock<[wgpu::ComputePipeline; 3]>,
-    /// The guide passes' kernel, compiled on the first frame that asks.
-    guides: std::sync::OnceLock<wgpu::ComputePipeline>,
-    module: wgpu::ShaderModule,
-    pipeline_layout: wgpu::PipelineLayout,
-    constants: Vec<(&'static str, f64)>,
-}
-
-/// Kernels by (`ACCEL_KIND`, clouds), shared by every scene of a device:
-/// scenes' bind-group layouts are alike, and wgpu gives alike layouts one
-/// identity, so a kernel built for one scene binds every other.
-pub(crate) type KernelCache = std::sync::Arc<
-    std::sync::Mutex<std::collections::HashMap<(u32, bool), std::sync::Arc<Kernels>>>,
->;
-
 /// The render pipeline over one uploaded scene.
 pub struct StripRenderer {
     scene: GpuScene,
     /// Its kernels (shared with other scenes of the same specialisation).
-    kernels: std::sync::Arc<Kernels>,
+    kernels: Arc<Kernels>,
     base: FrameUniform,
     /// The gathers' filter: the depth range of one crown, metres.
     crown_depth: f32,
@@ -253,12 +232,12 @@ pub struct StripRenderer {
 
 impl StripRenderer {
     /// Builds the pipeline for an uploaded scene.
-    pub fn new(ctx: &GpuContext, gpu_scene: GpuScene, scene: &Scene) -> anyhow::Result<Self> {
-        let kernels = Self::kernels_for(ctx, gpu_scene.backend, !scene.clouds.is_empty())?;
+    pub fn new(tracer: &Tracer, gpu_scene: GpuScene, scene: &Scene) -> anyhow::Result<Self> {
+        let kernels = tracer.kernels.get(tracer, gpu_scene.backend, !scene.clouds.is_empty())?;
         Ok(Self::build(gpu_scene, scene, kernels))
     }
 
-    fn build(gpu_scene: GpuScene, scene: &Scene, kernels: std::sync::Arc<Kernels>) -> Self {
+    fn build(gpu_scene: GpuScene, scene: &Scene, kernels: Arc<Kernels>) -> Self {
         let mut base = FrameUniform {
             sun_radiance: scene.sun.radiance,
             sky_zenith: scene.sky.zenith,
@@ -282,146 +261,8 @@ impl StripRenderer {
         };
         base.set_camera(&scene.camera);
         base.set_sun(scene.sun.towards).expect("the scene checked its sun");
-        let crown_depth = lighting::gather::crown_depth(scene);
+        let crown_depth = super::filter::crown_depth(scene);
         Self { scene: gpu_scene, kernels, base, crown_depth }
-    }
-
-    /// The render kernels for a backend, with or without clouds: compiled
-    /// on first use and kept in the device's cache. A preparation calls it
-    /// early, on a thread of its own, so compiling overlaps its other work.
-    pub(crate) fn kernels_for(
-        ctx: &GpuContext,
-        backend: Backend,
-        clouds: bool,
-    ) -> anyhow::Result<std::sync::Arc<Kernels>> {
-        let key = (super::gpu_scene::accel_kind(backend), clouds);
-        if let Some(k) = ctx.render_kernels.lock().expect("lock").get(&key) {
-            return Ok(k.clone());
-        }
-        // Kept only once compiled without an error.
-        let k = ctx.checked("building the render pipeline", || {
-            Ok(std::sync::Arc::new(Self::kernels(ctx, backend, clouds)))
-        })?;
-        ctx.render_kernels.lock().expect("lock").insert(key, k.clone());
-        Ok(k)
-    }
-
-    /// Compiles the render kernels for a backend and clouds.
-    fn kernels(ctx: &GpuContext, backend: Backend, clouds: bool) -> Kernels {
-        let device = &ctx.device;
-        let module = ctx.trusted_module("render", render_source(backend));
-        let scene_layout = GpuScene::layout_for(device, backend);
-        let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("frame"),
-            entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform),
-                entry(1, wgpu::BufferBindingType::Storage { read_only: false }),
-                entry(2, wgpu::BufferBindingType::Storage { read_only: false }),
-            ],
-        });
-        let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("render"),
-            bind_group_layouts: &[Some(&scene_layout), Some(&layout)],
-            immediate_size: 0,
-        });
-        let constants = vec![
-            ("ACCEL_KIND", super::gpu_scene::accel_kind(backend) as f64),
-            ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
-        ];
-        let pipelines = Kernel::ALL
-            .map(|kernel| Self::render_pipeline(device, &module, &pl, &constants, kernel, false));
-        Kernels {
-            pipelines,
-            layout,
-            split: std::sync::OnceLock::new(),
-            guides: std::sync::OnceLock::new(),
-            module,
-            pipeline_layout: pl,
-            constants,
-        }
-    }
-
-    /// One render kernel: a lighting family, with or without the split.
-    fn render_pipeline(
-        device: &wgpu::Device,
-        module: &wgpu::ShaderModule,
-        layout: &wgpu::PipelineLayout,
-        constants: &[(&'static str, f64)],
-        kernel: Kernel,
-        split: bool,
-    ) -> wgpu::ComputePipeline {
-        let mut c = constants.to_vec();
-        c.push(("LIGHTING_FAMILY", kernel as u32 as f64));
-        c.push(("SPLIT", if split { 1.0 } else { 0.0 }));
-        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("render"),
-            layout: Some(layout),
-            module,
-            entry_point: Some("render_strip"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &c,
-                ..Default::default()
-            },
-            cache: None,
-        })
-    }
-
-    /// The kernel of `kernel`'s family, writing the light split or not
-    /// (those compiled once, on first use).
-    fn kernel(
-        &self,
-        ctx: &GpuContext,
-        kernel: Kernel,
-        split: bool,
-    ) -> anyhow::Result<&wgpu::ComputePipeline> {
-        if !split {
-            return Ok(&self.kernels.pipelines[kernel as usize]);
-        }
-        let k = &self.kernels;
-        if k.split.get().is_none() {
-            let built = ctx.checked("building the light split's kernels", || {
-                Ok(Kernel::ALL.map(|kernel| {
-                    Self::render_pipeline(
-                        &ctx.device,
-                        &k.module,
-                        &k.pipeline_layout,
-                        &k.constants,
-                        kernel,
-                        true,
-                    )
-                }))
-            })?;
-            let _ = k.split.set(built);
-        }
-        Ok(&k.split.get().expect("just built")[kernel as usize])
-    }
-
-    /// The guide passes' kernel: compiled once, on first use.
-    fn guides_pipeline(&self, ctx: &GpuContext) -> anyhow::Result<&wgpu::ComputePipeline> {
-        if let Some(p) = self.kernels.guides.get() {
-            return Ok(p);
-        }
-        let k = &self.kernels;
-        let p = ctx.checked("building the guide passes' kernel", || {
-            Ok(ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some("guides"),
-                layout: Some(&k.pipeline_layout),
-                module: &k.module,
-                entry_point: Some("render_guides"),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &k.constants,
-                    ..Default::default()
-                },
-                cache: None,
-            }))
-        })?;
-        Ok(k.guides.get_or_init(|| p))
     }
 
     /// Bytes of scene data on the GPU.
@@ -456,7 +297,7 @@ impl StripRenderer {
         // The gathers' filter reads `radius` columns beyond the strip on
         // each side (the same samples whichever strip renders them), so a
         // frame is the same however it is cut.
-        let radius = if lighting::gather::filtered(f) { f.gather_filter } else { 0 };
+        let radius = if super::filter::filtered(f) { f.gather_filter } else { 0 };
         let (a0, a1) = (x0.saturating_sub(radius), (x1 + radius).min(f.width));
         let uniform = FrameUniform {
             aspect: f.width as f32 / f.height as f32,
@@ -496,7 +337,7 @@ impl StripRenderer {
             }
             let (mut means, rays) = self.sample_means(ctx, method.kernel, split, &uniform)?;
             if radius > 0 {
-                lighting::gather::filter_indirect(
+                super::filter::filter_indirect(
                     &mut means,
                     (a1 - a0) as usize,
                     radius as usize,
@@ -563,7 +404,7 @@ impl StripRenderer {
         }
         if f.passes.wants_guides() {
             let n = (uniform.strip_width * uniform.height) as usize;
-            let guides = self.guides_pipeline(ctx)?;
+            let guides = self.kernels.guides(ctx)?;
             // In batches of samples, as the per-sample kernel's, so no
             // dispatch of a many-sample frame runs long; the first holds
             // sample 0's depth and ids.
@@ -705,7 +546,7 @@ impl StripRenderer {
         bytes: u64,
         depth: u32,
     ) -> anyhow::Result<(Vec<[f32; 4]>, GpuRayCounts)> {
-        self.dispatch_with(ctx, self.kernel(ctx, kernel, split)?, uniform, bytes, depth)
+        self.dispatch_with(ctx, self.kernels.render(ctx, kernel, split)?, uniform, bytes, depth)
     }
 
     /// One dispatch of `pipeline` (a render kernel or the guides').

@@ -6,10 +6,11 @@
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 use sylva_worker::GpuContext;
+use sylva_worker::trace::Tracer;
 
 /// The machine's GPU adapter (lavapipe without a GPU).
-pub fn ctx() -> GpuContext {
-    GpuContext::new()
+pub fn ctx() -> Tracer {
+    Tracer::new()
         .expect("these tests need a GPU adapter; on Debian install mesa-vulkan-drivers (lavapipe)")
 }
 

@@ -242,8 +242,8 @@ pub struct RenderArgs {
 impl RenderArgs {
     /// `--lighting auto`'s goal (checked), `None` without auto; its flags
     /// without auto are refused.
-    pub fn goal(&self) -> anyhow::Result<Option<crate::lab::pilot::Goal>> {
-        use crate::lab::pilot::Goal;
+    pub fn goal(&self) -> anyhow::Result<Option<crate::pilot::Goal>> {
+        use crate::pilot::Goal;
         let positive = |name: &str, v: f64| -> anyhow::Result<f64> {
             anyhow::ensure!(v.is_finite() && v > 0.0, "{name} {v}: must be a finite number > 0");
             Ok(v)

@@ -264,8 +264,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     use sylva_accel::Ray;
     use sylva_scene::Scene;
     use sylva_scene::table2::{ForestOptions, forest};
-    use sylva_worker::GpuContext;
-    use sylva_worker::trace::GpuRay;
+    use sylva_worker::trace::{GpuRay, Tracer};
 
     let file = forest(&ForestOptions { scale: a.scale, triangle_scale: a.triangle_scale, seed: 1 })
         .map_err(anyhow::Error::msg)?;
@@ -294,7 +293,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     }
     let cpu_flat_opaque = if a.flat { flat_opaque(&flat, &rays) } else { serde_json::Value::Null };
     drop(flat);
-    let ctx = GpuContext::new()?;
+    let ctx = Tracer::new()?;
     let mut traversal = Vec::new();
     // Shadow rays toward the sun from the first structure's primary hits:
     // the same rays for every structure.
@@ -562,35 +561,33 @@ fn bench_first_frame(a: &TraceBenchArgs) -> anyhow::Result<serde_json::Value> {
 /// Whole frames with LB lighting at 1 and 4 spp on each backend, after a
 /// warm-up dispatch.
 fn bench_frames(
-    ctx: &sylva_worker::GpuContext,
+    ctx: &sylva_worker::trace::Tracer,
     scene: &sylva_scene::Scene,
     a: &TraceBenchArgs,
     backends: &[sylva_scene::frame::Backend],
 ) -> anyhow::Result<Vec<serde_json::Value>> {
     use sylva_scene::LightingMode;
-    use sylva_worker::prepare::prepare;
+    use sylva_worker::frame::{Frame, Fresh, Given};
     use sylva_worker::trace::RenderSettings;
     let mut frames = Vec::new();
     for &kind in backends {
-        let prepared = prepare(ctx, scene, kind, LightingMode::Lb, &|_| {})?;
+        // Prepared once per backend (the first frame), shared by both spp.
+        let mut preparer: Box<dyn sylva_worker::frame::Preparer> = Box::new(Fresh::default());
         for spp in [1u32, 4] {
-            let frame = FrameSettings {
+            let request = FrameSettings {
                 width: a.width,
                 height: a.height,
                 spp,
                 lighting: Some(LightingMode::Lb),
+                accel: kind.into(),
                 ..FrameSettings::default()
             };
-            let f = RenderSettings::resolve(&frame, scene.lighting);
-            prepared.renderer.render_strip(
-                ctx,
-                &RenderSettings { width: 64, height: 32, ..f },
-                0,
-                64,
-            )?; // warm-up
+            let frame = Frame::compose(ctx, scene, &request, &mut *preparer, &|_| {})?;
+            preparer = Box::new(Given(frame.prepared.clone()));
+            let (prepared, f) = (&frame.prepared, frame.settings);
+            frame.with_settings(RenderSettings { width: 64, height: 32, ..f }).strip(0, 64)?; // warm-up
             let t = Instant::now();
-            let frame =
-                InProcess::new(ctx, &prepared.renderer, f).render(&[(0, a.width)], &|_| {})?;
+            let frame = InProcess::new(&frame).render(&[(0, a.width)], &|_| {})?;
             let s = t.elapsed().as_secs_f64();
             let sylva_scene::film::RayCounts { primary, shadow, transparent } = frame.rays;
             frames.push(json!({
@@ -610,9 +607,9 @@ fn bench_frames(
 const PAPER_TABLE_4: [(usize, f64); 4] = [(2, 1.162), (4, 0.666), (8, 0.351), (16, 0.170)];
 
 fn bench_scaling(a: ScalingBenchArgs) -> anyhow::Result<()> {
-    use crate::lab::chart::{Series, line_chart};
     use crate::lab::simulate::FrameCost;
     use crate::loopback::LoopbackProcesses;
+    use crate::measure::chart::{Series, line_chart};
     use sylva_coordinator::executor::Farm;
     use sylva_coordinator::farm::Workers;
     use sylva_coordinator::schedule::{ScheduleKind, column_cost, scheduler};

@@ -6,27 +6,29 @@
 //! Carlo reference of the same medium), each as a chart.
 
 use crate::flags::compare::*;
-use crate::lab::chart::{Series, line_chart};
 use crate::lab::crowns;
-use crate::lab::error::{IndirectError, lit_pixels};
-use crate::lab::pareto;
+use crate::measure::chart::{Series, line_chart};
+use crate::measure::error::{IndirectError, lit_pixels};
+use crate::measure::pareto;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use serde_json::json;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 use sylva_accel::AccelKind;
 use sylva_scene::color::luminance;
 use sylva_scene::film::{HdrImage, ToneMapStats, reinhard, reinhard_like, write_png};
 use sylva_scene::frame::FrameSettings;
+use sylva_scene::sequence::View;
 use sylva_scene::{ForestGridUse, LbModel, LightingMode, Scene};
-use sylva_worker::GpuContext;
+use sylva_worker::frame::reference::{ReferenceImage, ReferenceOptions};
+use sylva_worker::frame::{Frame, Fresh, Given, Preparer};
 use sylva_worker::lighting::Needs;
 use sylva_worker::lighting::lb::auto::choose_lb_grids;
-use sylva_worker::lighting::reference::{ReferenceImage, ReferenceOptions, render_reference};
-use sylva_worker::prepare::prepare;
-use sylva_worker::trace::RenderSettings;
+use sylva_worker::prepare::PreparedScene;
+use sylva_worker::trace::{RenderSettings, Tracer};
 
 /// One method's figures.
 #[derive(Debug, Serialize)]
@@ -91,7 +93,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("{}: cannot create folder", a.out.display()))?;
     let scene = Scene::load(&a.scene)?;
-    let ctx = GpuContext::new()?;
+    let ctx = Tracer::new()?;
     let bar = ProgressBar::new_spinner();
     bar.set_style(
         ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
@@ -140,7 +142,8 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
             gather_filter: c.gather_filter,
             ..settings
         };
-        rendered.push(render_method(&ctx, c, prepared, &f, &a.out, &exposure, a.hdr, &|m| say(m))?);
+        let to = Output { dir: &a.out, exposure: &exposure, hdr: a.hdr };
+        rendered.push(render_method(&ctx, c, prepared, &frame, &f, &to, &|m| say(m))?);
     }
     // `--lb-grid auto`: the smallest grid per species that agrees with the next finer one.
     say("lb auto: choosing grids");
@@ -153,16 +156,9 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     }
     let auto_candidate = Candidate::new("lb auto", LightingMode::Lb, auto_scene, 0);
     let prepared = Preparation::new(&ctx, &auto_candidate.scene, LightingMode::Lb, &|m| say(m))?;
-    let mut auto = render_method(
-        &ctx,
-        &auto_candidate,
-        &prepared,
-        &settings,
-        &a.out,
-        &exposure,
-        a.hdr,
-        &|m| say(m),
-    )?;
+    let to = Output { dir: &a.out, exposure: &exposure, hdr: a.hdr };
+    let mut auto =
+        render_method(&ctx, &auto_candidate, &prepared, &frame, &settings, &to, &|m| say(m))?;
     auto.report.preprocess_ms += choose_ms;
     auto.report.notes["grid_choice"] = serde_json::to_value(&choices)?;
     rendered.push(auto);
@@ -389,7 +385,7 @@ fn checked_grids(a: &CompareArgs) -> anyhow::Result<Vec<usize>> {
 /// traced now; with its build and pre-process times and whether it was reused.
 fn reference(
     a: &CompareArgs,
-    ctx: &GpuContext,
+    ctx: &Tracer,
     scene: &Scene,
     settings: &RenderSettings,
     bar: &ProgressBar,
@@ -401,9 +397,8 @@ fn reference(
     Ok(match cached {
         Some(r) => (r, 0.0, 0.0, true),
         None => {
-            let prepared = prepare(ctx, scene, AccelKind::Bvh, LightingMode::Reference, &|m| {
-                bar.set_message(m.to_string())
-            })?;
+            let prepared =
+                prepared(ctx, scene, LightingMode::Reference, &|m| bar.set_message(m.to_string()))?;
             let opts = ReferenceOptions {
                 target_error: a.target_error,
                 max_seconds: a.max_seconds,
@@ -411,7 +406,8 @@ fn reference(
             };
             let build_ms = prepared.phases.ms("build");
             let pre = prepared.lighting_ms();
-            let r = render_reference(ctx, &prepared.renderer, settings, &opts, &|s| {
+            let frame = Frame::of(ctx, prepared.clone(), *settings);
+            let r = frame.reference(&[(0, settings.width)], &opts, &|s| {
                 bar.set_message(format!(
                     "reference: {} spp, relative standard error {:.4} (target {})",
                     s.spp, s.relative_error, a.target_error
@@ -528,21 +524,40 @@ fn methods_to_compare(
 /// One preparation of a scene for a method, and the time its lighting's
 /// own pre-process took (voxelize, LB, forest LB, clouds, Boulanger).
 struct Preparation {
-    prepared: sylva_worker::prepare::PreparedScene,
+    prepared: Arc<PreparedScene>,
     preprocess_ms: f64,
 }
 
 impl Preparation {
     fn new(
-        ctx: &GpuContext,
+        ctx: &Tracer,
         scene: &Scene,
         lighting: LightingMode,
         say: &dyn Fn(&str),
     ) -> anyhow::Result<Self> {
-        let prepared = prepare(ctx, scene, AccelKind::Bvh, lighting, say)?;
+        let prepared = prepared(ctx, scene, lighting, say)?;
         let preprocess_ms = prepared.lighting_ms();
         Ok(Self { prepared, preprocess_ms })
     }
+}
+
+/// `scene` prepared in this process for `lighting` on the BVH, through
+/// the frame layer's own preparer.
+fn prepared(
+    tracer: &Tracer,
+    scene: &Scene,
+    lighting: LightingMode,
+    say: &dyn Fn(&str),
+) -> anyhow::Result<Arc<PreparedScene>> {
+    Fresh::default().prepared(tracer, scene, AccelKind::Bvh.into(), lighting, &View::default(), say)
+}
+
+/// Where `compare` writes a method's image, and with which exposure.
+struct Output<'a> {
+    dir: &'a Path,
+    exposure: &'a ToneMapStats,
+    /// Also write the linear image as `.npy`.
+    hdr: bool,
 }
 
 /// The methods as a table a person reads, then the summary.
@@ -604,49 +619,48 @@ fn with_lb(scene: &Scene, grid: Option<usize>, forest: Option<ForestGridUse>) ->
     s
 }
 
-/// Renders one method on its preparation, writes its image with the reference's exposure.
-#[allow(clippy::too_many_arguments)]
+/// Renders one method on its preparation (the frame `base` asks for,
+/// with `f`'s rays and gather settings), writes its image with the
+/// reference's exposure.
 fn render_method(
-    ctx: &GpuContext,
+    ctx: &Tracer,
     c: &Candidate,
     p: &Preparation,
+    base: &FrameSettings,
     f: &RenderSettings,
-    out: &Path,
-    exposure: &ToneMapStats,
-    hdr: bool,
+    out: &Output,
     say: &dyn Fn(&str),
 ) -> anyhow::Result<Rendered> {
-    let (name, lighting, scene, prepared) = (c.name.as_str(), c.lighting, &c.scene, &p.prepared);
-    let mut pre = p.preprocess_ms;
-    let mut settings = RenderSettings { lighting, ..*f };
-    if lighting.reads_matched_ambient() {
-        let t = Instant::now();
-        settings.ambient =
-            sylva_worker::lighting::ambient::matched(&prepared.renderer, ctx, &settings)?;
-        pre += ms(t);
-    }
+    let (name, lighting, scene) = (c.name.as_str(), c.lighting, &c.scene);
+    // The frame layer composes it (and matches the ambient where the
+    // method reads it) over the shared preparation.
+    let request = FrameSettings {
+        lighting: Some(lighting),
+        accel: AccelKind::Bvh.into(),
+        spp: f.spp,
+        gather_bounces: f.gather_bounces,
+        gather_filter: f.gather_filter,
+        ..*base
+    };
+    let frame = Frame::compose(ctx, scene, &request, &mut Given(p.prepared.clone()), say)?;
+    let pre = p.preprocess_ms
+        + frame.timings.iter().filter(|(n, _)| *n == "ambient match").map(|(_, t)| t).sum::<f64>();
+    let (settings, prepared) = (frame.settings, &frame.prepared);
     say(&format!("{name}: rendering"));
     // One untimed strip first: the pipeline's first dispatch compiles it.
-    prepared.renderer.render_strip(
-        ctx,
-        &RenderSettings { width: 8, height: 8, spp: 1, ..settings },
-        0,
-        8,
-    )?;
+    frame.with_settings(RenderSettings { width: 8, height: 8, spp: 1, ..settings }).strip(0, 8)?;
     let t = Instant::now();
-    let (image, own_local) = render_whole(ctx, prepared, &settings)?;
+    let (image, own_local) = render_whole(&frame)?;
     let frame_ms = ms(t);
     // The same frame with other seeds (untimed): with `local`'s second
     // render (or its own, below), the spread of the two tells the method's
     // own sampling noise.
     let (again, own_local_again) = render_whole(
-        ctx,
-        prepared,
-        &RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings },
+        &frame.with_settings(RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings }),
     )?;
-    let file = out.join(format!("{}.png", file_stem(name)));
-    write_png(&file, f.width, f.height, &reinhard_like(&image, exposure))?;
-    if hdr {
+    let file = out.dir.join(format!("{}.png", file_stem(name)));
+    write_png(&file, f.width, f.height, &reinhard_like(&image, out.exposure))?;
+    if out.hdr {
         write_hdr(&file.with_extension("npy"), &image)?;
     }
     let paper =
@@ -660,7 +674,7 @@ fn render_method(
         "boulanger": prepared.boulanger,
         "ambient": settings.ambient,
         "spp": settings.spp,
-        "gather_filter": if sylva_worker::lighting::gather::filtered(&settings) { json!(settings.gather_filter) } else { serde_json::Value::Null },
+        "gather_filter": if sylva_worker::trace::filter::filtered(&settings) { json!(settings.gather_filter) } else { serde_json::Value::Null },
         "gather_bounces": if sylva_worker::lighting::method(lighting).kernel == sylva_worker::lighting::Kernel::Reference { json!(settings.gather_bounces) } else { serde_json::Value::Null },
         "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
     });
@@ -692,12 +706,8 @@ fn render_method(
 
 /// The whole frame as one strip: the image and, from the per-sample
 /// kernels (the gathers), what `local` shows along the same camera samples.
-fn render_whole(
-    ctx: &GpuContext,
-    prepared: &sylva_worker::prepare::PreparedScene,
-    f: &RenderSettings,
-) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
-    crate::lab::pilot::render_columns(ctx, &prepared.renderer, f, &[(0, f.width)])
+fn render_whole(frame: &Frame) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
+    crate::pilot::render_columns(frame, &frame.settings, &[(0, frame.settings.width)])
 }
 
 /// A method's name as a file name: `lb 32³ + forest grid` → `lb-32-forest-grid`.
@@ -720,14 +730,14 @@ const PROGRESSIVE_FRACTIONS: [f64; 5] = [0.01, 0.02, 0.05, 0.1, 0.2];
 /// otherwise put every point at one pass). What brute force reaches at the
 /// cost of each fast method.
 fn progressive_path_tracer(
-    ctx: &GpuContext,
+    ctx: &Tracer,
     scene: &Scene,
     f: &RenderSettings,
     r: &ReferenceImage,
     lit: &[bool],
     say: &dyn Fn(&str),
 ) -> anyhow::Result<Vec<pareto::Point>> {
-    let prepared = prepare(ctx, scene, AccelKind::Bvh, LightingMode::Reference, say)?;
+    let frame = Frame::of(ctx, prepared(ctx, scene, LightingMode::Reference, say)?, *f);
     let n = (f.width * f.height) as usize;
     let (mut sum, mut local) = (vec![[0.0f64; 3]; n], vec![[0.0f64; 3]; n]);
     let mut points = Vec::new();
@@ -743,7 +753,7 @@ fn progressive_path_tracer(
                 lighting: LightingMode::Reference,
                 ..*f
             };
-            let s = prepared.renderer.render_strip(ctx, &settings, 0, f.width)?;
+            let s = frame.with_settings(settings).strip(0, f.width)?;
             for i in 0..n {
                 for c in 0..3 {
                     sum[i][c] += s.pixels[i][c] as f64;
@@ -812,12 +822,12 @@ fn mean_ratio(m: &HdrImage, r: &HdrImage, lit: &[bool]) -> [f64; 3] {
 /// a quarter of the reference's time at most (its paths are short).
 fn one_bounce_reference(
     a: &CompareArgs,
-    ctx: &GpuContext,
+    ctx: &Tracer,
     scene: &Scene,
     settings: &RenderSettings,
     say: &dyn Fn(&str),
 ) -> anyhow::Result<ReferenceImage> {
-    let prepared = prepare(ctx, scene, AccelKind::Bvh, LightingMode::GatherAmbient, say)?;
+    let prepared = prepared(ctx, scene, LightingMode::GatherAmbient, say)?;
     let f = RenderSettings {
         lighting: LightingMode::GatherAmbient,
         ambient: [0.0; 3],
@@ -830,7 +840,7 @@ fn one_bounce_reference(
         max_seconds: a.max_seconds / 4.0,
         ..Default::default()
     };
-    render_reference(ctx, &prepared.renderer, &f, &opts, &|s| {
+    Frame::of(ctx, prepared, f).reference(&[(0, f.width)], &opts, &|s| {
         say(&format!(
             "one-bounce reference: {} spp, relative standard error {:.4}",
             s.spp, s.relative_error

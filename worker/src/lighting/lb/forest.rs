@@ -8,7 +8,6 @@
 use super::sun_of;
 use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
-use crate::trace::GroundLight;
 use sylva_accel::Aabb;
 use sylva_accel::two_level::model_bounds;
 use sylva_light::lb::coarse::{
@@ -202,6 +201,23 @@ fn open_floor(
     let dims = GridDims { nx: OPEN, ny: OPEN, nz: OPEN };
     let empty = medium_from_leaf_area(&vec![0.0; OPEN * OPEN * OPEN], dims, cell);
     solve_indirect(solver, &empty, params, light, &SolveOptions::default(), &|_| {})
+}
+
+/// The indirect light that reaches the ground under a stand: the forest
+/// grid's first layer above its shell, per channel.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct GroundLight {
+    /// World x and z of the corner of node (0, ·, 0).
+    pub origin: [f32; 2],
+    /// Cell edge.
+    pub cell: f32,
+    /// Nodes along x.
+    pub nx: usize,
+    /// Nodes along z.
+    pub nz: usize,
+    /// Indirect irradiance on the ground (sky and scattered sun) per node:
+    /// three channel planes of `nx × nz`, x fastest.
+    pub rgb: Vec<f32>,
 }
 
 #[cfg(test)]

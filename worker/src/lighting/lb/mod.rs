@@ -13,7 +13,7 @@ pub mod forest;
 use super::{Kernel, Method, Needs};
 use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
-use crate::trace::GroundLight;
+use forest::GroundLight;
 use serde::Serialize;
 use sylva_light::lb::coarse::{ForestLight, ModelArea};
 use sylva_light::lb::solver::PhaseTimer;

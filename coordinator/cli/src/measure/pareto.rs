@@ -3,7 +3,7 @@
 //! tracer a curve over its running time, and the front of the methods no
 //! other beats on both: the best method for each time budget.
 
-use crate::lab::chart::{Series, line_chart};
+use crate::measure::chart::{Series, line_chart};
 use serde::Serialize;
 
 /// One method (or one moment of the progressive path tracer) on the chart.

@@ -20,18 +20,19 @@
 //! tracer, unbiased by construction). Its curve then gives the k the goal
 //! asks for. What was chosen and why goes to the log and to the stats.
 
-use crate::lab::error::{IndirectError, lit_pixels};
-use crate::lab::pareto;
+use crate::measure::error::{IndirectError, lit_pixels};
+use crate::measure::pareto;
 use serde::Serialize;
+use std::sync::Arc;
 use std::time::Instant;
 use sylva_accel::AccelKind;
 use sylva_scene::film::HdrImage;
 use sylva_scene::frame::{FrameSettings, MAX_SPP};
 use sylva_scene::{LightingMode, Scene};
-use sylva_worker::GpuContext;
-use sylva_worker::lighting::reference::{ReferenceOptions, render_reference_columns};
-use sylva_worker::prepare::{PreparedScene, Reuse, prepare_reusing};
-use sylva_worker::trace::RenderSettings;
+use sylva_worker::frame::reference::ReferenceOptions;
+use sylva_worker::frame::{Frame, Fresh};
+use sylva_worker::prepare::PreparedScene;
+use sylva_worker::trace::{RenderSettings, Tracer};
 
 /// What the user asks of `auto`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -134,7 +135,7 @@ pub struct Choice {
     /// The scene with the chosen grids.
     pub scene: Scene,
     /// Its preparation, from the pilot (the frame does not prepare again).
-    pub prepared: PreparedScene,
+    pub prepared: Arc<PreparedScene>,
     /// The frame with the chosen method and parameters.
     pub frame: FrameSettings,
 }
@@ -178,7 +179,7 @@ pub fn pilot_columns(width: u32, height: u32, coverage: &[f64]) -> Vec<(u32, u32
 /// Runs the pilot for `frame` (to be rendered as `plan`'s strips) on
 /// `scene` and picks what `goal` asks for.
 pub fn choose(
-    ctx: &GpuContext,
+    tracer: &Tracer,
     scene: &Scene,
     frame: &FrameSettings,
     plan: &[(u32, u32)],
@@ -197,8 +198,15 @@ pub fn choose(
     let own = scene.models.iter().map(|m| m.lb.grid).max().unwrap_or(0);
     let mut grids = vec![None];
     grids.extend(COARSER_GRIDS.iter().filter(|&&g| g < own).map(|&g| Some(g)));
-    let mut reuse = Reuse::default();
+    let mut fresh = Fresh::default();
     let mut preparations = Vec::new();
+    // Prepared as the frame layer prepares a gather's frame, on the BVH.
+    let request = FrameSettings {
+        lighting: Some(LightingMode::Gather),
+        accel: AccelKind::Bvh.into(),
+        ambient: None,
+        ..*frame
+    };
     for &g in &grids {
         let mut s = scene.clone();
         if let Some(g) = g {
@@ -207,16 +215,15 @@ pub fn choose(
             }
         }
         say(&format!("pilot: preparing {}", grid_name(g)));
-        reuse.lb = None;
-        let p = prepare_reusing(ctx, &s, AccelKind::Bvh, LightingMode::Gather, &mut reuse, say)?;
-        let pre_ms = p.lighting_ms();
+        fresh.reuse.lb = None;
+        let p = Frame::compose(tracer, &s, &request, &mut fresh, say)?;
+        let pre_ms = p.prepared.lighting_ms();
         preparations.push((g, s, p, pre_ms));
     }
 
     // Where the models are: `local` at one sample a pixel over the frame.
     let (_, _, first, _) = &preparations[0];
-    let whole =
-        first.renderer.render_strip(ctx, &RenderSettings { spp: 1, ..base }, 0, base.width)?;
+    let whole = first.with_settings(RenderSettings { spp: 1, ..base }).strip(0, base.width)?;
     let mut coverage = vec![0.0f64; base.width as usize];
     for (k, c) in whole.coverage.iter().enumerate() {
         coverage[k % base.width as usize] += *c as f64;
@@ -224,17 +231,11 @@ pub fn choose(
     let columns = pilot_columns(frame.width, frame.height, &coverage);
     // A frame's time, strip by strip as it will be rendered, after an
     // untimed dispatch that compiles its pipeline.
-    let time_frame = |p: &PreparedScene, f: &RenderSettings| -> anyhow::Result<f64> {
-        p.renderer.render_strip(
-            ctx,
-            &RenderSettings { width: 8, height: 8, spp: 1, ..*f },
-            0,
-            8,
-        )?;
+    let time_frame = |p: &Frame, f: &RenderSettings| -> anyhow::Result<f64> {
+        p.with_settings(RenderSettings { width: 8, height: 8, spp: 1, ..*f }).strip(0, 8)?;
+        let frame = p.with_settings(*f);
         let t = Instant::now();
-        for &(x0, x1) in plan {
-            p.renderer.render_strip(ctx, f, x0, x1)?;
-        }
+        frame.strips(plan, &mut |_, _| Ok(()))?;
         Ok(ms(t))
     };
 
@@ -244,7 +245,7 @@ pub fn choose(
         max_seconds: PILOT_REFERENCE_SECONDS,
         ..Default::default()
     };
-    let reference = render_reference_columns(ctx, &first.renderer, &base, &columns, &opts, &|s| {
+    let reference = first.with_settings(base).reference(&columns, &opts, &|s| {
         say(&format!("pilot: reference, {} spp, relative error {:.3}", s.spp, s.relative_error))
     })?;
     let lit = lit_pixels(&reference);
@@ -253,7 +254,7 @@ pub fn choose(
     let mut measured = Vec::new();
     // Per sampled family: its frame's fixed and per-ray milliseconds.
     let mut timings: Vec<(String, f64, f64)> = Vec::new();
-    let local = render_columns(ctx, &first.renderer, &base, &columns)?.0;
+    let local = render_columns(first, &base, &columns)?.0;
     for (g, _, p, pre_ms) in &preparations {
         let mut run = |family: &str, f: RenderSettings, pre: f64| -> anyhow::Result<()> {
             let sampled =
@@ -276,7 +277,7 @@ pub fn choose(
             } else {
                 time_frame(p, &f)?
             };
-            let (image, own) = render_columns(ctx, &p.renderer, &f, &columns)?;
+            let (image, own) = render_columns(p, &f, &columns)?;
             let l = own.as_ref().unwrap_or(&local);
             let e = IndirectError::measure([&image, &image], [l, l], &reference, &lit);
             measured.push(Measured {
@@ -304,13 +305,17 @@ pub fn choose(
             let t = Instant::now();
             let ambient = RenderSettings { lighting: LightingMode::Ambient, ..base };
             let ambient = RenderSettings {
-                ambient: sylva_worker::lighting::ambient::matched(&p.renderer, ctx, &ambient)?,
+                ambient: sylva_worker::frame::ambient::matched(
+                    &p.prepared.renderer,
+                    tracer,
+                    &ambient,
+                )?,
                 ..ambient
             };
             run("ambient", ambient, pre_ms + ms(t))?;
             for &k in &MEASURED_RAYS {
                 let f = RenderSettings { lighting: LightingMode::Reference, spp: k, ..base };
-                run("path tracer", f, p.phases.ms("cloud lb"))?;
+                run("path tracer", f, p.prepared.phases.ms("cloud lb"))?;
             }
         }
         run(&on("lb"), RenderSettings { lighting: LightingMode::Lb, ..base }, *pre_ms)?;
@@ -354,7 +359,7 @@ pub fn choose(
         chosen,
         why,
     };
-    Ok(Choice { report, scene, prepared, frame })
+    Ok(Choice { report, scene, prepared: prepared.prepared, frame })
 }
 
 /// "the scene's own LB grids" or "lb 16³".
@@ -365,8 +370,7 @@ fn grid_name(g: Option<usize>) -> String {
 /// `columns` of the frame side by side, as one image: the method's and,
 /// from the per-sample kernels, what `local` shows along the same samples.
 pub fn render_columns(
-    ctx: &GpuContext,
-    renderer: &sylva_worker::trace::StripRenderer,
+    frame: &Frame,
     f: &RenderSettings,
     columns: &[(u32, u32)],
 ) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
@@ -378,8 +382,9 @@ pub fn render_columns(
     };
     let (mut image, mut own, mut out) = (blank(), blank(), 0);
     let mut per_sample = false;
+    let frame = frame.with_settings(*f);
     for &(x0, x1) in columns {
-        let s = renderer.render_strip(ctx, f, x0, x1)?;
+        let s = frame.strip(x0, x1)?;
         per_sample = !s.first_light.is_empty();
         for (k, p) in s.pixels.iter().enumerate() {
             let i = (k as u32 / s.width * width + out + k as u32 % s.width) as usize;

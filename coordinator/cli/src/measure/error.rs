@@ -4,7 +4,7 @@
 
 use sylva_scene::color::luminance;
 use sylva_scene::film::HdrImage;
-use sylva_worker::lighting::reference::ReferenceImage;
+use sylva_worker::frame::reference::ReferenceImage;
 
 /// The pixels whose error counts: at least half covered by a model in the
 /// reference's own samples, and lit.

@@ -1,0 +1,251 @@
+//! One frame on this GPU: the worker's composition function, which every
+//! caller uses (the gRPC `RenderStrip`, `sylva render`, `--lighting
+//! auto`'s pilot, `compare`, `bench`). In order, as pbrt-v4's `CPURender`
+//! composes its parts:
+//!
+//! 1. the frame's settings resolved once ([`RenderSettings::resolve`]);
+//! 2. the scene prepared for its lighting through a [`Preparer`], the
+//!    seam to whatever keeps preparations (the worker's memory and disk
+//!    caches, or [`Fresh`]: this process's one preparation);
+//! 3. the `ambient` methods' constant matched to the LB light
+//!    ([`ambient`]), once per frame shape where the preparer keeps it;
+//!
+//! and then what the frame is: strips of columns ([`Frame::strip`],
+//! [`Frame::strips`]), passes included, or the reference converged
+//! ([`Frame::reference`], [`reference`]). A [`Frame`] says what it cost
+//! ([`Frame::timings`]) and what was chosen (its prepared scene's
+//! backend, LB grids and envelopes).
+//!
+//! The lighting methods declare and prepare (`crate::lighting`); the
+//! tracer draws (`crate::trace`); this layer drives both. Its one
+//! circular dependency is the ambient match, a frame rendered to set up
+//! a frame: it uses the same strip renderer, at a quarter of the size.
+
+pub mod ambient;
+pub mod reference;
+
+use crate::prepare::{DiskSource, PreparedScene, Reuse, prepare_reusing};
+use crate::trace::{RenderSettings, RenderedStrip, Tracer};
+use reference::{ReferenceImage, ReferenceOptions, ReferenceStats};
+use std::sync::Arc;
+use std::time::Instant;
+use sylva_scene::frame::{AccelChoice, FrameSettings};
+use sylva_scene::sequence::View;
+use sylva_scene::{LightingMode, Scene};
+
+/// Where a frame's prepared scene comes from, and where matched ambient
+/// constants are kept: the seam between the frame layer and the caches.
+pub trait Preparer {
+    /// `scene`, seen under `view`'s sun, prepared for `lighting` with the
+    /// `accel` backend; `progress` hears each step.
+    fn prepared(
+        &mut self,
+        tracer: &Tracer,
+        scene: &Scene,
+        accel: AccelChoice,
+        lighting: LightingMode,
+        view: &View,
+        progress: &dyn Fn(&str),
+    ) -> anyhow::Result<Arc<PreparedScene>>;
+
+    /// The ambient constant matched before for a frame of this shape, if
+    /// kept (by default nothing is).
+    fn matched_ambient(&mut self, _key: &AmbientKey) -> Option<[f32; 3]> {
+        None
+    }
+
+    /// Keeps an ambient constant just matched (by default, forgotten).
+    fn keep_ambient(&mut self, _key: AmbientKey, _ambient: [f32; 3]) {}
+}
+
+/// What a matched ambient constant depends on besides the scene: the
+/// frame's shape, seed, LB weight, backend and view.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct AmbientKey(String);
+
+impl AmbientKey {
+    fn of(accel: AccelChoice, s: &RenderSettings) -> Self {
+        Self(format!(
+            "{accel:?}/{}x{}/{}/{}/{:?}",
+            s.width, s.height, s.seed, s.lb_strength, s.view
+        ))
+    }
+}
+
+/// This process's preparation: prepared once, reading what the disk cache
+/// holds of the scene where one is given ([`Fresh::with_disk`]), and
+/// leaving in [`Fresh::reuse`] what a next preparation of the same scene
+/// (another LB grid, another lighting) can take.
+#[derive(Default)]
+pub struct Fresh {
+    /// What was built, solved and chosen, for the next preparation and
+    /// for the disk cache ([`Reuse::keeper`]).
+    pub reuse: Reuse,
+}
+
+impl Fresh {
+    /// A preparation that reads the prepared-data cache first.
+    pub fn with_disk(disk: DiskSource) -> Self {
+        Self { reuse: Reuse { disk: Some(disk), ..Default::default() } }
+    }
+}
+
+impl Preparer for Fresh {
+    fn prepared(
+        &mut self,
+        tracer: &Tracer,
+        scene: &Scene,
+        accel: AccelChoice,
+        lighting: LightingMode,
+        view: &View,
+        progress: &dyn Fn(&str),
+    ) -> anyhow::Result<Arc<PreparedScene>> {
+        let viewed;
+        let scene = if view.sun().is_some() {
+            viewed = scene.with_view(view);
+            &viewed
+        } else {
+            scene
+        };
+        let p = prepare_reusing(tracer, scene, accel, lighting, &mut self.reuse, progress)?;
+        let found = self.reuse.found;
+        if found.accel || found.lb {
+            tracing::info!(
+                structures = found.accel,
+                lb = found.lb,
+                "prepared data read from the disk cache"
+            );
+        }
+        Ok(Arc::new(p))
+    }
+}
+
+/// A preparer that hands out one scene prepared before (the pilot's
+/// choice, a study's shared preparation).
+pub struct Given(pub Arc<PreparedScene>);
+
+impl Preparer for Given {
+    fn prepared(
+        &mut self,
+        _: &Tracer,
+        _: &Scene,
+        _: AccelChoice,
+        _: LightingMode,
+        _: &View,
+        _: &dyn Fn(&str),
+    ) -> anyhow::Result<Arc<PreparedScene>> {
+        Ok(self.0.clone())
+    }
+}
+
+/// A frame ready to trace on one GPU: its scene prepared, its settings
+/// resolved, its ambient matched.
+pub struct Frame {
+    tracer: Tracer,
+    /// The prepared scene (shared with the cache that keeps it).
+    pub prepared: Arc<PreparedScene>,
+    /// What the frame is rendered with.
+    pub settings: RenderSettings,
+    /// Milliseconds of each composition step (`prepare`, `ambient match`).
+    pub timings: Vec<(&'static str, f64)>,
+}
+
+impl Frame {
+    /// Composes the frame `request` asks of `scene`: settings resolved,
+    /// the scene prepared through `preparer`, the ambient matched (unless
+    /// the request gives it).
+    pub fn compose(
+        tracer: &Tracer,
+        scene: &Scene,
+        request: &FrameSettings,
+        preparer: &mut dyn Preparer,
+        progress: &dyn Fn(&str),
+    ) -> anyhow::Result<Self> {
+        let settings = RenderSettings::resolve(request, scene.lighting);
+        let t = Instant::now();
+        let prepared = preparer.prepared(
+            tracer,
+            scene,
+            request.accel,
+            settings.lighting,
+            &request.view,
+            progress,
+        )?;
+        let mut frame = Self::of(tracer, prepared, settings);
+        frame.timings.push(("prepare", ms(t)));
+        if settings.lighting.reads_matched_ambient() && request.ambient.is_none() {
+            let key = AmbientKey::of(request.accel, &settings);
+            frame.settings.ambient = match preparer.matched_ambient(&key) {
+                Some(a) => a,
+                None => {
+                    progress("matching the ambient constant to the LB image");
+                    let t = Instant::now();
+                    let a = ambient::matched(&frame.prepared.renderer, tracer, &settings)?;
+                    frame.timings.push(("ambient match", ms(t)));
+                    preparer.keep_ambient(key, a);
+                    a
+                }
+            };
+        }
+        Ok(frame)
+    }
+
+    /// A frame over a scene prepared before, rendered with `settings` as
+    /// they are (no ambient matched): a study's variant of a frame.
+    pub fn of(tracer: &Tracer, prepared: Arc<PreparedScene>, settings: RenderSettings) -> Self {
+        Self { tracer: tracer.clone(), prepared, settings, timings: Vec::new() }
+    }
+
+    /// This frame with other settings over the same preparation.
+    pub fn with_settings(&self, settings: RenderSettings) -> Self {
+        Self::of(&self.tracer, self.prepared.clone(), settings)
+    }
+
+    /// Columns `[x0, x1)`, with the passes the frame asks for.
+    pub fn strip(&self, x0: u32, x1: u32) -> anyhow::Result<RenderedStrip> {
+        self.prepared.renderer.render_strip(&self.tracer, &self.settings, x0, x1)
+    }
+
+    /// Every strip of `plan`, one after another, each handed to `sink`
+    /// with its milliseconds of rendering as soon as it is done.
+    pub fn strips(
+        &self,
+        plan: &[(u32, u32)],
+        sink: &mut dyn FnMut(RenderedStrip, f64) -> anyhow::Result<()>,
+    ) -> anyhow::Result<()> {
+        for &(x0, x1) in plan {
+            let t = Instant::now();
+            let s = self.strip(x0, x1)?;
+            sink(s, ms(t))?;
+        }
+        Ok(())
+    }
+
+    /// The frame's columns `ranges` (the whole frame: `&[(0, width)]`)
+    /// path traced in batches until `opts` says it has converged:
+    /// progressively, `progress` hearing each batch.
+    pub fn reference(
+        &self,
+        ranges: &[(u32, u32)],
+        opts: &ReferenceOptions,
+        progress: &dyn Fn(&ReferenceStats),
+    ) -> anyhow::Result<ReferenceImage> {
+        reference::render_reference_columns(
+            &self.tracer,
+            &self.prepared.renderer,
+            &self.settings,
+            ranges,
+            opts,
+            progress,
+        )
+    }
+
+    /// The GPU the frame traces on.
+    pub fn tracer(&self) -> &Tracer {
+        &self.tracer
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}

@@ -1,0 +1,213 @@
+//! The render kernels and the cache that keeps them: compiled once per
+//! process and device, not once per prepared scene (a driver's compiled
+//! code is costly to make and, on lavapipe, is not all given back when a
+//! pipeline is dropped). [`Tracer`] is a GPU with its kernel cache: what
+//! everything that traces takes.
+
+use super::gpu_scene::{GpuScene, accel_kind};
+use super::render::render_source;
+use crate::gpu::GpuContext;
+use crate::lighting::Kernel;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+use sylva_proto::sync::lock;
+use sylva_scene::frame::Backend;
+
+/// A GPU and the render kernels compiled on it (cheap to clone: both are
+/// shared handles). It dereferences to its [`GpuContext`], so whatever
+/// takes a GPU takes a tracer too.
+#[derive(Clone)]
+pub struct Tracer {
+    /// The device.
+    pub gpu: GpuContext,
+    /// The render kernels compiled on it so far.
+    pub kernels: KernelCache,
+}
+
+impl Tracer {
+    /// Opens the highest-performance adapter, with an empty kernel cache.
+    pub fn new() -> anyhow::Result<Self> {
+        Ok(GpuContext::new()?.into())
+    }
+}
+
+impl From<GpuContext> for Tracer {
+    fn from(gpu: GpuContext) -> Self {
+        Self { gpu, kernels: KernelCache::default() }
+    }
+}
+
+impl std::ops::Deref for Tracer {
+    type Target = GpuContext;
+    fn deref(&self) -> &GpuContext {
+        &self.gpu
+    }
+}
+
+/// Kernels by (`ACCEL_KIND`, clouds), shared by every scene of a device:
+/// scenes' bind-group layouts are alike, and wgpu gives alike layouts one
+/// identity, so a kernel built for one scene binds every other.
+#[derive(Clone, Default)]
+pub struct KernelCache(Arc<Mutex<HashMap<KernelKey, Arc<Kernels>>>>);
+
+/// What a kernel is specialised for: `ACCEL_KIND` and whether it draws clouds.
+type KernelKey = (u32, bool);
+
+impl KernelCache {
+    /// The render kernels for a backend, with or without clouds: compiled
+    /// on first use and kept. A preparation calls it early, on a thread of
+    /// its own, so compiling overlaps its other work.
+    pub fn get(
+        &self,
+        ctx: &GpuContext,
+        backend: Backend,
+        clouds: bool,
+    ) -> anyhow::Result<Arc<Kernels>> {
+        let key = (accel_kind(backend), clouds);
+        if let Some(k) = lock(&self.0).get(&key) {
+            return Ok(k.clone());
+        }
+        // Kept only once compiled without an error.
+        let k = ctx.checked("building the render pipeline", || {
+            Ok(Arc::new(Kernels::compile(ctx, backend, clouds)))
+        })?;
+        lock(&self.0).insert(key, k.clone());
+        Ok(k)
+    }
+}
+
+/// The render kernels for one specialisation (structure, clouds): one
+/// pipeline per lighting family (direct methods, reference, Boulanger),
+/// and the frame's bind-group layout; the light-split variants and the
+/// guides' kernel are compiled on first use.
+pub struct Kernels {
+    pipelines: [wgpu::ComputePipeline; 3],
+    /// The frame's bind-group layout (group 1).
+    pub(super) layout: wgpu::BindGroupLayout,
+    /// The same kernels writing the light split too (`SPLIT`), compiled
+    /// on the first frame with passes.
+    split: OnceLock<[wgpu::ComputePipeline; 3]>,
+    /// The guide passes' kernel, compiled on the first frame that asks.
+    guides: OnceLock<wgpu::ComputePipeline>,
+    module: wgpu::ShaderModule,
+    pipeline_layout: wgpu::PipelineLayout,
+    constants: Vec<(&'static str, f64)>,
+}
+
+impl Kernels {
+    /// Compiles the render kernels for a backend and clouds.
+    fn compile(ctx: &GpuContext, backend: Backend, clouds: bool) -> Self {
+        let device = &ctx.device;
+        let module = ctx.trusted_module("render", render_source(backend));
+        let scene_layout = GpuScene::layout_for(device, backend);
+        let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("frame"),
+            entries: &[
+                entry(0, wgpu::BufferBindingType::Uniform),
+                entry(1, wgpu::BufferBindingType::Storage { read_only: false }),
+                entry(2, wgpu::BufferBindingType::Storage { read_only: false }),
+            ],
+        });
+        let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("render"),
+            bind_group_layouts: &[Some(&scene_layout), Some(&layout)],
+            immediate_size: 0,
+        });
+        let constants = vec![
+            ("ACCEL_KIND", accel_kind(backend) as f64),
+            ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
+        ];
+        let pipelines = Kernel::ALL
+            .map(|kernel| render_pipeline(device, &module, &pl, &constants, kernel, false));
+        Kernels {
+            pipelines,
+            layout,
+            split: OnceLock::new(),
+            guides: OnceLock::new(),
+            module,
+            pipeline_layout: pl,
+            constants,
+        }
+    }
+
+    /// The kernel of `kernel`'s family, writing the light split or not
+    /// (those compiled once, on first use).
+    pub(super) fn render(
+        &self,
+        ctx: &GpuContext,
+        kernel: Kernel,
+        split: bool,
+    ) -> anyhow::Result<&wgpu::ComputePipeline> {
+        if !split {
+            return Ok(&self.pipelines[kernel as usize]);
+        }
+        if self.split.get().is_none() {
+            let built = ctx.checked("building the light split's kernels", || {
+                Ok(Kernel::ALL.map(|kernel| {
+                    render_pipeline(
+                        &ctx.device,
+                        &self.module,
+                        &self.pipeline_layout,
+                        &self.constants,
+                        kernel,
+                        true,
+                    )
+                }))
+            })?;
+            let _ = self.split.set(built);
+        }
+        Ok(&self.split.get().expect("just built")[kernel as usize])
+    }
+
+    /// The guide passes' kernel: compiled once, on first use.
+    pub(super) fn guides(&self, ctx: &GpuContext) -> anyhow::Result<&wgpu::ComputePipeline> {
+        if let Some(p) = self.guides.get() {
+            return Ok(p);
+        }
+        let p = ctx.checked("building the guide passes' kernel", || {
+            Ok(ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("guides"),
+                layout: Some(&self.pipeline_layout),
+                module: &self.module,
+                entry_point: Some("render_guides"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &self.constants,
+                    ..Default::default()
+                },
+                cache: None,
+            }))
+        })?;
+        Ok(self.guides.get_or_init(|| p))
+    }
+}
+
+/// One render kernel: a lighting family, with or without the split.
+fn render_pipeline(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    layout: &wgpu::PipelineLayout,
+    constants: &[(&'static str, f64)],
+    kernel: Kernel,
+    split: bool,
+) -> wgpu::ComputePipeline {
+    let mut c = constants.to_vec();
+    c.push(("LIGHTING_FAMILY", kernel as u32 as f64));
+    c.push(("SPLIT", if split { 1.0 } else { 0.0 }));
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some("render"),
+        layout: Some(layout),
+        module,
+        entry_point: Some("render_strip"),
+        compilation_options: wgpu::PipelineCompilationOptions {
+            constants: &c,
+            ..Default::default()
+        },
+        cache: None,
+    })
+}
