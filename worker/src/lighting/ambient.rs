@@ -3,7 +3,7 @@
 //! paper's Figure 2c). It needs the LB solve to match against; the frame
 //! layer matches it (`crate::frame::ambient`).
 
-use super::{Kernel, Method, Needs};
+use super::method::{Kernel, Method, Needs};
 use sylva_proto::pb;
 use sylva_scene::LightingMode;
 

@@ -3,7 +3,7 @@
 //! Prepares each model's envelope (`sylva_light::boulanger`); its render
 //! kernel is the direct one with the envelope terms compiled in.
 
-use super::{Kernel, Method, Needs};
+use super::method::{Kernel, Method, Needs};
 use serde::Serialize;
 use std::sync::Arc;
 use sylva_light::boulanger::LeafEnvelope;

@@ -11,7 +11,7 @@
 //! far end's term; the filter over the gathers' indirect light is the
 //! tracer's (`crate::trace::filter`).
 
-use super::{Kernel, Method, Needs};
+use super::method::{Kernel, Method, Needs};
 use sylva_proto::pb;
 use sylva_scene::LightingMode;
 

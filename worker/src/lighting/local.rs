@@ -2,7 +2,7 @@
 //! leaves, and the open sky on the ground; no light scattered between
 //! leaves. Nothing to prepare beyond the geometry.
 
-use super::{Kernel, Method, Needs};
+use super::method::{Kernel, Method, Needs};
 use sylva_proto::pb;
 use sylva_scene::LightingMode;
 

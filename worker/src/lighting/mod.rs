@@ -1,4 +1,5 @@
-//! The lighting methods, one module each. A method declares here what it
+//! The lighting methods, one module each. Each declares (the interface is
+//! [`method`]) what it
 //! prepares before tracing and which render kernel draws it; `prepare`
 //! and the strip renderer read only these declarations, and the WGSL
 //! constants that name the methods are generated from them.
@@ -19,65 +20,11 @@ pub mod clouds;
 pub mod gather;
 pub mod lb;
 pub mod local;
+pub mod method;
 pub mod reference;
 
+pub use method::{Kernel, Method, Needs};
 use sylva_scene::LightingMode;
-
-/// The render kernel a method runs: one WGSL source, specialized per
-/// kernel by the `LIGHTING_FAMILY` override, so a pipeline compiles only
-/// the code it runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Kernel {
-    /// One pass of direct light plus a per-frame indirect term.
-    Direct = 0,
-    /// One path per invocation, each sample to its own slot: the
-    /// reference, and the gathers (its paths, truncated).
-    Reference = 1,
-    /// The direct kernel with Boulanger's envelope terms compiled in.
-    Boulanger = 2,
-}
-
-impl Kernel {
-    /// Every kernel, by its index.
-    pub const ALL: [Kernel; 3] = [Kernel::Direct, Kernel::Reference, Kernel::Boulanger];
-
-    fn wgsl_name(self) -> &'static str {
-        match self {
-            Kernel::Direct => "KERNEL_DIRECT",
-            Kernel::Reference => "KERNEL_REFERENCE",
-            Kernel::Boulanger => "KERNEL_BOULANGER",
-        }
-    }
-}
-
-/// What a method needs prepared before it can trace: the one statement of
-/// it. Methods that need the same share a prepared scene (the worker's
-/// cache is keyed on this).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct Needs {
-    /// The LB light of each model and of the forest.
-    pub lb: bool,
-    /// Boulanger's leaf envelopes.
-    pub envelopes: bool,
-    /// The clouds' density and LB light.
-    pub clouds: bool,
-}
-
-/// One lighting method as the worker runs it.
-#[derive(Clone, Copy, Debug)]
-pub struct Method {
-    /// Which method.
-    pub mode: LightingMode,
-    /// The value of `frame.lighting` the render kernel branches on: the
-    /// method's number on the wire (`pb::Lighting`), so there is one numbering.
-    pub code: u32,
-    /// The WGSL constant naming `code`.
-    pub wgsl: &'static str,
-    /// The kernel that draws it.
-    pub kernel: Kernel,
-    /// What it prepares.
-    pub needs: Needs,
-}
 
 /// The method that renders `mode`.
 pub fn method(mode: LightingMode) -> &'static Method {

@@ -2,7 +2,7 @@
 //! path per invocation. The frame layer runs it progressively until the
 //! image's own error estimate is small enough (`crate::frame::reference`).
 
-use super::{Kernel, Method, Needs};
+use super::method::{Kernel, Method, Needs};
 use sylva_proto::pb;
 use sylva_scene::LightingMode;
 

@@ -3,12 +3,30 @@
 //! estimates of the same light. The strip renderer runs it over the
 //! per-sample kernel's means before cropping a strip to its columns.
 
-use super::{RenderSettings, SampleMeans};
-use sylva_scene::LightingMode;
-
-/// Whether a frame is a gather whose indirect light is filtered.
-pub fn filtered(f: &RenderSettings) -> bool {
-    matches!(f.lighting, LightingMode::Gather | LightingMode::GatherAmbient) && f.gather_filter > 0
+/// Per pixel, the means over its samples of the per-sample kernel's four
+/// images (`reference.wgsl`'s `reference_sample`).
+pub struct SampleMeans {
+    /// The paths' radiance, and the fraction of samples that hit a model.
+    pub paths: Vec<[f32; 4]>,
+    /// What `local` shows along the same camera rays, and the first
+    /// surface's distance (0 for samples that see the sky).
+    pub first: Vec<[f32; 4]>,
+    /// The albedo a diffuse field sees at the first surface, and the
+    /// fraction of samples that hit a surface (model or ground).
+    pub guide: Vec<[f32; 4]>,
+    /// The indirect light of the samples whose first event is a surface
+    /// (0 for the rest: the sky's, or a cloud's light before any surface):
+    /// `paths − first` without what clouds add in front of or behind the
+    /// surfaces. The fourth value is unused.
+    pub surface_indirect: Vec<[f32; 4]>,
+    /// Per channel, the variance of the mean of `surface_indirect` from
+    /// its samples' spread; 0 with one sample.
+    pub indirect_variance: Vec<[f32; 3]>,
+    /// With passes (empty otherwise): the sun's light off the first
+    /// surface, and the sky seen directly (docs/passes.md).
+    pub direct: Vec<[f32; 3]>,
+    /// ... and the sky seen directly.
+    pub sky: Vec<[f32; 3]>,
 }
 
 /// The depth range, in metres, within which two pixels' first surfaces

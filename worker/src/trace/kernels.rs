@@ -5,13 +5,16 @@
 //! everything that traces takes.
 
 use super::gpu_scene::{GpuScene, accel_kind};
-use super::render::render_source;
+use super::shaders::tracer_source;
 use crate::gpu::GpuContext;
-use crate::lighting::Kernel;
+use crate::lighting::{self, Kernel};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock};
 use sylva_proto::sync::lock;
 use sylva_scene::frame::Backend;
+
+/// The render kernels' own WGSL (`shaders/trace/render.wgsl`).
+const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
 
 /// A GPU and the render kernels compiled on it (cheap to clone: both are
 /// shared handles). It dereferences to its [`GpuContext`], so whatever
@@ -210,4 +213,18 @@ fn render_pipeline(
         },
         cache: None,
     })
+}
+
+/// The whole render module: scene, traversal, the direct methods and the
+/// reference integrator.
+pub fn render_source(backend: Backend) -> String {
+    tracer_source(
+        &format!(
+            "{}\n{SOURCE}\n{}\n{}",
+            lighting::wgsl_constants(),
+            lighting::reference::WGSL,
+            lighting::boulanger::WGSL
+        ),
+        backend,
+    )
 }

@@ -14,15 +14,14 @@ mod rq;
 mod shaders;
 
 pub use choose::{BackendChoice, ProbeTime, candidates, choose};
+pub use filter::SampleMeans;
 pub use gpu_scene::{
     GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, SceneLight,
     SceneStructure,
 };
-pub use kernels::{KernelCache, Kernels, Tracer};
+pub use kernels::{KernelCache, Kernels, Tracer, render_source};
 pub use raycast::{GpuHit, GpuRay, RayCaster};
 pub use render::MAX_BOUNCES;
-pub use render::{
-    FrameUniform, GpuRayCounts, RenderSettings, RenderedStrip, SampleMeans, StripRenderer,
-};
+pub use render::{FrameUniform, GpuRayCounts, RenderSettings, RenderedStrip, StripRenderer};
 pub use rq::RqStructures;
 pub use shaders::tracer_source;

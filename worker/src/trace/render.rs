@@ -1,9 +1,9 @@
 //! The strip renderer: one compute dispatch renders columns `[x0, x1)` of
 //! the frame and reads them back as linear HDR.
 
+use super::filter::SampleMeans;
 use super::gpu_scene::GpuScene;
 use super::kernels::{Kernels, Tracer};
-use super::shaders::tracer_source;
 use crate::gpu::GpuContext;
 use crate::lighting::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
@@ -16,7 +16,6 @@ use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
 use wgpu::util::DeviceExt;
 
-const SOURCE: &str = include_str!("../../../shaders/trace/render.wgsl");
 /// Bytes one sample of the per-sample kernel writes per pixel: four
 /// images of four floats (the path, `local` along it, the first
 /// surface's guides and its indirect light; `reference.wgsl`'s
@@ -148,6 +147,12 @@ impl RenderSettings {
             passes: frame.passes,
         }
     }
+
+    /// Whether the frame is a gather whose indirect light is filtered.
+    pub fn gather_filtered(&self) -> bool {
+        matches!(self.lighting, LightingMode::Gather | LightingMode::GatherAmbient)
+            && self.gather_filter > 0
+    }
 }
 
 /// The GPU's ray counters for one strip: 32-bit atomics, as WGSL has them.
@@ -192,32 +197,6 @@ pub struct RenderedStrip {
     pub rays: RayCounts,
     /// The passes the frame asked for beside the image, if any.
     pub passes: Option<PassImage>,
-}
-
-/// Per pixel, the means over its samples of the per-sample kernel's four
-/// images (`reference.wgsl`'s `reference_sample`).
-pub struct SampleMeans {
-    /// The paths' radiance, and the fraction of samples that hit a model.
-    pub paths: Vec<[f32; 4]>,
-    /// What `local` shows along the same camera rays, and the first
-    /// surface's distance (0 for samples that see the sky).
-    pub first: Vec<[f32; 4]>,
-    /// The albedo a diffuse field sees at the first surface, and the
-    /// fraction of samples that hit a surface (model or ground).
-    pub guide: Vec<[f32; 4]>,
-    /// The indirect light of the samples whose first event is a surface
-    /// (0 for the rest: the sky's, or a cloud's light before any surface):
-    /// `paths − first` without what clouds add in front of or behind the
-    /// surfaces. The fourth value is unused.
-    pub surface_indirect: Vec<[f32; 4]>,
-    /// Per channel, the variance of the mean of `surface_indirect` from
-    /// its samples' spread; 0 with one sample.
-    pub indirect_variance: Vec<[f32; 3]>,
-    /// With passes (empty otherwise): the sun's light off the first
-    /// surface, and the sky seen directly (docs/passes.md).
-    pub direct: Vec<[f32; 3]>,
-    /// ... and the sky seen directly.
-    pub sky: Vec<[f32; 3]>,
 }
 
 /// The render pipeline over one uploaded scene.
@@ -297,7 +276,7 @@ impl StripRenderer {
         // The gathers' filter reads `radius` columns beyond the strip on
         // each side (the same samples whichever strip renders them), so a
         // frame is the same however it is cut.
-        let radius = if super::filter::filtered(f) { f.gather_filter } else { 0 };
+        let radius = if f.gather_filtered() { f.gather_filter } else { 0 };
         let (a0, a1) = (x0.saturating_sub(radius), (x1 + radius).min(f.width));
         let uniform = FrameUniform {
             aspect: f.width as f32 / f.height as f32,
@@ -609,20 +588,6 @@ impl StripRenderer {
             *bytemuck::from_bytes(&ctx.read_back(&counters, size_of::<GpuRayCounts>() as u64)?);
         Ok((bytemuck::cast_slice(&raw).to_vec(), counts))
     }
-}
-
-/// The whole render module: scene, traversal, the direct methods and the
-/// reference integrator.
-pub fn render_source(backend: sylva_scene::frame::Backend) -> String {
-    tracer_source(
-        &format!(
-            "{}\n{SOURCE}\n{}\n{}",
-            lighting::wgsl_constants(),
-            lighting::reference::WGSL,
-            lighting::boulanger::WGSL
-        ),
-        backend,
-    )
 }
 
 /// How far secondary rays start off the surface they leave: a millimetre,

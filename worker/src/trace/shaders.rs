@@ -92,7 +92,7 @@ mod tests {
     fn ray_casting_and_render_modules_are_valid_wgsl() {
         for backend in [Backend::Bvh, Backend::Rq] {
             validate(&tracer_source(include_str!("../../../shaders/trace/rays.wgsl"), backend));
-            validate(&crate::trace::render::render_source(backend));
+            validate(&crate::trace::kernels::render_source(backend));
         }
     }
 
@@ -102,7 +102,7 @@ mod tests {
         use crate::trace::{
             FrameUniform, GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuTexture, GpuTriangle,
         };
-        let m = validate(&crate::trace::render::render_source(Backend::Bvh));
+        let m = validate(&crate::trace::kernels::render_source(Backend::Bvh));
         let size_of_struct = |name: &str| -> u32 {
             let (_, ty) = m
                 .types

@@ -674,7 +674,7 @@ fn render_method(
         "boulanger": prepared.boulanger,
         "ambient": settings.ambient,
         "spp": settings.spp,
-        "gather_filter": if sylva_worker::trace::filter::filtered(&settings) { json!(settings.gather_filter) } else { serde_json::Value::Null },
+        "gather_filter": if settings.gather_filtered() { json!(settings.gather_filter) } else { serde_json::Value::Null },
         "gather_bounces": if sylva_worker::lighting::method(lighting).kernel == sylva_worker::lighting::Kernel::Reference { json!(settings.gather_bounces) } else { serde_json::Value::Null },
         "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
     });

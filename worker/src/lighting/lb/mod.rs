@@ -10,7 +10,7 @@
 pub mod auto;
 pub mod forest;
 
-use super::{Kernel, Method, Needs};
+use super::method::{Kernel, Method, Needs};
 use crate::gpu::GpuContext;
 use crate::lb::GpuSolver;
 use forest::GroundLight;
