@@ -1,8 +1,9 @@
-//! The lighting methods, one module each. Each declares (the interface is
-//! [`method`]) what it
-//! prepares before tracing and which render kernel draws it; `prepare`
-//! and the strip renderer read only these declarations, and the WGSL
-//! constants that name the methods are generated from them.
+//! The lighting methods, one module each. Each declares (through the
+//! interface in [`method`](mod@method)) what it prepares before tracing
+//! and which render kernel draws it; [`method()`] picks one by mode.
+//! `prepare` and the strip renderer read only these declarations, and the
+//! WGSL constants that name the methods are generated from them. The frame
+//! layer (`crate::frame`) drives them: a method never runs the renderer.
 //!
 //! - [`local`]: the direct sun alone.
 //! - [`ambient`]: direct sun plus a constant matched to the LB light.
