@@ -113,7 +113,7 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
         &access,
         &Default::default(),
     )?)?;
-    let spec = super::render::job_spec(
+    let spec = super::spec::job_spec(
         &frame,
         &views,
         a.schedule,

@@ -16,6 +16,7 @@ mod pilot;
 mod progress;
 mod render;
 mod scene;
+mod spec;
 mod users;
 mod worker;
 

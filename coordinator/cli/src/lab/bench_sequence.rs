@@ -11,7 +11,7 @@
 
 use crate::flags::bench_sequence::*;
 use crate::loopback::LoopbackProcesses;
-use crate::render::job_spec;
+use crate::spec::job_spec;
 use anyhow::Context;
 use serde_json::json;
 use std::time::Instant;
