@@ -56,7 +56,7 @@ pub fn encode_exr(img: &HdrImage) -> anyhow::Result<Vec<u8>> {
 /// The beauty image of an EXR this module (or, with passes,
 /// [`sylva_scene::passes::encode_layers`]) wrote, read back.
 pub fn decode_exr(bytes: &[u8]) -> anyhow::Result<HdrImage> {
-    sylva_scene::passes::ExrLayers::read(bytes)?.beauty()
+    Ok(sylva_scene::passes::ExrLayers::read(bytes)?.beauty()?)
 }
 
 /// Writes `bytes` to `path` whole or not at all: a crash leaves the old

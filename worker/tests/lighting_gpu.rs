@@ -179,7 +179,8 @@ fn boulanger_square_matches_the_cpu(material: &str) {
 
     use glam::Vec3;
     use sylva_light::boulanger::{
-        bsdf, directions, precompute, shade, shade_wood, sky_radiance_per_direction, sun_terms,
+        ChannelLight, bsdf, directions, precompute, shade, shade_wood, sky_radiance_per_direction,
+        sun_terms,
     };
     let model = &scene.models[0].model;
     let env = precompute(model);
@@ -211,16 +212,15 @@ fn boulanger_square_matches_the_cpu(material: &str) {
             scene.ground.as_ref().unwrap().color[c] * scene.sun.radiance[c] * scene.sun.towards.y;
         let sky_c: [f32; 8] =
             std::array::from_fn(|j| sky_c[j] + if lit(j) { ground_sun } else { 0.0 });
+        let light = ChannelLight { env: &env, terms: &terms, e_sun, sky: &sky_c };
         // The direct sun is the tracer's, unshadowed here: the BSDF times the sun's irradiance.
         let (lo_sky, lo_ind, sun) = if material == "leaf" {
-            let (lo_sky, _, lo_ind) =
-                shade(&env, &terms, 0, Vec3::Z, Vec3::Z, coeffs, e_sun, &sky_c);
+            let (lo_sky, _, lo_ind) = shade(&light, 0, Vec3::Z, Vec3::Z, coeffs);
             (lo_sky, lo_ind, bsdf(Vec3::Z, Vec3::Z, coeffs, scene.sun.towards) * e_sun)
         } else {
             // No leaves: nothing bounces onto the bark, and nothing shades its sky.
             assert_eq!((env.leaves, env.tau), (0, 0.0));
-            let (lo_sky, lo_ind) =
-                shade_wood(&env, &terms, 0, Vec3::Z, albedo[c], [0.0; 4], e_sun, &sky_c);
+            let (lo_sky, lo_ind) = shade_wood(&light, 0, Vec3::Z, albedo[c], [0.0; 4]);
             let sun = albedo[c] * Vec3::Z.dot(scene.sun.towards).max(0.0) * scene.sun.radiance[c];
             (lo_sky, lo_ind, sun)
         };

@@ -2,7 +2,7 @@
 //! the short-stack algorithm of Horn et al. 2007: a stack of five entries;
 //! when it underflows, restart from the root past the last leaf's exit.
 
-use super::{Aabb, Ray};
+use super::{Aabb, Error, Ray};
 use bytemuck::{Pod, Zeroable};
 
 /// One node, as the GPU reads it (16 bytes). `axis` 0–2 marks an inner
@@ -52,15 +52,15 @@ impl KdTree {
     /// every inner node's children lie after it (so walks end), splits are
     /// finite, leaves hold primitives inside `prims`, and every primitive
     /// index is below `primitives`.
-    pub fn check(&self, primitives: usize) -> Result<(), String> {
+    pub fn check(&self, primitives: usize) -> crate::Result<()> {
         if let Some(p) = self.prims.iter().find(|&&p| p as usize >= primitives) {
-            return Err(format!("primitive {p} of a model with {primitives}"));
+            return Err(Error::Malformed(format!("primitive {p} of a model with {primitives}")));
         }
         let finite = |v: glam::Vec3| v.is_finite();
         if self.nodes.is_empty()
             || !(finite(self.bounds.min) && finite(self.bounds.max) || self.bounds.is_empty())
         {
-            return Err("no root, or bounds that are not finite".into());
+            return Err(Error::Malformed("no root, or bounds that are not finite".into()));
         }
         for (i, n) in self.nodes.iter().enumerate() {
             let ok = match n.axis {
@@ -74,14 +74,14 @@ impl KdTree {
                 _ => false,
             };
             if !ok {
-                return Err(format!(
+                return Err(Error::Malformed(format!(
                     "node {i} (axis {}, first {}, count {}) does not fit a tree of {} nodes and {} slots",
                     n.axis,
                     n.first,
                     n.count,
                     self.nodes.len(),
                     self.prims.len()
-                ));
+                )));
             }
         }
         Ok(())

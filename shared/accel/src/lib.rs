@@ -23,12 +23,14 @@
 mod aabb;
 pub mod bvh;
 pub mod coverage;
+mod error;
 pub mod kdtree;
 pub mod triangle;
 pub mod two_level;
 
 pub use aabb::Aabb;
 pub use bvh::{Bvh, BvhNode};
+pub use error::{Error, Result};
 pub use kdtree::{KdNode, KdTree};
 pub use two_level::{SceneAccel, SceneHit};
 
@@ -112,7 +114,7 @@ impl Accel {
 
     /// Checks a structure built elsewhere over `primitives` primitives
     /// before any walk ([`Bvh::check`], [`KdTree::check`]).
-    pub fn check(&self, primitives: usize) -> Result<(), String> {
+    pub fn check(&self, primitives: usize) -> crate::Result<()> {
         match self {
             Accel::Kd(k) => k.check(primitives),
             Accel::Bvh(b) => b.check(primitives),

@@ -4,7 +4,7 @@
 
 use super::coverage::{Coverage, triangle_coverage};
 use super::triangle::{TriangleRecord, intersect};
-use super::{Aabb, Accel, AccelKind, Ray};
+use super::{Aabb, Accel, AccelKind, Error, Ray};
 use glam::{Affine3A, Vec2, Vec3};
 use rayon::prelude::*;
 use sylva_scene::Scene;
@@ -63,6 +63,23 @@ pub struct InstancePart {
     pub pad: u32,
 }
 
+/// What [`SceneAccel::model_closest`] looks for along a ray in model
+/// space: the closest opaque hit in `(t_min, t_max)`, or with `any` the
+/// first found; without `alpha` every triangle counts as opaque.
+#[derive(Clone, Copy, Debug)]
+pub struct ModelQuery<'a> {
+    /// The ray, in the model's space.
+    pub ray: &'a Ray,
+    /// Hits at or before this distance are ignored.
+    pub t_min: f32,
+    /// Hits at or past this distance are ignored.
+    pub t_max: f32,
+    /// Stop at the first hit found (shadow rays).
+    pub any: bool,
+    /// Test alpha-masked triangles' textures.
+    pub alpha: bool,
+}
+
 impl SceneAccel {
     /// Builds both levels (the models' in parallel).
     pub fn build(scene: &Scene, kind: AccelKind) -> Self {
@@ -90,20 +107,19 @@ impl SceneAccel {
     /// worker's, received over the wire, the costly part of [`Self::build`]):
     /// each is checked against its model first; the triangle records, the
     /// instance parts and the top level are derived here as `build` does.
-    pub fn from_models(scene: &Scene, kind: AccelKind, models: Vec<Accel>) -> Result<Self, String> {
+    pub fn from_models(scene: &Scene, kind: AccelKind, models: Vec<Accel>) -> crate::Result<Self> {
         if models.len() != scene.models.len() {
-            return Err(format!(
-                "{} model structures for a scene of {} models",
-                models.len(),
-                scene.models.len()
-            ));
+            return Err(Error::ModelCount { given: models.len(), models: scene.models.len() });
         }
         for (i, (a, m)) in models.iter().zip(&scene.models).enumerate() {
             if a.kind() != kind {
-                return Err(format!("model {i}: a {:?} where a {kind:?} was asked for", a.kind()));
+                return Err(Error::WrongKind { model: i, got: a.kind(), want: kind });
             }
-            a.check(m.model.triangle_count())
-                .map_err(|e| format!("model {i} ({}): {e}", m.name))?;
+            a.check(m.model.triangle_count()).map_err(|e| Error::Model {
+                model: i,
+                name: m.name.clone(),
+                error: Box::new(e),
+            })?;
         }
         let coverage = scene.models.par_iter().map(|m| triangle_coverage(&m.model)).collect();
         Ok(Self::around(scene, kind, models, coverage))
@@ -202,16 +218,8 @@ impl SceneAccel {
         self.top_level(ray, t_min, t_max, &mut |inst, start, limit| {
             let m = scene.instances[inst as usize].model as usize;
             let local = self.local_ray(inst, ray);
-            let (tri, t, u, v) = self.model_closest(
-                m,
-                &scene.models[m].model,
-                start,
-                &local,
-                t_min,
-                limit,
-                false,
-                alpha,
-            )?;
+            let q = ModelQuery { ray: &local, t_min, t_max: limit, any: false, alpha };
+            let (tri, t, u, v) = self.model_closest(m, &scene.models[m].model, start, &q)?;
             best = Some(SceneHit { instance: inst, triangle: tri, t, u, v });
             Some(t)
         });
@@ -225,9 +233,8 @@ impl SceneAccel {
         self.top_level(ray, t_min, t_max, &mut |inst, start, limit| {
             let m = scene.instances[inst as usize].model as usize;
             let local = self.local_ray(inst, ray);
-            found |= self
-                .model_closest(m, &scene.models[m].model, start, &local, t_min, limit, true, true)
-                .is_some();
+            let q = ModelQuery { ray: &local, t_min, t_max: limit, any: true, alpha: true };
+            found |= self.model_closest(m, &scene.models[m].model, start, &q).is_some();
             // An empty interval: nothing more is in reach.
             found.then_some(f32::NEG_INFINITY)
         });
@@ -280,22 +287,17 @@ impl SceneAccel {
         }
     }
 
-    /// The closest opaque hit on model `m` in `(t_min, t_max)`:
-    /// `(triangle, t, u, v)`; with `any`, the first found; without `alpha`,
-    /// every triangle it holds counts as opaque. A BVH is walked
-    /// from `start` (an [`InstancePart`]'s entry; `(0, 0)` is the root).
-    #[allow(clippy::too_many_arguments)]
+    /// The closest opaque hit on model `m` that `query` asks for:
+    /// `(triangle, t, u, v)`. A BVH is walked from `start` (an
+    /// [`InstancePart`]'s entry; `(0, 0)` is the root).
     pub fn model_closest(
         &self,
         m: usize,
         model: &Model,
         start: (u32, u32),
-        ray: &Ray,
-        t_min: f32,
-        t_max: f32,
-        any: bool,
-        alpha: bool,
+        query: &ModelQuery,
     ) -> Option<(u32, f32, f32, f32)> {
+        let ModelQuery { ray, t_min, t_max, any, alpha } = *query;
         let mut found = None;
         match &self.models[m] {
             Accel::Bvh(bvh) => {

@@ -18,6 +18,7 @@
 //! ```
 
 pub mod boulanger;
+mod error;
 pub mod lb;
 pub mod montecarlo;
 pub mod npy;
@@ -25,3 +26,5 @@ pub mod shapes;
 pub mod studies;
 pub mod visualize;
 pub mod voxel;
+
+pub use error::{Error, Result};

@@ -2,7 +2,7 @@
 //! `(Z, Y, X)` for one grid and `(C, Z, Y, X)` for per-channel results.
 
 use crate::lb::{GridDims, MediumGrid, NodeClass};
-use anyhow::{Context, bail};
+use crate::{Error, Result};
 use npyz::WriterBuilder;
 use std::fs::File;
 use std::io::{BufReader, BufWriter};
@@ -10,43 +10,48 @@ use std::path::Path;
 
 /// Reads a density grid: float32, shape `(Z, Y, X)`, values in [0, 1];
 /// every node gets `class`.
-pub fn read_density(path: &Path, class: NodeClass) -> anyhow::Result<MediumGrid> {
-    let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
-    let npy = npyz::NpyFile::new(BufReader::new(file))
-        .with_context(|| format!("{}: not a .npy file", path.display()))?;
+pub fn read_density(path: &Path, class: NodeClass) -> Result<MediumGrid> {
+    let file_error = |what, error| Error::File { path: path.to_path_buf(), what, error };
+    let format_error = |message| Error::Format { path: path.to_path_buf(), message };
+    let file = File::open(path).map_err(|e| file_error("cannot open", e))?;
+    let npy =
+        npyz::NpyFile::new(BufReader::new(file)).map_err(|e| file_error("not a .npy file", e))?;
     let shape = npy.shape().to_vec();
     if shape.len() != 3 {
-        bail!("{}: density grid must have shape (Z, Y, X), got {shape:?}", path.display());
+        return Err(format_error(format!("density grid must have shape (Z, Y, X), got {shape:?}")));
     }
     if npy.order() != npyz::Order::C {
-        bail!(
-            "{}: density grid must be in C order (numpy's default), not Fortran order",
-            path.display()
-        );
+        return Err(format_error(
+            "density grid must be in C order (numpy's default), not Fortran order".into(),
+        ));
     }
     let dtype = npy.dtype();
     let is_f32 = matches!(&dtype, npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4);
     if !is_f32 {
-        bail!("{}: density grid must be float32, got {}", path.display(), dtype.descr());
+        return Err(format_error(format!("density grid must be float32, got {}", dtype.descr())));
     }
     let dims = GridDims { nz: shape[0] as usize, ny: shape[1] as usize, nx: shape[2] as usize };
-    let density: Vec<f32> = npy
-        .into_vec()
-        .with_context(|| format!("{}: truncated or unreadable data", path.display()))?;
+    let density: Vec<f32> =
+        npy.into_vec().map_err(|e| file_error("truncated or unreadable data", e))?;
     let medium = MediumGrid { dims, class: vec![class; density.len()], density };
-    medium.validate().with_context(|| format!("{}: not a valid density grid", path.display()))?;
+    medium.validate().map_err(|error| Error::Density { path: path.to_path_buf(), error })?;
     Ok(medium)
 }
 
 /// Writes a float32 `.npy` array of `shape` (C order).
-pub fn write_f32(path: &Path, shape: &[u64], data: &[f32]) -> anyhow::Result<()> {
+pub fn write_f32(path: &Path, shape: &[u64], data: &[f32]) -> Result<()> {
     let expected: u64 = shape.iter().product();
-    anyhow::ensure!(
-        expected == data.len() as u64,
-        "shape {shape:?} needs {expected} values, got {}",
-        data.len()
-    );
-    let file = File::create(path).with_context(|| format!("{}: cannot create", path.display()))?;
+    if expected != data.len() as u64 {
+        return Err(Error::Invalid(format!(
+            "shape {shape:?} needs {expected} values, got {}",
+            data.len()
+        )));
+    }
+    let file = File::create(path).map_err(|error| Error::File {
+        path: path.to_path_buf(),
+        what: "cannot create",
+        error,
+    })?;
     let mut w = npyz::WriteOptions::<f32>::new()
         .default_dtype()
         .shape(shape)
@@ -58,7 +63,7 @@ pub fn write_f32(path: &Path, shape: &[u64], data: &[f32]) -> anyhow::Result<()>
 }
 
 /// Writes a density grid as `(Z, Y, X)`.
-pub fn write_density(path: &Path, medium: &MediumGrid) -> anyhow::Result<()> {
+pub fn write_density(path: &Path, medium: &MediumGrid) -> Result<()> {
     let d = medium.dims;
     write_f32(path, &[d.nz as u64, d.ny as u64, d.nx as u64], &medium.density)
 }

@@ -2,7 +2,6 @@
 //! of the grid and a projection, side by side, in the solution's colours.
 
 use crate::lb::{GridDims, Solution};
-use anyhow::Context;
 use image::{Rgb, RgbImage};
 use std::path::Path;
 
@@ -12,7 +11,7 @@ const PANEL: u32 = 256;
 /// Writes `solution` as a PNG: side slice (x–y at mid z), front slice (z–y
 /// at mid x), top slice (x–z at mid y) and the side view's mean along z.
 /// Values are scaled so the 99.5th percentile is white, with gamma 2.2.
-pub fn write_solution_png(path: &Path, solution: &Solution) -> anyhow::Result<()> {
+pub fn write_solution_png(path: &Path, solution: &Solution) -> crate::Result<()> {
     let d = solution.dims;
     let ch: Vec<&[f32]> = solution.channels.iter().map(|c| c.total.as_slice()).collect();
     let scale = 1.0 / percentile(&ch, 0.995).max(1e-12);
@@ -44,7 +43,7 @@ pub fn write_solution_png(path: &Path, solution: &Solution) -> anyhow::Result<()
         image::imageops::overlay(&mut out, p, x0 as i64, 0);
         x0 += p.width() + gap;
     }
-    out.save(path).with_context(|| format!("{}: cannot write PNG", path.display()))
+    out.save(path).map_err(|error| crate::Error::Image { path: path.to_path_buf(), error })
 }
 
 /// The grid of `dims` drawn up to [`PANEL`] pixels, `v` (second axis) up.

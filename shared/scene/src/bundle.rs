@@ -12,8 +12,8 @@
 //! numbers as `serde_json` prints them (shortest round-trip floats). See
 //! docs/scene-format.md, "Bundles".
 
-use crate::{FileAccess, Scene, SceneError, SceneFile, SceneLimits};
-use anyhow::{Context, bail};
+use crate::error::chain;
+use crate::{Error, FileAccess, Result, Scene, SceneFile, SceneLimits};
 use serde::{Deserialize, Serialize};
 use std::path::{Component, Path};
 
@@ -60,19 +60,20 @@ pub fn hash_of(bytes: &[u8]) -> String {
 /// Packs the scene file at `path` and the glTF files it names (with the
 /// buffers and images a `.gltf` refers to by relative path), all of which
 /// must lie inside the scene file's folder.
-pub fn pack(path: &Path) -> anyhow::Result<SceneBundle> {
+pub fn pack(path: &Path) -> Result<SceneBundle> {
     pack_with(path, &FileAccess::Inside(crate::folder_of(path)))
 }
 
 /// Packs the scene file at `path`, reading its models as `access` allows.
-pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle> {
+pub fn pack_with(path: &Path, access: &FileAccess) -> Result<SceneBundle> {
     let label = path.display().to_string();
-    let text = std::fs::read_to_string(path).with_context(|| format!("{label}: cannot read"))?;
+    let text = std::fs::read_to_string(path).map_err(|e| Error::file(&label, "cannot read", e))?;
     // Parsed once as a scene, for its errors, and kept as written for the
     // manifest: the glTF files it names itself (its models', its import)
     // are packed, and their paths rewritten to the blobs' names.
     crate::parse_with(&text, &label, access, &SceneLimits::default())?;
-    let mut written: serde_json::Value = serde_json::from_str(&text)?;
+    let mut written: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::Invalid(chain(&e)))?;
     let mut blobs: Vec<(String, Vec<u8>)> = Vec::new();
     let models: Vec<(String, String)> = written
         .get("models")
@@ -85,9 +86,9 @@ pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle
         .map(|(name, dir, gltf)| {
             let field = format!("models.{name}.gltf");
             let blob = pack_gltf(access, &gltf, &dir, &label, &field, &mut blobs)?;
-            anyhow::Ok((name, blob))
+            Ok((name, blob))
         })
-        .collect::<anyhow::Result<_>>()?;
+        .collect::<Result<_>>()?;
     for (name, blob) in models {
         written["models"][&name]["gltf"] = serde_json::Value::from(blob);
     }
@@ -102,7 +103,7 @@ pub fn pack_with(path: &Path, access: &FileAccess) -> anyhow::Result<SceneBundle
             .map(|(n, b)| BlobEntry { name: n.clone(), len: b.len() as u64 })
             .collect(),
     };
-    let json = serde_json::to_vec(&manifest)?;
+    let json = serde_json::to_vec(&manifest).map_err(|e| Error::Invalid(chain(&e)))?;
     let mut bytes =
         Vec::with_capacity(16 + json.len() + blobs.iter().map(|b| b.1.len()).sum::<usize>());
     bytes.extend_from_slice(MAGIC);
@@ -125,24 +126,27 @@ fn pack_gltf(
     label: &str,
     field: &str,
     blobs: &mut Vec<(String, Vec<u8>)>,
-) -> anyhow::Result<String> {
+) -> Result<String> {
     let full = access
         .resolve(access.base(), Path::new(rel))
-        .map_err(|e| anyhow::anyhow!("{label}: {field}: {e}"))?;
-    let bytes =
-        std::fs::read(&full).with_context(|| format!("{label}: {field}: cannot read {rel}"))?;
+        .map_err(|e| e.within(format!("{label}: {field}")))?;
+    let bytes = std::fs::read(&full)
+        .map_err(|e| Error::file(format!("{label}: {field}"), format!("cannot read {rel}"), e))?;
     let file = full
         .file_name()
         .map(|f| f.to_string_lossy().to_string())
         .unwrap_or_else(|| "model.glb".into());
     if file.to_ascii_lowercase().ends_with(".gltf") {
         let folder = full.parent().unwrap_or(Path::new("."));
-        for uri in external_uris(&bytes).with_context(|| format!("{rel}: not glTF JSON"))? {
+        let uris = external_uris(&bytes)
+            .map_err(|error| Error::Json { context: format!("{rel}: not glTF JSON"), error })?;
+        for uri in uris {
             let dep = access
                 .resolve_uri(folder, &uri)
-                .map_err(|e| anyhow::anyhow!("{rel}: {e}"))?
+                .map_err(|e| e.within(rel))?
                 .expect("not a data: URI");
-            let data = std::fs::read(&dep).with_context(|| format!("{rel}: cannot read {uri}"))?;
+            let data = std::fs::read(&dep)
+                .map_err(|e| Error::file(rel, format!("cannot read {uri}"), e))?;
             // Named as the reader finds it: the URI percent-decoded.
             let decoded = crate::sandbox::percent_decode(&uri).expect("resolve_uri decoded it");
             blobs.push((format!("{dir}/{decoded}"), data));
@@ -153,7 +157,7 @@ fn pack_gltf(
 }
 
 /// Relative URIs of a `.gltf` file's buffers and images.
-fn external_uris(gltf_json: &[u8]) -> anyhow::Result<Vec<String>> {
+fn external_uris(gltf_json: &[u8]) -> serde_json::Result<Vec<String>> {
     let v: serde_json::Value = serde_json::from_slice(gltf_json)?;
     let mut out = Vec::new();
     for key in ["buffers", "images"] {
@@ -170,7 +174,7 @@ fn external_uris(gltf_json: &[u8]) -> anyhow::Result<Vec<String>> {
 
 /// Unpacks a bundle into `dir` (blobs as files) and builds its scene with
 /// the default limits.
-pub fn unpack(bytes: &[u8], dir: &Path) -> anyhow::Result<Scene> {
+pub fn unpack(bytes: &[u8], dir: &Path) -> Result<Scene> {
     unpack_with(bytes, dir, &SceneLimits::default())
 }
 
@@ -178,50 +182,60 @@ pub fn unpack(bytes: &[u8], dir: &Path) -> anyhow::Result<Scene> {
 /// reads files inside `dir` alone, within `limits`. Refuses malformed
 /// bundles and blob names that would leave `dir`; the scene is checked
 /// before any blob is written.
-pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> anyhow::Result<Scene> {
+pub fn unpack_with(bytes: &[u8], dir: &Path, limits: &SceneLimits) -> Result<Scene> {
     if bytes.len() < 16 || &bytes[..8] != MAGIC {
-        bail!("not a Sylva scene bundle (bad magic)");
+        return Err(Error::Bundle("not a Sylva scene bundle (bad magic)".into()));
     }
     let len = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes")) as usize;
     let body = &bytes[16..];
     if len > body.len() {
-        bail!("truncated scene bundle: manifest of {len} bytes, {} present", body.len());
+        return Err(Error::Bundle(format!(
+            "truncated scene bundle: manifest of {len} bytes, {} present",
+            body.len()
+        )));
     }
-    let manifest: Manifest =
-        serde_json::from_slice(&body[..len]).context("malformed bundle manifest")?;
+    let malformed = |error| Error::Json { context: "malformed bundle manifest".into(), error };
+    let manifest: Manifest = serde_json::from_slice(&body[..len]).map_err(malformed)?;
     // The cheap checks first: a scene that would be refused costs no disk
     // (one that imports a glTF scene is known once its blobs are written).
     if manifest.scene.get("import").is_none() {
-        let file: SceneFile =
-            serde_json::from_value(manifest.scene.clone()).context("malformed bundle manifest")?;
-        Scene::check(&file, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))?;
+        let file: SceneFile = serde_json::from_value(manifest.scene.clone()).map_err(malformed)?;
+        Scene::check(&file, "bundle", limits)?;
     }
     let mut at = len;
-    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    std::fs::create_dir_all(dir).map_err(|e| Error::file(dir.display(), "cannot create", e))?;
     for b in &manifest.blobs {
         let rel = Path::new(&b.name);
         if rel.is_absolute() || rel.components().any(|c| !matches!(c, Component::Normal(_))) {
-            bail!("bundle blob name {:?} is not a plain relative path", b.name);
+            return Err(Error::Bundle(format!(
+                "bundle blob name {:?} is not a plain relative path",
+                b.name
+            )));
         }
         let end = at.checked_add(b.len as usize).filter(|&e| e <= body.len());
         let Some(end) = end else {
-            bail!("truncated scene bundle: blob {:?} runs past the end", b.name)
+            return Err(Error::Bundle(format!(
+                "truncated scene bundle: blob {:?} runs past the end",
+                b.name
+            )));
         };
         let target = dir.join(rel);
         if let Some(parent) = target.parent() {
             std::fs::create_dir_all(parent)?;
         }
         std::fs::write(&target, &body[at..end])
-            .with_context(|| format!("{}: cannot write", target.display()))?;
+            .map_err(|e| Error::file(target.display(), "cannot write", e))?;
         at = end;
     }
     if at != body.len() {
-        bail!("scene bundle has {} stray bytes after its blobs", body.len() - at);
+        return Err(Error::Bundle(format!(
+            "scene bundle has {} stray bytes after its blobs",
+            body.len() - at
+        )));
     }
     let access = FileAccess::Inside(dir.to_path_buf());
-    let file =
-        crate::expand(manifest.scene, "bundle", &access, limits).map_err(anyhow::Error::new)?;
-    Scene::build_with(file, &access, "bundle", limits).map_err(|e: SceneError| anyhow::anyhow!(e))
+    let file = crate::expand(manifest.scene, "bundle", &access, limits)?;
+    Ok(Scene::build_with(file, &access, "bundle", limits)?)
 }
 
 #[cfg(test)]

@@ -2,7 +2,7 @@
 //! (2002) global tone mapping of the whole frame, and PNG/EXR output.
 
 use crate::color::luminance;
-use anyhow::Context;
+use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -35,13 +35,14 @@ impl HdrImage {
     }
 
     /// Writes OpenEXR (32-bit float RGB).
-    pub fn write_exr(&self, path: &Path) -> anyhow::Result<()> {
+    pub fn write_exr(&self, path: &Path) -> Result<()> {
         let flat: Vec<f32> = self.pixels.iter().flatten().copied().collect();
-        let img =
-            image::Rgb32FImage::from_raw(self.width, self.height, flat).context("image size")?;
-        image::DynamicImage::ImageRgb32F(img)
-            .save(path)
-            .with_context(|| format!("{}: cannot write EXR", path.display()))
+        let img = image::Rgb32FImage::from_raw(self.width, self.height, flat)
+            .ok_or_else(|| Error::Invalid("image size".into()))?;
+        image::DynamicImage::ImageRgb32F(img).save(path).map_err(|error| Error::Image {
+            context: format!("{}: cannot write EXR", path.display()),
+            error,
+        })
     }
 }
 
@@ -112,10 +113,14 @@ pub fn encode_srgb(c: f32) -> u8 {
 }
 
 /// Writes 8-bit sRGB pixels as PNG.
-pub fn write_png(path: &Path, width: u32, height: u32, pixels: &[[u8; 3]]) -> anyhow::Result<()> {
+pub fn write_png(path: &Path, width: u32, height: u32, pixels: &[[u8; 3]]) -> Result<()> {
     let flat: Vec<u8> = pixels.iter().flatten().copied().collect();
-    let img = image::RgbImage::from_raw(width, height, flat).context("image size")?;
-    img.save(path).with_context(|| format!("{}: cannot write PNG", path.display()))
+    let img = image::RgbImage::from_raw(width, height, flat)
+        .ok_or_else(|| Error::Invalid("image size".into()))?;
+    img.save(path).map_err(|error| Error::Image {
+        context: format!("{}: cannot write PNG", path.display()),
+        error,
+    })
 }
 
 /// Rays traced for a strip or a whole frame, by kind.

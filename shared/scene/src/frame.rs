@@ -252,7 +252,7 @@ impl FrameSettings {
         {
             return bad(format!("ambient {a:?}: three finite values ≥ 0"));
         }
-        self.view.check().map_err(FrameError)
+        self.view.check().map_err(|e| FrameError(e.to_string()))
     }
 
     /// The lighting method, given the scene's own.

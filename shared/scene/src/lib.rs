@@ -22,6 +22,7 @@ pub mod bundle;
 pub mod camera;
 pub mod caps;
 pub mod color;
+mod error;
 pub mod film;
 pub mod format;
 pub mod frame;
@@ -37,4 +38,5 @@ pub mod table2;
 pub mod trees;
 pub mod workdir;
 
+pub use error::{Error, Result};
 pub use load::*;

@@ -168,7 +168,7 @@ impl Scene {
                 (Some(p), None) => {
                     let full = access
                         .resolve(access.base(), p)
-                        .map_err(|m| err(format!("{field}.gltf"), m))?;
+                        .map_err(|m| err(format!("{field}.gltf"), m.to_string()))?;
                     load_gltf_with(&full, access, &mut budget, spec.mesh.as_deref())
                         .map_err(|e| err(format!("{field}.gltf"), format!("{e:#}")))?
                 }
@@ -247,7 +247,7 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
     for (name, spec) in &file.models {
         let field = format!("models.{name}");
         let lb = spec.lb.unwrap_or(file.lb);
-        check_lb(&lb).map_err(|m| err(format!("{field}.lb"), m))?;
+        check_lb(&lb).map_err(|m| err(format!("{field}.lb"), m.to_string()))?;
         lb_cells += (lb.grid as u64).pow(3);
         match (&spec.gltf, &spec.tree) {
             (Some(_), None) | (None, Some(_)) => {}
@@ -263,7 +263,7 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
             return Err(err(format!("{field}.mesh"), "a mesh name of 1 to 256 bytes".into()));
         }
     }
-    check_lb(&file.lb).map_err(|m| err("lb".into(), m))?;
+    check_lb(&file.lb).map_err(|m| err("lb".into(), m.to_string()))?;
     let fg = &file.forest_grid;
     if !(4..=256).contains(&fg.grid) {
         return Err(err("forest_grid.grid".into(), format!("{}: valid range [4, 256]", fg.grid)));
@@ -292,21 +292,21 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
         return Err(err("instances".into(), "at least one instance is needed".into()));
     }
     let c = &file.camera;
-    bounded3(&c.position).map_err(|m| err("camera.position".into(), m))?;
-    bounded3(&c.look_at).map_err(|m| err("camera.look_at".into(), m))?;
-    bounded3(&c.up).map_err(|m| err("camera.up".into(), m))?;
+    bounded3(&c.position).map_err(|m| err("camera.position".into(), m.to_string()))?;
+    bounded3(&c.look_at).map_err(|m| err("camera.look_at".into(), m.to_string()))?;
+    bounded3(&c.up).map_err(|m| err("camera.up".into(), m.to_string()))?;
     let camera = Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg)
         .map_err(|e| err("camera".into(), e.to_string()))?;
     let sun = sun_light(&file.sun).map_err(|(f, m)| err(format!("sun.{f}"), m))?;
     if let Some(s) = &file.sequence {
-        s.views().map_err(|m| err("sequence".into(), m))?;
+        s.views().map_err(|m| err("sequence".into(), m.to_string()))?;
     }
     for (name, v) in [("zenith", file.sky.zenith), ("horizon", file.sky.horizon)] {
-        colour(&v).map_err(|m| err(format!("sky.{name}"), m))?;
+        colour(&v).map_err(|m| err(format!("sky.{name}"), m.to_string()))?;
     }
-    file.leaf_optics.validate().map_err(|m| err("leaf_optics".into(), m))?;
+    file.leaf_optics.validate().map_err(|m| err("leaf_optics".into(), m.to_string()))?;
     if let Some(g) = &file.ground {
-        colour(&g.color).map_err(|m| err("ground.color".into(), m))?;
+        colour(&g.color).map_err(|m| err("ground.color".into(), m.to_string()))?;
         // An albedo: a ground that sent back more than it receives would
         // make the LB's reflecting floor a source that grows every step.
         if g.color.iter().any(|&x| x > 1.0) {
@@ -317,7 +317,7 @@ fn check(file: &SceneFile, label: &str, limits: &SceneLimits) -> Result<Checked,
         }
     }
     for (i, c) in file.clouds.iter().enumerate() {
-        finite3(&c.center).map_err(|m| err(format!("clouds[{i}].center"), m))?;
+        finite3(&c.center).map_err(|m| err(format!("clouds[{i}].center"), m.to_string()))?;
         if !(c.size.is_finite() && c.size > 0.0) {
             return Err(err(
                 format!("clouds[{i}].size"),
@@ -399,7 +399,7 @@ pub fn expand(
     let Some(import) = value.get("import") else { return from_value(value, label) };
     let rel =
         import.as_str().ok_or_else(|| err("a path to a glTF scene (.glb or .gltf)".into()))?;
-    let full = access.resolve(access.base(), Path::new(rel)).map_err(err)?;
+    let full = access.resolve(access.base(), Path::new(rel)).map_err(|e| err(e.to_string()))?;
     let imported = crate::interchange::import::import_gltf_with(
         &full,
         access.base(),
@@ -441,9 +441,9 @@ pub fn parse(text: &str, label: &str) -> Result<SceneFile, SceneError> {
     })
 }
 
-fn check_lb(lb: &LbSpec) -> Result<(), String> {
+fn check_lb(lb: &LbSpec) -> crate::Result<()> {
     if !(4..=512).contains(&lb.grid) {
-        return Err(format!("grid {}: valid range [4, 512]", lb.grid));
+        return Err(crate::Error::Invalid(format!("grid {}: valid range [4, 512]", lb.grid)));
     }
     Ok(())
 }
@@ -452,26 +452,28 @@ fn check_lb(lb: &LbSpec) -> Result<(), String> {
 /// overflow f32 and turn directions into zero or NaN.
 const MAX_COORDINATE: f32 = 1e9;
 
-fn bounded3(v: &[f32; 3]) -> Result<(), String> {
+fn bounded3(v: &[f32; 3]) -> crate::Result<()> {
     finite3(v)?;
     if v.iter().any(|x| x.abs() > MAX_COORDINATE) {
-        return Err(format!("{v:?}: each component must be within ±{MAX_COORDINATE:e}"));
+        return Err(crate::Error::Invalid(format!(
+            "{v:?}: each component must be within ±{MAX_COORDINATE:e}"
+        )));
     }
     Ok(())
 }
 
-fn finite3(v: &[f32; 3]) -> Result<(), String> {
+fn finite3(v: &[f32; 3]) -> crate::Result<()> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(())
     } else {
-        Err(format!("{v:?} has a value that is not a finite number"))
+        Err(crate::Error::Invalid(format!("{v:?} has a value that is not a finite number")))
     }
 }
 
-fn colour(v: &[f32; 3]) -> Result<(), String> {
+fn colour(v: &[f32; 3]) -> crate::Result<()> {
     finite3(v)?;
     if v.iter().any(|&x| x < 0.0) {
-        return Err(format!("{v:?}: colour components must be ≥ 0"));
+        return Err(crate::Error::Invalid(format!("{v:?}: colour components must be ≥ 0")));
     }
     Ok(())
 }
@@ -493,7 +495,7 @@ fn instance_transform(inst: &InstanceSpec) -> Result<Affine3A, (&'static str, St
             Affine3A::from_mat4(m)
         }
         None => {
-            finite3(&inst.position).map_err(|e| ("position", e))?;
+            finite3(&inst.position).map_err(|e| ("position", e.to_string()))?;
             if !inst.rotate_y_deg.is_finite() {
                 return Err((
                     "rotate_y_deg",

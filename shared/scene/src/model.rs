@@ -1,8 +1,8 @@
 //! Models: triangle meshes with texture coordinates and materials (leaf or
 //! wood, base colour, alpha-masked texture), and their loading from glTF 2.0.
 
-use crate::FileAccess;
-use anyhow::{Context, bail};
+use crate::error::chain;
+use crate::{Error, FileAccess, Result};
 use glam::{Mat4, Vec2, Vec3};
 use std::path::Path;
 
@@ -206,7 +206,7 @@ pub fn classify_material(name: Option<&str>) -> Surface {
 
 /// Loads every triangle of a glTF 2.0 file (`.gltf` or `.glb`) that the
 /// user named, reading buffers and images wherever its URIs point.
-pub fn load_gltf(path: &Path) -> anyhow::Result<Model> {
+pub fn load_gltf(path: &Path) -> Result<Model> {
     let folder = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut budget = GltfBudget::UNLIMITED;
     load_gltf_with(path, &FileAccess::Anywhere(folder), &mut budget, None)
@@ -240,7 +240,7 @@ pub fn load_gltf_with(
     access: &FileAccess,
     budget: &mut GltfBudget,
     mesh: Option<&str>,
-) -> anyhow::Result<Model> {
+) -> Result<Model> {
     // The glTF crates assert on some malformed accessors instead of
     // returning errors; a hostile file must cost its scene, not the process.
     let mut b = *budget;
@@ -253,10 +253,10 @@ pub fn load_gltf_with(
             Ok(m)
         }
         Ok(Err(e)) => Err(e),
-        Err(_) => bail!(
-            "{}: malformed glTF: the loader failed on it",
-            path.file_name().map(|f| f.to_string_lossy()).unwrap_or_default()
-        ),
+        Err(_) => Err(Error::gltf(
+            path.file_name().map(|f| f.to_string_lossy()).unwrap_or_default(),
+            "malformed glTF: the loader failed on it",
+        )),
     }
 }
 
@@ -265,12 +265,12 @@ fn load_unguarded(
     access: &FileAccess,
     budget: &mut GltfBudget,
     mesh: Option<&str>,
-) -> anyhow::Result<Model> {
+) -> Result<Model> {
     let shown = shown_name(path, access);
     let bytes = std::fs::read(path)
-        .with_context(|| format!("{shown}: cannot load glTF: cannot read the file"))?;
-    let gltf::Gltf { document: doc, blob } =
-        gltf::Gltf::from_slice(&bytes).with_context(|| format!("{shown}: cannot load glTF"))?;
+        .map_err(|e| Error::file(&shown, "cannot load glTF: cannot read the file", e))?;
+    let gltf::Gltf { document: doc, blob } = gltf::Gltf::from_slice(&bytes)
+        .map_err(|e| Error::gltf(&shown, format!("cannot load glTF: {}", chain(&e))))?;
     drop(bytes);
     let folder = path.parent().unwrap_or(Path::new("."));
     // Every file the document names must be one we may read, before any is.
@@ -278,38 +278,48 @@ fn load_unguarded(
     let scene = doc
         .default_scene()
         .or_else(|| doc.scenes().next())
-        .with_context(|| format!("{shown}: the glTF file has no scene"))?;
+        .ok_or_else(|| Error::gltf(&shown, "the glTF file has no scene"))?;
     let only = match mesh {
-        Some(name) => Some(doc.meshes().find(|m| m.name() == Some(name)).with_context(|| {
-            format!("{shown}: no mesh named {:?}", name.chars().take(64).collect::<String>())
+        Some(name) => Some(doc.meshes().find(|m| m.name() == Some(name)).ok_or_else(|| {
+            let name = name.chars().take(64).collect::<String>();
+            Error::gltf(&shown, format!("no mesh named {name:?}"))
         })?),
         None => None,
     };
     let triangles = match &only {
         Some(m) => mesh_triangles(m),
-        None => scene_triangles(&scene).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?,
+        None => scene_triangles(&scene).map_err(|e| e.within(&shown))?,
     };
-    check_accessors(&doc).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    check_accessors(&doc).map_err(|e| e.within(&shown))?;
     if triangles > budget.triangles {
-        bail!(
-            "{shown}: {triangles} triangles is more than the {} this scene may still have",
-            budget.triangles
-        );
+        return Err(Error::limit(
+            &shown,
+            format!(
+                "{triangles} triangles is more than the {} this scene may still have",
+                budget.triangles
+            ),
+        ));
     }
-    let buffers = gltf::import_buffers(&doc, Some(folder), blob)
-        .map_err(|e| anyhow::anyhow!("{shown}: cannot load glTF buffers: {}", gltf_error(&e)))?;
+    let buffers = gltf::import_buffers(&doc, Some(folder), blob).map_err(|e| {
+        Error::gltf(&shown, format!("cannot load glTF buffers: {}", gltf_error(&e)))
+    })?;
     let wanted = wanted_images(&doc, only.as_ref());
     let mut texels = 0u64;
     for img in doc.images().filter(|i| wanted[i.index()]) {
-        let (w, h) = image_size(&img, &files, &buffers)
-            .with_context(|| format!("{shown}: image {}: cannot read its size", img.index()))?;
+        let (w, h) = image_size(&img, &files, &buffers).map_err(|e| {
+            let message = format!("image {}: cannot read its size: {}", img.index(), chain(&*e));
+            Error::gltf(&shown, message)
+        })?;
         texels = texels.saturating_add(u64::from(w) * u64::from(h));
     }
     if texels > budget.texture_pixels {
-        bail!(
-            "{shown}: {texels} texels of textures is more than the {} this scene may still have",
-            budget.texture_pixels
-        );
+        return Err(Error::limit(
+            &shown,
+            format!(
+                "{texels} texels of textures is more than the {} this scene may still have",
+                budget.texture_pixels
+            ),
+        ));
     }
     let images = doc
         .images()
@@ -318,10 +328,10 @@ fn load_unguarded(
                 .then(|| gltf::image::Data::from_source(i.source(), Some(folder), &buffers))
                 .transpose()
                 .map_err(|e| {
-                    anyhow::anyhow!("{shown}: cannot load glTF images: {}", gltf_error(&e))
+                    Error::gltf(&shown, format!("cannot load glTF images: {}", gltf_error(&e)))
                 })
         })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>>>()?;
     budget.triangles -= triangles;
     budget.texture_pixels -= texels;
     let path = Path::new(&shown);
@@ -349,7 +359,7 @@ fn load_unguarded(
         }
     }
     if model.triangles.is_empty() {
-        bail!("{}: the glTF scene has no triangles", path.display());
+        return Err(Error::gltf(path.display(), "the glTF scene has no triangles"));
     }
     Ok(model)
 }
@@ -375,7 +385,7 @@ pub(crate) fn files_named(
     access: &FileAccess,
     folder: &Path,
     shown: &str,
-) -> anyhow::Result<std::collections::HashMap<String, std::path::PathBuf>> {
+) -> Result<std::collections::HashMap<String, std::path::PathBuf>> {
     let mut files = std::collections::HashMap::new();
     let uris = doc.buffers().filter_map(|b| match b.source() {
         gltf::buffer::Source::Uri(u) => Some(u),
@@ -386,9 +396,7 @@ pub(crate) fn files_named(
         gltf::image::Source::View { .. } => None,
     });
     for uri in uris.chain(image_uris) {
-        if let Some(p) =
-            access.resolve_uri(folder, uri).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?
-        {
+        if let Some(p) = access.resolve_uri(folder, uri).map_err(|e| e.within(shown))? {
             files.insert(uri.to_string(), p);
         }
     }
@@ -479,18 +487,20 @@ const MAX_NODE_PLACEMENTS: u64 = 1 << 20;
 /// Triangles the scene's nodes would place (a mesh counts once per node
 /// path that reaches it), from accessor counts alone; refuses cycles and
 /// graphs whose shared children multiply past [`MAX_NODE_PLACEMENTS`].
-fn scene_triangles(scene: &gltf::Scene) -> Result<u64, String> {
+fn scene_triangles(scene: &gltf::Scene) -> Result<u64> {
     let mut stack: Vec<(gltf::Node, usize)> = scene.nodes().map(|n| (n, 0)).collect();
     let (mut triangles, mut placements) = (0u64, 0u64);
     while let Some((node, depth)) = stack.pop() {
         if depth >= MAX_NODE_DEPTH {
-            return Err(format!(
+            return Err(Error::Invalid(format!(
                 "the node hierarchy is deeper than {MAX_NODE_DEPTH} (a node that is its own descendant?)"
-            ));
+            )));
         }
         placements += 1;
         if placements > MAX_NODE_PLACEMENTS {
-            return Err(format!("the nodes place meshes more than {MAX_NODE_PLACEMENTS} times"));
+            return Err(Error::Invalid(format!(
+                "the nodes place meshes more than {MAX_NODE_PLACEMENTS} times"
+            )));
         }
         if let Some(m) = node.mesh() {
             triangles = triangles.saturating_add(mesh_triangles(&m));
@@ -516,7 +526,7 @@ fn mesh_triangles(m: &gltf::Mesh) -> u64 {
 /// component type the reader expects, a count of at least one, a stride
 /// and offsets inside its view — since the glTF reader asserts rather
 /// than erring on these.
-pub(crate) fn check_accessors(doc: &gltf::Document) -> Result<(), String> {
+pub(crate) fn check_accessors(doc: &gltf::Document) -> Result<()> {
     use gltf::accessor::{DataType as D, Dimensions as N};
     for m in doc.meshes() {
         let mesh = m.name().unwrap_or("?");
@@ -533,8 +543,12 @@ pub(crate) fn check_accessors(doc: &gltf::Document) -> Result<(), String> {
             ];
             for (acc, what, dims, types) in uses {
                 let Some(a) = acc else { continue };
-                let bad =
-                    |m: String| Err(format!("mesh {mesh:?}: {what} accessor {}: {m}", a.index()));
+                let bad = |m: String| {
+                    Err(Error::Invalid(format!(
+                        "mesh {mesh:?}: {what} accessor {}: {m}",
+                        a.index()
+                    )))
+                };
                 if !dims.contains(&a.dimensions()) || !types.contains(&a.data_type()) {
                     return bad(format!(
                         "{:?} of {:?} cannot be read as {what}",
@@ -579,7 +593,7 @@ fn image_size(
     img: &gltf::Image,
     files: &std::collections::HashMap<String, std::path::PathBuf>,
     buffers: &[gltf::buffer::Data],
-) -> anyhow::Result<(u32, u32)> {
+) -> std::result::Result<(u32, u32), Box<dyn std::error::Error + Send + Sync>> {
     let reader = match img.source() {
         gltf::image::Source::Uri { uri, .. } => match files.get(uri) {
             Some(p) => image::ImageReader::new(std::io::BufReader::new(std::fs::File::open(p)?))
@@ -591,7 +605,7 @@ fn image_size(
                 let b64 = uri
                     .split_once(";base64,")
                     .map(|(_, d)| d)
-                    .context("a data: URI that is not base64")?;
+                    .ok_or("a data: URI that is not base64")?;
                 let bytes = base64::engine::general_purpose::STANDARD.decode(b64)?;
                 image::ImageReader::new(std::io::Cursor::new(bytes))
                     .with_guessed_format()?
@@ -599,11 +613,11 @@ fn image_size(
             }
         },
         gltf::image::Source::View { view, .. } => {
-            let data = buffers.get(view.buffer().index()).context("no such buffer")?;
+            let data = buffers.get(view.buffer().index()).ok_or("no such buffer")?;
             let bytes = data
                 .0
                 .get(view.offset()..view.offset() + view.length())
-                .context("buffer view runs past its buffer")?;
+                .ok_or("buffer view runs past its buffer")?;
             image::ImageReader::new(std::io::Cursor::new(bytes))
                 .with_guessed_format()?
                 .into_dimensions()?
@@ -651,7 +665,7 @@ fn add_node(
     model: &mut Model,
     path: &Path,
     default_material: u32,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
     if let Some(m) = node.mesh() {
         add_mesh(&m, world, buffers, model, path, default_material)?;
@@ -670,7 +684,7 @@ fn add_mesh(
     model: &mut Model,
     path: &Path,
     default_material: u32,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     {
         for prim in m.primitives() {
             if prim.mode() != gltf::mesh::Mode::Triangles {
@@ -683,11 +697,13 @@ fn add_mesh(
             for p in pos {
                 let v = world.transform_point3(Vec3::from(p));
                 if !v.is_finite() {
-                    bail!(
-                        "{}: mesh {:?} has a non-finite vertex position",
+                    return Err(Error::gltf(
                         path.display(),
-                        m.name().unwrap_or("?")
-                    );
+                        format!(
+                            "mesh {:?} has a non-finite vertex position",
+                            m.name().unwrap_or("?")
+                        ),
+                    ));
                 }
                 model.positions.push(v);
             }
@@ -697,23 +713,24 @@ fn add_mesh(
                 None => model.uvs.extend(std::iter::repeat_n(Vec2::ZERO, count as usize)),
             }
             if model.uvs.len() != model.positions.len() {
-                bail!(
-                    "{}: mesh {:?} has {} texture coordinates for {count} vertices",
+                return Err(Error::gltf(
                     path.display(),
-                    m.name().unwrap_or("?"),
-                    model.uvs.len() - base as usize
-                );
+                    format!(
+                        "mesh {:?} has {} texture coordinates for {count} vertices",
+                        m.name().unwrap_or("?"),
+                        model.uvs.len() - base as usize
+                    ),
+                ));
             }
             let indices: Vec<u32> = match reader.read_indices() {
                 Some(ix) => ix.into_u32().collect(),
                 None => (0..count).collect(),
             };
             if let Some(&bad) = indices.iter().find(|&&i| i >= count) {
-                bail!(
-                    "{}: mesh {:?} indexes vertex {bad} of {count}",
+                return Err(Error::gltf(
                     path.display(),
-                    m.name().unwrap_or("?")
-                );
+                    format!("mesh {:?} indexes vertex {bad} of {count}", m.name().unwrap_or("?")),
+                ));
             }
             let material = prim.material().index().map_or(default_material, |i| i as u32);
             for t in indices.as_chunks::<3>().0 {

@@ -8,7 +8,7 @@
 //! camera rays.
 
 use crate::film::HdrImage;
-use anyhow::{Context, bail};
+use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -146,7 +146,7 @@ impl PassSet {
     }
 
     /// Parses `--passes`: names separated by commas, or `all`.
-    pub fn parse(s: &str) -> Result<Self, String> {
+    pub fn parse(s: &str) -> Result<Self> {
         let mut out = Vec::new();
         for name in s.split(',').map(str::trim).filter(|n| !n.is_empty()) {
             if name == "all" {
@@ -156,7 +156,10 @@ impl PassSet {
                 Some(&p) => out.push(p),
                 None => {
                     let valid: Vec<_> = Pass::ALL.iter().map(|p| p.name()).collect();
-                    return Err(format!("pass {name:?}: one of {}, or all", valid.join(", ")));
+                    return Err(Error::Invalid(format!(
+                        "pass {name:?}: one of {}, or all",
+                        valid.join(", ")
+                    )));
                 }
             }
         }
@@ -250,14 +253,14 @@ impl PassImage {
 
     /// Planes from the wire for a `width × height` strip of `set`, checked:
     /// the right number of bytes, and each value what its pass can hold.
-    pub fn from_bytes(width: u32, height: u32, set: PassSet, bytes: &[u8]) -> Result<Self, String> {
+    pub fn from_bytes(width: u32, height: u32, set: PassSet, bytes: &[u8]) -> Result<Self> {
         let n = width as usize * height as usize;
         let due = n * set.floats_per_pixel() * 4;
         if bytes.len() != due {
-            return Err(format!(
+            return Err(Error::Invalid(format!(
                 "passes {set}: {} bytes where {due} were due for {width}×{height}",
                 bytes.len()
-            ));
+            )));
         }
         let mut values = bytes.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap()));
         let planes = set
@@ -270,11 +273,14 @@ impl PassImage {
     }
 
     /// Checks every value against what its pass can hold.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<()> {
         let n = self.width as usize * self.height as usize;
         for (p, plane) in self.set.extra().zip(&self.planes) {
             if plane.len() != n * p.channels().len() {
-                return Err(format!("pass {p}: {} values for {n} pixels", plane.len()));
+                return Err(Error::Invalid(format!(
+                    "pass {p}: {} values for {n} pixels",
+                    plane.len()
+                )));
             }
             let ok = |v: f32| match p {
                 Pass::Normal => v.is_finite() && (-1.0001..=1.0001).contains(&v),
@@ -288,19 +294,19 @@ impl PassImage {
                 Pass::Beauty | Pass::Direct | Pass::Indirect | Pass::Sky => v.is_finite(),
             };
             if let Some(v) = plane.iter().find(|v| !ok(**v)) {
-                return Err(format!("pass {p} has a value {v} it cannot hold"));
+                return Err(Error::Invalid(format!("pass {p} has a value {v} it cannot hold")));
             }
         }
         Ok(())
     }
 
     /// Copies a strip's planes into columns `[x0, x0 + strip.width)`.
-    pub fn paste_strip(&mut self, x0: u32, strip: &PassImage) -> Result<(), String> {
+    pub fn paste_strip(&mut self, x0: u32, strip: &PassImage) -> Result<()> {
         if strip.set != self.set || strip.height != self.height || x0 + strip.width > self.width {
-            return Err(format!(
+            return Err(Error::Invalid(format!(
                 "a strip's passes ({}, {}×{} at {x0}) do not fit the frame's ({}, {}×{})",
                 strip.set, strip.width, strip.height, self.set, self.width, self.height
-            ));
+            )));
         }
         for ((p, dst), src) in self.set.extra().zip(&mut self.planes).zip(&strip.planes) {
             let c = p.channels().len();
@@ -318,17 +324,17 @@ impl PassImage {
     /// Adds the planes of `strip` (whose set is `self.set`, or its split
     /// alone) times `weight` into columns `[x0, x0 + strip.width)`: how
     /// batches of a progressive render sum into their mean.
-    pub fn add_strip(&mut self, x0: u32, strip: &PassImage, weight: f32) -> Result<(), String> {
+    pub fn add_strip(&mut self, x0: u32, strip: &PassImage, weight: f32) -> Result<()> {
         if strip.height != self.height || x0 + strip.width > self.width {
-            return Err(format!(
+            return Err(Error::Invalid(format!(
                 "a strip's passes do not fit the frame's ({}×{})",
                 self.width, self.height
-            ));
+            )));
         }
         let (width, height) = (self.width as usize, self.height as usize);
         for (p, src) in strip.set.extra().zip(&strip.planes) {
             let Some(dst) = self.plane_mut(p) else {
-                return Err(format!("pass {p} is not the frame's"));
+                return Err(Error::Invalid(format!("pass {p} is not the frame's")));
             };
             let c = p.channels().len();
             let (w, sw) = (width * c, strip.width as usize * c);
@@ -353,17 +359,14 @@ pub fn exr_channel(p: Pass, c: &str) -> String {
 /// A frame and its passes as one multi-layer OpenEXR (32-bit floats,
 /// lossless ZIP): beauty as `ViewLayer.Combined.RGB`, each pass as its own
 /// layer.
-pub fn encode_layers(beauty: &HdrImage, passes: &PassImage) -> anyhow::Result<Vec<u8>> {
+pub fn encode_layers(beauty: &HdrImage, passes: &PassImage) -> Result<Vec<u8>> {
     use exr::prelude::*;
     let n = beauty.pixels.len();
     if passes.width != beauty.width || passes.height != beauty.height {
-        bail!(
+        return Err(crate::Error::Invalid(format!(
             "passes {}×{} for a frame {}×{}",
-            passes.width,
-            passes.height,
-            beauty.width,
-            beauty.height
-        );
+            passes.width, passes.height, beauty.width, beauty.height
+        )));
     }
     let mut list: Vec<AnyChannel<FlatSamples>> = Vec::new();
     for (c, name) in Pass::Beauty.channels().iter().enumerate() {
@@ -391,7 +394,10 @@ pub fn encode_layers(beauty: &HdrImage, passes: &PassImage) -> anyhow::Result<Ve
         AnyChannels::sort(SmallVec::from_vec(list)),
     );
     let mut out = std::io::Cursor::new(Vec::new());
-    Image::from_layer(layer).write().to_buffered(&mut out).context("writing the EXR")?;
+    Image::from_layer(layer)
+        .write()
+        .to_buffered(&mut out)
+        .map_err(|error| crate::Error::Exr { context: "writing the EXR".into(), error })?;
     Ok(out.into_inner())
 }
 
@@ -407,7 +413,7 @@ pub struct ExrLayers {
 
 impl ExrLayers {
     /// Reads every channel of an EXR's first part.
-    pub fn read(bytes: &[u8]) -> anyhow::Result<Self> {
+    pub fn read(bytes: &[u8]) -> Result<Self> {
         use exr::prelude::*;
         let image = read()
             .no_deep_data()
@@ -416,7 +422,10 @@ impl ExrLayers {
             .first_valid_layer()
             .all_attributes()
             .from_buffered(std::io::Cursor::new(bytes))
-            .context("not an OpenEXR file Sylva can read")?;
+            .map_err(|error| crate::Error::Exr {
+                context: "not an OpenEXR file Sylva can read".into(),
+                error,
+            })?;
         let size = image.layer_data.size;
         let channels = image
             .layer_data
@@ -434,11 +443,11 @@ impl ExrLayers {
     }
 
     /// The beauty image: `ViewLayer.Combined`, or a plain `R`, `G`, `B` file.
-    pub fn beauty(&self) -> anyhow::Result<HdrImage> {
+    pub fn beauty(&self) -> Result<HdrImage> {
         let get = |c: &str| {
             self.channel(&exr_channel(Pass::Beauty, c))
                 .or_else(|| self.channel(c))
-                .with_context(|| format!("the EXR has no {c} channel"))
+                .ok_or_else(|| Error::Invalid(format!("the EXR has no {c} channel")))
         };
         let (r, g, b) = (get("R")?, get("G")?, get("B")?);
         Ok(HdrImage {
@@ -449,14 +458,16 @@ impl ExrLayers {
     }
 
     /// The passes of `set` (each of whose channels the file must have).
-    pub fn passes(&self, set: PassSet) -> anyhow::Result<PassImage> {
+    pub fn passes(&self, set: PassSet) -> Result<PassImage> {
         let n = self.width as usize * self.height as usize;
         let mut image = PassImage::new(self.width, self.height, set);
         for (p, plane) in set.extra().zip(&mut image.planes) {
             let k = p.channels().len();
             for (c, name) in p.channels().iter().enumerate() {
                 let full = exr_channel(p, name);
-                let v = self.channel(&full).with_context(|| format!("the EXR has no {full}"))?;
+                let v = self
+                    .channel(&full)
+                    .ok_or_else(|| Error::Invalid(format!("the EXR has no {full}")))?;
                 for i in 0..n {
                     plane[i * k + c] = v[i];
                 }
@@ -485,7 +496,9 @@ mod tests {
         assert_eq!(s.to_string(), "beauty,direct,sky");
         assert_eq!(PassSet::parse("all").unwrap(), PassSet::all());
         assert_eq!(PassSet::parse("beauty").unwrap(), PassSet::NONE);
-        assert!(PassSet::parse("diffuse").unwrap_err().contains("one of beauty, direct"));
+        assert!(
+            PassSet::parse("diffuse").unwrap_err().to_string().contains("one of beauty, direct")
+        );
         assert_eq!(PassSet::all().floats_per_pixel(), 3 + 3 + 3 + 3 + 1 + 1 + 1 + 3);
     }
 
@@ -510,7 +523,10 @@ mod tests {
         let mut bad = strip.clone();
         bad.planes[2][0] = 1.5;
         assert!(
-            PassImage::from_bytes(2, 2, set, &bad.to_bytes()).unwrap_err().contains("instance")
+            PassImage::from_bytes(2, 2, set, &bad.to_bytes())
+                .unwrap_err()
+                .to_string()
+                .contains("instance")
         );
 
         let mut beauty = HdrImage::new(5, 2);

@@ -5,6 +5,7 @@
 //! a symbolic link cannot lead out either. Errors name the path as the scene
 //! wrote it and never say whether anything outside exists.
 
+use crate::{Error, Result};
 use std::path::{Component, Path, PathBuf};
 
 /// Where a scene's files may come from.
@@ -27,23 +28,18 @@ impl FileAccess {
 
     /// The file `rel` (as a scene or model names it, relative to `from`, a
     /// folder inside the base) may be read: its full path, or why not.
-    pub fn resolve(&self, from: &Path, rel: &Path) -> Result<PathBuf, String> {
-        let shown = rel.display();
+    pub fn resolve(&self, from: &Path, rel: &Path) -> Result<PathBuf> {
         match self {
             FileAccess::Anywhere(_) => {
                 let full = if rel.is_absolute() { rel.to_path_buf() } else { from.join(rel) };
                 if !full.is_file() {
-                    return Err(format!("missing file {}", full.display()));
+                    return Err(Error::Missing { path: full });
                 }
                 Ok(full)
             }
             FileAccess::Inside(root) => {
                 // One answer for every refusal, so it tells nothing of outside.
-                let outside = || {
-                    format!(
-                        "{shown:?} is not a file inside the scene's folder (scenes name files by relative paths, without \"..\")"
-                    )
-                };
+                let outside = || Error::Outside { path: rel.to_path_buf() };
                 if rel.as_os_str().is_empty()
                     || rel.is_absolute()
                     || rel
@@ -69,18 +65,20 @@ impl FileAccess {
     /// The file a glTF buffer or image URI names, relative to the glTF file's
     /// folder `from`: `None` for a `data:` URI (the bytes are inline), else
     /// the checked path. Other schemes (`file:`, `http:`) are refused.
-    pub fn resolve_uri(&self, from: &Path, uri: &str) -> Result<Option<PathBuf>, String> {
+    pub fn resolve_uri(&self, from: &Path, uri: &str) -> Result<Option<PathBuf>> {
         if uri.starts_with("data:") {
             return Ok(None);
         }
         if uri.contains(':') {
-            return Err(format!(
-                "URI {:?} has a scheme other than data: (only relative paths and data: URIs are read)",
-                clip(uri)
-            ));
+            return Err(Error::Uri {
+                uri: clip(uri),
+                why: "has a scheme other than data: (only relative paths and data: URIs are read)",
+            });
         }
-        let decoded = percent_decode(uri)
-            .ok_or_else(|| format!("URI {:?} is not valid percent-encoded UTF-8", clip(uri)))?;
+        let decoded = percent_decode(uri).ok_or_else(|| Error::Uri {
+            uri: clip(uri),
+            why: "is not valid percent-encoded UTF-8",
+        })?;
         self.resolve(from, Path::new(&decoded)).map(Some)
     }
 }
@@ -167,7 +165,7 @@ mod tests {
             PathBuf::from("/etc/passwd"),
         ];
         for p in &outside {
-            let e = a.resolve(&root, p).unwrap_err();
+            let e = a.resolve(&root, p).unwrap_err().to_string();
             // It names the path as given, and says nothing of what is there.
             assert!(
                 !e.contains("exist") && !e.contains("bytes") && !e.contains("No such file"),
@@ -176,8 +174,14 @@ mod tests {
         }
         // Existing and missing files outside get the same answer.
         assert_eq!(
-            a.resolve(&root, Path::new("../secret.glb")).unwrap_err().replace("secret", "X"),
-            a.resolve(&root, Path::new("../nothere.glb")).unwrap_err().replace("nothere", "X")
+            a.resolve(&root, Path::new("../secret.glb"))
+                .unwrap_err()
+                .to_string()
+                .replace("secret", "X"),
+            a.resolve(&root, Path::new("../nothere.glb"))
+                .unwrap_err()
+                .to_string()
+                .replace("nothere", "X")
         );
         #[cfg(unix)]
         {

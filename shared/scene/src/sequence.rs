@@ -27,7 +27,7 @@ pub struct View {
 
 impl View {
     /// Checks that the camera can be built and the sun is a direction.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> crate::Result<()> {
         if let Some(c) = &self.camera {
             camera_of(c)?;
         }
@@ -37,14 +37,16 @@ impl View {
                 || v.abs().max_element() > MAX_COORDINATE
                 || v.length_squared() < 1e-12
             {
-                return Err(format!("sun_towards {s:?}: a finite, non-zero vector"));
+                return Err(crate::Error::Invalid(format!(
+                    "sun_towards {s:?}: a finite, non-zero vector"
+                )));
             }
         }
         Ok(())
     }
 
     /// The view's camera, if it sets one (checked by [`View::check`]).
-    pub fn camera(&self) -> Option<Result<Camera, String>> {
+    pub fn camera(&self) -> Option<crate::Result<Camera>> {
         self.camera.as_ref().map(camera_of)
     }
 
@@ -60,14 +62,16 @@ impl View {
 }
 
 /// A camera as the renderer uses it, with the reason when it cannot be.
-pub fn camera_of(c: &CameraSpec) -> Result<Camera, String> {
+pub fn camera_of(c: &CameraSpec) -> crate::Result<Camera> {
     for (name, v) in [("position", c.position), ("look_at", c.look_at), ("up", c.up)] {
         if !v.iter().all(|x| x.is_finite() && x.abs() <= MAX_COORDINATE) {
-            return Err(format!("camera {name} {v:?}: finite values within ±{MAX_COORDINATE}"));
+            return Err(crate::Error::Invalid(format!(
+                "camera {name} {v:?}: finite values within ±{MAX_COORDINATE}"
+            )));
         }
     }
     Camera::look_at(c.position.into(), c.look_at.into(), c.up.into(), c.fov_y_deg)
-        .map_err(|e| format!("camera: {e}"))
+        .map_err(crate::Error::Camera)
 }
 
 /// The sun's place in the sky.
@@ -87,18 +91,18 @@ impl SunAngles {
         [e.cos() * a.cos(), e.sin(), e.cos() * a.sin()]
     }
 
-    fn check(&self, name: &str) -> Result<(), String> {
+    fn check(&self, name: &str) -> crate::Result<()> {
         if !(self.elevation_deg.is_finite() && self.elevation_deg.abs() <= 90.0) {
-            return Err(format!(
+            return Err(crate::Error::Invalid(format!(
                 "sequence.sun.{name}.elevation_deg {}: valid range [-90, 90]",
                 self.elevation_deg
-            ));
+            )));
         }
         if !(self.azimuth_deg.is_finite() && self.azimuth_deg.abs() <= 3600.0) {
-            return Err(format!(
+            return Err(crate::Error::Invalid(format!(
                 "sequence.sun.{name}.azimuth_deg {}: valid range [-3600, 3600]",
                 self.azimuth_deg
-            ));
+            )));
         }
         Ok(())
     }
@@ -154,9 +158,12 @@ pub struct SequenceSpec {
 
 impl SequenceSpec {
     /// One view per frame, or why the sequence cannot be rendered.
-    pub fn views(&self) -> Result<Vec<View>, String> {
+    pub fn views(&self) -> crate::Result<Vec<View>> {
         if self.frames == 0 || self.frames > MAX_FRAMES {
-            return Err(format!("sequence.frames {}: valid range [1, {MAX_FRAMES}]", self.frames));
+            return Err(crate::Error::Invalid(format!(
+                "sequence.frames {}: valid range [1, {MAX_FRAMES}]",
+                self.frames
+            )));
         }
         if let Some(s) = &self.sun {
             s.from.check("from")?;
@@ -164,19 +171,19 @@ impl SequenceSpec {
         }
         for (i, k) in self.camera.iter().enumerate() {
             if k.frame >= self.frames {
-                return Err(format!(
+                return Err(crate::Error::Invalid(format!(
                     "sequence.camera[{i}].frame {}: the sequence has frames 0 to {}",
                     k.frame,
                     self.frames - 1
-                ));
+                )));
             }
             if i > 0 && k.frame <= self.camera[i - 1].frame {
-                return Err(format!(
+                return Err(crate::Error::Invalid(format!(
                     "sequence.camera[{i}].frame {}: keyframes must come in increasing frame order",
                     k.frame
-                ));
+                )));
             }
-            camera_of(&k.pose()).map_err(|e| format!("sequence.camera[{i}]: {e}"))?;
+            camera_of(&k.pose()).map_err(|e| e.within(format!("sequence.camera[{i}]")))?;
         }
         let last = (self.frames - 1).max(1) as f32;
         let views: Vec<View> = (0..self.frames)
@@ -197,7 +204,7 @@ impl SequenceSpec {
         // An interpolated camera may still be degenerate (a spline through
         // the target): say which frame.
         for (f, v) in views.iter().enumerate() {
-            v.check().map_err(|e| format!("sequence frame {f}: {e}"))?;
+            v.check().map_err(|e| e.within(format!("sequence frame {f}")))?;
         }
         Ok(views)
     }
@@ -342,13 +349,14 @@ mod tests {
             ),
         ];
         for (s, want) in cases {
-            let e = s.views().unwrap_err();
+            let e = s.views().unwrap_err().to_string();
             assert!(e.contains(want), "{want}: {e}");
         }
         assert!(
             View { camera: None, sun_towards: Some([0.0; 3]) }
                 .check()
                 .unwrap_err()
+                .to_string()
                 .contains("non-zero")
         );
     }

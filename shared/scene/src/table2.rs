@@ -33,12 +33,15 @@ pub fn instances_at(species: Species, scale: f64) -> u32 {
 }
 
 /// The forest as a scene file.
-pub fn forest(o: &ForestOptions) -> Result<SceneFile, String> {
+pub fn forest(o: &ForestOptions) -> crate::Result<SceneFile> {
     if !(o.scale.is_finite() && o.scale > 0.0 && o.scale <= 100.0) {
-        return Err(format!("--scale {}: valid range (0, 100]", o.scale));
+        return Err(crate::Error::Invalid(format!("--scale {}: valid range (0, 100]", o.scale)));
     }
     if !(o.triangle_scale.is_finite() && o.triangle_scale > 0.0 && o.triangle_scale <= 10.0) {
-        return Err(format!("--triangle-scale {}: valid range (0, 10]", o.triangle_scale));
+        return Err(crate::Error::Invalid(format!(
+            "--triangle-scale {}: valid range (0, 10]",
+            o.triangle_scale
+        )));
     }
     let mut models = BTreeMap::new();
     let mut kinds = Vec::new();

@@ -37,7 +37,7 @@ fn build(file: SceneFile, base: &Path) -> Result<Scene, SceneError> {
     Scene::build(file, base, LABEL)
 }
 
-fn unpack(bytes: &[u8], dir: &Path) -> anyhow::Result<Scene> {
+fn unpack(bytes: &[u8], dir: &Path) -> sylva_scene::Result<Scene> {
     bundle::unpack(bytes, dir)
 }
 

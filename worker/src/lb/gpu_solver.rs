@@ -8,6 +8,7 @@ use sylva_light::lb::lattice::Q;
 use sylva_light::lb::solver::{Convergence, PhaseTimer, initial_state};
 use sylva_light::lb::{
     Boundary, ChannelParams, ChannelSolution, Collision, LightingSolver, MediumGrid, SolveOptions,
+    SolverError,
 };
 use wgpu::util::DeviceExt;
 
@@ -59,7 +60,7 @@ impl LightingSolver for GpuSolver {
         boundary: &Boundary,
         opts: &SolveOptions,
         progress: &dyn Fn(usize, usize),
-    ) -> anyhow::Result<ChannelSolution> {
+    ) -> Result<ChannelSolution, SolverError> {
         let mut phases = PhaseTimer::default();
         let dims = medium.dims;
         let layout = StateLayout::new(dims, &self.ctx.limits)?;

@@ -194,7 +194,7 @@ pub fn write_id_image(
             }
         })
         .collect();
-    write_png(path, width, height, &px)
+    Ok(write_png(path, width, height, &px)?)
 }
 
 /// The table as Markdown: a row per crown, the reference's and each

@@ -7,7 +7,7 @@
 //! per side: the children's boxes no longer overlap, at the price of a
 //! triangle referenced by two leaves.
 
-use super::sweep;
+use super::build::sweep;
 use crate::Aabb;
 use glam::Vec3;
 

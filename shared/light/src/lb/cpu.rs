@@ -14,7 +14,8 @@ use super::lattice::{DIRECTIONS, Q};
 use super::medium::{MediumGrid, NodeClass};
 use super::params::ChannelParams;
 use super::solver::{
-    ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, initial_state,
+    ChannelSolution, Convergence, LightingSolver, PhaseTimer, SolveOptions, SolverError,
+    initial_state,
 };
 use rayon::prelude::*;
 
@@ -38,7 +39,7 @@ impl LightingSolver for CpuSolver {
         boundary: &Boundary,
         opts: &SolveOptions,
         progress: &dyn Fn(usize, usize),
-    ) -> anyhow::Result<ChannelSolution> {
+    ) -> Result<ChannelSolution, SolverError> {
         let mut phases = PhaseTimer::default();
         let mut lattice = phases.time("set-up", || CpuLattice::new(medium, params, boundary));
         let mut conv = Convergence::new(*opts, medium.dims);
@@ -81,6 +82,21 @@ struct RowWriter(*mut f32);
 // SAFETY: each (y, z) row writes only its own x range of each direction.
 unsafe impl Send for RowWriter {}
 unsafe impl Sync for RowWriter {}
+
+/// What every row of one step reads and writes: the state of `n` nodes
+/// per direction, where the new state goes, the streaming offsets, and
+/// what the nodes are made of.
+#[derive(Clone, Copy)]
+struct StepData<'a> {
+    src: &'a [f32],
+    dst: RowWriter,
+    n: usize,
+    offsets: &'a [isize; Q],
+    medium: &'a MediumGrid,
+    coll: &'a Collision,
+    /// Whether the new densities' sum is wanted.
+    want_total: bool,
+}
 
 impl<'m> CpuLattice<'m> {
     /// A lattice at the boundary-lit zero state.
@@ -132,27 +148,22 @@ impl<'m> CpuLattice<'m> {
         let dims = self.medium.dims;
         let n = dims.len();
         let offsets: [isize; Q] = std::array::from_fn(|m| dims.offset(DIRECTIONS[m]));
-        let src = &self.state;
-        let dst = RowWriter(self.next.as_mut_ptr());
-        let medium = self.medium;
-        let coll = &self.collision;
+        let step = StepData {
+            src: &self.state,
+            dst: RowWriter(self.next.as_mut_ptr()),
+            n,
+            offsets: &offsets,
+            medium: self.medium,
+            coll: &self.collision,
+            want_total,
+        };
         let interior: f64 = (1..dims.nz - 1)
             .into_par_iter()
             .map(|z| {
                 let mut sum = 0.0;
                 for y in 1..dims.ny - 1 {
                     let base = dims.index(1, y, z);
-                    sum += update_row(
-                        src,
-                        dst,
-                        n,
-                        base,
-                        dims.nx - 2,
-                        &offsets,
-                        medium,
-                        coll,
-                        want_total,
-                    );
+                    sum += update_row(&step, base, dims.nx - 2);
                 }
                 sum
             })
@@ -210,43 +221,19 @@ impl<'m> CpuLattice<'m> {
 /// of their new densities when asked. Runs the AVX2 + FMA build of the same
 /// code where the processor has it (fused multiply-adds, as the GPU's
 /// `fma`); elsewhere separate multiplies and adds.
-#[allow(clippy::too_many_arguments)]
-fn update_row(
-    src: &[f32],
-    dst: RowWriter,
-    n: usize,
-    base: usize,
-    len: usize,
-    offsets: &[isize; Q],
-    medium: &MediumGrid,
-    coll: &Collision,
-    want_total: bool,
-) -> f64 {
+fn update_row(step: &StepData, base: usize, len: usize) -> f64 {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the processor supports AVX2 and FMA, checked just above.
-        return unsafe {
-            update_row_avx2(src, dst, n, base, len, offsets, medium, coll, want_total)
-        };
+        return unsafe { update_row_avx2(step, base, len) };
     }
-    update_row_portable::<false>(src, dst, n, base, len, offsets, medium, coll, want_total)
+    update_row_portable::<false>(step, base, len)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn update_row_avx2(
-    src: &[f32],
-    dst: RowWriter,
-    n: usize,
-    base: usize,
-    len: usize,
-    offsets: &[isize; Q],
-    medium: &MediumGrid,
-    coll: &Collision,
-    want_total: bool,
-) -> f64 {
-    update_row_portable::<true>(src, dst, n, base, len, offsets, medium, coll, want_total)
+unsafe fn update_row_avx2(step: &StepData, base: usize, len: usize) -> f64 {
+    update_row_portable::<true>(step, base, len)
 }
 
 /// `a · b + c`, fused when `FMA` (inside the FMA build only: elsewhere a
@@ -257,25 +244,12 @@ fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
 }
 
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn update_row_portable<const FMA: bool>(
-    src: &[f32],
-    dst: RowWriter,
-    n: usize,
-    base: usize,
-    len: usize,
-    offsets: &[isize; Q],
-    medium: &MediumGrid,
-    coll: &Collision,
-    want_total: bool,
-) -> f64 {
+fn update_row_portable<const FMA: bool>(step: &StepData, base: usize, len: usize) -> f64 {
     // Scratch reused by every block of the row.
     let mut f = [[0.0f32; LANES]; Q];
     let mut out = [[0.0f32; LANES]; Q];
     if len < LANES {
-        return block::<FMA, false>(
-            src, dst, n, base, len, 0, offsets, medium, coll, want_total, &mut f, &mut out,
-        );
+        return block::<FMA, false>(step, base, len, 0, &mut f, &mut out);
     }
     // Whole blocks only, the last one overlapping its neighbour (its
     // nodes are recomputed to the same values), so every copy has a
@@ -284,20 +258,7 @@ fn update_row_portable<const FMA: bool>(
     let mut x = 0;
     while x < len {
         let start = x.min(len - LANES);
-        sum += block::<FMA, true>(
-            src,
-            dst,
-            n,
-            base + start,
-            LANES,
-            x - start,
-            offsets,
-            medium,
-            coll,
-            want_total,
-            &mut f,
-            &mut out,
-        );
+        sum += block::<FMA, true>(step, base + start, LANES, x - start, &mut f, &mut out);
         x += LANES;
     }
     sum
@@ -307,21 +268,15 @@ fn update_row_portable<const FMA: bool>(
 /// when `FULL`); returns the new densities' sum over lanes from `counted`
 /// on, when asked.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn block<const FMA: bool, const FULL: bool>(
-    src: &[f32],
-    dst: RowWriter,
-    n: usize,
+    step: &StepData,
     node: usize,
     lanes: usize,
     counted: usize,
-    offsets: &[isize; Q],
-    medium: &MediumGrid,
-    coll: &Collision,
-    want_total: bool,
     f: &mut [[f32; LANES]; Q],
     out: &mut [[f32; LANES]; Q],
 ) -> f64 {
+    let StepData { src, dst, n, offsets, medium, coll, want_total } = *step;
     let lanes = if FULL { LANES } else { lanes };
     for m in 0..Q {
         let start = ((m * n + node) as isize - offsets[m]) as usize;

@@ -36,15 +36,16 @@ pub fn solve_indirect(
     light: &Illumination,
     opts: &SolveOptions,
     progress: &dyn Fn(&str),
-) -> anyhow::Result<IndirectSolution> {
+) -> crate::Result<IndirectSolution> {
     params.validate()?;
     medium.validate()?;
     let sigma_t = params.channels[0].sigma_t();
-    anyhow::ensure!(
-        params.channels.iter().all(|p| (p.sigma_t() - sigma_t).abs() <= 1e-6 * sigma_t),
-        "the direct/indirect split needs one σ_t for all channels (got {:?})",
-        params.channels.map(|p| p.sigma_t())
-    );
+    if !params.channels.iter().all(|p| (p.sigma_t() - sigma_t).abs() <= 1e-6 * sigma_t) {
+        return Err(crate::Error::Invalid(format!(
+            "the direct/indirect split needs one σ_t for all channels (got {:?})",
+            params.channels.map(|p| p.sigma_t())
+        )));
+    }
     let mut reports = Vec::with_capacity(4);
     let mut total: [Vec<f32>; 3] = Default::default();
     for (c, (p, boundary)) in params.channels.iter().zip(light.boundaries()).enumerate() {

@@ -43,4 +43,6 @@ pub use light::LbGrid;
 pub use medium::{GridDims, MediumGrid, NodeClass};
 pub use params::{ChannelParams, LbParams, ParamError};
 pub use radiometry::{Illumination, LeafScattering};
-pub use solver::{ChannelReport, ChannelSolution, LightingSolver, Solution, SolveOptions, solve};
+pub use solver::{
+    ChannelReport, ChannelSolution, LightingSolver, Solution, SolveOptions, SolverError, solve,
+};

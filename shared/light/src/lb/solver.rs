@@ -135,11 +135,6 @@ impl PhaseTimer {
     pub fn ms(&self, name: &str) -> f64 {
         self.0.iter().filter(|p| p.name == name).map(|p| p.ms).sum()
     }
-
-    /// Milliseconds of all phases.
-    pub fn total_ms(&self) -> f64 {
-        self.0.iter().map(|p| p.ms).sum()
-    }
 }
 
 /// What one channel's solve did.
@@ -179,6 +174,10 @@ pub struct Solution {
     pub channels: Vec<ChannelSolution>,
 }
 
+/// What a [`LightingSolver`] fails with: its own error, boxed, so a GPU
+/// solver's `?` on its own errors works (and `anyhow`'s, chain and all).
+pub type SolverError = Box<dyn std::error::Error + Send + Sync + 'static>;
+
 /// A machine that runs the LB model: the CPU reference or the GPU.
 pub trait LightingSolver {
     /// Short name for reports ("cpu", or the GPU adapter's name).
@@ -194,7 +193,7 @@ pub trait LightingSolver {
         boundary: &Boundary,
         opts: &SolveOptions,
         progress: &dyn Fn(usize, usize),
-    ) -> anyhow::Result<ChannelSolution>;
+    ) -> Result<ChannelSolution, SolverError>;
 }
 
 /// Validates the inputs, then solves the three colour channels in turn.
@@ -206,7 +205,7 @@ pub fn solve(
     sun: &Sun,
     opts: &SolveOptions,
     progress: &dyn Fn(usize, usize, usize),
-) -> anyhow::Result<Solution> {
+) -> crate::Result<Solution> {
     params.validate()?;
     medium.validate()?;
     let boundary = sun.boundary();

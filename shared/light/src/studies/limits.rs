@@ -378,7 +378,7 @@ impl Comparison {
         sun: &Sun,
         photons: u64,
         seed: u64,
-    ) -> anyhow::Result<Self> {
+    ) -> crate::Result<Self> {
         let t = Instant::now();
         let sol = solve(
             &mut CpuSolver,

@@ -337,7 +337,7 @@ pub fn compare_with_reference(
     dims: GridDims,
     steps: usize,
     seed: u64,
-) -> anyhow::Result<[f64; 3]> {
+) -> crate::Result<[f64; 3]> {
     let medium = random_medium(dims, seed);
     let params = LbParams::from_preset(Preset::Leaf);
     let sun = Sun::from_elevation_azimuth(50.0, 20.0, 1.0)?;

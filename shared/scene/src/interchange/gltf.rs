@@ -7,9 +7,9 @@
 //! docs/lighting.md) rides in the scene's `extras.sylva`, which
 //! [`super::import`] reads back and `scripts/cycles-check.py` builds from.
 
-use crate::Scene;
+use crate::error::chain;
 use crate::model::{Model, Surface, classify_material};
-use anyhow::{Context, bail};
+use crate::{Error, Result, Scene};
 use glam::{Affine3A, Mat4, Quat, Vec3};
 use serde_json::{Value, json};
 
@@ -122,7 +122,7 @@ fn trs(m: &Affine3A) -> Option<(Vec3, Quat, Vec3)> {
 }
 
 /// The scene as a binary glTF file, and what went in.
-pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
+pub fn export_glb(scene: &Scene) -> Result<(Vec<u8>, GltfSummary)> {
     let mut p = Parts::default();
     for (mi, m) in scene.models.iter().enumerate() {
         add_model(&mut p, scene, mi, m)?;
@@ -167,7 +167,8 @@ pub fn export_glb(scene: &Scene) -> anyhow::Result<(Vec<u8>, GltfSummary)> {
         bin.data.push(0);
     }
     doc["buffers"] = json!([{ "byteLength": bin.data.len() }]);
-    let bytes = glb(&serde_json::to_vec(&doc)?, &bin.data)?;
+    let json = serde_json::to_vec(&doc).map_err(|e| Error::Invalid(chain(&e)))?;
+    let bytes = glb(&json, &bin.data)?;
     summary.bytes = bytes.len();
     Ok((bytes, summary))
 }
@@ -189,13 +190,13 @@ struct Parts {
 /// primitive per material) and its placements, as one instancing node
 /// (`EXT_mesh_gpu_instancing`) plus a matrix node for each placement
 /// that is no translation, rotation and scale.
-fn add_model(p: &mut Parts, scene: &Scene, mi: usize, m: &crate::SceneModel) -> anyhow::Result<()> {
+fn add_model(p: &mut Parts, scene: &Scene, mi: usize, m: &crate::SceneModel) -> Result<()> {
     let model: &Model = &m.model;
     // Textures of this model, as PNG p.images in the file.
     let first_texture = p.textures.len();
     for t in &model.textures {
         let img = image::RgbaImage::from_raw(t.width, t.height, t.rgba.clone())
-            .context("a texture's size does not match its texels")?;
+            .ok_or_else(|| Error::Invalid("a texture's size does not match its texels".into()))?;
         let mut png = std::io::Cursor::new(Vec::new());
         img.write_to(&mut png, image::ImageFormat::Png)?;
         let view = p.bin.view(&png.into_inner(), None);
@@ -239,7 +240,7 @@ fn add_model(p: &mut Parts, scene: &Scene, mi: usize, m: &crate::SceneModel) -> 
         }
     }
     if primitives.is_empty() {
-        bail!("model {} has no triangles", m.name);
+        return Err(Error::Invalid(format!("model {} has no triangles", m.name)));
     }
     p.summary.triangles += model.triangle_count() as u64;
     p.meshes.push(json!({ "name": m.name, "primitives": primitives }));
@@ -343,11 +344,12 @@ fn add_camera_and_sun(p: &mut Parts, scene: &Scene) -> (Vec<serde_json::Value>, 
 
 /// The GLB container: a 12-byte header, the JSON chunk padded with spaces
 /// and the binary chunk padded with zeros, each to 4 bytes.
-fn glb(json: &[u8], bin: &[u8]) -> anyhow::Result<Vec<u8>> {
+fn glb(json: &[u8], bin: &[u8]) -> Result<Vec<u8>> {
     let pad = |n: usize| n.div_ceil(4) * 4;
     let total = 12 + 8 + pad(json.len()) + 8 + pad(bin.len());
-    let total32 =
-        u32::try_from(total).context("the scene is over the 4 GiB a GLB file can hold")?;
+    let total32 = u32::try_from(total).map_err(|e| {
+        Error::Invalid(format!("the scene is over the 4 GiB a GLB file can hold: {}", chain(&e)))
+    })?;
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(b"glTF");
     out.extend_from_slice(&2u32.to_le_bytes());

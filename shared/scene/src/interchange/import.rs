@@ -4,8 +4,8 @@
 //! the first directional light the sun. What [`super::gltf`] writes comes
 //! back as it went; Blender's exports work too.
 
-use crate::{FileAccess, SceneFile};
-use anyhow::{Context, bail};
+use crate::error::chain;
+use crate::{Error, FileAccess, Result, SceneFile};
 use glam::{Mat4, Quat, Vec3, Vec4};
 use serde_json::{Map, Value, json};
 use std::path::Path;
@@ -27,7 +27,7 @@ struct Gathered {
 
 /// The scene file for the glTF scene at `gltf_path`, which the scene file
 /// names relative to `scene_dir`.
-pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> anyhow::Result<SceneFile> {
+pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> Result<SceneFile> {
     let folder = gltf_path.parent().filter(|f| !f.as_os_str().is_empty()).unwrap_or(Path::new("."));
     import_gltf_with(
         gltf_path,
@@ -45,12 +45,12 @@ pub fn import_gltf_with(
     scene_dir: &Path,
     access: &FileAccess,
     max_placements: usize,
-) -> anyhow::Result<SceneFile> {
+) -> Result<SceneFile> {
     let max = max_placements.min(MAX_PLACEMENTS);
     // The glTF crates assert on some malformed accessors instead of
     // returning errors; a hostile file must cost its scene, not the process.
     std::panic::catch_unwind(|| import_unguarded(gltf_path, scene_dir, access, max)).unwrap_or_else(
-        |_| bail!("{}: malformed glTF: the importer failed on it", gltf_path.display()),
+        |_| Err(Error::gltf(gltf_path.display(), "malformed glTF: the importer failed on it")),
     )
 }
 
@@ -59,22 +59,22 @@ fn import_unguarded(
     scene_dir: &Path,
     access: &FileAccess,
     max_placements: usize,
-) -> anyhow::Result<SceneFile> {
+) -> Result<SceneFile> {
     let shown = crate::model::shown_name(gltf_path, access);
-    let bytes = std::fs::read(gltf_path).with_context(|| format!("{shown}: cannot read glTF"))?;
-    let gltf::Gltf { document: doc, blob } =
-        gltf::Gltf::from_slice(&bytes).with_context(|| format!("{shown}: cannot read glTF"))?;
+    let bytes = std::fs::read(gltf_path).map_err(|e| Error::file(&shown, "cannot read glTF", e))?;
+    let gltf::Gltf { document: doc, blob } = gltf::Gltf::from_slice(&bytes)
+        .map_err(|e| Error::gltf(&shown, format!("cannot read glTF: {}", chain(&e))))?;
     drop(bytes);
     let folder = gltf_path.parent().unwrap_or(Path::new("."));
     // Every file the document names must be one we may read, before any is.
     crate::model::files_named(&doc, access, folder, &shown)?;
-    crate::model::check_accessors(&doc).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    crate::model::check_accessors(&doc).map_err(|e| e.within(&shown))?;
     let buffers = gltf::import_buffers(&doc, Some(folder), blob)
-        .with_context(|| format!("{shown}: cannot read its buffers"))?;
+        .map_err(|e| Error::gltf(&shown, format!("cannot read its buffers: {}", chain(&e))))?;
     let scene = doc
         .default_scene()
         .or_else(|| doc.scenes().next())
-        .with_context(|| format!("{shown}: no scene"))?;
+        .ok_or_else(|| Error::gltf(&shown, "no scene"))?;
     let mut g = Gathered { placements: vec![Vec::new(); doc.meshes().len()], ..Default::default() };
     let mut stack: Vec<(gltf::Node, Mat4, usize)> =
         scene.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect();
@@ -84,10 +84,16 @@ fn import_unguarded(
     let mut seen = vec![false; doc.nodes().len()];
     while let Some((node, parent, depth)) = stack.pop() {
         if depth >= MAX_DEPTH {
-            bail!("{shown}: the node hierarchy is deeper than {MAX_DEPTH}");
+            return Err(Error::gltf(
+                &shown,
+                format!("the node hierarchy is deeper than {MAX_DEPTH}"),
+            ));
         }
         if std::mem::replace(&mut seen[node.index()], true) {
-            bail!("{shown}: node {} is reached twice (glTF nodes form trees)", node.index());
+            return Err(Error::gltf(
+                &shown,
+                format!("node {} is reached twice (glTF nodes form trees)", node.index()),
+            ));
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         let sylva_role =
@@ -99,15 +105,22 @@ fn import_unguarded(
                 g.ground = ground_colour(&mesh);
             } else {
                 let places = match node.extension_value("EXT_mesh_gpu_instancing") {
-                    Some(ext) => instancing(&doc, &buffers, ext, max_placements - count)
-                        .with_context(|| {
-                            format!("{shown}: node {}: EXT_mesh_gpu_instancing", node.index())
-                        })?,
+                    Some(ext) => {
+                        instancing(&doc, &buffers, ext, max_placements - count).map_err(|e| {
+                            e.within(format!(
+                                "{shown}: node {}: EXT_mesh_gpu_instancing",
+                                node.index()
+                            ))
+                        })?
+                    }
                     None => vec![Mat4::IDENTITY],
                 };
                 count += places.len();
                 if count > max_placements {
-                    bail!("{shown}: more than {max_placements} placements");
+                    return Err(Error::limit(
+                        &shown,
+                        format!("more than {max_placements} placements"),
+                    ));
                 }
                 g.placements[mesh.index()].extend(places.into_iter().map(|p| world * p));
             }
@@ -141,13 +154,19 @@ fn import_unguarded(
             continue;
         }
         let Some(name) = mesh.name().filter(|n| !n.is_empty()) else {
-            bail!(
-                "{shown}: mesh {} has no name; a scene file names meshes to read them",
-                mesh.index()
-            )
+            return Err(Error::gltf(
+                &shown,
+                format!(
+                    "mesh {} has no name; a scene file names meshes to read them",
+                    mesh.index()
+                ),
+            ));
         };
         if doc.meshes().filter(|m| m.name() == Some(name)).count() > 1 {
-            bail!("{shown}: two meshes are named {name:?}; a scene file names meshes to read them");
+            return Err(Error::gltf(
+                &shown,
+                format!("two meshes are named {name:?}; a scene file names meshes to read them"),
+            ));
         }
         models.insert(name.to_string(), json!({ "gltf": file, "mesh": name }));
         for p in places {
@@ -155,7 +174,7 @@ fn import_unguarded(
         }
     }
     if models.is_empty() {
-        bail!("{shown}: no mesh is placed in the scene");
+        return Err(Error::gltf(&shown, "no mesh is placed in the scene"));
     }
 
     let camera = match g.camera {
@@ -165,7 +184,9 @@ fn import_unguarded(
             let up = w.transform_vector3(Vec3::Y).normalize();
             json!({ "position": eye.to_array(), "look_at": (eye + 10.0 * forward).to_array(), "up": up.to_array(), "fov_y_deg": yfov.to_degrees() })
         }
-        None => bail!("{shown}: no perspective camera; a scene needs a view"),
+        None => {
+            return Err(Error::gltf(&shown, "no perspective camera; a scene needs a view"));
+        }
     };
     let sun_extras = extras.as_ref().and_then(|e| e.get("sun"));
     let sun = match g.sun {
@@ -212,9 +233,12 @@ fn import_unguarded(
             .iter()
             .any(|k| field == *k || field.starts_with(&format!("{k}.")));
         let whence = if from_extras { " (from the glTF scene's extras \"sylva\")" } else { "" };
-        anyhow::anyhow!(
-            "{shown}: the imported scene is not a valid scene file: {field}{whence}: {}",
-            e.into_inner()
+        Error::gltf(
+            &shown,
+            format!(
+                "the imported scene is not a valid scene file: {field}{whence}: {}",
+                e.into_inner()
+            ),
         )
     })
 }
@@ -226,12 +250,17 @@ fn instancing(
     buffers: &[gltf::buffer::Data],
     ext: &Value,
     max_placements: usize,
-) -> anyhow::Result<Vec<Mat4>> {
-    let attrs = ext.get("attributes").and_then(Value::as_object).context("no attributes")?;
-    let read = |name: &str, n: usize| -> anyhow::Result<Option<Vec<f32>>> {
+) -> Result<Vec<Mat4>> {
+    let attrs = ext
+        .get("attributes")
+        .and_then(Value::as_object)
+        .ok_or_else(|| Error::Invalid("no attributes".into()))?;
+    let read = |name: &str, n: usize| -> Result<Option<Vec<f32>>> {
         let Some(i) = attrs.get(name).and_then(Value::as_u64) else { return Ok(None) };
-        let a =
-            doc.accessors().nth(i as usize).with_context(|| format!("{name}: no accessor {i}"))?;
+        let a = doc
+            .accessors()
+            .nth(i as usize)
+            .ok_or_else(|| Error::Invalid(format!("{name}: no accessor {i}")))?;
         let dims = match n {
             3 => gltf::accessor::Dimensions::Vec3,
             _ => gltf::accessor::Dimensions::Vec4,
@@ -240,11 +269,16 @@ fn instancing(
             || a.dimensions() != dims
             || a.sparse().is_some()
         {
-            bail!("{name}: accessor {i} must be dense float {dims:?}");
+            return Err(Error::Invalid(format!(
+                "{name}: accessor {i} must be dense float {dims:?}"
+            )));
         }
-        let view = a.view().with_context(|| format!("{name}: accessor {i} has no buffer view"))?;
-        let data =
-            buffers.get(view.buffer().index()).with_context(|| format!("{name}: no buffer"))?;
+        let view = a
+            .view()
+            .ok_or_else(|| Error::Invalid(format!("{name}: accessor {i} has no buffer view")))?;
+        let data = buffers
+            .get(view.buffer().index())
+            .ok_or_else(|| Error::Invalid(format!("{name}: no buffer")))?;
         let stride = view.stride().unwrap_or(4 * n);
         let start = view.offset() + a.offset();
         // The count is the file's word: checked against the bytes there
@@ -256,19 +290,20 @@ fn instancing(
         if a.count() > max_placements
             || last.is_some_and(|end| end.is_none_or(|e| e > data.0.len()))
         {
-            bail!("{name}: accessor {i} holds more placements than its buffer or the scene's cap");
+            return Err(Error::Invalid(format!(
+                "{name}: accessor {i} holds more placements than its buffer or the scene's cap"
+            )));
         }
         let mut out = Vec::with_capacity(a.count() * n);
         for k in 0..a.count() {
             let at = start + k * stride;
-            let bytes = data
-                .0
-                .get(at..at + 4 * n)
-                .with_context(|| format!("{name}: accessor {i} runs past its buffer"))?;
+            let bytes = data.0.get(at..at + 4 * n).ok_or_else(|| {
+                Error::Invalid(format!("{name}: accessor {i} runs past its buffer"))
+            })?;
             out.extend(bytes.as_chunks::<4>().0.iter().map(|b| f32::from_le_bytes(*b)));
         }
         if !out.iter().all(|v| v.is_finite()) {
-            bail!("{name}: a value is not finite");
+            return Err(Error::Invalid(format!("{name}: a value is not finite")));
         }
         Ok(Some(out))
     };
@@ -278,9 +313,14 @@ fn instancing(
         r.as_ref().map(|v| v.len() / 4),
         s.as_ref().map(|v| v.len() / 3),
     ];
-    let count = n.iter().flatten().copied().max().context("no TRANSLATION, ROTATION or SCALE")?;
+    let count = n
+        .iter()
+        .flatten()
+        .copied()
+        .max()
+        .ok_or_else(|| Error::Invalid("no TRANSLATION, ROTATION or SCALE".into()))?;
     if n.iter().flatten().any(|&c| c != count) {
-        bail!("the attributes' counts differ: {n:?}");
+        return Err(Error::Invalid(format!("the attributes' counts differ: {n:?}")));
     }
     Ok((0..count)
         .map(|k| {
@@ -353,7 +393,7 @@ mod tests {
         p
     }
 
-    fn import(p: &Path, max: usize) -> anyhow::Result<SceneFile> {
+    fn import(p: &Path, max: usize) -> Result<SceneFile> {
         let dir = p.parent().unwrap();
         import_gltf_with(p, dir, &FileAccess::Inside(dir.to_path_buf()), max)
     }

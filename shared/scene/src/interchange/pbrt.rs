@@ -7,10 +7,9 @@
 //! irradiance π × its radiance scale (docs/lighting.md), and the sky as an
 //! `infinite` light from an equal-area image of the same gradient.
 
-use crate::Scene;
 use crate::color::srgb8_to_linear;
 use crate::model::{Material, Model, Surface};
-use anyhow::Context;
+use crate::{Error, Result, Scene};
 use glam::{Mat4, Vec3};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -43,12 +42,15 @@ const RESOLUTION: (u32, u32) = (896, 448);
 
 /// Writes `scene` as the pbrt-v4 file `out`, its meshes and images in the
 /// folder `<out without extension>_files` beside it.
-pub fn export_pbrt(scene: &Scene, out: &Path) -> anyhow::Result<PbrtSummary> {
-    let stem =
-        out.file_stem().context("the output needs a file name")?.to_string_lossy().into_owned();
+pub fn export_pbrt(scene: &Scene, out: &Path) -> Result<PbrtSummary> {
+    let stem = out
+        .file_stem()
+        .ok_or_else(|| Error::Invalid("the output needs a file name".into()))?
+        .to_string_lossy()
+        .into_owned();
     let dir_name = format!("{stem}_files");
     let dir = out.with_file_name(&dir_name);
-    std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    std::fs::create_dir_all(&dir).map_err(|e| Error::file(dir.display(), "cannot create", e))?;
     let mut s = String::new();
     let mut summary = PbrtSummary {
         objects: 0,
@@ -131,16 +133,8 @@ pub fn export_pbrt(scene: &Scene, out: &Path) -> anyhow::Result<PbrtSummary> {
             summary.meshes += 1;
             summary.triangles += tris.len() as u64;
             let _ = writeln!(s, "  AttributeBegin");
-            let alpha = material(
-                scene,
-                &m.model,
-                mat,
-                &format!("{name}-{k}"),
-                &dir,
-                &dir_name,
-                &mut s,
-                &mut summary,
-            )?;
+            let files = Files { dir: &dir, dir_name: &dir_name, summary: &mut summary };
+            let alpha = material(scene, &m.model, mat, &format!("{name}-{k}"), files, &mut s)?;
             let alpha = alpha.map(|t| format!(" \"texture alpha\" \"{t}\"")).unwrap_or_default();
             let _ = writeln!(
                 s,
@@ -161,23 +155,29 @@ pub fn export_pbrt(scene: &Scene, out: &Path) -> anyhow::Result<PbrtSummary> {
             summary.instances += 1;
         }
     }
-    std::fs::write(out, s).with_context(|| format!("{}: cannot write", out.display()))?;
+    std::fs::write(out, s).map_err(|e| Error::file(out.display(), "cannot write", e))?;
     Ok(summary)
 }
 
-/// Writes a material's directives (and its textures); the alpha texture's
-/// name, if the material is alpha-masked.
-#[allow(clippy::too_many_arguments)]
+/// Where a material's textures go: the folder, its name as the pbrt file
+/// writes it, and the summary that counts them.
+struct Files<'a> {
+    dir: &'a Path,
+    dir_name: &'a str,
+    summary: &'a mut PbrtSummary,
+}
+
+/// Writes a material's directives to `s` (and its textures to `files`);
+/// the alpha texture's name, if the material is alpha-masked.
 fn material(
     scene: &Scene,
     model: &Model,
     mat: &Material,
     name: &str,
-    dir: &Path,
-    dir_name: &str,
+    files: Files,
     s: &mut String,
-    summary: &mut PbrtSummary,
-) -> anyhow::Result<Option<String>> {
+) -> Result<Option<String>> {
+    let Files { dir, dir_name, summary } = files;
     let base = [mat.base_color[0], mat.base_color[1], mat.base_color[2]];
     let texture = mat.texture.and_then(|t| model.textures.get(t as usize));
     let optics = &scene.file.leaf_optics;
@@ -260,7 +260,7 @@ fn material(
 
 /// A binary little-endian PLY of `tris` over the model's vertices (each
 /// vertex used, once), with texture coordinates.
-fn write_ply(model: &Model, tris: &[[u32; 3]], path: &Path) -> anyhow::Result<()> {
+fn write_ply(model: &Model, tris: &[[u32; 3]], path: &Path) -> Result<()> {
     let mut remap = vec![u32::MAX; model.positions.len()];
     let mut verts: Vec<u32> = Vec::new();
     let faces: Vec<[u32; 3]> = tris
@@ -294,14 +294,14 @@ fn write_ply(model: &Model, tris: &[[u32; 3]], path: &Path) -> anyhow::Result<()
             out.extend_from_slice(&(*i as i32).to_le_bytes());
         }
     }
-    std::fs::write(path, out).with_context(|| format!("{}: cannot write", path.display()))
+    std::fs::write(path, out).map_err(|e| Error::file(path.display(), "cannot write", e))
 }
 
 /// The sky gradient (docs/lighting.md: horizon to zenith by the square root
 /// of the elevation's sine, nothing below the horizon where the ground is)
 /// on pbrt's equal-area octahedral map, whose +z is up. On that map a
 /// texel's height z = ±(1 − r²), with r = 1 − |1 − |u| − |v|| (Clarberg 2008).
-fn write_sky(scene: &Scene, path: &Path) -> anyhow::Result<()> {
+fn write_sky(scene: &Scene, path: &Path) -> Result<()> {
     let (zen, hor) = (scene.sky.zenith, scene.sky.horizon);
     let ground = scene.ground.is_some();
     let img = image::Rgb32FImage::from_fn(SKY_SIZE, SKY_SIZE, |x, y| {
@@ -318,7 +318,10 @@ fn write_sky(scene: &Scene, path: &Path) -> anyhow::Result<()> {
     });
     image::DynamicImage::ImageRgb32F(img)
         .save_with_format(path, image::ImageFormat::OpenExr)
-        .with_context(|| format!("{}: cannot write", path.display()))
+        .map_err(|error| Error::Image {
+            context: format!("{}: cannot write", path.display()),
+            error,
+        })
 }
 
 fn linear_to_srgb8(v: f32) -> u8 {

@@ -76,7 +76,7 @@ impl LeafOptics {
     }
 
     /// Refuses negative or non-finite coefficients.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> crate::Result<()> {
         for (name, v) in [
             ("reflect_front", self.reflect_front),
             ("reflect_back", self.reflect_back),
@@ -84,9 +84,9 @@ impl LeafOptics {
             ("transmit_back", self.transmit_back),
         ] {
             if v.iter().any(|x| !x.is_finite() || *x < 0.0) {
-                return Err(format!(
+                return Err(crate::Error::Invalid(format!(
                     "leaf optics {name} = {v:?}: each must be a finite number ≥ 0"
-                ));
+                )));
             }
         }
         Ok(())

@@ -200,7 +200,7 @@ fn open_floor(
 ) -> anyhow::Result<IndirectSolution> {
     let dims = GridDims { nx: OPEN, ny: OPEN, nz: OPEN };
     let empty = medium_from_leaf_area(&vec![0.0; OPEN * OPEN * OPEN], dims, cell);
-    solve_indirect(solver, &empty, params, light, &SolveOptions::default(), &|_| {})
+    Ok(solve_indirect(solver, &empty, params, light, &SolveOptions::default(), &|_| {})?)
 }
 
 /// The indirect light that reaches the ground under a stand: the forest

@@ -258,7 +258,7 @@ pub(super) fn file_stem(name: &str) -> String {
 /// Writes a linear image as float32 `.npy`, height × width × 3.
 pub(super) fn write_hdr(path: &Path, img: &HdrImage) -> anyhow::Result<()> {
     let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
-    sylva_light::npy::write_f32(path, &[img.height as u64, img.width as u64, 3], &flat)
+    Ok(sylva_light::npy::write_f32(path, &[img.height as u64, img.width as u64, 3], &flat)?)
 }
 
 /// The seed bits that give a method's second render other samples.
