@@ -25,7 +25,7 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
     limit_malloc_arenas();
     if a.ephemeral {
         // Temporary state of coordinators killed before they removed it.
-        for d in sylva_scene::workdir::remove_abandoned(&std::env::temp_dir(), "sylva-coordinator-")
+        for d in sylva_proto::workdir::remove_abandoned(&std::env::temp_dir(), "sylva-coordinator-")
         {
             tracing::info!(dir = %d.display(), "removed a killed coordinator's temporary state");
         }

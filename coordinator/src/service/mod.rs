@@ -241,7 +241,7 @@ impl CoordinatorService {
         let metrics_listener = config.metrics.take();
         let http_listener = config.http.take();
         let dir = config.state_dir.clone();
-        let lock = sylva_scene::workdir::claim(&dir, "state folder")?;
+        let lock = sylva_proto::workdir::claim(&dir, "state folder")?;
         // Scene checks a killed coordinator left half done.
         let _ = std::fs::remove_dir_all(dir.join("check"));
         let url = config

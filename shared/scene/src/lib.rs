@@ -35,6 +35,5 @@ pub mod sandbox;
 pub mod sequence;
 pub mod table2;
 pub mod trees;
-pub mod workdir;
 
 pub use load::*;
