@@ -45,7 +45,7 @@ pub async fn register_loop(
     loop {
         let now = match register_once(&coordinator, &me, token.clone(), tls.as_ref()).await {
             Ok(key) => {
-                *session.write().expect("lock") = Some(key).filter(|k| !k.is_empty());
+                *sylva_proto::sync::write(&session) = Some(key).filter(|k| !k.is_empty());
                 Ok(())
             }
             Err(e) => Err(e),

@@ -27,6 +27,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::Coordinator;
+use sylva_proto::sync::lock;
 use tonic::Request;
 
 const INDEX: &str = include_str!("index.html");
@@ -260,7 +261,7 @@ async fn events(
         tokio::spawn(async move {
             loop {
                 tokio::time::sleep(TICK).await;
-                let last = *taken.lock().expect("lock");
+                let last = *lock(&taken);
                 if Arc::strong_count(&taken) == 1 {
                     return; // the stream ended
                 }
@@ -282,7 +283,7 @@ async fn events(
                 if std::time::Instant::now() > until {
                     return None;
                 }
-                *taken.lock().expect("lock") = std::time::Instant::now();
+                *lock(&taken) = std::time::Instant::now();
                 let data = snapshot(&service, &caller).await.to_string();
                 let event = Event::default().event("snapshot").data(data);
                 Some((Ok::<_, Infallible>(event), (service, false, slot)))
