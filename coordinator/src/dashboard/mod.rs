@@ -14,7 +14,8 @@
 //! whose `Origin` is another site's is refused. Every change takes JSON.
 
 use crate::access::Caller;
-use crate::service::{CoordinatorService, wire_ended, wire_name};
+use crate::job_state::{wire_ended, wire_name};
+use crate::service::CoordinatorService;
 use axum::Router;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};

@@ -16,23 +16,23 @@
 //! By resource, as Flamenco's API is split: [`jobs`] (submit, watch,
 //! fetch, cancel, list, priority), [`workers`] (registration, heartbeats,
 //! listing), the `queue` that starts jobs, one job's `run` on the farm
-//! and its [`stats`], the [`live`] view the dashboard reads, and the job
-//! [`state`] machine; `grpc` hands each call of the API to its resource.
+//! and its [`stats`], and the [`live`] view the dashboard reads; `grpc`
+//! hands each call of the API to its resource. A job's states and their
+//! transitions are [`crate::job_state`]'s, below the service.
 
 mod grpc;
 pub mod jobs;
 pub mod live;
 mod queue;
 mod run;
-pub mod state;
 pub mod stats;
 pub mod workers;
 
 pub use live::{LiveFrame, LiveStrip};
-pub use state::{JobState, wire_ended, wire_name};
 use workers::KnownWorker;
 
 use crate::access::{Access, Caller, Role};
+use crate::job_state::{JobState, Transition};
 use crate::farm::{self, FarmEvent, Workers};
 use crate::results::Retention;
 use crate::schedule::{ScheduleKind, Strip, scheduler};
@@ -166,7 +166,7 @@ struct Job {
 impl Job {
     /// Moves the job to `to`, if its state machine allows it; the summary
     /// clients see follows.
-    fn set_state(&mut self, to: JobState) -> Result<(), state::Transition> {
+    fn set_state(&mut self, to: JobState) -> Result<(), Transition> {
         self.state = self.state.to(to)?;
         self.summary.state = self.state.to_wire();
         Ok(())
