@@ -37,9 +37,27 @@ const STYLE: &str = include_str!("style.css");
 /// How often the event stream sends a snapshot.
 const TICK: Duration = Duration::from_millis(500);
 
-/// Serves the dashboard on `listener` (never returns).
-pub async fn serve(listener: tokio::net::TcpListener, service: CoordinatorService) {
-    crate::metrics::serve_app(listener, router(service)).await
+/// Starts serving the dashboard of `service` on `listener` until
+/// `shutdown`. Without a token anyone who reaches the page could cancel
+/// jobs, so a coordinator without one serves it on a loopback address only.
+pub fn start(
+    listener: tokio::net::TcpListener,
+    service: &CoordinatorService,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<tokio::task::JoinHandle<()>> {
+    let addr = listener.local_addr()?;
+    if !service.needs_token() && !addr.ip().is_loopback() {
+        anyhow::bail!(
+            "--http {addr}: without a token the dashboard serves this machine only (anyone who reaches it could cancel jobs); give --http 127.0.0.1:PORT, or a token (--token-file, or users: sylva token add)"
+        );
+    }
+    let app = router(service.clone());
+    Ok(tokio::spawn(async move {
+        tokio::select! {
+            () = crate::metrics::serve_app(listener, app) => {}
+            () = shutdown => {}
+        }
+    }))
 }
 
 /// The page's routes.

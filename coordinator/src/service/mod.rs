@@ -105,8 +105,6 @@ pub struct CoordinatorConfig {
     pub results_disk_bytes: u64,
     /// Serve Prometheus metrics here.
     pub metrics: Option<tokio::net::TcpListener>,
-    /// Serve the web dashboard here.
-    pub http: Option<tokio::net::TcpListener>,
     /// Serve the API over TLS with this identity.
     pub tls: Option<tonic::transport::ServerTlsConfig>,
     /// Reach workers over TLS with this.
@@ -132,7 +130,6 @@ impl Default for CoordinatorConfig {
             max_job_pixels: 1 << 30,
             results_disk_bytes: 32 << 30,
             metrics: None,
-            http: None,
             tls: None,
             worker_tls: None,
         }
@@ -239,7 +236,6 @@ impl CoordinatorService {
     /// was); call [`CoordinatorService::spawn_background`] to run jobs.
     pub async fn open(mut config: CoordinatorConfig) -> anyhow::Result<Self> {
         let metrics_listener = config.metrics.take();
-        let http_listener = config.http.take();
         let dir = config.state_dir.clone();
         let lock = sylva_proto::workdir::claim(&dir, "state folder")?;
         // Scene checks a killed coordinator left half done.
@@ -275,17 +271,6 @@ impl CoordinatorService {
         let jobs = jobs::restore(&store).await?;
         let access = Arc::new(Access::new(config.token.clone()));
         access.set(store.tokens().await?);
-        // Without a token anyone who reaches the page could cancel jobs:
-        // it serves this machine only.
-        if let Some(l) = &http_listener
-            && !access.closed()
-            && !l.local_addr()?.ip().is_loopback()
-        {
-            anyhow::bail!(
-                "--http {}: without a token the dashboard serves this machine only (anyone who reaches it could cancel jobs); give --http 127.0.0.1:PORT, or a token (--token-file, or users: sylva token add)",
-                l.local_addr()?
-            );
-        }
         let slots = Arc::new(Semaphore::new(config.max_running.max(1)));
         tracing::info!(
             state = %dir.display(),
@@ -314,9 +299,6 @@ impl CoordinatorService {
             tokio::spawn(crate::metrics::serve(l, service.state.metrics.clone(), move || {
                 s.gauges()
             }));
-        }
-        if let Some(l) = http_listener {
-            tokio::spawn(crate::dashboard::serve(l, service.clone()));
         }
         Ok(service)
     }
@@ -507,13 +489,15 @@ fn job_id(id: &str) -> Result<&str, Status> {
 
 type EventStream = Pin<Box<dyn Stream<Item = Result<pb::JobEvent, Status>> + Send>>;
 
-/// Opens the coordinator's state, calls `ready`, serves the API, health and
-/// reflection until `shutdown`, then closes the database (and removes an
-/// ephemeral state folder).
+/// Opens the coordinator's state, calls `ready` with the service (where
+/// the binary starts what serves beside it, as the dashboard; an error
+/// there stops the coordinator), serves the API, health and reflection
+/// until `shutdown`, then closes the database (and removes an ephemeral
+/// state folder).
 pub async fn run(
     listener: tokio::net::TcpListener,
     mut config: CoordinatorConfig,
-    ready: impl FnOnce(),
+    ready: impl FnOnce(&CoordinatorService) -> anyhow::Result<()>,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
@@ -523,7 +507,10 @@ pub async fn run(
         builder = builder.tls_config(tls)?;
     }
     let service = CoordinatorService::open(config).await?;
-    ready();
+    if let Err(e) = ready(&service) {
+        service.clean_up().await;
+        return Err(e);
+    }
     let auth = service.authenticate();
     if !service.needs_token() && listener.local_addr().is_ok_and(|a| !a.ip().is_loopback()) {
         tracing::warn!(
