@@ -33,9 +33,8 @@ use workers::KnownWorker;
 
 use crate::access::{Access, Caller, Role};
 use crate::job_state::{JobState, Transition};
-use crate::farm::{self, FarmEvent, Workers};
 use crate::results::Retention;
-use crate::schedule::{ScheduleKind, Strip, scheduler};
+use crate::schedule::ScheduleKind;
 use crate::store::Store;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -46,14 +45,11 @@ use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::CoordinatorServer;
 use sylva_proto::sync::lock;
 use sylva_scene::SceneLimits;
-use sylva_scene::bundle::{self, SceneBundle};
-use sylva_scene::film::{reinhard, reinhard_like};
 use sylva_scene::frame::FrameSettings;
-use sylva_scene::sandbox::clip;
-use sylva_scene::sequence::{MAX_FRAMES, View};
+use sylva_scene::sequence::View;
 use tokio::sync::{Semaphore, broadcast};
-use tokio_stream::{Stream, StreamExt};
-use tonic::{Request, Response, Status, Streaming};
+use tokio_stream::Stream;
+use tonic::{Request, Status};
 
 /// Longest job name accepted, bytes.
 pub const MAX_NAME: usize = 256;
