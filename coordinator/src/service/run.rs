@@ -89,16 +89,15 @@ impl State {
             keys,
             job: id.to_string(),
         };
-        let farm = farm::render_streamed(
-            &workers,
-            &bundle,
-            &frames,
-            plans,
-            self.config.strip_deadline,
-            move |e| me.on_farm_event(&jid, e, &tx2),
-            resume,
-            out,
-        );
+        let job = farm::FarmJob {
+            workers: &workers,
+            bundle: &bundle,
+            frames: &frames,
+            plans: &plans,
+            deadline: self.config.strip_deadline,
+        };
+        let farm =
+            farm::render_streamed(job, move |e| me.on_farm_event(&jid, e, &tx2), resume, out);
         let (run, kept) = tokio::join!(farm, self.keep_frames(id, finished, started, &tx));
         drop(bundle);
         let run = match run {
