@@ -4,8 +4,9 @@
 //! reply that does not fit the strip goes back on the queue for another; a
 //! worker that fails three times is dropped for this frame; the frame fails
 //! only when no worker is left, and then says what each worker last failed
-//! with. Strips land by their columns ([`Assembly`]), so the frame is the
-//! same whoever rendered what.
+//! with. Strips land by their columns
+//! ([`Assembly`](crate::assembly::Assembly)), so the frame is the same
+//! whoever rendered what.
 //!
 //! In parts: reaching the workers and sending them the scene ([`client`]),
 //! a reply checked before use ([`reply`]), the scene prepared once and
