@@ -414,7 +414,7 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     let listed = c.list_jobs(sylva_proto::pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     let j = listed.iter().find(|j| j.id == long).unwrap();
     assert_eq!(
-        sylva_coordinator::service::wire_name(j.state),
+        sylva_coordinator::job_state::wire_name(j.state),
         "cancelled",
         "the coordinator cancelled it, not just the page"
     );

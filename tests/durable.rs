@@ -143,14 +143,14 @@ async fn a_coordinator_killed_mid_sequence_resumes_it_and_every_frame_is_the_sam
     let mut last = None;
     while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
         let ev = ev.unwrap();
-        let end = sylva_coordinator::service::wire_ended(ev.state);
+        let end = sylva_coordinator::job_state::wire_ended(ev.state);
         last = Some(ev);
         if end {
             break;
         }
     }
     let last = last.unwrap();
-    assert_eq!(sylva_coordinator::service::wire_name(last.state), "done", "{last:?}");
+    assert_eq!(sylva_coordinator::job_state::wire_name(last.state), "done", "{last:?}");
     let log = std::fs::read_to_string(&log2).unwrap();
     let resumed = log.lines().find(|l| l.contains("resuming from what an earlier run stored"));
     let kept: u32 = resumed
@@ -261,7 +261,7 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
     let mut c = coordinator(&c2.addr, None).await;
     let mut events = c.watch_job(pb::JobId { id: id.clone() }).await.unwrap().into_inner();
     while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
-        if sylva_coordinator::service::wire_ended(ev.unwrap().state) {
+        if sylva_coordinator::job_state::wire_ended(ev.unwrap().state) {
             break;
         }
     }

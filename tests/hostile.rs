@@ -395,7 +395,7 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
         }
     })
     .await;
-    assert_eq!(sylva_coordinator::service::wire_name(end.state), "done", "{end:?}");
+    assert_eq!(sylva_coordinator::job_state::wire_name(end.state), "done", "{end:?}");
     let png = c
         .fetch_result(pb::FetchRequest {
             id: end.id.clone(),
@@ -587,7 +587,7 @@ async fn finished_jobs_and_folders_are_freed() {
     let work = folder_of(coord.child.id(), "sylva-coordinator");
     let mut c = coordinator(&coord.addr, None).await;
     let end = submit_and_wait(&mut c, spec(32, 16), &b, |_| {}).await;
-    assert_eq!(sylva_coordinator::service::wire_name(end.state), "done");
+    assert_eq!(sylva_coordinator::job_state::wire_name(end.state), "done");
     // The result is a file of the state folder; it is served from there.
     let png = c
         .fetch_result(pb::FetchRequest {
@@ -834,7 +834,7 @@ async fn a_failed_job_names_its_cause() {
     let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--workers", &bad_addr], &[]);
     let mut c = coordinator(&coord.addr, None).await;
     let end = submit_and_wait(&mut c, spec(16, 8), &b, |_| {}).await;
-    assert_eq!(sylva_coordinator::service::wire_name(end.state), "failed");
+    assert_eq!(sylva_coordinator::job_state::wire_name(end.state), "failed");
     assert!(
         end.message.contains(&bad_addr) && end.message.contains("Internal: ok\\u{1b}]0;TITLE"),
         "{}",

@@ -98,7 +98,7 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
     let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     let j = jobs.iter().find(|j| j.id == id).unwrap();
     assert_eq!(
-        (sylva_coordinator::service::wire_name(j.state), j.frames, j.frames_done),
+        (sylva_coordinator::job_state::wire_name(j.state), j.frames, j.frames_done),
         ("done", 4, 4),
         "{j:?}"
     );

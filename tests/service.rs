@@ -121,7 +121,7 @@ async fn three_clients_at_once_get_the_single_process_image() {
     let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     assert_eq!(jobs.len(), 3);
     assert!(
-        jobs.iter().all(|j| sylva_coordinator::service::wire_name(j.state) == "done"
+        jobs.iter().all(|j| sylva_coordinator::job_state::wire_name(j.state) == "done"
             && j.strips_done == j.strips_total
             && j.strips_total > 0),
         "{jobs:?}"
@@ -317,13 +317,13 @@ async fn submit_raw(
     while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
         let ev = ev.unwrap();
         on_event(&ev);
-        if sylva_coordinator::service::wire_ended(ev.state) {
+        if sylva_coordinator::job_state::wire_ended(ev.state) {
             last = Some(ev);
             break;
         }
     }
     let last = last.unwrap();
-    assert_eq!(sylva_coordinator::service::wire_name(last.state), "done", "{last:?}");
+    assert_eq!(sylva_coordinator::job_state::wire_name(last.state), "done", "{last:?}");
     let png = c
         .fetch_result(pb::FetchRequest { id, format: "png".into(), ..Default::default() })
         .await

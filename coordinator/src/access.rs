@@ -13,6 +13,7 @@ use crate::store::TokenRow;
 use std::collections::HashMap;
 use std::sync::RwLock;
 use sylva_proto::auth::constant_time_eq;
+use sylva_proto::sync::{read, write};
 
 /// What a caller may do.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -121,7 +122,7 @@ impl Access {
             self.users.store(true, std::sync::atomic::Ordering::Relaxed);
         }
         let live = rows.into_iter().filter(|r| r.revoked_ms == 0).map(|r| (r.id.clone(), r));
-        *self.tokens.write().expect("lock") = live.collect();
+        *write(&self.tokens) = live.collect();
     }
 
     /// Whether callers must bring a token.
@@ -150,7 +151,7 @@ impl Access {
             });
         }
         let (id, secret) = sylva_proto::auth::user_token(bearer)?;
-        let tokens = self.tokens.read().expect("lock");
+        let tokens = read(&self.tokens);
         let row = tokens.get(id)?;
         if !constant_time_eq(hash(secret).as_bytes(), row.hash.as_bytes()) {
             return None;
@@ -165,7 +166,7 @@ impl Access {
     /// The key of a live user token, by id: what that token's worker
     /// proves its identity with.
     pub fn key_of(&self, id: &str) -> Option<[u8; 32]> {
-        let tokens = self.tokens.read().expect("lock");
+        let tokens = read(&self.tokens);
         let hex = &tokens.get(id)?.hash;
         let mut key = [0u8; 32];
         for (i, k) in key.iter_mut().enumerate() {

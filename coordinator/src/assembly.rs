@@ -7,6 +7,41 @@ use crate::schedule::Strip;
 use sylva_scene::film::{HdrImage, RayCounts};
 use sylva_scene::passes::{PassImage, PassSet};
 
+/// Why a strip does not fit its frame: the renderer's (or the worker's)
+/// failure, never a reason to touch the frame.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum StripError {
+    /// Other counts of pixels or coverage values than the strip's.
+    #[error(
+        "strip [{x0}, {x1}) came back with {pixels} pixels and {coverage} coverage values where {due} were due"
+    )]
+    Size { x0: u32, x1: u32, pixels: usize, coverage: usize, due: usize },
+    /// A pixel that is no radiance.
+    #[error("strip [{x0}, {x1}) has a pixel {pixel:?} that is not a finite radiance ≥ 0")]
+    Radiance { x0: u32, x1: u32, pixel: [f32; 3] },
+    /// A coverage that is no fraction.
+    #[error("strip [{x0}, {x1}) has a coverage outside [0, 1]")]
+    Coverage { x0: u32, x1: u32 },
+    /// Passes of another width or height than the strip's.
+    #[error("strip [{x0}, {x1}) came back with passes of another size")]
+    PassesSize { x0: u32, x1: u32 },
+    /// Passes whose values are wrong (as the pass image says).
+    #[error("strip [{x0}, {x1}): {why}")]
+    Passes { x0: u32, x1: u32, why: String },
+    /// Columns outside the frame.
+    #[error("strip [{x0}, {x1}) is not inside a frame {width} wide")]
+    Outside { x0: u32, x1: u32, width: u32 },
+    /// Passes that do not paste into the frame's (as the pass image says).
+    #[error("{0}")]
+    Paste(String),
+    /// No passes where the frame has some.
+    #[error("strip [{x0}, {x1}) came back without the passes {set}")]
+    MissingPasses { x0: u32, x1: u32, set: PassSet },
+    /// Passes where the frame has none.
+    #[error("strip [{x0}, {x1}) came back with passes nobody asked for")]
+    UnaskedPasses { x0: u32, x1: u32 },
+}
+
 /// A strip's pixels, decoded and checked.
 #[derive(Clone, Debug)]
 pub struct StripPixels {
@@ -36,29 +71,29 @@ impl StripPixels {
 
     /// Checks a strip's sizes and values against the columns it was asked
     /// for and the frame's height.
-    pub fn check(&self, height: u32) -> Result<(), String> {
+    pub fn check(&self, height: u32) -> Result<(), StripError> {
         let (x0, x1) = self.strip;
         let n = (x1 - x0) as usize * height as usize;
         if self.rgb.len() != n || self.coverage.len() != n {
-            return Err(format!(
-                "strip [{x0}, {x1}) came back with {} pixels and {} coverage values where {n} were due",
-                self.rgb.len(),
-                self.coverage.len()
-            ));
+            return Err(StripError::Size {
+                x0,
+                x1,
+                pixels: self.rgb.len(),
+                coverage: self.coverage.len(),
+                due: n,
+            });
         }
         if let Some(p) = self.rgb.iter().find(|p| p.iter().any(|v| !v.is_finite() || *v < 0.0)) {
-            return Err(format!(
-                "strip [{x0}, {x1}) has a pixel {p:?} that is not a finite radiance ≥ 0"
-            ));
+            return Err(StripError::Radiance { x0, x1, pixel: *p });
         }
         if self.coverage.iter().any(|c| !(0.0..=1.0).contains(c)) {
-            return Err(format!("strip [{x0}, {x1}) has a coverage outside [0, 1]"));
+            return Err(StripError::Coverage { x0, x1 });
         }
         if let Some(p) = &self.passes {
             if (p.width, p.height) != (x1 - x0, height) {
-                return Err(format!("strip [{x0}, {x1}) came back with passes of another size"));
+                return Err(StripError::PassesSize { x0, x1 });
             }
-            p.check().map_err(|e| format!("strip [{x0}, {x1}): {e}"))?;
+            p.check().map_err(|why| StripError::Passes { x0, x1, why })?;
         }
         Ok(())
     }
@@ -92,27 +127,21 @@ impl Assembly {
     }
 
     /// Puts a strip in place, after checking it fits the frame.
-    pub fn add(&mut self, s: &StripPixels) -> Result<(), String> {
+    pub fn add(&mut self, s: &StripPixels) -> Result<(), StripError> {
         let (x0, x1) = s.strip;
         if x0 >= x1 || x1 > self.image.width {
-            return Err(format!(
-                "strip [{x0}, {x1}) is not inside a frame {} wide",
-                self.image.width
-            ));
+            return Err(StripError::Outside { x0, x1, width: self.image.width });
         }
         s.check(self.image.height)?;
         match (&mut self.passes, &s.passes) {
             (None, None) => {}
-            (Some(frame), Some(strip)) => frame.paste_strip(x0, strip)?,
+            (Some(frame), Some(strip)) => {
+                frame.paste_strip(x0, strip).map_err(StripError::Paste)?;
+            }
             (Some(frame), None) => {
-                return Err(format!(
-                    "strip [{x0}, {x1}) came back without the passes {}",
-                    frame.set
-                ));
+                return Err(StripError::MissingPasses { x0, x1, set: frame.set });
             }
-            (None, Some(_)) => {
-                return Err(format!("strip [{x0}, {x1}) came back with passes nobody asked for"));
-            }
+            (None, Some(_)) => return Err(StripError::UnaskedPasses { x0, x1 }),
         }
         let w = x1 - x0;
         self.image.paste_strip(x0, w, &s.rgb);

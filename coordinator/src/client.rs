@@ -1,7 +1,7 @@
 //! A client of the coordinator: submit a job, follow it with a progress
 //! bar, fetch its image.
 
-use crate::service::{JobState, wire_ended, wire_name};
+use crate::job_state::{JobState, wire_ended, wire_name};
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::time::Duration;

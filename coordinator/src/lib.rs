@@ -1,5 +1,6 @@
 //! The coordinator, which links no GPU stack: the job service
-//! ([`service`]: queue, runs, workers, live view, stats, job states) and its
+//! ([`service`]: queue, runs, workers, live view, stats) over the job
+//! states ([`job_state`]) and the durable queue ([`store`]), its
 //! clients ([`client`]) and web page ([`dashboard`]); a frame cut into
 //! vertical strips ([`schedule`]), rendered by gRPC workers ([`farm`])
 //! behind one interface ([`executor`]) and put together ([`assembly`]);
@@ -19,6 +20,7 @@ pub mod client;
 pub mod dashboard;
 pub mod executor;
 pub mod farm;
+pub mod job_state;
 pub mod metrics;
 pub mod registration;
 pub mod results;

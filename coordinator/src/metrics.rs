@@ -20,6 +20,7 @@ use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::gauge::ConstGauge;
 use prometheus_client::metrics::histogram::Histogram;
 use prometheus_client::registry::{Registry, Unit};
+use sylva_proto::sync::lock;
 use tokio::net::{TcpListener, TcpStream};
 
 /// Upper bounds of the strip-latency histogram, seconds.
@@ -281,7 +282,7 @@ pub struct ClientSlot(ClientCounts, std::net::IpAddr);
 impl ClientCounts {
     /// Counts one more for `ip`, unless it holds `cap` already.
     pub fn take(&self, ip: std::net::IpAddr, cap: usize) -> Option<ClientSlot> {
-        let mut c = self.0.lock().expect("lock");
+        let mut c = lock(&self.0);
         let n = c.entry(ip).or_insert(0);
         if *n >= cap.max(1) {
             return None;
@@ -293,7 +294,7 @@ impl ClientCounts {
 
 impl Drop for ClientSlot {
     fn drop(&mut self) {
-        let mut c = (self.0).0.lock().expect("lock");
+        let mut c = lock(&(self.0).0);
         if let Some(n) = c.get_mut(&self.1) {
             *n -= 1;
             if *n == 0 {

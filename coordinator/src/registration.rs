@@ -10,6 +10,23 @@ use tonic::transport::ClientTlsConfig;
 /// Time between registrations.
 pub const PERIOD: Duration = Duration::from_secs(5);
 
+/// Why a registration failed; the loop logs again only when the reason
+/// changes.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum RegistrationError {
+    /// No connection to the coordinator.
+    #[error("cannot reach the coordinator: {0}")]
+    Unreachable(String),
+    /// The coordinator answered no.
+    #[error("the coordinator refused: {code:?}: {message}")]
+    Refused {
+        /// The call's status code.
+        code: tonic::Code,
+        /// What the coordinator said.
+        message: String,
+    },
+}
+
 /// Registers `me` (the address the coordinator should dial) with
 /// `coordinator` once: the key the coordinator will call with, or its reason.
 pub async fn register_once(
@@ -17,10 +34,10 @@ pub async fn register_once(
     me: &str,
     token: Option<String>,
     tls: Option<&ClientTlsConfig>,
-) -> Result<String, String> {
+) -> Result<String, RegistrationError> {
     let ch = sylva_proto::tls::connect(coordinator, tls, Duration::from_secs(10))
         .await
-        .map_err(|e| format!("cannot reach the coordinator: {e}"))?;
+        .map_err(|e| RegistrationError::Unreachable(e.to_string()))?;
     let mut c = pb::coordinator_client::CoordinatorClient::with_interceptor(
         ch,
         sylva_proto::auth::attach(token),
@@ -28,7 +45,7 @@ pub async fn register_once(
     c.register_worker(pb::RegisterWorkerRequest { addr: me.to_string() })
         .await
         .map(|r| r.into_inner().session_key)
-        .map_err(|s| format!("the coordinator refused: {:?}: {}", s.code(), s.message()))
+        .map_err(|s| RegistrationError::Refused { code: s.code(), message: s.message().into() })
 }
 
 /// Registers forever, logging each change between success and failure,
@@ -41,11 +58,11 @@ pub async fn register_loop(
     tls: Option<ClientTlsConfig>,
     session: std::sync::Arc<std::sync::RwLock<Option<String>>>,
 ) {
-    let mut last: Option<Result<(), String>> = None;
+    let mut last: Option<Result<(), RegistrationError>> = None;
     loop {
         let now = match register_once(&coordinator, &me, token.clone(), tls.as_ref()).await {
             Ok(key) => {
-                *session.write().expect("lock") = Some(key).filter(|k| !k.is_empty());
+                *sylva_proto::sync::write(&session) = Some(key).filter(|k| !k.is_empty());
                 Ok(())
             }
             Err(e) => Err(e),

@@ -6,7 +6,7 @@
 use crate::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::format::CameraSpec;
-use sylva_scene::frame::{AccelChoice, Backend, FrameSettings, ScheduleKind};
+use sylva_scene::frame::{AccelChoice, FrameSettings, ScheduleKind};
 use sylva_scene::passes::{Pass, PassSet};
 use sylva_scene::sequence::View;
 use tonic::Status;
@@ -67,16 +67,6 @@ pub fn accel_to_wire(a: AccelChoice) -> pb::Accel {
         AccelChoice::Rq => pb::Accel::Rq,
         AccelChoice::Bvh => pb::Accel::Bvh,
         AccelChoice::Kd => pb::Accel::Kd,
-    }
-}
-
-/// A backend a worker chose, by the wire number of its name.
-pub fn backend_from_wire(v: i32) -> Option<Backend> {
-    match pb::Accel::try_from(v).ok()? {
-        pb::Accel::Bvh => Some(Backend::Bvh),
-        pb::Accel::Kd => Some(Backend::Kd),
-        pb::Accel::Rq => Some(Backend::Rq),
-        pb::Accel::Auto => None,
     }
 }
 

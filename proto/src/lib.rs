@@ -1,7 +1,8 @@
 //! Sylva's wire format, generated from `proto/sylva/v1/*.proto` ([`pb`]):
 //! typed values converted to and from it in one place ([`convert`]), bearer
 //! tokens and the worker identity proof ([`auth`]), TLS ([`tls`]), and the
-//! lock both services share ([`sync`]).
+//! process-level helpers both services share: the lock policy ([`sync`])
+//! and a process's own folder ([`workdir`]).
 //!
 //! ```
 //! use sylva_proto::pb;
@@ -15,6 +16,7 @@ pub mod auth;
 pub mod convert;
 pub mod sync;
 pub mod tls;
+pub mod workdir;
 
 /// Package `sylva.v1`.
 pub mod pb {

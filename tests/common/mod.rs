@@ -224,7 +224,7 @@ pub async fn submit_and_wait(
     while let Some(ev) = tokio_stream::StreamExt::next(&mut events).await {
         let ev = ev.unwrap();
         on_event(&ev);
-        if sylva_coordinator::service::wire_ended(ev.state) {
+        if sylva_coordinator::job_state::wire_ended(ev.state) {
             return ev;
         }
     }

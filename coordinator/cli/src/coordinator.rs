@@ -6,7 +6,8 @@ use std::io::Write;
 use std::time::Duration;
 use sylva_coordinator::client::submit_and_follow;
 use sylva_coordinator::results::Retention;
-use sylva_coordinator::service::{self, CoordinatorConfig};
+use sylva_coordinator::service::{self, CoordinatorConfig, CoordinatorService};
+use sylva_coordinator::shutdown::Shutdown;
 
 /// glibc gives each thread that allocates its own heap arena, and the scene
 /// checks run on the runtime's blocking threads, each leaving its arena at
@@ -25,7 +26,7 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
     limit_malloc_arenas();
     if a.ephemeral {
         // Temporary state of coordinators killed before they removed it.
-        for d in sylva_scene::workdir::remove_abandoned(&std::env::temp_dir(), "sylva-coordinator-")
+        for d in sylva_proto::workdir::remove_abandoned(&std::env::temp_dir(), "sylva-coordinator-")
         {
             tracing::info!(dir = %d.display(), "removed a killed coordinator's temporary state");
         }
@@ -57,7 +58,6 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
         let http_addr = http.as_ref().map(|l| l.local_addr()).transpose()?;
         let config = CoordinatorConfig {
             metrics,
-            http,
             max_running: a.max_running,
             max_bundle_bytes: a.max_bundle_mib << 20,
             token,
@@ -78,9 +78,15 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             worker_tls: a.worker_tls.load()?,
             ..Default::default()
         };
+        // The dashboard serves beside the API, until the same signal.
+        let shutdown = Shutdown::new(sylva_coordinator::shutdown::signal());
+        let mut dashboard = None;
         // Announced once the state is open: a script that waits for the
         // line may use the state folder (`sylva token add`) at once.
-        let ready = move || {
+        let ready = |service: &CoordinatorService| {
+            if let Some(h) = http {
+                dashboard = Some(sylva_coordinator::dashboard::start(h, service, shutdown.wait())?);
+            }
             if let Some(m) = metrics_addr {
                 eprintln!("sylva coordinator metrics on http://{m}/metrics");
             }
@@ -89,8 +95,15 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             }
             println!("sylva coordinator listening on {addr}");
             let _ = std::io::stdout().flush();
+            Ok(())
         };
-        service::run(listener, config, ready, sylva_coordinator::shutdown::signal()).await
+        let served = service::run(listener, config, ready, shutdown.wait()).await;
+        if let Some(d) = dashboard {
+            // Ended on the signal already, unless the API stopped on an error.
+            d.abort();
+            let _ = d.await;
+        }
+        served
     })
 }
 

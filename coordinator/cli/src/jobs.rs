@@ -6,7 +6,7 @@ use crate::flags::jobs::*;
 use anyhow::Context;
 use serde::Serialize;
 use sylva_coordinator::client::status_error;
-use sylva_coordinator::service::wire_name;
+use sylva_coordinator::job_state::wire_name;
 use sylva_proto::pb;
 
 /// A job as listings show it (the wire summary, times as seconds).

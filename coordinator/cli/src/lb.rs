@@ -165,15 +165,17 @@ fn solve_cmd(a: SolveArgs) -> anyhow::Result<()> {
 
     let summary = summary_json(
         &a,
-        &input,
-        preset,
-        &params,
-        &sun,
-        solver.name(),
-        &solution,
-        &timings,
-        &npy_path,
-        &png_path,
+        &Solved {
+            input: &input,
+            preset,
+            params: &params,
+            sun: &sun,
+            solver: solver.name(),
+            solution: &solution,
+            timings: &timings,
+            npy_path: &npy_path,
+            png_path: &png_path,
+        },
     );
     let summary_path = a.out.join("summary.json");
     std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)? + "\n")
@@ -199,19 +201,21 @@ fn solve_cmd(a: SolveArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
-fn summary_json(
-    a: &SolveArgs,
-    input: &LoadedInput,
+/// What `sylva lb solve` solved, how, and where it wrote it: its summary's content.
+struct Solved<'a> {
+    input: &'a LoadedInput,
     preset: Preset,
-    params: &LbParams,
-    sun: &Sun,
+    params: &'a LbParams,
+    sun: &'a Sun,
     solver: String,
-    solution: &Solution,
-    timings: &[(&'static str, f64)],
-    npy_path: &Path,
-    png_path: &Path,
-) -> serde_json::Value {
+    solution: &'a Solution,
+    timings: &'a [(&'static str, f64)],
+    npy_path: &'a Path,
+    png_path: &'a Path,
+}
+
+fn summary_json(a: &SolveArgs, s: &Solved<'_>) -> serde_json::Value {
+    let Solved { input, preset, params, sun, solver, solution, timings, npy_path, png_path } = s;
     let d: GridDims = solution.dims;
     let channels: Vec<_> = ["red", "green", "blue"]
         .iter()

@@ -36,7 +36,7 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
             config.cache_dir = d.clone();
         }
         // Caches of workers killed before they could remove them.
-        for d in sylva_scene::workdir::remove_abandoned(&std::env::temp_dir(), "sylva-worker-") {
+        for d in sylva_proto::workdir::remove_abandoned(&std::env::temp_dir(), "sylva-worker-") {
             tracing::info!(dir = %d.display(), "removed a killed worker's bundle cache");
         }
         let coordinator_tls = a.coordinator_tls.load()?;

@@ -14,7 +14,8 @@
 //! whose `Origin` is another site's is refused. Every change takes JSON.
 
 use crate::access::Caller;
-use crate::service::{CoordinatorService, wire_ended, wire_name};
+use crate::job_state::{wire_ended, wire_name};
+use crate::service::CoordinatorService;
 use axum::Router;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};
@@ -27,6 +28,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::Coordinator;
+use sylva_proto::sync::lock;
 use tonic::Request;
 
 const INDEX: &str = include_str!("index.html");
@@ -35,9 +37,27 @@ const STYLE: &str = include_str!("style.css");
 /// How often the event stream sends a snapshot.
 const TICK: Duration = Duration::from_millis(500);
 
-/// Serves the dashboard on `listener` (never returns).
-pub async fn serve(listener: tokio::net::TcpListener, service: CoordinatorService) {
-    crate::metrics::serve_app(listener, router(service)).await
+/// Starts serving the dashboard of `service` on `listener` until
+/// `shutdown`. Without a token anyone who reaches the page could cancel
+/// jobs, so a coordinator without one serves it on a loopback address only.
+pub fn start(
+    listener: tokio::net::TcpListener,
+    service: &CoordinatorService,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<tokio::task::JoinHandle<()>> {
+    let addr = listener.local_addr()?;
+    if !service.needs_token() && !addr.ip().is_loopback() {
+        anyhow::bail!(
+            "--http {addr}: without a token the dashboard serves this machine only (anyone who reaches it could cancel jobs); give --http 127.0.0.1:PORT, or a token (--token-file, or users: sylva token add)"
+        );
+    }
+    let app = router(service.clone());
+    Ok(tokio::spawn(async move {
+        tokio::select! {
+            () = crate::metrics::serve_app(listener, app) => {}
+            () = shutdown => {}
+        }
+    }))
 }
 
 /// The page's routes.
@@ -260,7 +280,7 @@ async fn events(
         tokio::spawn(async move {
             loop {
                 tokio::time::sleep(TICK).await;
-                let last = *taken.lock().expect("lock");
+                let last = *lock(&taken);
                 if Arc::strong_count(&taken) == 1 {
                     return; // the stream ended
                 }
@@ -282,7 +302,7 @@ async fn events(
                 if std::time::Instant::now() > until {
                     return None;
                 }
-                *taken.lock().expect("lock") = std::time::Instant::now();
+                *lock(&taken) = std::time::Instant::now();
                 let data = snapshot(&service, &caller).await.to_string();
                 let event = Event::default().event("snapshot").data(data);
                 Some((Ok::<_, Infallible>(event), (service, false, slot)))

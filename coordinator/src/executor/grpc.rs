@@ -5,6 +5,7 @@ use crate::farm::{FarmEvent, Workers, render_frame};
 use crate::schedule::Strip;
 use std::sync::Arc;
 use std::time::Duration;
+use sylva_proto::sync::lock;
 use sylva_scene::bundle::SceneBundle;
 use sylva_scene::frame::FrameSettings;
 
@@ -42,7 +43,7 @@ impl StripExecutor for Farm<'_> {
         let tx = Arc::new(std::sync::Mutex::new(tx));
         let events = move |e: FarmEvent| {
             if let FarmEvent::StripDone { strip, .. } = e {
-                let _ = tx.lock().expect("lock").send(strip);
+                let _ = lock(&tx).send(strip);
             }
         };
         let frame = self.rt.block_on(render_frame(

@@ -1,7 +1,25 @@
 //! Jobs as clients see them: submit (checked completely before it is
 //! queued), watch, fetch the result, cancel, list and re-prioritise.
 
-use super::*;
+use super::live::LiveFrame;
+use super::{
+    CoordinatorService, EventStream, Job, MAX_NAME, MAX_SUBMITTER, caller, job_id, unix_ms,
+};
+use crate::access::Caller;
+use crate::job_state::{JobState, wire_ended};
+use crate::schedule::ScheduleKind;
+use crate::store::Store;
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+use sylva_proto::pb;
+use sylva_proto::sync::lock;
+use sylva_scene::bundle;
+use sylva_scene::frame::FrameSettings;
+use sylva_scene::sandbox::clip;
+use sylva_scene::sequence::{MAX_FRAMES, View};
+use tokio::sync::broadcast;
+use tokio_stream::StreamExt;
+use tonic::{Request, Response, Status, Streaming};
 
 impl CoordinatorService {
     pub(super) async fn submit(

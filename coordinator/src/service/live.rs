@@ -1,6 +1,6 @@
 //! A job's frame as the dashboard shows it while (and after) it renders.
 
-use super::*;
+use crate::schedule::Strip;
 
 /// A frame as the dashboard shows it while (and after) it renders.
 #[derive(Clone, Debug, Default, serde::Serialize)]

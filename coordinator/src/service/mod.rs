@@ -16,26 +16,25 @@
 //! By resource, as Flamenco's API is split: [`jobs`] (submit, watch,
 //! fetch, cancel, list, priority), [`workers`] (registration, heartbeats,
 //! listing), the `queue` that starts jobs, one job's `run` on the farm
-//! and its [`stats`], the [`live`] view the dashboard reads, and the job
-//! [`state`] machine; `grpc` hands each call of the API to its resource.
+//! and its [`stats`], and the [`live`] view the dashboard reads; `grpc`
+//! hands each call of the API to its resource. A job's states and their
+//! transitions are [`crate::job_state`]'s, below the service.
 
 mod grpc;
 pub mod jobs;
 pub mod live;
 mod queue;
 mod run;
-pub mod state;
 pub mod stats;
 pub mod workers;
 
 pub use live::{LiveFrame, LiveStrip};
-pub use state::{JobState, wire_ended, wire_name};
 use workers::KnownWorker;
 
 use crate::access::{Access, Caller, Role};
-use crate::farm::{self, FarmEvent, Workers};
+use crate::job_state::{JobState, Transition};
 use crate::results::Retention;
-use crate::schedule::{ScheduleKind, Strip, scheduler};
+use crate::schedule::ScheduleKind;
 use crate::store::Store;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -46,14 +45,11 @@ use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::CoordinatorServer;
 use sylva_proto::sync::lock;
 use sylva_scene::SceneLimits;
-use sylva_scene::bundle::{self, SceneBundle};
-use sylva_scene::film::{reinhard, reinhard_like};
 use sylva_scene::frame::FrameSettings;
-use sylva_scene::sandbox::clip;
-use sylva_scene::sequence::{MAX_FRAMES, View};
+use sylva_scene::sequence::View;
 use tokio::sync::{Semaphore, broadcast};
-use tokio_stream::{Stream, StreamExt};
-use tonic::{Request, Response, Status, Streaming};
+use tokio_stream::Stream;
+use tonic::{Request, Status};
 
 /// Longest job name accepted, bytes.
 pub const MAX_NAME: usize = 256;
@@ -105,8 +101,6 @@ pub struct CoordinatorConfig {
     pub results_disk_bytes: u64,
     /// Serve Prometheus metrics here.
     pub metrics: Option<tokio::net::TcpListener>,
-    /// Serve the web dashboard here.
-    pub http: Option<tokio::net::TcpListener>,
     /// Serve the API over TLS with this identity.
     pub tls: Option<tonic::transport::ServerTlsConfig>,
     /// Reach workers over TLS with this.
@@ -132,7 +126,6 @@ impl Default for CoordinatorConfig {
             max_job_pixels: 1 << 30,
             results_disk_bytes: 32 << 30,
             metrics: None,
-            http: None,
             tls: None,
             worker_tls: None,
         }
@@ -166,7 +159,7 @@ struct Job {
 impl Job {
     /// Moves the job to `to`, if its state machine allows it; the summary
     /// clients see follows.
-    fn set_state(&mut self, to: JobState) -> Result<(), state::Transition> {
+    fn set_state(&mut self, to: JobState) -> Result<(), Transition> {
         self.state = self.state.to(to)?;
         self.summary.state = self.state.to_wire();
         Ok(())
@@ -239,9 +232,8 @@ impl CoordinatorService {
     /// was); call [`CoordinatorService::spawn_background`] to run jobs.
     pub async fn open(mut config: CoordinatorConfig) -> anyhow::Result<Self> {
         let metrics_listener = config.metrics.take();
-        let http_listener = config.http.take();
         let dir = config.state_dir.clone();
-        let lock = sylva_scene::workdir::claim(&dir, "state folder")?;
+        let lock = sylva_proto::workdir::claim(&dir, "state folder")?;
         // Scene checks a killed coordinator left half done.
         let _ = std::fs::remove_dir_all(dir.join("check"));
         let url = config
@@ -275,17 +267,6 @@ impl CoordinatorService {
         let jobs = jobs::restore(&store).await?;
         let access = Arc::new(Access::new(config.token.clone()));
         access.set(store.tokens().await?);
-        // Without a token anyone who reaches the page could cancel jobs:
-        // it serves this machine only.
-        if let Some(l) = &http_listener
-            && !access.closed()
-            && !l.local_addr()?.ip().is_loopback()
-        {
-            anyhow::bail!(
-                "--http {}: without a token the dashboard serves this machine only (anyone who reaches it could cancel jobs); give --http 127.0.0.1:PORT, or a token (--token-file, or users: sylva token add)",
-                l.local_addr()?
-            );
-        }
         let slots = Arc::new(Semaphore::new(config.max_running.max(1)));
         tracing::info!(
             state = %dir.display(),
@@ -314,9 +295,6 @@ impl CoordinatorService {
             tokio::spawn(crate::metrics::serve(l, service.state.metrics.clone(), move || {
                 s.gauges()
             }));
-        }
-        if let Some(l) = http_listener {
-            tokio::spawn(crate::dashboard::serve(l, service.clone()));
         }
         Ok(service)
     }
@@ -507,13 +485,15 @@ fn job_id(id: &str) -> Result<&str, Status> {
 
 type EventStream = Pin<Box<dyn Stream<Item = Result<pb::JobEvent, Status>> + Send>>;
 
-/// Opens the coordinator's state, calls `ready`, serves the API, health and
-/// reflection until `shutdown`, then closes the database (and removes an
-/// ephemeral state folder).
+/// Opens the coordinator's state, calls `ready` with the service (where
+/// the binary starts what serves beside it, as the dashboard; an error
+/// there stops the coordinator), serves the API, health and reflection
+/// until `shutdown`, then closes the database (and removes an ephemeral
+/// state folder).
 pub async fn run(
     listener: tokio::net::TcpListener,
     mut config: CoordinatorConfig,
-    ready: impl FnOnce(),
+    ready: impl FnOnce(&CoordinatorService) -> anyhow::Result<()>,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> anyhow::Result<()> {
     let (reporter, health) = tonic_health::server::health_reporter();
@@ -523,7 +503,10 @@ pub async fn run(
         builder = builder.tls_config(tls)?;
     }
     let service = CoordinatorService::open(config).await?;
-    ready();
+    if let Err(e) = ready(&service) {
+        service.clean_up().await;
+        return Err(e);
+    }
     let auth = service.authenticate();
     if !service.needs_token() && listener.local_addr().is_ok_and(|a| !a.ip().is_loopback()) {
         tracing::warn!(

@@ -2,7 +2,12 @@
 //! order) as running slots free up; a job ended and its resources let go;
 //! finished jobs forgotten past their retention.
 
-use super::*;
+use super::{State, unix_ms};
+use crate::job_state::JobState;
+use std::sync::Arc;
+use std::time::Instant;
+use sylva_proto::sync::lock;
+use tokio::sync::broadcast;
 
 impl State {
     /// Starts queued jobs, best first, as running slots free up.

@@ -2,7 +2,21 @@
 //! with progress streamed to watchers and the live view, tone mapped,
 //! encoded and stored.
 
-use super::*;
+use super::live::{LiveFrame, LiveStrip};
+use super::workers::KnownWorker;
+use super::{State, stats};
+use crate::farm::{self, FarmEvent, Workers};
+use crate::job_state::JobState;
+use crate::schedule::{ScheduleKind, Strip, scheduler};
+use std::sync::Arc;
+use std::time::Instant;
+use sylva_proto::pb;
+use sylva_proto::sync::lock;
+use sylva_scene::bundle::{self, SceneBundle};
+use sylva_scene::film::{reinhard, reinhard_like};
+use sylva_scene::frame::FrameSettings;
+use sylva_scene::sandbox::clip;
+use tokio::sync::broadcast;
 
 impl State {
     pub(super) async fn run_job(self: &Arc<Self>, id: &str) {
@@ -75,16 +89,15 @@ impl State {
             keys,
             job: id.to_string(),
         };
-        let farm = farm::render_streamed(
-            &workers,
-            &bundle,
-            &frames,
-            plans,
-            self.config.strip_deadline,
-            move |e| me.on_farm_event(&jid, e, &tx2),
-            resume,
-            out,
-        );
+        let job = farm::FarmJob {
+            workers: &workers,
+            bundle: &bundle,
+            frames: &frames,
+            plans: &plans,
+            deadline: self.config.strip_deadline,
+        };
+        let farm =
+            farm::render_streamed(job, move |e| me.on_farm_event(&jid, e, &tx2), resume, out);
         let (run, kept) = tokio::join!(farm, self.keep_frames(id, finished, started, &tx));
         drop(bundle);
         let run = match run {

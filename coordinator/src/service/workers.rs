@@ -2,7 +2,15 @@
 //! registered (after proving they hold the farm's token), polled by
 //! heartbeats, listed for clients.
 
-use super::*;
+use super::{CoordinatorService, MAX_ID, State, caller};
+use crate::access::Caller;
+use crate::farm;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use sylva_proto::pb;
+use sylva_proto::sync::lock;
+use sylva_scene::sandbox::clip;
+use tonic::{Request, Response, Status};
 
 /// A worker the coordinator knows.
 pub(super) struct KnownWorker {

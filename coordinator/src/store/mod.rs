@@ -9,7 +9,7 @@
 
 mod schema;
 
-use crate::service::JobState;
+use crate::job_state::JobState;
 use anyhow::Context;
 use sqlx::any::{AnyPoolOptions, AnyRow};
 use sqlx::{AnyPool, Row};

@@ -36,7 +36,6 @@ pub mod sandbox;
 pub mod sequence;
 pub mod table2;
 pub mod trees;
-pub mod workdir;
 
 pub use error::{Error, Result};
 pub use load::*;

@@ -274,10 +274,10 @@ pub async fn run(
     let (cache_dir, keep) = (config.cache_dir.clone(), config.keep_cache);
     // This worker's folder while it runs; what an earlier worker left in
     // it is unindexed, so it goes (unless the operator keeps caches).
-    let _lock = sylva_scene::workdir::claim(&cache_dir, "bundle cache")?;
+    let _lock = sylva_proto::workdir::claim(&cache_dir, "bundle cache")?;
     if !keep {
         for e in std::fs::read_dir(&cache_dir)?.flatten() {
-            if e.file_name() != sylva_scene::workdir::LOCK {
+            if e.file_name() != sylva_proto::workdir::LOCK {
                 let _ =
                     std::fs::remove_dir_all(e.path()).or_else(|_| std::fs::remove_file(e.path()));
             }

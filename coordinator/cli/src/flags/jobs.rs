@@ -5,7 +5,7 @@ use crate::flags::security::{ConnectTlsArgs, TokenArgs};
 use clap::Args;
 use std::path::PathBuf;
 use sylva_coordinator::client::{Client, connect};
-use sylva_coordinator::service::JobState;
+use sylva_coordinator::job_state::JobState;
 
 /// Where the coordinator is and how to reach it.
 #[derive(Args, Debug)]
