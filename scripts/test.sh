@@ -21,6 +21,9 @@ if cargo tree --locked -p sylva-coordinator -e normal --prefix none | grep -q '^
   echo "sylva-coordinator depends on wgpu; it must not (docs/architecture.md)" >&2
   exit 1
 fi
+# The layer rules: store/service, service/dashboard, gpu.rs/trace,
+# product/lab, and no import circle of more than two worker files.
+bash scripts/layers.sh
 cargo test --workspace --locked "$@"
 # The Python client (python/) against real processes of that binary.
 SYLVA_BIN="$PWD/target/debug/sylva" bash python/run-tests.sh

@@ -93,7 +93,7 @@ impl StripPixels {
             if (p.width, p.height) != (x1 - x0, height) {
                 return Err(StripError::PassesSize { x0, x1 });
             }
-            p.check().map_err(|why| StripError::Passes { x0, x1, why })?;
+            p.check().map_err(|e| StripError::Passes { x0, x1, why: e.to_string() })?;
         }
         Ok(())
     }
@@ -136,7 +136,7 @@ impl Assembly {
         match (&mut self.passes, &s.passes) {
             (None, None) => {}
             (Some(frame), Some(strip)) => {
-                frame.paste_strip(x0, strip).map_err(StripError::Paste)?;
+                frame.paste_strip(x0, strip).map_err(|e| StripError::Paste(e.to_string()))?;
             }
             (Some(frame), None) => {
                 return Err(StripError::MissingPasses { x0, x1, set: frame.set });

@@ -80,7 +80,7 @@ pub fn decode_reply(
     } else {
         Some(
             PassImage::from_bytes(strip.1 - strip.0, height, passes, &r.passes_f32)
-                .map_err(BadReply::Passes)?,
+                .map_err(|e| BadReply::Passes(e.to_string()))?,
         )
     };
     let px = StripPixels { strip, rgb, coverage, rays, passes };
