@@ -6,7 +6,7 @@
 use crate::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::format::CameraSpec;
-use sylva_scene::frame::{AccelChoice, FrameSettings, ScheduleKind};
+use sylva_scene::frame::{Backend, FrameSettings, ScheduleKind};
 use sylva_scene::passes::{Pass, PassSet};
 use sylva_scene::sequence::View;
 use tonic::Status;
@@ -48,12 +48,12 @@ pub fn lighting_from_wire(v: i32) -> Result<Option<LightingMode>, Status> {
 }
 
 /// The traversal a wire number names.
-pub fn accel_from_wire(v: i32) -> Result<AccelChoice, Status> {
+pub fn accel_from_wire(v: i32) -> Result<Backend, Status> {
     match pb::Accel::try_from(v) {
-        Ok(pb::Accel::Bvh) => Ok(AccelChoice::Bvh),
-        Ok(pb::Accel::Kd) => Ok(AccelChoice::Kd),
-        Ok(pb::Accel::Auto) => Ok(AccelChoice::Auto),
-        Ok(pb::Accel::Rq) => Ok(AccelChoice::Rq),
+        Ok(pb::Accel::Bvh) => Ok(Backend::Bvh),
+        Ok(pb::Accel::Kd) => Ok(Backend::Kd),
+        Ok(pb::Accel::Auto) => Ok(Backend::Auto),
+        Ok(pb::Accel::Rq) => Ok(Backend::Rq),
         Err(_) => Err(Status::invalid_argument(format!(
             "accel {v}: not a traversal this worker knows (auto, rq, bvh, kd)"
         ))),
@@ -61,12 +61,12 @@ pub fn accel_from_wire(v: i32) -> Result<AccelChoice, Status> {
 }
 
 /// The wire's traversal.
-pub fn accel_to_wire(a: AccelChoice) -> pb::Accel {
+pub fn accel_to_wire(a: Backend) -> pb::Accel {
     match a {
-        AccelChoice::Auto => pb::Accel::Auto,
-        AccelChoice::Rq => pb::Accel::Rq,
-        AccelChoice::Bvh => pb::Accel::Bvh,
-        AccelChoice::Kd => pb::Accel::Kd,
+        Backend::Auto => pb::Accel::Auto,
+        Backend::Rq => pb::Accel::Rq,
+        Backend::Bvh => pb::Accel::Bvh,
+        Backend::Kd => pb::Accel::Kd,
     }
 }
 
@@ -238,7 +238,7 @@ mod tests {
         for lighting in [None, Some(LightingMode::Boulanger), Some(LightingMode::GatherAmbient)] {
             let f = FrameSettings {
                 lighting,
-                accel: AccelChoice::Kd,
+                accel: Backend::Kd,
                 ambient: Some([0.1, 0.2, 0.3]),
                 gather_bounces: 2,
                 gather_filter: 0,

@@ -14,7 +14,7 @@ use sylva_accel::SceneAccel;
 use sylva_accel::coverage::{Coverage, triangle_coverage};
 use sylva_light::lb::coarse::ForestLight;
 use sylva_light::lb::solver::PhaseTimer;
-use sylva_scene::frame::{AccelChoice, Backend};
+use sylva_scene::frame::Backend;
 use sylva_scene::{LightingMode, Scene};
 
 /// A scene ready to trace, and what preparing it cost.
@@ -109,7 +109,7 @@ pub struct DiskSource {
 pub fn prepare(
     ctx: &Tracer,
     scene: &Scene,
-    accel: impl Into<AccelChoice>,
+    accel: impl Into<Backend>,
     lighting: LightingMode,
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<PreparedScene> {
@@ -121,7 +121,7 @@ pub fn prepare(
 pub fn prepare_reusing(
     ctx: &Tracer,
     scene: &Scene,
-    accel: impl Into<AccelChoice>,
+    accel: impl Into<Backend>,
     lighting: LightingMode,
     reuse: &mut Reuse,
     progress: &dyn Fn(&str),
@@ -130,7 +130,7 @@ pub fn prepare_reusing(
     // `auto` measured before for this scene on this adapter (in memory, or
     // on disk from before a restart) is not measured again.
     let adapter = ctx.adapter_name();
-    let adopted = (asked == AccelChoice::Auto)
+    let adopted = (asked == Backend::Auto)
         .then(|| {
             let known = reuse.choice.clone().filter(|c| c.adapter == adapter);
             known.or_else(|| reuse.disk.as_ref().and_then(|d| d.cache.choice(&d.bundle, &adapter)))
@@ -138,7 +138,7 @@ pub fn prepare_reusing(
         .flatten()
         // Another worker's word: only a backend this device can run.
         .filter(|c| c.backend != Backend::Rq || ctx.has_ray_queries());
-    let resolved = adopted.as_ref().map_or(asked, |c| c.backend.into());
+    let resolved = adopted.as_ref().map_or(asked, |c| c.backend);
     let candidates = crate::trace::candidates(ctx, resolved)?;
     let needs = lighting::method(lighting).needs;
     let mut phases = PhaseTimer::default();
@@ -155,7 +155,7 @@ pub fn prepare_reusing(
     });
     if let Some(d) = reuse.disk.clone() {
         let lb_for = needs.lb.then_some(d.sun);
-        reuse.found = d.cache.fill(&d.bundle, scene, resolved.walked_structure(), lb_for, reuse);
+        reuse.found = d.cache.fill(&d.bundle, scene, resolved.structure(), lb_for, reuse);
     }
     let had_accel = reuse.accel.clone();
     // The structures are built on another thread while this one solves the
@@ -246,7 +246,7 @@ pub fn prepare_reusing(
         progress("measuring the traversal backends");
         phases.time("choose backend", || crate::trace::choose(ctx, scene, asked, uploads))?
     };
-    if asked == AccelChoice::Auto {
+    if asked == Backend::Auto {
         let measured = adopted.is_none();
         let c = adopted.unwrap_or_else(|| crate::share::SharedChoice {
             adapter,

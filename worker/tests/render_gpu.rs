@@ -6,7 +6,7 @@ mod common;
 use common::{QUAD, TestMaterial, ctx, ray_queries, scratch, write_squares_gltf};
 use std::path::Path;
 use sylva_accel::AccelKind;
-use sylva_scene::frame::AccelChoice;
+use sylva_scene::frame::Backend;
 use sylva_scene::{LightingMode, Scene, parse};
 use sylva_worker::prepare::prepare;
 use sylva_worker::trace::RenderSettings;
@@ -34,13 +34,13 @@ fn a_lit_quad_matches_the_shading_formula() {
     }"#;
     let scene = Scene::build(parse(text, "quad.json").unwrap(), &dir, "quad.json").unwrap();
     let ctx = ctx();
-    let mut kinds = vec![AccelChoice::Bvh, AccelChoice::Kd];
+    let mut kinds = vec![Backend::Bvh, Backend::Kd];
     if ray_queries(&ctx) {
-        kinds.push(AccelChoice::Rq);
+        kinds.push(Backend::Rq);
     }
     for kind in kinds {
         let p = prepare(&ctx, &scene, kind, LightingMode::Local, &|_| {}).unwrap();
-        assert_eq!(Some(p.backend.backend), kind.backend());
+        assert_eq!(Some(p.backend.backend), kind.resolved());
         let f = RenderSettings {
             width: 33,
             height: 33,
@@ -141,11 +141,11 @@ fn ray_queries_render_the_frame_the_bvh_renders() {
         gather_filter: 0,
         passes: Default::default(),
     };
-    let frame = |kind: AccelChoice| {
+    let frame = |kind: Backend| {
         let p = prepare(&ctx, &scene, kind, LightingMode::Reference, &|_| {}).unwrap();
         p.renderer.render_strip(&ctx, &f, 0, f.width).unwrap()
     };
-    let (rq, bvh) = (frame(AccelChoice::Rq), frame(AccelChoice::Bvh));
+    let (rq, bvh) = (frame(Backend::Rq), frame(Backend::Bvh));
     assert_eq!(rq.rays.primary, bvh.rays.primary);
     assert_eq!(rq.coverage, bvh.coverage, "the camera rays hit the same leaves");
     let differ = rq

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 use sylva_coordinator::executor::{StripExecutor, even_strips};
 use sylva_scene::film::{HdrImage, reinhard, write_png};
-use sylva_scene::frame::AccelChoice;
+use sylva_scene::frame::Backend;
 use sylva_scene::{LightingMode, Scene};
 use sylva_worker::frame::reference::{MIN_BATCH_SPP, ReferenceOptions};
 use sylva_worker::frame::{Frame, Fresh, Given, Preparer};
@@ -236,7 +236,7 @@ fn render_reference_here(
     a: &RenderArgs,
     frame: &Frame,
     scene: &Scene,
-    accel: AccelChoice,
+    accel: Backend,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
     let lighting = frame.settings.lighting;
@@ -344,7 +344,7 @@ fn write_image(
 fn with_head(
     a: &RenderArgs,
     exr: Option<PathBuf>,
-    accel: AccelChoice,
+    accel: Backend,
     lighting: LightingMode,
     phases: &[(&str, f64)],
     rest: serde_json::Value,
@@ -379,7 +379,7 @@ pub(super) fn create_parent(path: &Path) -> anyhow::Result<()> {
 fn report(
     a: &RenderArgs,
     stats: &serde_json::Value,
-    accel: AccelChoice,
+    accel: Backend,
     lighting: LightingMode,
     how: &str,
 ) -> anyhow::Result<()> {
@@ -390,7 +390,7 @@ fn report(
 fn report_wrote(
     a: &RenderArgs,
     stats: &serde_json::Value,
-    accel: AccelChoice,
+    accel: Backend,
     lighting: LightingMode,
     how: &str,
     wrote: &str,
@@ -436,7 +436,7 @@ fn render_through_coordinator(
     views: &[View],
     scene: &Scene,
     lighting: LightingMode,
-    accel: AccelChoice,
+    accel: Backend,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
     use crate::loopback::LoopbackProcesses;

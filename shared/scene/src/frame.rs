@@ -42,13 +42,21 @@ pub enum AccelKind {
     Bvh,
 }
 
-/// How rays traverse the scene on a worker's GPU: the choice made.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+/// How rays traverse the scene on a worker's GPU (`--accel`): what a frame
+/// asks for and what a worker chose. `Auto` is asked only: each worker
+/// resolves it for its adapter (`sylva_worker::trace::candidates`), so the
+/// backend a prepared scene traces with is never `Auto`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Backend {
+    /// Each worker chooses for its adapter: ray queries where it has them
+    /// and a short measurement at preparation finds them faster, else the
+    /// BVH.
+    #[default]
+    Auto,
     /// Ray queries: the device's own structures, in hardware where it has
-    /// them.
+    /// them (refused where the adapter has none).
     Rq,
     /// Sylva's four-wide BVH, walked by a compute kernel.
     Bvh,
@@ -57,19 +65,25 @@ pub enum Backend {
 }
 
 impl Backend {
-    /// The structure it walks, built on the CPU (none for ray queries: the
-    /// device builds its own).
+    /// The structure it walks, built on the CPU: `auto` may walk the BVH,
+    /// ray queries walk none (the device builds its own).
     pub fn structure(self) -> Option<AccelKind> {
         match self {
             Backend::Rq => None,
-            Backend::Bvh => Some(AccelKind::Bvh),
+            Backend::Auto | Backend::Bvh => Some(AccelKind::Bvh),
             Backend::Kd => Some(AccelKind::Kd),
         }
+    }
+
+    /// The backend it names; `None` for `auto`, which a worker resolves.
+    pub fn resolved(self) -> Option<Backend> {
+        (self != Backend::Auto).then_some(self)
     }
 
     /// Its name, as `--accel` spells it.
     pub fn name(self) -> &'static str {
         match self {
+            Backend::Auto => "auto",
             Backend::Rq => "rq",
             Backend::Bvh => "bvh",
             Backend::Kd => "kd",
@@ -82,65 +96,6 @@ impl From<AccelKind> for Backend {
         match k {
             AccelKind::Bvh => Backend::Bvh,
             AccelKind::Kd => Backend::Kd,
-        }
-    }
-}
-
-/// What a frame asks of the traversal (`--accel`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum AccelChoice {
-    /// Each worker chooses for its adapter: ray queries where it has them
-    /// and a short measurement at preparation finds them faster, else the
-    /// BVH.
-    #[default]
-    Auto,
-    /// Ray queries (refused where the adapter has none).
-    Rq,
-    /// The four-wide BVH.
-    Bvh,
-    /// The kd-tree.
-    Kd,
-}
-
-impl AccelChoice {
-    /// The structure a worker builds on the CPU for it: `auto` may walk
-    /// the BVH, ray queries need none.
-    pub fn walked_structure(self) -> Option<AccelKind> {
-        match self {
-            AccelChoice::Auto | AccelChoice::Bvh => Some(AccelKind::Bvh),
-            AccelChoice::Kd => Some(AccelKind::Kd),
-            AccelChoice::Rq => None,
-        }
-    }
-
-    /// The backend it names; `None` for `auto`.
-    pub fn backend(self) -> Option<Backend> {
-        match self {
-            AccelChoice::Auto => None,
-            AccelChoice::Rq => Some(Backend::Rq),
-            AccelChoice::Bvh => Some(Backend::Bvh),
-            AccelChoice::Kd => Some(Backend::Kd),
-        }
-    }
-}
-
-impl From<Backend> for AccelChoice {
-    fn from(b: Backend) -> Self {
-        match b {
-            Backend::Rq => AccelChoice::Rq,
-            Backend::Bvh => AccelChoice::Bvh,
-            Backend::Kd => AccelChoice::Kd,
-        }
-    }
-}
-
-impl From<AccelKind> for AccelChoice {
-    fn from(k: AccelKind) -> Self {
-        match k {
-            AccelKind::Bvh => AccelChoice::Bvh,
-            AccelKind::Kd => AccelChoice::Kd,
         }
     }
 }
@@ -172,7 +127,7 @@ pub struct FrameSettings {
     /// Lighting method; `None`: the scene file's.
     pub lighting: Option<LightingMode>,
     /// The traversal backend asked for (`auto`: each worker's choice).
-    pub accel: AccelChoice,
+    pub accel: Backend,
     /// Weight of the LB light relative to the sun's.
     pub lb_strength: f32,
     /// The `ambient` method's constant, linear RGB; `None`: matched to the
@@ -203,7 +158,7 @@ impl Default for FrameSettings {
             spp: 1,
             seed: 1,
             lighting: None,
-            accel: AccelChoice::Auto,
+            accel: Backend::Auto,
             lb_strength: 0.35,
             ambient: None,
             view: Default::default(),

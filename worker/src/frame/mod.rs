@@ -29,7 +29,7 @@ use crate::trace::{RenderSettings, RenderedStrip, Tracer};
 use reference::{ReferenceImage, ReferenceOptions, ReferenceStats};
 use std::sync::Arc;
 use std::time::Instant;
-use sylva_scene::frame::{AccelChoice, FrameSettings};
+use sylva_scene::frame::{Backend, FrameSettings};
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
 
@@ -42,7 +42,7 @@ pub trait Preparer {
         &mut self,
         tracer: &Tracer,
         scene: &Scene,
-        accel: AccelChoice,
+        accel: Backend,
         lighting: LightingMode,
         view: &View,
         progress: &dyn Fn(&str),
@@ -64,7 +64,7 @@ pub trait Preparer {
 pub struct AmbientKey(String);
 
 impl AmbientKey {
-    fn of(accel: AccelChoice, s: &RenderSettings) -> Self {
+    fn of(accel: Backend, s: &RenderSettings) -> Self {
         Self(format!(
             "{accel:?}/{}x{}/{}/{}/{:?}",
             s.width, s.height, s.seed, s.lb_strength, s.view
@@ -95,7 +95,7 @@ impl Preparer for Fresh {
         &mut self,
         tracer: &Tracer,
         scene: &Scene,
-        accel: AccelChoice,
+        accel: Backend,
         lighting: LightingMode,
         view: &View,
         progress: &dyn Fn(&str),
@@ -129,7 +129,7 @@ impl Preparer for Given {
         &mut self,
         _: &Tracer,
         _: &Scene,
-        _: AccelChoice,
+        _: Backend,
         _: LightingMode,
         _: &View,
         _: &dyn Fn(&str),

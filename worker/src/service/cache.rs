@@ -15,7 +15,7 @@ use std::time::Instant;
 use sylva_accel::AccelKind;
 use sylva_proto::pb;
 use sylva_proto::sync::lock;
-use sylva_scene::frame::{AccelChoice, FrameSettings};
+use sylva_scene::frame::{Backend, FrameSettings};
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
 use tokio_stream::StreamExt;
@@ -34,7 +34,7 @@ impl Preparer for BundleCaches<'_> {
         &mut self,
         _: &Tracer,
         scene: &Scene,
-        accel: AccelChoice,
+        accel: Backend,
         lighting: LightingMode,
         view: &View,
         _: &dyn Fn(&str),
@@ -61,7 +61,7 @@ pub(super) struct Cached {
 /// A prepared scene's key: bundle hash, structure, what the lighting needs
 /// prepared, and the sun's bits where that depends on the sun (`None`: the
 /// scene's own sun, or a method the sun does not change).
-pub(super) type PreparedKey = (String, AccelChoice, crate::lighting::Needs, Option<[u32; 3]>);
+pub(super) type PreparedKey = (String, Backend, crate::lighting::Needs, Option<[u32; 3]>);
 
 /// A scene's LB light's key: bundle hash and the sun's bits (`None`: the
 /// scene's own sun).
@@ -204,7 +204,7 @@ impl State {
         &self,
         scene: &Scene,
         hash: &str,
-        accel: AccelChoice,
+        accel: Backend,
         lighting: LightingMode,
         view: &View,
     ) -> anyhow::Result<Arc<PreparedScene>> {
@@ -218,7 +218,7 @@ impl State {
         let lb_key = (hash.to_string(), sun);
         let mut reuse = Reuse {
             accel: accel
-                .walked_structure()
+                .structure()
                 .and_then(|k| lock(&self.accels).get(&(hash.to_string(), k)).cloned()),
             coverage: None,
             lb: if needs.lb {
@@ -339,7 +339,7 @@ impl State {
         let sun = if needs.lb || needs.clouds { f.view.sun_key() } else { None };
         Ok(Preparation {
             hash: hash.clone(),
-            structure: f.accel.walked_structure(),
+            structure: f.accel.structure(),
             lb_key: (hash, sun),
             needs_lb: needs.lb,
             scene,

@@ -13,7 +13,7 @@ use crate::gpu::GpuContext;
 use serde::Serialize;
 use std::time::Instant;
 use sylva_scene::Scene;
-use sylva_scene::frame::{AccelChoice, Backend};
+use sylva_scene::frame::Backend;
 
 /// Probe image: one camera ray per pixel of this many columns and rows.
 const PROBE_SIZE: (u32, u32) = (128, 64);
@@ -42,7 +42,7 @@ pub struct ProbeTime {
 #[derive(Clone, Debug, Serialize)]
 pub struct BackendChoice {
     /// What the frame asked for.
-    pub asked: AccelChoice,
+    pub asked: Backend,
     /// What rays traverse.
     pub backend: Backend,
     /// Why, in a sentence.
@@ -53,13 +53,13 @@ pub struct BackendChoice {
 
 impl BackendChoice {
     /// The choice when only one backend was a candidate.
-    pub fn asked(asked: AccelChoice, backend: Backend, ctx: &GpuContext) -> Self {
+    pub fn asked(asked: Backend, backend: Backend, ctx: &GpuContext) -> Self {
         let why = match asked {
-            AccelChoice::Auto if !ctx.has_ray_queries() => format!(
+            Backend::Auto if !ctx.has_ray_queries() => format!(
                 "auto: {} offers no ray queries, so the BVH, the faster compute walk",
                 ctx.adapter_name()
             ),
-            AccelChoice::Auto => format!("auto: {}", backend.name()),
+            Backend::Auto => format!("auto: {}", backend.name()),
             _ => format!("asked for {}", backend.name()),
         };
         Self { asked, backend, why, probe: Vec::new() }
@@ -67,8 +67,8 @@ impl BackendChoice {
 }
 
 /// The backends a preparation builds for `asked` on this device.
-pub fn candidates(ctx: &GpuContext, asked: AccelChoice) -> anyhow::Result<Vec<Backend>> {
-    Ok(match asked.backend() {
+pub fn candidates(ctx: &GpuContext, asked: Backend) -> anyhow::Result<Vec<Backend>> {
+    Ok(match asked.resolved() {
         Some(Backend::Rq) if !ctx.has_ray_queries() => anyhow::bail!(
             "--accel rq: {} offers no ray queries (wgpu's EXPERIMENTAL_RAY_QUERY); use auto, bvh or kd",
             ctx.adapter_name()
@@ -85,7 +85,7 @@ pub fn candidates(ctx: &GpuContext, asked: AccelChoice) -> anyhow::Result<Vec<Ba
 pub fn choose(
     ctx: &GpuContext,
     scene: &Scene,
-    asked: AccelChoice,
+    asked: Backend,
     uploads: Vec<GpuScene>,
 ) -> anyhow::Result<(GpuScene, BackendChoice)> {
     let (w, h) = PROBE_SIZE;

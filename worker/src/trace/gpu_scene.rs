@@ -40,7 +40,8 @@ impl SceneStructure<'_> {
 /// `ACCEL_KIND` in the WGSL for a backend.
 pub fn accel_kind(backend: Backend) -> u32 {
     match backend {
-        Backend::Bvh => 0,
+        // `auto` walks the BVH until its worker resolves it (`Backend::structure`).
+        Backend::Auto | Backend::Bvh => 0,
         Backend::Kd => 1,
         Backend::Rq => 2,
     }

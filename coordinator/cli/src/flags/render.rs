@@ -28,7 +28,7 @@ pub struct FrameArgs {
     /// ray queries against the BVH where its adapter has them, and says
     /// what it chose.
     #[arg(long, value_enum, default_value = "auto")]
-    pub accel: sylva_scene::frame::AccelChoice,
+    pub accel: sylva_scene::frame::Backend,
     /// Lighting method; default the scene's. `auto` (`render` in this
     /// process only) picks one with its parameters from a short pilot on
     /// the scene, for --time-budget or --max-error.

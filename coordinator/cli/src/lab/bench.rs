@@ -356,6 +356,11 @@ fn measurable(
         .iter()
         .copied()
         .filter(|&b| {
+            // A benchmark measures a backend: `auto` is a worker's choice among them.
+            if b == Backend::Auto {
+                eprintln!("auto left out: it measures the others and takes one");
+                return false;
+            }
             let runs = b != Backend::Rq || ctx.has_ray_queries();
             if !runs {
                 eprintln!("rq left out: {} offers no ray queries", ctx.adapter_name());
@@ -579,7 +584,7 @@ fn bench_frames(
                 height: a.height,
                 spp,
                 lighting: Some(LightingMode::Lb),
-                accel: kind.into(),
+                accel: kind,
                 ..FrameSettings::default()
             };
             let frame = Frame::compose(ctx, scene, &request, &mut *preparer, &|_| {})?;
