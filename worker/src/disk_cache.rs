@@ -90,7 +90,7 @@ impl DiskCache {
                     reuse.accel = Some(std::sync::Arc::new(a));
                     found.accel = true;
                 }
-                other => self.discard(&accel_key(bundle, kind), other.err()),
+                other => self.discard(&accel_key(bundle, kind), other.err().map(|e| e.to_string())),
             }
         }
         if let (Some(sun), None) = (lb_for, &reuse.lb) {
@@ -101,7 +101,7 @@ impl DiskCache {
                         reuse.lb = Some(std::sync::Arc::new(lb));
                         found.lb = true;
                     }
-                    other => self.discard(&key, other.err()),
+                    other => self.discard(&key, other.err().map(|e| e.to_string())),
                 }
             }
         }

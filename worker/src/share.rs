@@ -80,6 +80,33 @@ pub fn export(
     Ok(Exported { bytes, hash })
 }
 
+/// Why prepared data was refused: another worker's (or the disk's) bytes
+/// that do not hold together for this scene.
+#[derive(Debug, thiserror::Error)]
+pub enum Refused {
+    /// Bytes that are not what their hash says.
+    #[error("the prepared data's bytes do not match its hash")]
+    Hash,
+    /// Bytes that do not decode.
+    #[error("the prepared data cannot be read: {0}")]
+    Unreadable(postcard::Error),
+    /// Another format version.
+    #[error("prepared data of format {0} where this worker reads {FORMAT}")]
+    Format(u32),
+    /// No LB light where the frame's lighting needs it.
+    #[error("the prepared data holds no LB light, which this frame's lighting needs")]
+    NoLb,
+    /// Structures where ray queries need none.
+    #[error("the prepared data holds structures where none was asked for")]
+    UnaskedStructures,
+    /// Structures that do not fit the scene's models.
+    #[error("{0}")]
+    Structures(sylva_accel::Error),
+    /// LB light that does not fit the scene.
+    #[error("{0}")]
+    Lb(String),
+}
+
 /// Reads prepared data for `scene`: its hash must be `hash`, its
 /// structures of `kind` (none when `None`) and fit the scene's models, and
 /// its LB light (which it must hold when `want_lb`) fit the scene.
@@ -89,34 +116,28 @@ pub fn import(
     scene: &Scene,
     kind: Option<AccelKind>,
     want_lb: bool,
-) -> Result<Imported, String> {
+) -> Result<Imported, Refused> {
     if blake3::hash(bytes).to_hex().as_str() != hash {
-        return Err("the prepared data's bytes do not match its hash".into());
+        return Err(Refused::Hash);
     }
-    let d: Incoming = postcard::from_bytes(bytes)
-        .map_err(|e| format!("the prepared data cannot be read: {e}"))?;
+    let d: Incoming = postcard::from_bytes(bytes).map_err(Refused::Unreadable)?;
     if d.format != FORMAT {
-        return Err(format!(
-            "prepared data of format {} where this worker reads {FORMAT}",
-            d.format
-        ));
+        return Err(Refused::Format(d.format));
     }
     let lb = match (d.lb, want_lb) {
         (Some(lb), true) => {
             check_lb(&lb, scene)?;
             Some(lb)
         }
-        (None, true) => {
-            return Err(
-                "the prepared data holds no LB light, which this frame's lighting needs".into()
-            );
-        }
+        (None, true) => return Err(Refused::NoLb),
         (_, false) => None,
     };
     let accel = match kind {
-        Some(kind) => Some(SceneAccel::from_models(scene, kind, d.models)?),
+        Some(kind) => {
+            Some(SceneAccel::from_models(scene, kind, d.models).map_err(Refused::Structures)?)
+        }
         None if d.models.is_empty() => None,
-        None => return Err("the prepared data holds structures where none was asked for".into()),
+        None => return Err(Refused::UnaskedStructures),
     };
     // Another worker's words: bounded before they are kept and shown.
     let choice = d.choice.map(|c| SharedChoice {
@@ -130,19 +151,19 @@ pub fn import(
 /// Checks LB light received for `scene`: one entry per model and per
 /// instance, every grid's values as many as its nodes, finite and not
 /// negative, and grid frames with finite corners and positive cells.
-fn check_lb(lb: &SceneLb, scene: &Scene) -> Result<(), String> {
+fn check_lb(lb: &SceneLb, scene: &Scene) -> Result<(), Refused> {
     let (models, instances) = (scene.models.len(), scene.instances.len());
     if lb.grids.len() != models || lb.light.len() != models || lb.scales.len() != instances {
-        return Err(format!(
+        return Err(Refused::Lb(format!(
             "LB light for {} models ({} reports) and {} instances, in a scene of {models} models and {instances} instances",
             lb.grids.len(),
             lb.light.len(),
             lb.scales.len()
-        ));
+        )));
     }
     let light = |v: &[f32]| v.iter().all(|x| x.is_finite() && *x >= 0.0);
     if !light(&lb.scales) {
-        return Err("LB instance scales that are not finite and positive".into());
+        return Err(Refused::Lb("LB instance scales that are not finite and positive".into()));
     }
     for (i, g) in lb.grids.iter().enumerate() {
         let Some(g) = g else { continue };
@@ -162,9 +183,9 @@ fn check_lb(lb: &SceneLb, scene: &Scene) -> Result<(), String> {
             || !framed
             || !light(&g.rgb)
         {
-            return Err(format!(
+            return Err(Refused::Lb(format!(
                 "model {i}'s LB grid: its shape, frame or values do not hold together"
-            ));
+            )));
         }
     }
     if let Some(ground) = &lb.ground {
@@ -173,9 +194,9 @@ fn check_lb(lb: &SceneLb, scene: &Scene) -> Result<(), String> {
             && ground.cell > 0.0;
         let nodes = ground.nx.checked_mul(ground.nz).and_then(|n| n.checked_mul(3));
         if nodes != Some(ground.rgb.len()) || !framed || !light(&ground.rgb) {
-            return Err(
-                "the ground's LB light: its shape, frame or values do not hold together".into()
-            );
+            return Err(Refused::Lb(
+                "the ground's LB light: its shape, frame or values do not hold together".into(),
+            ));
         }
     }
     Ok(())

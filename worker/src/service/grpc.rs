@@ -257,7 +257,7 @@ impl Worker for WorkerService {
         let t = Instant::now();
         // Prepared data is taken from the coordinator this worker
         // registered with, and no one else holding a token.
-        let registered = self.state.config.session.read().expect("lock").is_some();
+        let registered = sylva_proto::sync::read(&self.state.config.session).is_some();
         let via = request.extensions().get::<Via>().copied();
         if registered && via != Some(Via::Coordinator) {
             return Err(Status::permission_denied(

@@ -110,7 +110,7 @@ fn authenticate(
     move |mut req: Request<()>| {
         let eq = |a: &str, b: &str| sylva_proto::auth::constant_time_eq(a.as_bytes(), b.as_bytes());
         let got = sylva_proto::auth::bearer_of(&req).map(str::to_string);
-        let key = session.read().expect("lock").clone();
+        let key = sylva_proto::sync::read(&session).clone();
         let via = match (&got, &key, &token) {
             (Some(g), Some(k), _) if eq(g, k) => Via::Coordinator,
             (Some(g), _, Some(t)) if eq(g, t) => Via::Token,
