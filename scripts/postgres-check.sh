@@ -27,7 +27,7 @@ for t in a_coordinator_killed_mid_sequence_resumes_it_and_every_frame_is_the_sam
     as "$bin/psql" -h 127.0.0.1 -p "$port" -U sylva -d postgres -qc "CREATE DATABASE $db"
     echo "== $t on postgres://sylva@127.0.0.1:$port/$db"
     SYLVA_TEST_DATABASE_URL="postgres://sylva@127.0.0.1:$port/$db" \
-        cargo test --locked -p sylva --test durable "$t" -- --exact --nocapture 2>&1 \
+        cargo test --locked -p sylva --test tests "durable::$t" -- --exact --nocapture 2>&1 \
         | grep -v ' WARN ' || exit 1
     echo "-- what the database holds after it:"
     as "$bin/psql" -h 127.0.0.1 -p "$port" -U sylva -d "$db" -c \

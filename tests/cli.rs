@@ -1,7 +1,7 @@
 //! The `sylva` program as a user runs it: real processes, real files, the
 //! real GPU adapter (lavapipe in CI).
 
-mod common;
+use crate::common;
 
 use common::{fails, ok, scratch};
 

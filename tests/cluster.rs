@@ -3,7 +3,7 @@
 //! farm), through a worker killed with SIGKILL mid-frame, and with several
 //! jobs at once.
 
-mod common;
+use crate::common;
 
 use common::{Proc, spawn, sylva};
 use std::path::{Path, PathBuf};

@@ -4,7 +4,7 @@
 //! button stops another job. A screenshot is written to
 //! `sylva-out/dashboard.png` (or `$SYLVA_DASHBOARD_SCREENSHOT`).
 
-mod common;
+use crate::common;
 
 use base64::Engine as _;
 use common::{coordinator, scratch, small_scene, spawn, spec, submission, sylva};

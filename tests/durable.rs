@@ -5,7 +5,7 @@
 //! kill; ids are never handed out twice. Real worker and coordinator
 //! processes, real gRPC, a real SQLite file.
 
-mod common;
+use crate::common;
 
 use common::{Proc, coordinator, ok, scratch, small_scene, spawn, spawn_logging};
 use std::path::Path;

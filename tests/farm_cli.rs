@@ -2,7 +2,7 @@
 //! `priority`, `fetch`): real processes against a real coordinator and
 //! worker over loopback gRPC.
 
-mod common;
+use crate::common;
 
 use common::{coordinator, scratch, small_scene, spawn, spec, submission, sylva, wait_for_workers};
 use serde_json::Value;

@@ -2,7 +2,7 @@
 //! worker processes, raw gRPC, crafted bundles and hostile files on disk.
 //! Each test is one finding of issue 9, failing before its fix.
 
-mod common;
+use crate::common;
 
 use common::*;
 use std::path::Path;

@@ -2,7 +2,7 @@
 //! validator and read back by `sylva scene import` and Sylva's own loader)
 //! and to pbrt-v4.
 
-mod common;
+use crate::common;
 
 use common::{ok, scratch};
 use glam::Mat4;

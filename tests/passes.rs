@@ -3,7 +3,7 @@
 //! in-process renderer writes, to the bit; `sylva fetch` and sequences
 //! keep it.
 
-mod common;
+use crate::common;
 
 use common::{coordinator, scratch, small_scene, spawn, sylva, wait_for_workers};
 use std::path::Path;

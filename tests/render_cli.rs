@@ -1,7 +1,7 @@
 //! `sylva scene` and `sylva render` as a user runs them: real processes,
 //! real files, the real GPU adapter (lavapipe in CI).
 
-mod common;
+use crate::common;
 
 use common::{fails, ok, scratch};
 

@@ -4,7 +4,7 @@
 //! once per sun on the farm and reused by a second pass; bad sequences
 //! refused at the door.
 
-mod common;
+use crate::common;
 
 use common::{coordinator, scratch, small_scene, spawn, spec, submission, sylva, wait_for_workers};
 use sylva_proto::pb;

@@ -1,7 +1,7 @@
 //! A coordinator process and worker processes that register with it, driven
 //! by `sylva submit` clients and a raw gRPC client, all on loopback.
 
-mod common;
+use crate::common;
 
 use common::{Proc, spawn, sylva};
 use std::path::{Path, PathBuf};

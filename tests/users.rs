@@ -4,7 +4,7 @@
 //! admin on any, revocation, and the audit log. Real processes, real gRPC,
 //! a real SQLite file.
 
-mod common;
+use crate::common;
 
 use common::{Client, coordinator, ok, scratch, small_scene, spawn, spec, sylva};
 use std::time::Duration;

@@ -1,6 +1,6 @@
 //! A real `sylva worker` process on loopback, spoken to over real gRPC.
 
-mod common;
+use crate::common;
 
 use common::{Proc, spawn};
 use std::path::{Path, PathBuf};

@@ -2,7 +2,7 @@
 //! for every lighting method without changing it, each part is what its
 //! closed form says, and the guides name what each pixel sees.
 
-mod common;
+use crate::common;
 
 use common::{QUAD, TestMaterial, ctx, scratch, write_squares_gltf};
 use glam::Vec3;

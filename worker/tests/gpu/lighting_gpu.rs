@@ -3,7 +3,7 @@
 //! bounces, their own 1/√spp convergence, and the CPU evaluation of the
 //! Boulanger terms.
 
-mod common;
+use crate::common;
 
 use common::{QUAD, TestMaterial, ctx, write_squares_gltf};
 use std::path::Path;

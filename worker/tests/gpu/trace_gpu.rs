@@ -9,7 +9,7 @@ use sylva_scene::{Scene, parse};
 use sylva_worker::GpuContext;
 use sylva_worker::trace::{GpuRay, GpuScene, RayCaster, SceneStructure};
 
-mod common;
+use crate::common;
 
 fn scene() -> Scene {
     let text = r#"{

@@ -1,7 +1,7 @@
 //! The strip renderer on the machine's real adapter: an analytic image,
 //! determinism across strip splits, and holes in alpha-masked leaves.
 
-mod common;
+use crate::common;
 
 use common::{QUAD, TestMaterial, ctx, ray_queries, scratch, write_squares_gltf};
 use std::path::Path;
