@@ -12,7 +12,7 @@
 //!
 //! and then what the frame is: strips of columns ([`Frame::strip`],
 //! [`Frame::strips`]), passes included, or the reference converged
-//! ([`Frame::reference`], [`reference`]). A [`Frame`] says what it cost
+//! ([`Frame::reference`], [`reference`](mod@reference)). A [`Frame`] says what it cost
 //! ([`Frame::timings`]) and what was chosen (its prepared scene's
 //! backend, LB grids and envelopes).
 //!

@@ -51,8 +51,8 @@
 //! ω_j = −ω_{7−j}; here ω_{j+4} = −ω_j instead, so a shader recovers the
 //! upper four by negating the lower four in order. y is up.
 //!
-//! The per-leaf precomputation is [`envelope`]; the per-sun constants and
-//! the lighting terms are [`shade`].
+//! The per-leaf precomputation is in `envelope.rs`; the per-sun constants and
+//! the lighting terms in `shade.rs`.
 
 mod envelope;
 mod shade;
