@@ -279,6 +279,28 @@ fn lb_key(bundle: &str, scene: &Scene, sun: Option<[u32; 3]>) -> String {
 mod tests {
     use super::*;
 
+    /// `auto`'s choice is kept on disk as postcard, which numbers a
+    /// backend by its variant's place: rq, bvh and kd keep the numbers they
+    /// had before `auto` joined the type, so a choice kept by an earlier
+    /// build still names the backend it chose.
+    #[test]
+    fn a_kept_choice_reads_back_as_the_backend_it_named() {
+        use sylva_scene::frame::Backend;
+        let numbers: Vec<u8> = [Backend::Rq, Backend::Bvh, Backend::Kd, Backend::Auto]
+            .iter()
+            .map(|b| postcard::to_stdvec(b).unwrap()[0])
+            .collect();
+        assert_eq!(numbers, [0, 1, 2, 3]);
+        let c = crate::share::SharedChoice {
+            adapter: "a".into(),
+            backend: Backend::Bvh,
+            why: "w".into(),
+        };
+        let back: crate::share::SharedChoice =
+            postcard::from_bytes(&postcard::to_stdvec(&c).unwrap()).unwrap();
+        assert_eq!(back.backend, Backend::Bvh);
+    }
+
     /// Beyond its bound, the least recently used entries go first.
     #[test]
     fn the_least_recently_used_entries_go_beyond_the_bound() {

@@ -136,7 +136,9 @@ pub fn prepare_reusing(
             known.or_else(|| reuse.disk.as_ref().and_then(|d| d.cache.choice(&d.bundle, &adapter)))
         })
         .flatten()
-        // Another worker's word: only a backend this device can run.
+        // Another worker's word (or the disk's): only a backend, never
+        // `auto` itself, and one this device can run.
+        .filter(|c| c.backend.resolved().is_some())
         .filter(|c| c.backend != Backend::Rq || ctx.has_ray_queries());
     let resolved = adopted.as_ref().map_or(asked, |c| c.backend);
     let candidates = crate::trace::candidates(ctx, resolved)?;

@@ -50,11 +50,9 @@ pub enum AccelKind {
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Backend {
-    /// Each worker chooses for its adapter: ray queries where it has them
-    /// and a short measurement at preparation finds them faster, else the
-    /// BVH.
-    #[default]
-    Auto,
+    // The order is the variants' number in postcard, which the prepared-data
+    // cache on disk and between workers stores: `auto` comes last, so a
+    // choice kept before it existed still reads as the backend it named.
     /// Ray queries: the device's own structures, in hardware where it has
     /// them (refused where the adapter has none).
     Rq,
@@ -62,6 +60,11 @@ pub enum Backend {
     Bvh,
     /// Sylva's kd-tree, walked by a compute kernel (the paper's).
     Kd,
+    /// Each worker chooses for its adapter: ray queries where it has them
+    /// and a short measurement at preparation finds them faster, else the
+    /// BVH.
+    #[default]
+    Auto,
 }
 
 impl Backend {
