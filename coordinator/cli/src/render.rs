@@ -94,25 +94,60 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
 fn render_here(
     a: &RenderArgs,
     request: &FrameSettings,
-    mut scene: Scene,
+    scene: Scene,
     choose_grids: bool,
     goal: Option<Goal>,
     mut phases: Vec<(&'static str, f64)>,
 ) -> anyhow::Result<()> {
+    let tracer = Tracer::new()?;
+    let c = compose_here(a, &tracer, request, scene, choose_grids, goal, &mut phases)?;
+    // The reference converges by its own error; `auto`'s path tracer
+    // takes the samples the pilot chose, as a frame of strips.
+    if c.frame.settings.lighting == LightingMode::Reference && c.auto.is_none() {
+        return render_reference_here(a, &c.frame, &c.scene, c.request.accel, phases);
+    }
+    render_strips_here(a, &tracer, c, phases)
+}
+
+/// A frame composed in this process, and what was chosen on the way.
+struct Composed {
+    frame: Frame,
+    /// The scene as rendered (with the grids the pilot or `--lb-grid auto` chose).
+    scene: Scene,
+    /// The frame's settings (the method and rays `--lighting auto` chose).
+    request: FrameSettings,
+    /// What `--lighting auto` measured and chose.
+    auto: Option<pilot::Report>,
+    /// What `--lb-grid auto` chose per model.
+    grids: Option<Vec<sylva_worker::lighting::lb::auto::GridChoice>>,
+    /// Writes what was built or solved here to the prepared-data cache:
+    /// run once the frame is out, so the first frame does not wait for the disk.
+    keep: Option<Box<dyn FnOnce()>>,
+}
+
+/// Composes the frame through the frame layer: `--lighting auto`'s pilot
+/// first (its preparation is the frame's), `--lb-grid auto`'s choice, then
+/// the preparation (reading the prepared-data cache) and the ambient match.
+fn compose_here(
+    a: &RenderArgs,
+    tracer: &Tracer,
+    request: &FrameSettings,
+    mut scene: Scene,
+    choose_grids: bool,
+    goal: Option<Goal>,
+    phases: &mut Vec<(&'static str, f64)>,
+) -> anyhow::Result<Composed> {
     let bar = ProgressBar::new_spinner();
     bar.set_style(
         ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
     );
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let say = |m: &str| progress::stage(&bar, m);
-    let tracer = Tracer::new()?;
-    // `--lighting auto`: the pilot prepares every grid it tries; the
-    // chosen one's preparation is the frame's.
     let (request, mut given, auto) = match goal {
         Some(goal) => {
             let t = Instant::now();
             let plan = even_strips(a.frame.width, STRIP);
-            let c = pilot::choose(&tracer, &scene, request, &plan, goal, &say)?;
+            let c = pilot::choose(tracer, &scene, request, &plan, goal, &say)?;
             phases.push(("pilot", ms(t)));
             tracing::info!(chosen = %c.report.chosen.name, "--lighting auto: {}", c.report.why);
             scene = c.scene;
@@ -120,12 +155,12 @@ fn render_here(
         }
         None => (*request, None, None),
     };
-    let (lighting, accel) = (request.lighting_or(scene.lighting), request.accel);
-    let mut choices = None;
+    let lighting = request.lighting_or(scene.lighting);
+    let mut grids = None;
     if choose_grids && sylva_worker::lighting::method(lighting).needs.lb {
         let t = Instant::now();
         let c = sylva_worker::lighting::lb::auto::choose_lb_grids(
-            &tracer,
+            tracer,
             &scene,
             &[16, 32, 64, 128],
             a.lb_auto_tolerance,
@@ -135,7 +170,7 @@ fn render_here(
             m.lb.grid = c.grid;
         }
         phases.push(("lb grid choice", ms(t)));
-        choices = Some(c);
+        grids = Some(c);
     }
     // Otherwise prepared here, reading what the prepared-data cache holds
     // of the scene (its entries named by the bundle's content, as a
@@ -151,19 +186,26 @@ fn render_here(
         Some(g) => g,
         None => &mut fresh,
     };
-    let frame = Frame::compose(&tracer, &scene, &request, preparer, &say)?;
+    let frame = Frame::compose(tracer, &scene, &request, preparer, &say)?;
     if given.is_none() {
         phases.extend(frame.prepared.phases.0.iter().map(|p| (p.name, p.ms)));
     }
     phases
         .extend(frame.timings.iter().copied().filter(|(n, _)| given.is_none() || *n != "prepare"));
     bar.finish_and_clear();
+    let keep = fresh.reuse.keeper(&scene).map(|k| Box::new(k) as Box<dyn FnOnce()>);
+    Ok(Composed { frame, scene, request, auto, grids, keep })
+}
 
-    // The reference converges by its own error; `auto`'s path tracer
-    // takes the samples the pilot chose, as a frame of strips.
-    if lighting == LightingMode::Reference && auto.is_none() {
-        return render_reference_here(a, &frame, &scene, accel, phases);
-    }
+/// The composed frame traced as strips, assembled, written with its stats.
+fn render_strips_here(
+    a: &RenderArgs,
+    tracer: &Tracer,
+    c: Composed,
+    mut phases: Vec<(&'static str, f64)>,
+) -> anyhow::Result<()> {
+    let Composed { frame, scene, request, auto, grids, keep } = c;
+    let (lighting, accel) = (frame.settings.lighting, request.accel);
     let plan = even_strips(a.frame.width, STRIP);
     let bar = ProgressBar::new(plan.len() as u64);
     bar.set_style(
@@ -181,8 +223,7 @@ fn render_here(
     bar.finish_and_clear();
 
     let (tone, exr) = write_image(a, &image, passes.as_ref(), &mut phases)?;
-    // Written once the frame is out, so the first frame does not wait for the disk.
-    if let Some(keep) = fresh.reuse.keeper(&scene) {
+    if let Some(keep) = keep {
         keep();
     }
     let prepared = &frame.prepared;
@@ -206,7 +247,7 @@ fn render_here(
             "gpu_memory_bytes": { "scene": prepared.renderer.scene_bytes(), "acceleration_structures": prepared.accel_bytes },
             "backend": prepared.backend,
             "lb": prepared.light,
-            "lb_grid_choice": choices,
+            "lb_grid_choice": grids,
             "boulanger": prepared.boulanger,
             "forest_grid": prepared.forest,
             "ambient": frame.settings.ambient,
