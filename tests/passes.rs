@@ -157,3 +157,53 @@ async fn passes_come_back_from_the_farm_as_the_renderer_writes_them_and_sequence
         );
     }
 }
+
+/// Asking for one part of the light split writes all three, so the file's
+/// layers add up to its image (`--passes direct` once wrote no Indirect).
+#[test]
+fn one_part_of_the_light_split_brings_the_other_two_and_they_add_up() {
+    let dir = scratch("passes-split");
+    let scene = small_scene(&dir);
+    for (asked, name) in [("direct", "direct"), ("indirect", "indirect"), ("sky", "sky")] {
+        let png = dir.join(format!("{name}.png"));
+        ok(&[
+            "render",
+            scene.to_str().unwrap(),
+            "--local-workers",
+            "0",
+            "-o",
+            png.to_str().unwrap(),
+            "--width",
+            "48",
+            "--height",
+            "24",
+            "--lighting",
+            "lb",
+            "--passes",
+            asked,
+        ]);
+        let got = layers(&png.with_extension("exr"));
+        let split = PassSet::of([Pass::Direct, Pass::Indirect, Pass::Sky]);
+        assert_eq!(got.pass_set(), split, "--passes {asked}");
+        for layer in ["Direct", "Indirect", "Env"] {
+            assert!(got.channel(&format!("ViewLayer.{layer}.R")).is_some(), "{asked}: no {layer}");
+        }
+        let beauty = got.beauty().unwrap();
+        let p = got.passes(split).unwrap();
+        let (d, i, s) = (
+            p.plane(Pass::Direct).unwrap(),
+            p.plane(Pass::Indirect).unwrap(),
+            p.plane(Pass::Sky).unwrap(),
+        );
+        for (n, px) in beauty.pixels.iter().enumerate() {
+            for c in 0..3 {
+                let sum = d[3 * n + c] + i[3 * n + c] + s[3 * n + c];
+                assert!(
+                    (sum - px[c]).abs() <= 2e-6 * px[c].abs().max(1e-3),
+                    "--passes {asked}, pixel {n}: {sum} vs {}",
+                    px[c]
+                );
+            }
+        }
+    }
+}

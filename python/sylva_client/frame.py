@@ -83,9 +83,10 @@ def _name(value: str, known: Sequence[str], what: str) -> str:
 def pass_set(passes: str | Sequence[str] | None) -> list[str]:
     """The passes beside beauty that `passes` asks for, in wire order, as
     the CLI's `PassSet` makes them: "all" (alone or listed) is every
-    pass; `beauty` is always written and so not listed; `direct` or
-    `indirect` bring `sky`, so that the three sum to the beauty image. A
-    string is read as `--passes` is, names separated by commas."""
+    pass; `beauty` is always written and so not listed; any of `direct`,
+    `indirect` or `sky` brings the other two, so that the three sum to the
+    beauty image. A string is read as `--passes` is, names separated by
+    commas."""
     if passes is None:
         return []
     names = passes.split(",") if isinstance(passes, str) else list(passes)
@@ -101,8 +102,8 @@ def pass_set(passes: str | Sequence[str] | None) -> list[str]:
             raise ValueError(f"pass {name!r}: one of {', '.join(PASSES)}, or all")
         wanted.add(name)
     wanted.discard("beauty")
-    if wanted & {"direct", "indirect"}:
-        wanted.add("sky")
+    if wanted & {"direct", "indirect", "sky"}:
+        wanted |= {"direct", "indirect", "sky"}
     return [p for p in PASSES if p in wanted]
 
 

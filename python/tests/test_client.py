@@ -131,9 +131,10 @@ def test_passes_come_back_as_exr_layers(farm: Farm, tmp_path: Path) -> None:
         c.wait(job)
         beauty = exr_channels(c.fetch_bytes(plain, "exr"))
         layers = exr_channels(c.fetch_bytes(job, "exr"))
-    # Albedo and the light split (direct brings sky, as the CLI's set does).
+    # Albedo and the light split (direct brings indirect and sky, as the
+    # CLI's set does, so the layers add up to the image).
     assert len(layers) > len(beauty), (beauty, layers)
-    for name in ("Combined.R", "DiffCol.R", "Direct.G", "Env.B"):
+    for name in ("Combined.R", "DiffCol.R", "Direct.G", "Indirect.R", "Env.B"):
         assert f"ViewLayer.{name}" in layers, (name, layers)
     assert not any("Depth" in ch for ch in layers), layers
 

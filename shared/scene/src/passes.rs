@@ -131,16 +131,18 @@ impl PassSet {
         Self::of(Pass::ALL)
     }
 
-    /// These passes (and `sky` where the split asks for it).
+    /// These passes; any of the light split (direct, indirect, sky) brings
+    /// the other two, so the split always adds up to the image.
     pub fn of(passes: impl IntoIterator<Item = Pass>) -> Self {
+        let split = Pass::Direct.bit() | Pass::Indirect.bit() | Pass::Sky.bit();
         let mut bits = 0u16;
         for p in passes {
             if p != Pass::Beauty {
                 bits |= p.bit();
             }
         }
-        if bits & (Pass::Direct.bit() | Pass::Indirect.bit()) != 0 {
-            bits |= Pass::Sky.bit();
+        if bits & split != 0 {
+            bits |= split;
         }
         PassSet(bits)
     }
@@ -491,9 +493,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn names_parse_and_the_split_brings_the_sky() {
+    fn names_parse_and_one_part_of_the_split_brings_the_other_two() {
         let s = PassSet::parse("beauty,direct").unwrap();
-        assert_eq!(s.to_string(), "beauty,direct,sky");
+        assert_eq!(s.to_string(), "beauty,direct,indirect,sky");
+        assert_eq!(PassSet::parse("sky").unwrap(), s);
+        assert_eq!(
+            PassSet::parse("indirect,albedo").unwrap().to_string(),
+            "beauty,direct,indirect,albedo,sky"
+        );
         assert_eq!(PassSet::parse("all").unwrap(), PassSet::all());
         assert_eq!(PassSet::parse("beauty").unwrap(), PassSet::NONE);
         assert!(
