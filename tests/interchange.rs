@@ -4,7 +4,7 @@
 
 use crate::common;
 
-use common::{ok, scratch};
+use common::{fails, ok, scratch};
 use glam::Mat4;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -350,4 +350,37 @@ fn a_scene_importing_a_gltf_scene_is_that_scene_and_packs_with_it() {
     std::fs::write(inner.join("leak.gltf"), gltf.replace("secret", "absent")).unwrap();
     let absent = Scene::load(&inner.join("s.json")).unwrap_err().to_string();
     assert_eq!(e.replace("secret", "absent"), absent);
+}
+
+/// A scene file may import a glTF that has no camera (a model, as most
+/// asset files are) when it gives the camera itself; without one it is
+/// refused, naming the missing view.
+#[test]
+fn an_import_without_a_camera_takes_the_scene_files_own() {
+    let dir = scratch("import-no-camera");
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/models");
+    std::fs::copy(models.join("fern_02.glb"), dir.join("fern.glb")).unwrap();
+    let with = dir.join("with.json");
+    std::fs::write(
+        &with,
+        r#"{ "import": "fern.glb", "lighting": "local",
+             "camera": { "position": [0, 0.4, 2.5], "look_at": [0, 0.3, 0] } }"#,
+    )
+    .unwrap();
+    let png = dir.join("with.png");
+    let size = ["--width", "32", "--height", "16", "--local-workers", "0"];
+    let mut args = vec!["render", with.to_str().unwrap(), "-o", png.to_str().unwrap()];
+    args.extend(size);
+    ok(&args);
+    let stats: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("with.stats.json")).unwrap()).unwrap();
+    assert!(stats["instances"].as_u64().unwrap() >= 1, "{stats}");
+
+    let without = dir.join("without.json");
+    std::fs::write(&without, r#"{ "import": "fern.glb", "lighting": "local" }"#).unwrap();
+    let png = dir.join("without.png");
+    let mut args = vec!["render", without.to_str().unwrap(), "-o", png.to_str().unwrap()];
+    args.extend(size);
+    let said = fails(&args);
+    assert!(said.contains("no perspective camera"), "{said}");
 }

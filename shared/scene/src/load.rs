@@ -405,6 +405,7 @@ pub fn expand(
         access.base(),
         access,
         limits.instances,
+        value.get("camera").is_some(),
     )
     .map_err(|e| err(format!("{e:#}")))?;
     let mut merged = serde_json::to_value(imported).map_err(|e| err(e.to_string()))?;

@@ -34,24 +34,28 @@ pub fn import_gltf(gltf_path: &Path, scene_dir: &Path) -> Result<SceneFile> {
         scene_dir,
         &FileAccess::Anywhere(folder.to_path_buf()),
         MAX_PLACEMENTS,
+        false,
     )
 }
 
 /// [`import_gltf`], reading the glTF's buffers only where `access` allows
 /// and at most `max_placements` placements (a scene file's `import`, which
-/// may come from a hostile bundle).
+/// may come from a hostile bundle). `camera_given`: the scene file that
+/// imports it gives its own camera, so a glTF without one is no error.
 pub fn import_gltf_with(
     gltf_path: &Path,
     scene_dir: &Path,
     access: &FileAccess,
     max_placements: usize,
+    camera_given: bool,
 ) -> Result<SceneFile> {
     let max = max_placements.min(MAX_PLACEMENTS);
     // The glTF crates assert on some malformed accessors instead of
     // returning errors; a hostile file must cost its scene, not the process.
-    std::panic::catch_unwind(|| import_unguarded(gltf_path, scene_dir, access, max)).unwrap_or_else(
-        |_| Err(Error::gltf(gltf_path.display(), "malformed glTF: the importer failed on it")),
-    )
+    std::panic::catch_unwind(|| import_unguarded(gltf_path, scene_dir, access, max, camera_given))
+        .unwrap_or_else(|_| {
+            Err(Error::gltf(gltf_path.display(), "malformed glTF: the importer failed on it"))
+        })
 }
 
 fn import_unguarded(
@@ -59,6 +63,7 @@ fn import_unguarded(
     scene_dir: &Path,
     access: &FileAccess,
     max_placements: usize,
+    camera_given: bool,
 ) -> Result<SceneFile> {
     let shown = crate::model::shown_name(gltf_path, access);
     let bytes = std::fs::read(gltf_path).map_err(|e| Error::file(&shown, "cannot read glTF", e))?;
@@ -183,6 +188,10 @@ fn import_unguarded(
             let forward = w.transform_vector3(Vec3::NEG_Z).normalize();
             let up = w.transform_vector3(Vec3::Y).normalize();
             json!({ "position": eye.to_array(), "look_at": (eye + 10.0 * forward).to_array(), "up": up.to_array(), "fov_y_deg": yfov.to_degrees() })
+        }
+        // The importing scene file's camera replaces this one, unseen.
+        None if camera_given => {
+            json!({ "position": [0.0, 0.0, 0.0], "look_at": [0.0, 0.0, -1.0], "up": [0.0, 1.0, 0.0], "fov_y_deg": 45.0 })
         }
         None => {
             return Err(Error::gltf(&shown, "no perspective camera; a scene needs a view"));
@@ -395,7 +404,7 @@ mod tests {
 
     fn import(p: &Path, max: usize) -> Result<SceneFile> {
         let dir = p.parent().unwrap();
-        import_gltf_with(p, dir, &FileAccess::Inside(dir.to_path_buf()), max)
+        import_gltf_with(p, dir, &FileAccess::Inside(dir.to_path_buf()), max, false)
     }
 
     #[test]
