@@ -572,23 +572,21 @@ fn bench_frames(
     backends: &[sylva_scene::frame::Backend],
 ) -> anyhow::Result<Vec<serde_json::Value>> {
     use sylva_scene::LightingMode;
-    use sylva_worker::frame::{Frame, Fresh, Given};
+    use sylva_worker::frame::{Frame, Fresh};
     use sylva_worker::trace::RenderSettings;
     let mut frames = Vec::new();
     for &kind in backends {
-        // Prepared once per backend (the first frame), shared by both spp.
-        let mut preparer: Box<dyn sylva_worker::frame::Preparer> = Box::new(Fresh::default());
+        // Composed once per backend; the spp vary over its preparation.
+        let request = FrameSettings {
+            width: a.width,
+            height: a.height,
+            lighting: Some(LightingMode::Lb),
+            accel: kind,
+            ..FrameSettings::default()
+        };
+        let composed = Frame::compose(ctx, scene, &request, &mut Fresh::default(), &|_| {})?;
         for spp in [1u32, 4] {
-            let request = FrameSettings {
-                width: a.width,
-                height: a.height,
-                spp,
-                lighting: Some(LightingMode::Lb),
-                accel: kind,
-                ..FrameSettings::default()
-            };
-            let frame = Frame::compose(ctx, scene, &request, &mut *preparer, &|_| {})?;
-            preparer = Box::new(Given(frame.prepared.clone()));
+            let frame = composed.with_settings(RenderSettings { spp, ..composed.settings });
             let (prepared, f) = (&frame.prepared, frame.settings);
             frame.with_settings(RenderSettings { width: 64, height: 32, ..f }).strip(0, 64)?; // warm-up
             let t = Instant::now();

@@ -228,15 +228,10 @@ pub(super) fn render_method(
             build_ms: prepared.phases.ms("build"),
             preprocess_ms: pre,
             frame_ms,
-            rmse: 0.0,
-            mean_relative_error: 0.0,
-            mean_ratio: [0.0; 3],
-            indirect_relative_error: 0.0,
-            indirect_error_net: 0.0,
-            indirect_noise_reference: 0.0,
-            indirect_noise_method: 0.0,
             image: file.display().to_string(),
             notes,
+            // The errors are measured once every method is rendered.
+            ..empty_report()
         },
         image,
         again,
