@@ -16,5 +16,6 @@ mod passes;
 mod render_cli;
 mod sequence;
 mod service;
+mod storage;
 mod users;
 mod worker_grpc;

@@ -62,6 +62,8 @@ pub struct Gauges {
     pub workers_alive: u64,
     /// Workers known.
     pub workers: u64,
+    /// 1 while the database takes writes, 0 while it refuses them.
+    pub store_healthy: u64,
 }
 
 impl Metrics {
@@ -134,6 +136,7 @@ impl Collector for GaugeCollector {
             ("sylva_jobs_running", "Jobs rendering.", g.running),
             ("sylva_workers_alive", "Workers answering heartbeats.", g.workers_alive),
             ("sylva_workers", "Workers known.", g.workers),
+            ("sylva_store_healthy", "1 while the database takes writes.", g.store_healthy),
         ] {
             let gauge = ConstGauge::new(v);
             gauge.encode(encoder.encode_descriptor(name, help, None, gauge.metric_type())?)?;
@@ -379,6 +382,7 @@ mod tests {
             running: 1,
             workers_alive: 3,
             workers: 4,
+            store_healthy: 1,
         };
         let addr = start(MetricsServerConfig::default(), metrics, gauges).await;
 
@@ -401,6 +405,7 @@ mod tests {
             ("sylva_jobs_running", 1.0),
             ("sylva_workers_alive", 3.0),
             ("sylva_workers", 4.0),
+            ("sylva_store_healthy", 1.0),
             ("sylva_strip_seconds_count", 2.0),
             ("sylva_strip_seconds_sum", 3.07),
             ("sylva_strip_seconds_bucket{le=\"0.05\"}", 0.0),

@@ -59,6 +59,49 @@ pub fn decode_exr(bytes: &[u8]) -> anyhow::Result<HdrImage> {
     Ok(sylva_scene::passes::ExrLayers::read(bytes)?.beauty()?)
 }
 
+/// A result file's hash as the database keeps it: BLAKE3, hex.
+pub fn hash(bytes: &[u8]) -> String {
+    blake3::hash(bytes).to_hex().to_string()
+}
+
+/// A stored result read back and checked against the hash recorded when
+/// it was written: a file changed or cut since reads as damaged, one
+/// removed as missing; neither is ever served. (Rows from before hashes
+/// were kept have none, and are served as they are.)
+pub fn read_checked(state: &Path, rel: &str, want: &str) -> Result<Vec<u8>, ResultFault> {
+    let bytes = std::fs::read(state.join(rel)).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => ResultFault::Missing,
+        _ => ResultFault::Unreadable,
+    })?;
+    if !want.is_empty() && hash(&bytes) != want {
+        return Err(ResultFault::Damaged);
+    }
+    Ok(bytes)
+}
+
+/// Why a stored result cannot be served.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResultFault {
+    /// Its file is gone from the state folder.
+    Missing,
+    /// Its file cannot be read.
+    Unreadable,
+    /// Its bytes are not the ones written.
+    Damaged,
+}
+
+impl std::fmt::Display for ResultFault {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ResultFault::Missing => "its file is missing from the coordinator's state folder",
+            ResultFault::Unreadable => "its file cannot be read on the coordinator",
+            ResultFault::Damaged => {
+                "its file on the coordinator no longer matches what was written (damaged)"
+            }
+        })
+    }
+}
+
 /// Writes `bytes` to `path` whole or not at all: a crash leaves the old
 /// file or the new one, never half of one.
 pub fn write_whole(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {

@@ -136,9 +136,13 @@ fn job_table(rows: &[JobRow]) -> String {
 
 /// Runs `sylva jobs`.
 pub fn run_jobs(a: JobsArgs) -> anyhow::Result<()> {
-    let list = a.at.call(async |mut c| {
-        Ok(c.list_jobs(pb::ListJobsRequest {}).await.map_err(status_error)?.into_inner().jobs)
+    let reply = a.at.call(async |mut c| {
+        Ok(c.list_jobs(pb::ListJobsRequest {}).await.map_err(status_error)?.into_inner())
     })?;
+    if !reply.store_problem.is_empty() {
+        eprintln!("warning: {}", reply.store_problem);
+    }
+    let list = reply.jobs;
     let now = now_ms();
     let mut rows: Vec<JobRow> = list
         .into_iter()

@@ -4,7 +4,7 @@
 
 use crate::flags::users::*;
 use sylva_coordinator::access::{self, Role};
-use sylva_coordinator::store::Store;
+use sylva_coordinator::store::{AuditRow, Store};
 
 fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_current_thread().enable_all().build()?)
@@ -43,12 +43,12 @@ pub fn run_token(c: TokenCommand) -> anyhow::Result<()> {
                 let issued = access::issue(&a.user, role);
                 store.add_token(&issued.row).await?;
                 store
-                    .audit(
+                    .audit(&AuditRow::now(
                         "operator",
                         "token add",
                         &issued.row.id,
                         &format!("{} as {}", a.user, a.role),
-                    )
+                    ))
                     .await?;
                 store.close().await;
                 eprintln!(
@@ -75,7 +75,7 @@ pub fn run_token(c: TokenCommand) -> anyhow::Result<()> {
                 let store = Store::open(&a.state.url()?).await?;
                 let done = store.revoke_token(&a.id).await?;
                 if done {
-                    store.audit("operator", "token revoke", &a.id, "").await?;
+                    store.audit(&AuditRow::now("operator", "token revoke", &a.id, "")).await?;
                 }
                 store.close().await;
                 anyhow::ensure!(done, "no live token {:?}", sylva_scene::sandbox::clip(&a.id));

@@ -182,6 +182,10 @@ function connect() {
     needsToken = snap.needs_token;
     $('#token-box').hidden = !needsToken;
     $('#connection').textContent = 'live';
+    // A database that refuses writes is the operator's first concern.
+    $('#store').hidden = !snap.store_problem;
+    $('#store').textContent = snap.store_problem ? 'store unhealthy' : '';
+    $('#store').title = snap.store_problem || '';
     renderJobs(snap);
     renderWorkers(snap);
   });

@@ -199,11 +199,12 @@ fn by<T>(caller: &Caller, message: T) -> Request<T> {
 
 /// Jobs and workers as the page lists them.
 async fn snapshot(service: &CoordinatorService, caller: &Caller) -> Value {
-    let jobs = service
+    let list = service
         .list_jobs(by(caller, pb::ListJobsRequest {}))
         .await
-        .map(|r| r.into_inner().jobs)
+        .map(|r| r.into_inner())
         .unwrap_or_default();
+    let jobs = list.jobs;
     let workers = service
         .list_workers(by(caller, pb::ListWorkersRequest {}))
         .await
@@ -216,6 +217,7 @@ async fn snapshot(service: &CoordinatorService, caller: &Caller) -> Value {
     json!({
         "now_unix_ms": now,
         "needs_token": service.needs_token(),
+        "store_problem": list.store_problem,
         "jobs": jobs.iter().map(|j| json!({
             "id": j.id, "name": j.name, "state": wire_name(j.state), "priority": j.priority,
             "strips_done": j.strips_done, "strips_total": j.strips_total, "retries": j.retries,

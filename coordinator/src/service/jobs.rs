@@ -35,6 +35,12 @@ impl CoordinatorService {
             .spec
             .ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
         let (frame, schedule, views) = checked_spec(&spec)?;
+        // A job is acknowledged only once it is written: while the
+        // database refuses writes, it is not taken at all.
+        let problem = self.state.store_problem();
+        if !problem.is_empty() {
+            return Err(Status::unavailable(problem));
+        }
         let reserved = self.state.room_for(&frame, views.len().max(1)).await?;
         // A user's job is theirs, whatever name the client sends; on a farm
         // of one token (or none) the client's name and address are shown.
@@ -74,13 +80,18 @@ impl CoordinatorService {
         let checked = tokio::task::spawn_blocking(move || {
             let r = bundle::unpack_with(&bytes, &dir, &limits).map(|_| ());
             let _ = std::fs::remove_dir_all(&dir);
-            r?;
+            if let Err(e) = r {
+                // The coordinator's own disk failing is not the scene's fault:
+                // a client may try again later.
+                let e = anyhow::Error::from(e);
+                return Err(if out_of_space(&e) { internal_error(e) } else { bad_scene(e) });
+            }
             // Kept on disk, not in memory, until the job ends.
-            keep_file(&bundle_file, &bytes)
+            keep_file(&bundle_file, &bytes).map_err(internal_error)
         })
         .await
         .map_err(|_| Status::internal("the scene check failed unexpectedly"))?;
-        checked.map_err(|e| Status::invalid_argument(format!("{e:#}")))?;
+        checked?;
         let summary = pb::JobSummary {
             id: id.clone(),
             state: JobState::Queued.to_wire(),
@@ -200,16 +211,26 @@ impl CoordinatorService {
             }
         }
         let frames = self.state.store.frames(id).await.map_err(internal_error)?;
-        let file = frames
+        let (rel, want) = frames
             .iter()
             .find(|f| f.frame == r.frame)
-            .map(|f| if format == "exr" { &f.exr } else { &f.png })
-            .filter(|p| !p.is_empty())
-            .map(|p| self.state.config.state_dir.join(p))
+            .map(|f| if format == "exr" { (&f.exr, &f.exr_hash) } else { (&f.png, &f.png_hash) })
+            .filter(|(p, _)| !p.is_empty())
+            .map(|(p, h)| (p.clone(), h.clone()))
             .ok_or_else(|| Status::not_found(format!("job {id}'s result is no longer kept")))?;
-        let data = tokio::fs::read(&file)
-            .await
-            .map_err(|_| Status::not_found(format!("job {id}'s result is no longer kept")))?;
+        let state = self.state.config.state_dir.clone();
+        let data = tokio::task::spawn_blocking(move || {
+            crate::results::read_checked(&state, &rel, &want)
+        })
+        .await
+        .map_err(|_| Status::internal("reading the result failed unexpectedly"))?
+        .map_err(|fault| {
+            tracing::error!(%id, frame = r.frame, format, "a stored result is not served: {fault}");
+            Status::data_loss(format!(
+                "job {id}'s frame {} ({format}) cannot be served: {fault}",
+                r.frame
+            ))
+        })?;
         Ok(Response::new(pb::FetchReply { data, format: format.into() }))
     }
 
@@ -262,7 +283,7 @@ impl CoordinatorService {
         _: Request<pb::ListJobsRequest>,
     ) -> Result<Response<pb::JobList>, Status> {
         let jobs = lock(&self.state.jobs).values().map(|j| j.summary.clone()).collect();
-        Ok(Response::new(pb::JobList { jobs }))
+        Ok(Response::new(pb::JobList { jobs, store_problem: self.state.store_problem() }))
     }
 
     pub(super) async fn reprioritise(
@@ -371,7 +392,26 @@ async fn receive_bundle(
 /// and nothing of the server's is revealed.
 pub(super) fn internal_error(e: anyhow::Error) -> Status {
     tracing::error!("state: {e:#}");
-    Status::unavailable("the coordinator cannot write its state now; try again")
+    Status::unavailable(if out_of_space(&e) {
+        "the coordinator's disk is full: it cannot take the job now; try again later"
+    } else {
+        "the coordinator cannot write its state now; try again"
+    })
+}
+
+/// INVALID_ARGUMENT for a scene that does not pass its check.
+fn bad_scene(e: anyhow::Error) -> Status {
+    Status::invalid_argument(format!("{e:#}"))
+}
+
+/// Whether `e` comes from a full disk or quota (the file system's or
+/// the database's).
+pub(super) fn out_of_space(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>().is_some_and(|io| {
+            matches!(io.kind(), std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded)
+        })
+    }) || format!("{e:#}").contains("database or disk is full")
 }
 
 /// Writes `bytes` to `path` whole or not at all (a file named by its

@@ -23,6 +23,7 @@
 mod grpc;
 pub mod jobs;
 pub mod live;
+mod owed;
 mod queue;
 mod run;
 pub mod stats;
@@ -218,6 +219,8 @@ struct State {
     _lock: std::fs::File,
     /// Whose tokens are accepted, with what role.
     access: Arc<Access>,
+    /// Writes the database has not taken yet, written again until it does.
+    owed: Mutex<owed::Owed>,
 }
 
 /// The `sylva.v1.Coordinator` service.
@@ -288,6 +291,7 @@ impl CoordinatorService {
                 wake: tokio::sync::Notify::new(),
                 _lock: lock,
                 access,
+                owed: Default::default(),
             }),
         };
         if let Some(l) = metrics_listener {
@@ -343,6 +347,8 @@ impl CoordinatorService {
         tokio::spawn(async move { s.schedule_loop().await });
         let s = self.state.clone();
         tokio::spawn(async move { s.heartbeat_loop().await });
+        let s = self.state.clone();
+        tokio::spawn(async move { s.owed_loop().await });
     }
 
     /// The tonic server wrapper. Messages are bounded by what the API
@@ -388,11 +394,29 @@ fn allow(caller: &Caller, roles: &[Role], what: &str) -> Result<(), Status> {
 }
 
 impl State {
-    /// Writes an entry of the audit log (a failure to is logged, not fatal).
+    /// Writes an entry of the audit log; one the database refuses is
+    /// owed, and written when it can be.
     async fn audit(&self, actor: &str, action: &str, target: &str, detail: &str) {
-        if let Err(e) = self.store.audit(actor, action, target, detail).await {
-            tracing::error!(action, target, "not written to the audit log: {e:#}");
+        let e = crate::store::AuditRow::now(actor, action, target, detail);
+        if let Err(err) = self.store.audit(&e).await {
+            tracing::warn!(action, target, "audit entry not written yet: {err:#}");
+            self.owe_audit(e);
         }
+    }
+
+    /// Empty while the database takes writes; otherwise why it does not,
+    /// since when, and what is owed (as `sylva jobs` and the dashboard show it).
+    fn store_problem(&self) -> String {
+        let h = self.store.health();
+        if h.ok() {
+            return String::new();
+        }
+        let ago = (crate::store::now_ms() as u64).saturating_sub(h.failing_since_ms) / 1000;
+        format!(
+            "the coordinator's database has refused writes for {ago} s ({} failed; last: {}); \
+             submissions are refused and finished jobs' states are written when it recovers",
+            h.failed_writes, h.error
+        )
     }
 
     /// Where a scene bundle waits while a job needs it.
@@ -432,7 +456,8 @@ impl State {
             return;
         };
         if let Err(e) = self.store.set_state(&row).await {
-            tracing::error!(%id, "the job's end is not written: {e:#}");
+            tracing::warn!(%id, "the job's end is not written yet: {e:#}");
+            self.owe_row(id);
         }
         let needed = lock(&self.jobs).values().any(|j| !j.state.ended() && j.bundle_hash == hash);
         if !needed {
@@ -444,7 +469,8 @@ impl State {
     async fn save_progress(&self, id: &str) {
         let Some(row) = lock(&self.jobs).get(id).map(Job::row) else { return };
         if let Err(e) = self.store.set_progress(&row).await {
-            tracing::warn!(%id, "progress not written: {e:#}");
+            tracing::warn!(%id, "progress not written yet: {e:#}");
+            self.owe_row(id);
         }
     }
 
@@ -456,6 +482,7 @@ impl State {
             running: jobs.values().filter(|j| j.state == JobState::Running).count() as u64,
             workers_alive: workers.values().filter(|w| w.info.alive).count() as u64,
             workers: workers.len() as u64,
+            store_healthy: self.store.health().ok() as u64,
         }
     }
 

@@ -39,7 +39,8 @@ impl State {
             if let Some(row) = row
                 && let Err(e) = self.store.set_state(&row).await
             {
-                tracing::error!(id = %next, "the job's start is not written: {e:#}");
+                tracing::warn!(id = %next, "the job's start is not written yet: {e:#}");
+                self.owe_row(&next);
             }
             let s = self.clone();
             let id = next.clone();

@@ -144,7 +144,8 @@ impl State {
             j.reserved = bytes;
         }
         if let Err(e) = self.store.set_stats(id, &json, bytes).await {
-            tracing::warn!(%id, "stats not written: {e:#}");
+            tracing::warn!(%id, "figures not written yet: {e:#}");
+            self.owe_stats(id, json.clone(), bytes);
         }
         self.finish(id, JobState::Done, None).await;
         let mut ev = self.event(id);
@@ -252,15 +253,16 @@ impl State {
                             None => crate::results::encode_exr(&rendered.image)?,
                         };
                         crate::results::write_whole(&path, &exr)?;
-                        anyhow::Ok(exr.len() as u64)
+                        anyhow::Ok((exr.len() as u64, crate::results::hash(&exr)))
                     })
                     .await??;
                     let row = crate::store::FrameRow {
                         frame: frame as u32,
                         exr: crate::results::relative(id, &name),
-                        png: String::new(),
-                        bytes,
+                        bytes: bytes.0,
                         stats_json: serde_json::to_string(&figures)?,
+                        exr_hash: bytes.1,
+                        ..Default::default()
                     };
                     self.store.put_frame(id, &row).await?;
                     stored.insert(frame);
@@ -335,6 +337,7 @@ impl State {
                 let row = crate::store::FrameRow {
                     png: row.exr.replace(".exr", ".png"),
                     bytes: row.bytes + png.len() as u64,
+                    png_hash: crate::results::hash(&png),
                     ..row
                 };
                 anyhow::Ok((row, tone))

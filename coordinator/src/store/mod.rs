@@ -12,7 +12,7 @@ mod schema;
 use crate::job_state::JobState;
 use anyhow::Context;
 use sqlx::any::{AnyPoolOptions, AnyRow};
-use sqlx::{AnyPool, Row};
+use sqlx::{AnyPool, Connection, Row};
 
 /// A job as the database keeps it.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -70,6 +70,10 @@ pub struct FrameRow {
     pub bytes: u64,
     /// The frame's figures.
     pub stats_json: String,
+    /// BLAKE3 of the EXR file, hex: checked when it is served.
+    pub exr_hash: String,
+    /// BLAKE3 of the PNG file, hex ("" until it is written).
+    pub png_hash: String,
 }
 
 /// A strip of an unfinished frame, kept so a restart does not render it again.
@@ -135,11 +139,45 @@ pub struct AuditRow {
     pub detail: String,
 }
 
+/// Whether the database takes writes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Health {
+    /// Since when writes fail, ms since the Unix epoch (0: they do not).
+    pub failing_since_ms: u64,
+    /// Writes that failed since then.
+    pub failed_writes: u64,
+    /// The last failure, in words.
+    pub error: String,
+}
+
+impl Health {
+    /// Whether the last write went through.
+    pub fn ok(&self) -> bool {
+        self.failing_since_ms == 0
+    }
+}
+
+impl AuditRow {
+    /// An entry made now (its number is given when it is written).
+    pub fn now(actor: &str, action: &str, target: &str, detail: &str) -> AuditRow {
+        AuditRow {
+            id: 0,
+            at_ms: now_ms() as u64,
+            actor: actor.into(),
+            action: action.into(),
+            target: target.into(),
+            detail: detail.into(),
+        }
+    }
+}
+
 /// The database.
 #[derive(Clone, Debug)]
 pub struct Store {
     pool: AnyPool,
     postgres: bool,
+    /// Whether its last write went through, and since when it has not.
+    health: std::sync::Arc<std::sync::Mutex<Health>>,
     /// On PostgreSQL, the connection holding this coordinator's advisory
     /// lock on the database for the process's life.
     _holder: Option<std::sync::Arc<tokio::sync::Mutex<sqlx::AnyConnection>>>,
@@ -227,7 +265,7 @@ impl Store {
         } else {
             None
         };
-        let store = Store { pool, postgres, _holder: holder };
+        let store = Store { pool, postgres, health: Default::default(), _holder: holder };
         store.migrate().await?;
         Ok(store)
     }
@@ -303,165 +341,290 @@ impl Store {
         Ok(r.try_get::<i64, _>(0)? > 0)
     }
 
+    /// Runs `f` on a connection of its own (`write`: whether a failure
+    /// makes the store unhealthy); an error closes that
+    /// connection, so whatever the failure left behind (SQLite may end a
+    /// transaction itself on a full disk, and the driver's count of open
+    /// transactions then disagrees with the file's) dies with it, and the
+    /// next call starts clean. Nothing acknowledged after a failure can
+    /// sit in a transaction that never commits.
+    async fn with<T>(
+        &self,
+        write: bool,
+        f: impl AsyncFnOnce(&mut sqlx::AnyConnection) -> sqlx::Result<T>,
+    ) -> anyhow::Result<T> {
+        let mut c = match self.pool.acquire().await {
+            Ok(c) => c,
+            Err(e) => return Err(self.failed(write, e.into())),
+        };
+        match f(&mut c).await {
+            Ok(v) => Ok(v),
+            Err(e) => {
+                c.close_on_drop();
+                Err(self.failed(write, e.into()))
+            }
+        }
+    }
+
+    /// Records a failed call; a failed write makes the store unhealthy.
+    fn failed(&self, write: bool, e: anyhow::Error) -> anyhow::Error {
+        if write {
+            let mut h = sylva_proto::sync::lock(&self.health);
+            if h.failing_since_ms == 0 {
+                h.failing_since_ms = now_ms() as u64;
+                tracing::error!(
+                    "the database cannot be written: {e:#}; jobs go on from memory, \
+                     submissions are refused, and what failed is written again when it can be"
+                );
+            }
+            h.failed_writes += 1;
+            h.error = format!("{e:#}");
+        }
+        e
+    }
+
+    /// After failed writes, tries one (the time of the last write, kept
+    /// in `meta`): when it goes through, the store is healthy again. The
+    /// caller asks once everything owed is written, so one small write
+    /// that squeezes onto a nearly full disk does not end the episode.
+    pub async fn probe(&self) -> bool {
+        if self.health().ok() {
+            return true;
+        }
+        let at = now_ms().to_string();
+        let r = self
+            .with(true, async |c| {
+                sqlx::query(
+                    "INSERT INTO meta (key, value) VALUES ('last_write_ms', $1)
+                     ON CONFLICT (key) DO UPDATE SET value = excluded.value",
+                )
+                .bind(&at)
+                .execute(&mut *c)
+                .await
+                .map(drop)
+            })
+            .await;
+        if r.is_err() {
+            return false;
+        }
+        let mut h = sylva_proto::sync::lock(&self.health);
+        tracing::warn!(
+            failed_writes = h.failed_writes,
+            "the database takes writes again, after {} s",
+            (now_ms() as u64).saturating_sub(h.failing_since_ms) / 1000
+        );
+        *h = Health::default();
+        true
+    }
+
+    /// Whether the last write went through, and if not, why and since when.
+    pub fn health(&self) -> Health {
+        sylva_proto::sync::lock(&self.health).clone()
+    }
+
     /// A value kept under `key`, set to `make()` the first time it is asked for.
     pub async fn meta(&self, key: &str, make: impl FnOnce() -> String) -> anyhow::Result<String> {
-        sqlx::query("INSERT INTO meta (key, value) VALUES ($1, $2) ON CONFLICT (key) DO NOTHING")
+        let value = make();
+        self.with(true, async |c| {
+            sqlx::query(
+                "INSERT INTO meta (key, value) VALUES ($1, $2) ON CONFLICT (key) DO NOTHING",
+            )
             .bind(key)
-            .bind(make())
-            .execute(&self.pool)
+            .bind(value)
+            .execute(&mut *c)
             .await?;
-        Ok(sqlx::query("SELECT value FROM meta WHERE key = $1")
-            .bind(key)
-            .fetch_one(&self.pool)
-            .await?
-            .get::<String, _>(0))
+            sqlx::query("SELECT value FROM meta WHERE key = $1")
+                .bind(key)
+                .fetch_one(&mut *c)
+                .await?
+                .try_get::<String, _>(0)
+        })
+        .await
     }
 
     /// The next job number: never one handed out before, by any
     /// coordinator on this database.
     pub async fn next_seq(&self) -> anyhow::Result<u64> {
-        let r =
-            sqlx::query("UPDATE counters SET value = value + 1 WHERE name = 'job' RETURNING value")
-                .fetch_one(&self.pool)
-                .await?;
-        Ok(r.get::<i64, _>(0) as u64)
+        self.with(true, async |c| {
+            let r = sqlx::query(
+                "UPDATE counters SET value = value + 1 WHERE name = 'job' RETURNING value",
+            )
+            .fetch_one(&mut *c)
+            .await?;
+            Ok(r.try_get::<i64, _>(0)? as u64)
+        })
+        .await
     }
 
     /// Records a new job.
     pub async fn insert_job(&self, j: &JobRow) -> anyhow::Result<()> {
-        sqlx::query(
-            "INSERT INTO jobs (id, seq, state, priority, name, submitter, spec, bundle_hash,
-                frames, submitted_ms, result_bytes)
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
-        )
-        .bind(&j.id)
-        .bind(j.seq as i64)
-        .bind(j.state.map_or("queued", JobState::name))
-        .bind(j.priority as i64)
-        .bind(&j.name)
-        .bind(&j.submitter)
-        .bind(j.spec.clone())
-        .bind(&j.bundle_hash)
-        .bind(j.frames as i64)
-        .bind(j.submitted_ms as i64)
-        .bind(j.result_bytes as i64)
-        .execute(&self.pool)
-        .await?;
-        Ok(())
+        self.with(true, async |c| {
+            sqlx::query(
+                "INSERT INTO jobs (id, seq, state, priority, name, submitter, spec, bundle_hash,
+                    frames, submitted_ms, result_bytes)
+                 VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
+            )
+            .bind(&j.id)
+            .bind(j.seq as i64)
+            .bind(j.state.map_or("queued", JobState::name))
+            .bind(j.priority as i64)
+            .bind(&j.name)
+            .bind(&j.submitter)
+            .bind(j.spec.clone())
+            .bind(&j.bundle_hash)
+            .bind(j.frames as i64)
+            .bind(j.submitted_ms as i64)
+            .bind(j.result_bytes as i64)
+            .execute(&mut *c)
+            .await
+            .map(drop)
+        })
+        .await
     }
 
     /// Every job, in submission order.
     pub async fn jobs(&self) -> anyhow::Result<Vec<JobRow>> {
-        let rows = sqlx::query("SELECT * FROM jobs ORDER BY seq").fetch_all(&self.pool).await?;
+        let rows = self
+            .with(false, async |c| {
+                sqlx::query("SELECT * FROM jobs ORDER BY seq").fetch_all(&mut *c).await
+            })
+            .await?;
         rows.iter().map(job_row).collect()
     }
 
     /// A job's state, and with it the reason it failed and when it started or ended.
     pub async fn set_state(&self, j: &JobRow) -> anyhow::Result<()> {
-        sqlx::query(
-            "UPDATE jobs SET state = $2, error = $3, started_ms = $4, finished_ms = $5 WHERE id = $1",
-        )
-        .bind(&j.id)
-        .bind(j.state.map_or("queued", JobState::name))
-        .bind(&j.error)
-        .bind(j.started_ms as i64)
-        .bind(j.finished_ms as i64)
-        .execute(&self.pool)
-        .await?;
-        Ok(())
+        self.with(true, async |c| {
+            sqlx::query(
+                "UPDATE jobs SET state = $2, error = $3, started_ms = $4, finished_ms = $5
+                 WHERE id = $1",
+            )
+            .bind(&j.id)
+            .bind(j.state.map_or("queued", JobState::name))
+            .bind(&j.error)
+            .bind(j.started_ms as i64)
+            .bind(j.finished_ms as i64)
+            .execute(&mut *c)
+            .await
+            .map(drop)
+        })
+        .await
     }
 
     /// A job's progress counts.
     pub async fn set_progress(&self, j: &JobRow) -> anyhow::Result<()> {
-        sqlx::query(
-            "UPDATE jobs SET strips_done = $2, strips_total = $3, frames_done = $4, retries = $5
-             WHERE id = $1",
-        )
-        .bind(&j.id)
-        .bind(j.strips_done as i64)
-        .bind(j.strips_total as i64)
-        .bind(j.frames_done as i64)
-        .bind(j.retries as i64)
-        .execute(&self.pool)
-        .await?;
-        Ok(())
+        self.with(true, async |c| {
+            sqlx::query(
+                "UPDATE jobs SET strips_done = $2, strips_total = $3, frames_done = $4, retries = $5
+                 WHERE id = $1",
+            )
+            .bind(&j.id)
+            .bind(j.strips_done as i64)
+            .bind(j.strips_total as i64)
+            .bind(j.frames_done as i64)
+            .bind(j.retries as i64)
+            .execute(&mut *c)
+            .await
+            .map(drop)
+        })
+        .await
     }
 
     /// A job's priority.
     pub async fn set_priority(&self, id: &str, priority: i32) -> anyhow::Result<()> {
-        sqlx::query("UPDATE jobs SET priority = $2 WHERE id = $1")
-            .bind(id)
-            .bind(priority as i64)
-            .execute(&self.pool)
-            .await?;
-        Ok(())
+        self.with(true, async |c| {
+            sqlx::query("UPDATE jobs SET priority = $2 WHERE id = $1")
+                .bind(id)
+                .bind(priority as i64)
+                .execute(&mut *c)
+                .await
+                .map(drop)
+        })
+        .await
     }
 
     /// A finished job's figures and the bytes its results take.
     pub async fn set_stats(&self, id: &str, stats_json: &str, bytes: u64) -> anyhow::Result<()> {
-        sqlx::query("UPDATE jobs SET stats_json = $2, result_bytes = $3 WHERE id = $1")
-            .bind(id)
-            .bind(stats_json)
-            .bind(bytes as i64)
-            .execute(&self.pool)
-            .await?;
-        Ok(())
+        self.with(true, async |c| {
+            sqlx::query("UPDATE jobs SET stats_json = $2, result_bytes = $3 WHERE id = $1")
+                .bind(id)
+                .bind(stats_json)
+                .bind(bytes as i64)
+                .execute(&mut *c)
+                .await
+                .map(drop)
+        })
+        .await
     }
 
     /// Forgets a job, its frames and strips (its files are the caller's).
     pub async fn delete_job(&self, id: &str) -> anyhow::Result<()> {
-        let mut tx = self.pool.begin().await?;
-        for table in ["strips", "frames"] {
-            sqlx::query(&format!("DELETE FROM {table} WHERE job_id = $1"))
-                .bind(id)
-                .execute(&mut *tx)
-                .await?;
-        }
-        sqlx::query("DELETE FROM jobs WHERE id = $1").bind(id).execute(&mut *tx).await?;
-        tx.commit().await?;
-        Ok(())
+        self.with(true, async |c| {
+            let mut tx = c.begin().await?;
+            for table in ["strips", "frames", "jobs"] {
+                let key = if table == "jobs" { "id" } else { "job_id" };
+                sqlx::query(&format!("DELETE FROM {table} WHERE {key} = $1"))
+                    .bind(id)
+                    .execute(&mut *tx)
+                    .await?;
+            }
+            tx.commit().await
+        })
+        .await
     }
 
     /// Bytes that results take or are reserved for, over every job kept.
     pub async fn result_bytes(&self) -> anyhow::Result<u64> {
-        let r = sqlx::query("SELECT CAST(COALESCE(SUM(result_bytes), 0) AS BIGINT) FROM jobs")
-            .fetch_one(&self.pool)
-            .await?;
-        Ok(r.try_get::<i64, _>(0).unwrap_or(0).max(0) as u64)
+        self.with(false, async |c| {
+            let r = sqlx::query("SELECT CAST(COALESCE(SUM(result_bytes), 0) AS BIGINT) FROM jobs")
+                .fetch_one(&mut *c)
+                .await?;
+            Ok(r.try_get::<i64, _>(0).unwrap_or(0).max(0) as u64)
+        })
+        .await
     }
 
     /// Records a finished frame (replacing an earlier record of it), and
     /// drops the strips it was put together from.
     pub async fn put_frame(&self, id: &str, f: &FrameRow) -> anyhow::Result<()> {
-        let mut tx = self.pool.begin().await?;
-        sqlx::query(
-            "INSERT INTO frames (job_id, frame, exr, png, bytes, stats_json)
-             VALUES ($1, $2, $3, $4, $5, $6)
-             ON CONFLICT (job_id, frame) DO UPDATE SET exr = excluded.exr, png = excluded.png,
-                bytes = excluded.bytes, stats_json = excluded.stats_json",
-        )
-        .bind(id)
-        .bind(f.frame as i64)
-        .bind(&f.exr)
-        .bind(&f.png)
-        .bind(f.bytes as i64)
-        .bind(&f.stats_json)
-        .execute(&mut *tx)
-        .await?;
-        sqlx::query("DELETE FROM strips WHERE job_id = $1 AND frame = $2")
+        self.with(true, async |c| {
+            let mut tx = c.begin().await?;
+            sqlx::query(
+                "INSERT INTO frames (job_id, frame, exr, png, bytes, stats_json, exr_hash, png_hash)
+                 VALUES ($1, $2, $3, $4, $5, $6, $7, $8)
+                 ON CONFLICT (job_id, frame) DO UPDATE SET exr = excluded.exr, png = excluded.png,
+                    bytes = excluded.bytes, stats_json = excluded.stats_json,
+                    exr_hash = excluded.exr_hash, png_hash = excluded.png_hash",
+            )
             .bind(id)
             .bind(f.frame as i64)
+            .bind(&f.exr)
+            .bind(&f.png)
+            .bind(f.bytes as i64)
+            .bind(&f.stats_json)
+            .bind(&f.exr_hash)
+            .bind(&f.png_hash)
             .execute(&mut *tx)
             .await?;
-        tx.commit().await?;
-        Ok(())
+            sqlx::query("DELETE FROM strips WHERE job_id = $1 AND frame = $2")
+                .bind(id)
+                .bind(f.frame as i64)
+                .execute(&mut *tx)
+                .await?;
+            tx.commit().await
+        })
+        .await
     }
 
     /// A job's finished frames, in order.
     pub async fn frames(&self, id: &str) -> anyhow::Result<Vec<FrameRow>> {
-        let rows = sqlx::query("SELECT * FROM frames WHERE job_id = $1 ORDER BY frame")
-            .bind(id)
-            .fetch_all(&self.pool)
+        let rows = self
+            .with(false, async |c| {
+                sqlx::query("SELECT * FROM frames WHERE job_id = $1 ORDER BY frame")
+                    .bind(id)
+                    .fetch_all(&mut *c)
+                    .await
+            })
             .await?;
         rows.iter()
             .map(|r| {
@@ -471,6 +634,8 @@ impl Store {
                     png: r.try_get("png")?,
                     bytes: r.try_get::<i64, _>("bytes")? as u64,
                     stats_json: r.try_get("stats_json")?,
+                    exr_hash: r.try_get("exr_hash")?,
+                    png_hash: r.try_get("png_hash")?,
                 })
             })
             .collect()
@@ -478,27 +643,35 @@ impl Store {
 
     /// Records a strip of an unfinished frame.
     pub async fn put_strip(&self, id: &str, s: &StripRow) -> anyhow::Result<()> {
-        sqlx::query(
-            "INSERT INTO strips (job_id, frame, x0, x1, worker, path) VALUES ($1, $2, $3, $4, $5, $6)
-             ON CONFLICT (job_id, frame, x0) DO UPDATE SET x1 = excluded.x1,
-                worker = excluded.worker, path = excluded.path",
-        )
-        .bind(id)
-        .bind(s.frame as i64)
-        .bind(s.x0 as i64)
-        .bind(s.x1 as i64)
-        .bind(&s.worker)
-        .bind(&s.path)
-        .execute(&self.pool)
-        .await?;
-        Ok(())
+        self.with(true, async |c| {
+            sqlx::query(
+                "INSERT INTO strips (job_id, frame, x0, x1, worker, path)
+                 VALUES ($1, $2, $3, $4, $5, $6)
+                 ON CONFLICT (job_id, frame, x0) DO UPDATE SET x1 = excluded.x1,
+                    worker = excluded.worker, path = excluded.path",
+            )
+            .bind(id)
+            .bind(s.frame as i64)
+            .bind(s.x0 as i64)
+            .bind(s.x1 as i64)
+            .bind(&s.worker)
+            .bind(&s.path)
+            .execute(&mut *c)
+            .await
+            .map(drop)
+        })
+        .await
     }
 
     /// The strips kept of a job's unfinished frames.
     pub async fn strips(&self, id: &str) -> anyhow::Result<Vec<StripRow>> {
-        let rows = sqlx::query("SELECT * FROM strips WHERE job_id = $1 ORDER BY frame, x0")
-            .bind(id)
-            .fetch_all(&self.pool)
+        let rows = self
+            .with(false, async |c| {
+                sqlx::query("SELECT * FROM strips WHERE job_id = $1 ORDER BY frame, x0")
+                    .bind(id)
+                    .fetch_all(&mut *c)
+                    .await
+            })
             .await?;
         rows.iter()
             .map(|r| {
@@ -515,34 +688,47 @@ impl Store {
 
     /// Records what the farm has seen of each of `workers`.
     pub async fn put_workers(&self, workers: &[WorkerRow]) -> anyhow::Result<()> {
-        let mut tx = self.pool.begin().await?;
-        for w in workers {
-            sqlx::query(
-                "INSERT INTO workers (addr, strips_done, strips_failed, last_seen_ms)
-                 VALUES ($1, $2, $3, $4)
-                 ON CONFLICT (addr) DO UPDATE SET strips_done = excluded.strips_done,
-                    strips_failed = excluded.strips_failed, last_seen_ms = excluded.last_seen_ms",
-            )
-            .bind(&w.addr)
-            .bind(w.strips_done as i64)
-            .bind(w.strips_failed as i64)
-            .bind(w.last_seen_ms as i64)
-            .execute(&mut *tx)
-            .await?;
-        }
-        tx.commit().await?;
-        Ok(())
+        self.with(true, async |c| {
+            let mut tx = c.begin().await?;
+            for w in workers {
+                sqlx::query(
+                    "INSERT INTO workers (addr, strips_done, strips_failed, last_seen_ms)
+                     VALUES ($1, $2, $3, $4)
+                     ON CONFLICT (addr) DO UPDATE SET strips_done = excluded.strips_done,
+                        strips_failed = excluded.strips_failed,
+                        last_seen_ms = excluded.last_seen_ms",
+                )
+                .bind(&w.addr)
+                .bind(w.strips_done as i64)
+                .bind(w.strips_failed as i64)
+                .bind(w.last_seen_ms as i64)
+                .execute(&mut *tx)
+                .await?;
+            }
+            tx.commit().await
+        })
+        .await
     }
 
     /// Forgets a worker's record.
     pub async fn delete_worker(&self, addr: &str) -> anyhow::Result<()> {
-        sqlx::query("DELETE FROM workers WHERE addr = $1").bind(addr).execute(&self.pool).await?;
-        Ok(())
+        self.with(true, async |c| {
+            sqlx::query("DELETE FROM workers WHERE addr = $1")
+                .bind(addr)
+                .execute(&mut *c)
+                .await
+                .map(drop)
+        })
+        .await
     }
 
     /// Every worker's record.
     pub async fn workers(&self) -> anyhow::Result<Vec<WorkerRow>> {
-        let rows = sqlx::query("SELECT * FROM workers ORDER BY addr").fetch_all(&self.pool).await?;
+        let rows = self
+            .with(false, async |c| {
+                sqlx::query("SELECT * FROM workers ORDER BY addr").fetch_all(&mut *c).await
+            })
+            .await?;
         rows.iter()
             .map(|r| {
                 Ok(WorkerRow {
@@ -556,24 +742,46 @@ impl Store {
     }
 
     /// Records a user's token (its hash: the token itself is never kept).
+    /// Refused when the user exists with another role: ownership is by
+    /// name, so one name with two roles would share one user's jobs.
     pub async fn add_token(&self, t: &TokenRow) -> anyhow::Result<()> {
-        sqlx::query(
-            "INSERT INTO tokens (id, user_name, role, hash, created_ms) VALUES ($1, $2, $3, $4, $5)",
-        )
-        .bind(&t.id)
-        .bind(&t.user)
-        .bind(&t.role)
-        .bind(&t.hash)
-        .bind(t.created_ms as i64)
-        .execute(&self.pool)
-        .await?;
-        Ok(())
+        let other = self
+            .tokens()
+            .await?
+            .into_iter()
+            .find(|o| o.user == t.user && o.role != t.role && o.revoked_ms == 0);
+        if let Some(o) = other {
+            anyhow::bail!(
+                "user {:?} already has a {} token ({}): one user, one role; pick another name, \
+                 or revoke that token first",
+                t.user,
+                o.role,
+                o.id
+            );
+        }
+        self.with(true, async |c| {
+            sqlx::query(
+                "INSERT INTO tokens (id, user_name, role, hash, created_ms)
+                 VALUES ($1, $2, $3, $4, $5)",
+            )
+            .bind(&t.id)
+            .bind(&t.user)
+            .bind(&t.role)
+            .bind(&t.hash)
+            .bind(t.created_ms as i64)
+            .execute(&mut *c)
+            .await
+            .map(drop)
+        })
+        .await
     }
 
     /// Every token record, revoked ones too, oldest first.
     pub async fn tokens(&self) -> anyhow::Result<Vec<TokenRow>> {
-        let rows = sqlx::query("SELECT * FROM tokens ORDER BY created_ms, id")
-            .fetch_all(&self.pool)
+        let rows = self
+            .with(false, async |c| {
+                sqlx::query("SELECT * FROM tokens ORDER BY created_ms, id").fetch_all(&mut *c).await
+            })
             .await?;
         rows.iter()
             .map(|r| {
@@ -591,49 +799,55 @@ impl Store {
 
     /// Revokes a token; whether there was one to revoke.
     pub async fn revoke_token(&self, id: &str) -> anyhow::Result<bool> {
-        let r = sqlx::query("UPDATE tokens SET revoked_ms = $2 WHERE id = $1 AND revoked_ms = 0")
-            .bind(id)
-            .bind(now_ms())
-            .execute(&self.pool)
-            .await?;
-        Ok(r.rows_affected() > 0)
+        self.with(true, async |c| {
+            let r =
+                sqlx::query("UPDATE tokens SET revoked_ms = $2 WHERE id = $1 AND revoked_ms = 0")
+                    .bind(id)
+                    .bind(now_ms())
+                    .execute(&mut *c)
+                    .await?;
+            Ok(r.rows_affected() > 0)
+        })
+        .await
     }
 
-    /// Appends to the audit log: who did what to what.
-    pub async fn audit(
-        &self,
-        actor: &str,
-        action: &str,
-        target: &str,
-        detail: &str,
-    ) -> anyhow::Result<()> {
-        let mut tx = self.pool.begin().await?;
-        let id = sqlx::query(
-            "UPDATE counters SET value = value + 1 WHERE name = 'audit' RETURNING value",
-        )
-        .fetch_one(&mut *tx)
-        .await?
-        .get::<i64, _>(0);
-        sqlx::query(
-            "INSERT INTO audit (id, at_ms, actor, action, target, detail) VALUES ($1, $2, $3, $4, $5, $6)",
-        )
-        .bind(id)
-        .bind(now_ms())
-        .bind(actor)
-        .bind(action)
-        .bind(target)
-        .bind(detail)
-        .execute(&mut *tx)
-        .await?;
-        tx.commit().await?;
-        Ok(())
+    /// Appends to the audit log: who did what to what, and when (ms since
+    /// the Unix epoch: an entry written late keeps its time).
+    pub async fn audit(&self, e: &AuditRow) -> anyhow::Result<()> {
+        self.with(true, async |c| {
+            let mut tx = c.begin().await?;
+            let id = sqlx::query(
+                "UPDATE counters SET value = value + 1 WHERE name = 'audit' RETURNING value",
+            )
+            .fetch_one(&mut *tx)
+            .await?
+            .try_get::<i64, _>(0)?;
+            sqlx::query(
+                "INSERT INTO audit (id, at_ms, actor, action, target, detail)
+                 VALUES ($1, $2, $3, $4, $5, $6)",
+            )
+            .bind(id)
+            .bind(e.at_ms as i64)
+            .bind(&e.actor)
+            .bind(&e.action)
+            .bind(&e.target)
+            .bind(&e.detail)
+            .execute(&mut *tx)
+            .await?;
+            tx.commit().await
+        })
+        .await
     }
 
     /// The newest `limit` entries of the audit log, oldest first.
     pub async fn audit_log(&self, limit: u32) -> anyhow::Result<Vec<AuditRow>> {
-        let rows = sqlx::query("SELECT * FROM audit ORDER BY id DESC LIMIT $1")
-            .bind(limit as i64)
-            .fetch_all(&self.pool)
+        let rows = self
+            .with(false, async |c| {
+                sqlx::query("SELECT * FROM audit ORDER BY id DESC LIMIT $1")
+                    .bind(limit as i64)
+                    .fetch_all(&mut *c)
+                    .await
+            })
             .await?;
         let mut out = rows
             .iter()

@@ -84,6 +84,14 @@ pub(super) const MIGRATIONS: &[(i64, &str, &[&str])] = &[
             "INSERT INTO counters (name, value) VALUES ('audit', 0)",
         ],
     ),
+    (
+        3,
+        "results' hashes, checked when served",
+        &[
+            "ALTER TABLE frames ADD COLUMN exr_hash TEXT NOT NULL DEFAULT ''",
+            "ALTER TABLE frames ADD COLUMN png_hash TEXT NOT NULL DEFAULT ''",
+        ],
+    ),
 ];
 
 /// A statement in `dialect`'s words.
