@@ -5,6 +5,7 @@
 
 mod common;
 
+mod cancel;
 mod cli;
 mod cluster;
 mod dashboard;

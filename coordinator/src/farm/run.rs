@@ -249,6 +249,9 @@ pub async fn render_streamed(
             pull_strips(me, client, report, &shared, &*events).await
         }));
     }
+    // A run dropped (its job cancelled) stops its pullers with it: their
+    // strip calls are dropped, which tells each worker to stop the strip.
+    let _stop = AbortOnDrop(tasks.iter().map(|t| t.abort_handle()).collect());
     // Wait for the frames, or for every worker to be gone.
     let mut reports = Vec::new();
     for t in tasks {
@@ -269,4 +272,13 @@ pub async fn render_streamed(
         );
     }
     Ok(FarmRun { workers: reports, upload_ms, prepared })
+}
+
+/// Aborts its tasks when dropped.
+struct AbortOnDrop(Vec<tokio::task::AbortHandle>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.iter().for_each(tokio::task::AbortHandle::abort);
+    }
 }

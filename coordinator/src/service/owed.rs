@@ -74,12 +74,11 @@ impl State {
         let rows: Vec<String> = lock(&self.owed).rows.iter().cloned().collect();
         for id in rows {
             let row = lock(&self.jobs).get(&id).map(super::Job::row);
-            if let Some(row) = row {
-                if self.store.set_state(&row).await.is_err()
-                    || self.store.set_progress(&row).await.is_err()
-                {
-                    return;
-                }
+            if let Some(row) = row
+                && (self.store.set_state(&row).await.is_err()
+                    || self.store.set_progress(&row).await.is_err())
+            {
+                return;
             }
             lock(&self.owed).rows.remove(&id);
         }

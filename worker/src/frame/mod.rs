@@ -29,7 +29,9 @@ use crate::trace::{RenderSettings, RenderedStrip, Tracer};
 use reference::{ReferenceImage, ReferenceOptions, ReferenceStats};
 use std::sync::Arc;
 use std::time::Instant;
+use sylva_scene::film::RayCounts;
 use sylva_scene::frame::{Backend, FrameSettings};
+use sylva_scene::passes::PassImage;
 use sylva_scene::sequence::View;
 use sylva_scene::{LightingMode, Scene};
 
@@ -206,6 +208,40 @@ impl Frame {
         self.prepared.renderer.render_strip(&self.tracer, &self.settings, x0, x1)
     }
 
+    /// Columns `[x0, x1)` as [`Frame::strip`] renders them, in pieces of
+    /// columns that each take about [`PIECE_SECONDS`] (sized from the
+    /// pieces before; a few dispatches a strip), asking `stop` before each: a strip whose caller
+    /// went away ends within a piece with [`Cancelled`], and the GPU is
+    /// free for the next. A frame is the same however it is cut, so the
+    /// pieces put together are the strip rendered whole.
+    pub fn strip_until(
+        &self,
+        x0: u32,
+        x1: u32,
+        stop: &dyn Fn() -> bool,
+    ) -> anyhow::Result<RenderedStrip> {
+        // A filtered gather renders its filter's reach beyond each piece:
+        // pieces a few reaches wide keep that cost small.
+        let reach = if self.settings.gather_filtered() { self.settings.gather_filter } else { 0 };
+        let least = (4 * reach).max(1);
+        let (mut pieces, mut at) = (Vec::new(), x0);
+        // The first piece is as narrow as it may be; each next one is sized
+        // to the measured rate, at most four times the last, so a piece
+        // that misjudged the rate (a column of sky) cannot run long.
+        let mut cols = least;
+        while at < x1 {
+            anyhow::ensure!(!stop(), Cancelled);
+            let end = (at + cols).min(x1);
+            let t = Instant::now();
+            pieces.push(self.strip(at, end)?);
+            let secs = t.elapsed().as_secs_f64().max(1e-4);
+            let by_rate = ((end - at) as f64 * PIECE_SECONDS / secs) as u32;
+            cols = by_rate.clamp(least, 4 * (end - at));
+            at = end;
+        }
+        Ok(join_columns(pieces, self.settings.height))
+    }
+
     /// Every strip of `plan`, one after another, each handed to `sink`
     /// with its milliseconds of rendering as soon as it is done.
     pub fn strips(
@@ -248,4 +284,58 @@ impl Frame {
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Why a strip was not rendered whole: its caller went away first.
+#[derive(Debug, thiserror::Error)]
+#[error("cancelled")]
+pub struct Cancelled;
+
+/// About how long each piece of a cancellable strip runs, s: a cancel is
+/// heard within this (the farm promises a second), and pieces stay long
+/// enough that their dispatches cost next to nothing on a fast GPU.
+pub const PIECE_SECONDS: f64 = 0.25;
+
+/// Side-by-side pieces of one strip (left to right, `height` rows) as one.
+fn join_columns(pieces: Vec<RenderedStrip>, height: u32) -> RenderedStrip {
+    if pieces.len() == 1 {
+        return pieces.into_iter().next().expect("one piece");
+    }
+    let x0 = pieces[0].x0;
+    let width: u32 = pieces.iter().map(|p| p.width).sum();
+    let rows = |get: &dyn Fn(&RenderedStrip) -> &[[f32; 3]]| -> Vec<[f32; 3]> {
+        if pieces.iter().any(|p| get(p).is_empty()) {
+            return Vec::new();
+        }
+        (0..height as usize)
+            .flat_map(|y| {
+                pieces.iter().flat_map(move |p| {
+                    let w = p.width as usize;
+                    get(p)[y * w..(y + 1) * w].iter().copied()
+                })
+            })
+            .collect()
+    };
+    let pixels = rows(&|p| &p.pixels);
+    let first_light = rows(&|p| &p.first_light);
+    let coverage = (0..height as usize)
+        .flat_map(|y| {
+            pieces.iter().flat_map(move |p| {
+                let w = p.width as usize;
+                p.coverage[y * w..(y + 1) * w].iter().copied()
+            })
+        })
+        .collect();
+    let mut rays = RayCounts::default();
+    pieces.iter().for_each(|p| rays.add(&p.rays));
+    let passes = pieces[0].passes.as_ref().map(|first| {
+        let mut all = PassImage::new(width, height, first.set);
+        for p in &pieces {
+            if let Some(img) = &p.passes {
+                all.paste_strip(p.x0 - x0, img).expect("pieces of one strip share their passes");
+            }
+        }
+        all
+    });
+    RenderedStrip { x0, width, pixels, coverage, first_light, rays, passes }
 }

@@ -2,8 +2,8 @@
 //! prepare, and export or import prepared data.
 
 use super::cache::{BundleCaches, Cached};
-use super::{Cancelled, Via, WorkerService, normalize_hash};
-use crate::frame::Frame;
+use super::{Via, WorkerService, normalize_hash};
+use crate::frame::{Cancelled, Frame};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -27,6 +27,15 @@ impl Drop for CancelOnDrop {
         if !self.1 {
             self.0.store(true, Ordering::SeqCst);
         }
+    }
+}
+
+/// Counts one strip in flight on the GPU while it lives.
+struct Busy<'a>(&'a std::sync::atomic::AtomicU32);
+
+impl Drop for Busy<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
     }
 }
 
@@ -98,12 +107,16 @@ impl Worker for WorkerService {
         let scene = self.state.scene(&hash)?;
         let height = f.height;
         let cancelled = Arc::new(AtomicBool::new(false));
+        // A caller that goes away (a cancelled job, a coordinator gone)
+        // drops this future: the render hears of it between dispatches.
         let mut guard = CancelOnDrop(cancelled.clone(), false);
         let state = self.state.clone();
         state.busy.fetch_add(1, Ordering::SeqCst);
         let span = tracing::info_span!("strip", x0 = r.x0, x1 = r.x1, scene = %hash);
         let result = tokio::task::spawn_blocking(move || {
             let _g = span.enter();
+            // Busy until the GPU work ends, whether the caller waits or not.
+            let _busy = Busy(&state.busy);
             let _gpu = lock(&state.gpu);
             // Strips queue for the GPU; one whose caller left meanwhile is
             // not worth starting.
@@ -117,12 +130,11 @@ impl Worker for WorkerService {
             let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
             anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
             let t = Instant::now();
-            let strip = frame.strip(r.x0, r.x1)?;
+            let strip = frame.strip_until(r.x0, r.x1, &|| cancelled.load(Ordering::SeqCst))?;
             anyhow::Ok((strip, prepare_ms, t.elapsed().as_secs_f64() * 1e3))
         })
         .await;
         guard.1 = true;
-        self.state.busy.fetch_sub(1, Ordering::SeqCst);
         let (strip, prepare_ms, render_ms) = result
             .map_err(|e| Status::internal(format!("the strip's render panicked: {e}")))?
             .map_err(|e| {

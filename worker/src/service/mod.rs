@@ -209,11 +209,6 @@ impl WorkerService {
     }
 }
 
-/// Why a strip was not rendered: its caller went away first.
-#[derive(Debug, thiserror::Error)]
-#[error("cancelled")]
-struct Cancelled;
-
 /// Answers a coordinator's identity challenge with this worker's token.
 struct Identity {
     token: Option<String>,
