@@ -438,40 +438,51 @@ async fn a_bad_worker_fails_itself_not_the_frame() {
     assert_eq!(counts, [(0, 1), (1, 0)], "(builds, imports) per good worker");
 }
 
-/// Finding 5: anyone may ask a worker to prove it holds the farm's token
-/// (the coordinator must, before trusting an address), so the answer must
-/// not let a guess list be tried offline at the speed of a hash: each
-/// answer is salted afresh and keyed by Argon2id of the token.
+/// Issue 37, finding 3: a worker proves it holds its token only for a
+/// registration it sent itself, so another holder of the token who names
+/// its address in `RegisterWorker` gets no proof, and no session key: not
+/// with the farm's token, not with the coordinator's. (Before, the victim
+/// answered the check and the caller got its key, and with it could push
+/// prepared data into the worker.) The worker's own registration renews.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_identity_proof_does_not_give_a_human_chosen_token_away() {
-    let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[("SYLVA_TOKEN", "hunter2")]);
-    let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", w.addr))
+async fn a_session_key_goes_only_to_the_worker_at_the_address() {
+    let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--token", "s3cret"], &[]);
+    let mut c = coordinator(&coord.addr, Some("s3cret")).await;
+    let victim = spawn(
+        &["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr],
+        &[("SYLVA_TOKEN", "s3cret")],
+    );
+    wait_for_workers(&mut c, 1).await;
+    for claim in [vec![], vec![9u8; 32]] {
+        for _ in 0..3 {
+            let e = c
+                .register_worker(pb::RegisterWorkerRequest {
+                    addr: victim.addr.clone(),
+                    claim: claim.clone(),
+                    session_key: String::new(),
+                })
+                .await
+                .expect_err("a registration naming another worker's address gets its key");
+            assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+            assert!(e.message().contains("did not send this registration"), "{}", e.message());
+        }
+    }
+    // The worker itself asked nothing of that: it is still registered.
+    let workers = c.list_workers(pb::ListWorkersRequest {}).await.unwrap().into_inner().workers;
+    assert!(workers.iter().any(|w| w.addr == victim.addr && w.alive), "{workers:?}");
+    // And its identity service answers no one who checks a registration it
+    // did not send (so nobody can replay the check either).
+    let ch = tonic::transport::Endpoint::from_shared(format!("http://{}", victim.addr))
         .unwrap()
         .connect()
         .await
         .unwrap();
     let mut id = pb::worker_identity_client::WorkerIdentityClient::new(ch);
-    let nonce = vec![7u8; 32];
-    let ask = |mut id: pb::worker_identity_client::WorkerIdentityClient<_>, nonce: Vec<u8>| async move {
-        id.prove(pb::ProveRequest { nonce }).await.unwrap().into_inner()
-    };
-    let (a, b) = (ask(id.clone(), nonce.clone()).await, ask(id.clone(), nonce.clone()).await);
-    assert!(a.proof != b.proof && a.salt != b.salt, "the same question, answered afresh");
-    // The attack that worked: the proof as a keyed BLAKE3 hash of the
-    // nonce, tried against a guess list. It no longer finds the token.
-    let guesses = ["password", "s3cret", "letmein", "hunter2", "sylva"];
-    let cheap = |g: &str| {
-        let key = blake3::derive_key("sylva 2026 worker identity v1", g.as_bytes());
-        blake3::keyed_hash(&key, &nonce).as_bytes().to_vec()
-    };
-    assert!(!guesses.iter().any(|g| cheap(g) == a.proof), "a guess list recovers the token");
-    // Only the slow derivation with the answer's own salt checks a guess.
-    assert!(sylva_proto::auth::check_proof(Some("hunter2"), &nonce, &a.salt, &a.proof));
-    assert!(!sylva_proto::auth::check_proof(Some("hunter2"), &nonce, &b.salt, &a.proof));
-    assert!(sylva_proto::auth::PROOF_KDF.0 >= 19 * 1024 && sylva_proto::auth::PROOF_KDF.1 >= 2);
-    // A nonce it did not choose well is refused rather than answered.
-    let e = id.prove(pb::ProveRequest { nonce: vec![1; 4] }).await.unwrap_err();
-    assert_eq!(e.code(), Code::InvalidArgument);
+    let e = id
+        .prove(pb::ProveRequest { nonce: vec![7u8; 32], claim: vec![9u8; 32] })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::PermissionDenied);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -495,8 +506,10 @@ async fn registration_needs_proof_and_expires() {
     // that cannot prove it holds the token is refused and sent nothing.
     let bad = BadWorker::default();
     let bad_addr = serve_bad_worker(bad.clone()).await;
-    let e =
-        c.register_worker(pb::RegisterWorkerRequest { addr: bad_addr.clone() }).await.unwrap_err();
+    let e = c
+        .register_worker(pb::RegisterWorkerRequest { addr: bad_addr.clone(), ..Default::default() })
+        .await
+        .unwrap_err();
     assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
     assert!(e.message().contains("could not prove"), "{}", e.message());
     tokio::time::sleep(Duration::from_millis(2500)).await;

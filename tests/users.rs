@@ -96,7 +96,12 @@ async fn users_act_within_their_roles_and_every_change_is_audited() {
     assert_eq!(submit(&mut w, &scene, "").await.unwrap_err().code(), Code::PermissionDenied);
     let e = w.list_jobs(pb::ListJobsRequest {}).await.unwrap_err();
     assert_eq!(e.code(), Code::PermissionDenied);
-    let e = a.register_worker(pb::RegisterWorkerRequest { addr: "127.0.0.1:1".into() }).await;
+    let e = a
+        .register_worker(pb::RegisterWorkerRequest {
+            addr: "127.0.0.1:1".into(),
+            ..Default::default()
+        })
+        .await;
     assert_eq!(e.unwrap_err().code(), Code::PermissionDenied);
 
     // Revoked, Bob's token stops working.

@@ -28,12 +28,17 @@ pub enum RegistrationError {
 }
 
 /// Registers `me` (the address the coordinator should dial) with
-/// `coordinator` once: the key the coordinator will call with, or its reason.
+/// `coordinator` once, under a fresh claim kept in `claims` (the worker's
+/// identity service answers the coordinator's check only for it) and
+/// showing the key `held` from before, if any: the key the coordinator
+/// will call with, or its reason.
 pub async fn register_once(
     coordinator: &str,
     me: &str,
     token: Option<String>,
     tls: Option<&ClientTlsConfig>,
+    claims: &sylva_proto::auth::Claims,
+    held: Option<String>,
 ) -> Result<String, RegistrationError> {
     let ch = sylva_proto::tls::connect(coordinator, tls, Duration::from_secs(10))
         .await
@@ -42,10 +47,14 @@ pub async fn register_once(
         ch,
         sylva_proto::auth::attach(token),
     );
-    c.register_worker(pb::RegisterWorkerRequest { addr: me.to_string() })
-        .await
-        .map(|r| r.into_inner().session_key)
-        .map_err(|s| RegistrationError::Refused { code: s.code(), message: s.message().into() })
+    c.register_worker(pb::RegisterWorkerRequest {
+        addr: me.to_string(),
+        claim: claims.fresh(),
+        session_key: held.unwrap_or_default(),
+    })
+    .await
+    .map(|r| r.into_inner().session_key)
+    .map_err(|s| RegistrationError::Refused { code: s.code(), message: s.message().into() })
 }
 
 /// Registers forever, logging each change between success and failure,
@@ -57,10 +66,14 @@ pub async fn register_loop(
     token: Option<String>,
     tls: Option<ClientTlsConfig>,
     session: std::sync::Arc<std::sync::RwLock<Option<String>>>,
+    claims: sylva_proto::auth::Claims,
 ) {
     let mut last: Option<Result<(), RegistrationError>> = None;
     loop {
-        let now = match register_once(&coordinator, &me, token.clone(), tls.as_ref()).await {
+        let held = sylva_proto::sync::read(&session).clone();
+        let now = match register_once(&coordinator, &me, token.clone(), tls.as_ref(), &claims, held)
+            .await
+        {
             Ok(key) => {
                 *sylva_proto::sync::write(&session) = Some(key).filter(|k| !k.is_empty());
                 Ok(())

@@ -79,6 +79,34 @@ pub fn random_bytes(n: usize) -> Vec<u8> {
     b
 }
 
+/// The registrations a worker sent lately, by their random claims: the
+/// worker answers an identity check only for one of them, so a
+/// coordinator hands a session key only to the worker at the address a
+/// registration names (see `RegisterWorkerRequest.claim`).
+#[derive(Clone, Debug, Default)]
+pub struct Claims(std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<Vec<u8>>>>);
+
+impl Claims {
+    /// Registrations whose claims are kept: a few periods' worth.
+    const KEPT: usize = 8;
+
+    /// A new claim for a registration about to be sent.
+    pub fn fresh(&self) -> Vec<u8> {
+        let c = random_bytes(32);
+        let mut q = crate::sync::lock(&self.0);
+        if q.len() >= Self::KEPT {
+            q.pop_front();
+        }
+        q.push_back(c.clone());
+        c
+    }
+
+    /// Whether `claim` is one of this worker's recent registrations.
+    pub fn holds(&self, claim: &[u8]) -> bool {
+        claim.len() == 32 && crate::sync::lock(&self.0).iter().any(|c| constant_time_eq(c, claim))
+    }
+}
+
 /// A fresh random token (256 bits) for processes only their starter talks to.
 pub fn random_token() -> String {
     random_hex(32)

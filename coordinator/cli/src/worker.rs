@@ -52,6 +52,7 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
                 token,
                 coordinator_tls,
                 config.session.clone(),
+                config.claims.clone(),
             ));
         }
         service::run(listener, ctx, config, sylva_coordinator::shutdown::signal()).await

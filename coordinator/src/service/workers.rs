@@ -72,7 +72,7 @@ impl CoordinatorService {
         request: Request<pb::RegisterWorkerRequest>,
     ) -> Result<Response<pb::RegisterWorkerReply>, Status> {
         let caller = caller(&self.state.access, &request)?;
-        let addr = request.into_inner().addr;
+        let pb::RegisterWorkerRequest { addr, claim, session_key: shown } = request.into_inner();
         if addr.len() > MAX_ID
             || addr.parse::<std::net::SocketAddr>().is_err() && !addr.contains(':')
         {
@@ -84,15 +84,18 @@ impl CoordinatorService {
         let known = lock(&self.state.workers)
             .get(&addr)
             .and_then(|w| w.key.clone().filter(|_| w.info.alive));
-        let key = match known {
-            Some(k) => k,
-            None => {
-                // Nothing — not a key, not a bundle — goes to an address
-                // before it proves it holds the caller's token.
-                self.state.verify_worker(&addr, &caller).await?;
-                sylva_proto::auth::random_token()
-            }
-        };
+        // A worker renewing shows the key it was given (only it holds it).
+        // Otherwise nothing — not a key, not a bundle — goes to an address
+        // before the worker there proves it holds the caller's token *and*
+        // sent this very registration (its claim): a key is never handed
+        // to another holder of the token who names the address.
+        let renewed = known
+            .as_deref()
+            .is_some_and(|k| sylva_proto::auth::constant_time_eq(k.as_bytes(), shown.as_bytes()));
+        if !renewed {
+            self.state.verify_worker(&addr, &caller, &claim).await?;
+        }
+        let key = known.unwrap_or_else(sylva_proto::auth::random_token);
         let (row, fresh) = {
             let mut w = lock(&self.state.workers);
             let entry = w.entry(addr.clone()).or_insert_with(|| KnownWorker {
@@ -196,7 +199,12 @@ impl State {
     /// with: it must answer a fresh nonce with the keyed hash only a
     /// holder of that token can make (a user's token: keyed by the token's
     /// record; the coordinator's own: by Argon2id of it).
-    pub(super) async fn verify_worker(&self, addr: &str, caller: &Caller) -> Result<(), Status> {
+    pub(super) async fn verify_worker(
+        &self,
+        addr: &str,
+        caller: &Caller,
+        claim: &[u8],
+    ) -> Result<(), Status> {
         let refused =
             |why: &str| Status::permission_denied(format!("worker {}: {why}", clip(addr)));
         let ch = sylva_proto::tls::connect(
@@ -208,12 +216,19 @@ impl State {
         .map_err(|_| refused("cannot be reached at that address from the coordinator"))?;
         let nonce = sylva_proto::auth::random_bytes(32);
         let mut c = pb::worker_identity_client::WorkerIdentityClient::new(ch);
-        let mut req = Request::new(pb::ProveRequest { nonce: nonce.clone() });
+        let mut req =
+            Request::new(pb::ProveRequest { nonce: nonce.clone(), claim: claim.to_vec() });
         req.set_timeout(Duration::from_secs(5));
         let reply = c
             .prove(req)
             .await
-            .map_err(|_| refused("does not answer the identity check (is it a Sylva worker?)"))?
+            .map_err(|s| {
+                if s.code() == tonic::Code::PermissionDenied {
+                    refused("did not send this registration: only the worker at an address may register it")
+                } else {
+                    refused("does not answer the identity check (is it a Sylva worker?)")
+                }
+            })?
             .into_inner();
         let checked = if !reply.token_id.is_empty() || !caller.token_id.is_empty() {
             // A user's token: the address must hold the very token the

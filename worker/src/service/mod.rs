@@ -58,6 +58,9 @@ pub struct WorkerConfig {
     /// The key the coordinator calls with, once this worker has registered
     /// (set by the registration, read by every call).
     pub session: Session,
+    /// This worker's recent registrations: the identity check answers
+    /// only a coordinator checking one of them.
+    pub claims: sylva_proto::auth::Claims,
     /// Bytes the kept scenes may hold at most, all they expand into
     /// together (models, structures, LB light, GPU copies); the least
     /// recently used scenes go first (the one in use stays, whatever its size).
@@ -81,6 +84,7 @@ impl Default for WorkerConfig {
             memory_bytes: 8 << 30,
             disk_cache: None,
             session: Session::default(),
+            claims: Default::default(),
         }
     }
 }
@@ -212,6 +216,8 @@ impl WorkerService {
 /// Answers a coordinator's identity challenge with this worker's token.
 struct Identity {
     token: Option<String>,
+    /// The registrations this worker sent lately.
+    claims: sylva_proto::auth::Claims,
     /// One proof at a time.
     turn: tokio::sync::Mutex<()>,
 }
@@ -222,9 +228,16 @@ impl WorkerIdentity for Identity {
         &self,
         request: Request<pb::ProveRequest>,
     ) -> Result<Response<pb::ProveReply>, Status> {
-        let nonce = request.into_inner().nonce;
+        let pb::ProveRequest { nonce, claim } = request.into_inner();
         if nonce.len() < 16 || nonce.len() > 64 {
             return Err(Status::invalid_argument("the nonce must be 16 to 64 bytes"));
+        }
+        // Proof is given only for a registration this worker sent: another
+        // holder of its token who names this address gets no key by it.
+        if !self.claims.holds(&claim) {
+            return Err(Status::permission_denied(
+                "this worker did not send that registration: it proves itself only for its own",
+            ));
         }
         // Each answer costs a slow key derivation; a flood of questions is
         // answered one at a time, never all at once.
@@ -278,7 +291,11 @@ pub async fn run(
             }
         }
     }
-    let identity = Identity { token: config.token.clone(), turn: Default::default() };
+    let identity = Identity {
+        token: config.token.clone(),
+        claims: config.claims.clone(),
+        turn: Default::default(),
+    };
     let service = WorkerService::new(ctx, config);
     reporter.set_serving::<WorkerServer<WorkerService>>().await;
     let served = builder
@@ -320,4 +337,48 @@ fn normalize_hash(h: &str) -> Result<String, Status> {
         )));
     }
     Ok(hash)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A coordinator the worker registered with may ask it to prove it
+    /// holds the farm's token; the answer must not let a guess list be
+    /// tried offline at the speed of a hash: each is salted afresh and
+    /// keyed by Argon2id of the token. A check of a registration the
+    /// worker did not send is not answered at all.
+    #[tokio::test]
+    async fn an_identity_proof_does_not_give_a_human_chosen_token_away() {
+        let id = Identity {
+            token: Some("hunter2".into()),
+            claims: Default::default(),
+            turn: Default::default(),
+        };
+        let claim = id.claims.fresh();
+        let nonce = vec![7u8; 32];
+        let ask = |claim: Vec<u8>, nonce: Vec<u8>| {
+            id.prove(Request::new(pb::ProveRequest { nonce, claim }))
+        };
+        let a = ask(claim.clone(), nonce.clone()).await.unwrap().into_inner();
+        let b = ask(claim.clone(), nonce.clone()).await.unwrap().into_inner();
+        assert!(a.proof != b.proof && a.salt != b.salt, "the same question, answered afresh");
+        // The proof as a keyed BLAKE3 hash of the nonce, tried against a
+        // guess list, does not find the token.
+        let guesses = ["password", "s3cret", "letmein", "hunter2", "sylva"];
+        let cheap = |g: &str| {
+            let key = blake3::derive_key("sylva 2026 worker identity v1", g.as_bytes());
+            blake3::keyed_hash(&key, &nonce).as_bytes().to_vec()
+        };
+        assert!(!guesses.iter().any(|g| cheap(g) == a.proof), "a guess list recovers the token");
+        assert!(sylva_proto::auth::check_proof(Some("hunter2"), &nonce, &a.salt, &a.proof));
+        assert!(!sylva_proto::auth::check_proof(Some("hunter2"), &nonce, &b.salt, &a.proof));
+        assert!(sylva_proto::auth::PROOF_KDF.0 >= 19 * 1024 && sylva_proto::auth::PROOF_KDF.1 >= 2);
+        // A nonce it did not choose well is refused rather than answered;
+        // so is a registration it did not send.
+        let e = ask(claim, vec![1; 4]).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument);
+        let e = ask(vec![9; 32], nonce).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::PermissionDenied);
+    }
 }
