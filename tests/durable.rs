@@ -287,3 +287,59 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
     drop((c2, w1, w2));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 37, findings 4 and 5: a coordinator never starts a second farm
+/// over a database or a state folder that is another's. A second
+/// coordinator naming a running one's SQLite file (from its own state
+/// folder) is refused; a farm whose `sylva.db` was truncated to 0 bytes,
+/// or removed while its results stay, is refused with the cause rather
+/// than started afresh (jobs forgotten, results orphaned, users gone),
+/// and nothing is written over the evidence.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_coordinator_refuses_a_database_that_is_not_its_farms() {
+    if database().is_some() {
+        return; // SQLite files and folders: the PostgreSQL run has its own lock test.
+    }
+    let dir = scratch("not-its-farm");
+    let b = sylva_scene::bundle::pack(&small_scene(&dir.join("scene"))).unwrap();
+    let (a, other) = (dir.join("a"), dir.join("b"));
+    let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[]);
+    let log = dir.join("a.log");
+    let first = durable_coordinator(&w.addr, &a, &log);
+    let mut c = coordinator(&first.addr, None).await;
+    let done = common::submit_and_wait(&mut c, common::spec(32, 16), &b, |_| {}).await;
+    assert_eq!(done.state, pb::JobState::Done as i32, "{}", done.message);
+    // A second coordinator on the first's database, from its own folder.
+    let url = format!("sqlite://{}", a.join("sylva.db").display());
+    let start = |state: &Path, url: Option<&str>| {
+        let mut args = vec!["coordinator", "--listen", "127.0.0.1:0", "--workers", &w.addr];
+        args.extend(["--state-dir", state.to_str().unwrap()]);
+        if let Some(u) = url {
+            args.extend(["--database", u]);
+        }
+        common::sylva(&args, &[])
+    };
+    let o = start(&other, Some(&url));
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && said.contains("another coordinator is using the database"),
+        "{said}"
+    );
+    first.terminate();
+    // The farm's database truncated: refused, and left as it was.
+    let db = a.join("sylva.db");
+    for f in ["sylva.db-wal", "sylva.db-shm"] {
+        let _ = std::fs::remove_file(a.join(f));
+    }
+    std::fs::write(&db, b"").unwrap();
+    let o = start(&a, None);
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && said.contains("empty file (0 bytes)"), "{said}");
+    assert_eq!(std::fs::metadata(&db).unwrap().len(), 0, "nothing is written over the evidence");
+    // Removed outright, with the farm's results still there: refused too.
+    std::fs::remove_file(&db).unwrap();
+    let o = start(&a, None);
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && said.contains("holds an earlier farm's"), "{said}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -244,7 +244,7 @@ impl CoordinatorService {
             .clone()
             .unwrap_or_else(|| format!("sqlite://{}", dir.join("sylva.db").display()));
         let store = Store::claim(&url).await?;
-        let prefix = store.meta("prefix", || sylva_proto::auth::random_hex(4)).await?;
+        let prefix = farm_of(&dir, &store, &url).await?;
         // Named workers count as alive until a heartbeat says otherwise, so a
         // job submitted at once can use them (the farm copes if one is not);
         // so do workers the database saw within their registration's life,
@@ -372,6 +372,49 @@ impl CoordinatorService {
             tracing::warn!(dir = %gone.display(), "cannot remove the folder: {e}");
         }
     }
+}
+
+/// The state folder's record of the farm whose database it uses (the
+/// database's id prefix), beside its results.
+const FARM_FILE: &str = "farm";
+
+/// Checks that the database is the state folder's own and brings it up
+/// to date: the farm's id prefix. Refused, before anything is written,
+/// when the database is not the one the folder's results belong to — a
+/// truncated (0-byte) file, a new database where a farm had kept results,
+/// or another farm's — since a coordinator would otherwise start a new
+/// farm over them: jobs forgotten, results orphaned, users gone.
+async fn farm_of(dir: &std::path::Path, store: &Store, url: &str) -> anyhow::Result<String> {
+    use crate::store::Found;
+    let db = crate::store::redacted(url);
+    let recorded = std::fs::read_to_string(dir.join(FARM_FILE)).ok().map(|s| s.trim().to_string());
+    let kept_results = std::fs::read_dir(dir.join("results")).is_ok_and(|mut d| d.next().is_some());
+    let restore = "restore it from a backup, or give this coordinator a new state folder                    (and database) to start a new farm";
+    match store.found() {
+        Found::EmptyFile => anyhow::bail!(
+            "the database {db} is an empty file (0 bytes): a farm's database truncated or lost,              not a new one; {restore}"
+        ),
+        Found::New if recorded.is_some() || kept_results => anyhow::bail!(
+            "the database {db} is new, but the state folder {} holds an earlier farm's {}:              its database is lost or another was named; {restore}",
+            dir.display(),
+            if recorded.is_some() { "record" } else { "results" }
+        ),
+        Found::New => tracing::info!(database = %db, "a new farm: its database is created"),
+        Found::Existing => {}
+    }
+    store.migrate().await?;
+    let prefix = store.meta("prefix", || sylva_proto::auth::random_hex(4)).await?;
+    match recorded {
+        Some(r) if r != prefix => anyhow::bail!(
+            "the database {db} is another farm's (ids job-{prefix}-…) than the state folder {}              (job-{r}-…): one database per farm",
+            dir.display()
+        ),
+        Some(_) => {}
+        None => {
+            crate::results::write_whole(&dir.join(FARM_FILE), format!("{prefix}\n").as_bytes())?
+        }
+    }
+    Ok(prefix)
 }
 
 /// Who made a call: the interceptor's finding, or (a call made in this

@@ -181,10 +181,52 @@ pub struct Store {
     /// On PostgreSQL, the connection holding this coordinator's advisory
     /// lock on the database for the process's life.
     _holder: Option<std::sync::Arc<tokio::sync::Mutex<sqlx::AnyConnection>>>,
+    /// On SQLite, the lock file beside the database a coordinator holds.
+    _file_lock: Option<std::sync::Arc<std::fs::File>>,
+    /// What the database was before this process opened it.
+    found: Found,
+}
+
+/// What a database was when it was opened.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Found {
+    /// A Sylva database (it has a schema).
+    Existing,
+    /// Nothing: no file, or a server database without Sylva's tables.
+    New,
+    /// An SQLite file of 0 bytes: a database truncated or lost, not a new one.
+    EmptyFile,
 }
 
 /// The advisory lock one coordinator holds on a PostgreSQL database.
 const COORDINATOR_LOCK: i64 = 0x5379_6c76_6100_0001;
+
+/// The file an `sqlite:` URL names (none for an in-memory database).
+fn sqlite_path(url: &str) -> Option<std::path::PathBuf> {
+    let rest = url.strip_prefix("sqlite://").or_else(|| url.strip_prefix("sqlite:"))?;
+    let path = rest.split('?').next().unwrap_or("");
+    (!path.is_empty() && path != ":memory:").then(|| path.into())
+}
+
+/// Locks `PATH.lock` beside an SQLite database for this process: refused
+/// while another coordinator holds it, whatever its state folder.
+fn lock_beside(db: &std::path::Path, url: &str) -> anyhow::Result<std::fs::File> {
+    let mut name = db.as_os_str().to_owned();
+    name.push(".lock");
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&name)
+        .with_context(|| format!("cannot lock the database {}", redacted(url)))?;
+    file.try_lock().map_err(|_| {
+        anyhow::anyhow!(
+            "another coordinator is using the database {}: one coordinator per database",
+            redacted(url)
+        )
+    })?;
+    Ok(file)
+}
 
 /// A database URL without its password, for messages.
 pub fn redacted(url: &str) -> String {
@@ -204,9 +246,17 @@ impl Store {
 
     /// Opens the database as its coordinator: refused while another
     /// coordinator holds it (on PostgreSQL, by an advisory lock held for
-    /// this process's life; SQLite's file is in the locked state folder).
+    /// this process's life; on SQLite, by a lock on `PATH.lock` beside the
+    /// file, whichever state folder each coordinator has). Its schema is
+    /// left as found, so the caller can check [`Store::found`] first; then
+    /// [`Store::migrate`].
     pub async fn claim(url: &str) -> anyhow::Result<Store> {
         Self::connect(url, true).await
+    }
+
+    /// What the database was before this process opened it.
+    pub fn found(&self) -> Found {
+        self.found
     }
 
     async fn connect(url: &str, exclusive: bool) -> anyhow::Result<Store> {
@@ -234,6 +284,13 @@ impl Store {
             "database {}: sqlite://PATH or postgres://USER@HOST/DB",
             redacted(url)
         );
+        let path = sqlite_path(url);
+        let file_lock = match &path {
+            Some(p) if exclusive => Some(std::sync::Arc::new(lock_beside(p, url)?)),
+            _ => None,
+        };
+        let empty_file =
+            path.as_ref().and_then(|p| std::fs::metadata(p).ok()).is_some_and(|m| m.len() == 0);
         let url = if sqlite && !url.contains('?') { format!("{url}?mode=rwc") } else { url.into() };
         // SQLite takes one writer at a time: one connection serialises the
         // coordinator's writes rather than failing them as "locked".
@@ -242,10 +299,6 @@ impl Store {
             .connect(&url)
             .await
             .with_context(|| format!("cannot open the database {}", redacted(&url)))?;
-        if sqlite {
-            // Readers never block the writer, and a commit is one append.
-            sqlx::query("PRAGMA journal_mode = WAL").execute(&pool).await?;
-        }
         // One coordinator per database: two would both run its queue.
         // (SQLite's file is in the state folder, which is locked already.)
         let holder = if postgres && exclusive {
@@ -265,8 +318,30 @@ impl Store {
         } else {
             None
         };
-        let store = Store { pool, postgres, health: Default::default(), _holder: holder };
-        store.migrate().await?;
+        let has_schema: i64 = sqlx::query(if postgres {
+            "SELECT COUNT(*) FROM information_schema.tables WHERE table_name = 'schema_migrations'"
+        } else {
+            "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table' AND name = 'schema_migrations'"
+        })
+        .fetch_one(&pool)
+        .await?
+        .try_get(0)?;
+        let found = match (has_schema > 0, empty_file) {
+            (true, _) => Found::Existing,
+            (false, true) => Found::EmptyFile,
+            (false, false) => Found::New,
+        };
+        let store = Store {
+            pool,
+            postgres,
+            health: Default::default(),
+            _holder: holder,
+            _file_lock: file_lock,
+            found,
+        };
+        if !exclusive {
+            store.migrate().await?;
+        }
         Ok(store)
     }
 
@@ -275,7 +350,13 @@ impl Store {
         if self.postgres { "PostgreSQL" } else { "SQLite" }
     }
 
-    async fn migrate(&self) -> anyhow::Result<()> {
+    /// Brings the schema up to date (a tool's [`Store::open`] does so itself).
+    pub async fn migrate(&self) -> anyhow::Result<()> {
+        if !self.postgres {
+            // Readers never block the writer, and a commit is one append.
+            // (Set here, not on opening: a file found wanting is left as found.)
+            sqlx::query("PRAGMA journal_mode = WAL").execute(&self.pool).await?;
+        }
         sqlx::query(
             "CREATE TABLE IF NOT EXISTS schema_migrations (
                 version BIGINT PRIMARY KEY, name TEXT NOT NULL, applied_ms BIGINT NOT NULL)",
@@ -973,8 +1054,9 @@ mod tests {
         for _ in 0..5 {
             std::fs::remove_file(dir.join("sylva.db")).ok();
             let (a, b, c) = tokio::join!(Store::open(&url), Store::open(&url), Store::claim(&url));
-            for s in [a, b, c] {
-                let s = s.unwrap();
+            let c = c.unwrap();
+            c.migrate().await.unwrap();
+            for s in [a.unwrap(), b.unwrap(), c] {
                 assert!(s.jobs().await.unwrap().is_empty());
                 s.close().await;
             }
