@@ -317,7 +317,7 @@ async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
             .map(|d| {
                 d.flatten()
                     .map(|e| e.path())
-                    .filter(|p| p.extension().is_some_and(|x| x == "prepared"))
+                    .filter(|p| p.extension().is_some_and(|x| x == "prepared") && p.is_file())
                     .collect()
             })
             .unwrap_or_default()
@@ -357,6 +357,22 @@ async fn a_restarted_worker_prepares_from_its_disk_cache_and_checks_it() {
     assert_eq!(did, (1, 1, 0), "damaged entries are not used");
     assert_eq!(third, first);
     assert_eq!(entries().len(), 2, "and are written again");
+    // Each entry replaced by a folder (issue 37, finding 6): cleared and
+    // written over as a file, and no temporary file is left behind.
+    for e in entries() {
+        std::fs::remove_file(&e).unwrap();
+        std::fs::create_dir_all(e.join("inside")).unwrap();
+    }
+    let (fourth, did) = run().await;
+    assert_eq!(did, (1, 1, 0), "a folder is not an entry");
+    assert_eq!(fourth, first);
+    assert_eq!(entries().len(), 2, "written again, as files");
+    let tmp = std::fs::read_dir(&cache)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.path().extension().is_some_and(|x| x == "tmp"))
+        .count();
+    assert_eq!(tmp, 0, "a write that could not take the entry's place leaves nothing");
     // `auto`'s measured choice is kept too: a restart takes it unmeasured.
     let auto = pb::FrameSettings { accel: pb::Accel::Auto.into(), ..frame() };
     run_with(auto.clone()).await;

@@ -149,27 +149,49 @@ impl DiskCache {
     }
 
     /// An entry's recorded hash and bytes, marked used; `None` if absent
-    /// or unreadable.
+    /// or unreadable. The bytes are hashed as they stream from the file,
+    /// a block at a time, and read into memory only once they match the
+    /// hash they were written with: a damaged or foreign entry, however
+    /// large, costs one pass over it and no memory.
     fn read(&self, key: &str) -> Option<(String, Vec<u8>)> {
+        use std::io::Read;
         let path = self.path(key);
+        // Not following links: an entry is a file this cache wrote.
+        let meta = std::fs::symlink_metadata(&path).ok()?;
+        if !meta.is_file() {
+            self.discard(key, Some("not a file".into()));
+            return None;
+        }
         // Nothing larger than the whole cache was written here.
-        if std::fs::metadata(&path).ok()?.len() > self.limit {
+        if meta.len() > self.limit {
             self.discard(key, Some("larger than the cache's bound".into()));
             return None;
         }
-        let mut data = std::fs::read(&path).ok()?;
+        // 64 hex digits of the content's BLAKE3, then the content.
+        let mut file = std::fs::File::open(&path).ok()?;
+        let mut header = [0u8; 64];
+        if file.read_exact(&mut header).is_err() {
+            self.discard(key, Some("shorter than its header".into()));
+            return None;
+        }
+        let Some(hash) = std::str::from_utf8(&header).ok().map(str::to_string) else {
+            self.discard(key, Some("its header is not a hash".into()));
+            return None;
+        };
+        let mut hasher = blake3::Hasher::new();
+        if std::io::copy(&mut file, &mut hasher).is_err()
+            || hasher.finalize().to_hex().as_str() != hash
+        {
+            self.discard(key, Some("its bytes do not match the hash written with them".into()));
+            return None;
+        }
+        let body = std::fs::read(&path).ok()?.split_off(64);
         // Recency for eviction: the modification time, set on use.
         let _ = std::fs::File::options()
             .append(true)
             .open(&path)
             .and_then(|f| f.set_modified(SystemTime::now()));
-        // 64 hex digits of the content's BLAKE3, then the content.
-        if data.len() < 64 {
-            self.discard(key, Some("shorter than its header".into()));
-            return None;
-        }
-        let body = data.split_off(64);
-        Some((String::from_utf8(data).ok()?, body))
+        Some((hash, body))
     }
 
     fn write(&self, key: &str, exported: anyhow::Result<crate::share::Exported>) {
@@ -177,9 +199,19 @@ impl DiskCache {
             let tmp = self.dir.join(format!(".{key}.{}.tmp", std::process::id()));
             let mut data = e.hash.into_bytes();
             data.extend_from_slice(&e.bytes);
-            std::fs::write(&tmp, &data)?;
-            std::fs::rename(&tmp, self.path(key))?;
-            Ok(())
+            let placed = std::fs::write(&tmp, &data).and_then(|_| {
+                // Whatever stands in the entry's place and is not a file
+                // this cache wrote (a folder, a link) goes first.
+                let path = self.path(key);
+                if std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_dir()) {
+                    std::fs::remove_dir_all(&path)?;
+                }
+                std::fs::rename(&tmp, path)
+            });
+            if placed.is_err() {
+                let _ = std::fs::remove_file(&tmp);
+            }
+            Ok(placed?)
         });
         if let Err(e) = result {
             tracing::warn!(dir = %self.dir.display(), "prepared data not cached: {e:#}");
@@ -196,7 +228,12 @@ impl DiskCache {
                 &why.unwrap_or_else(|| "it holds the wrong parts".into())
             )
         );
-        let _ = std::fs::remove_file(self.path(key));
+        let path = self.path(key);
+        if std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_dir()) {
+            let _ = std::fs::remove_dir_all(&path);
+        } else {
+            let _ = std::fs::remove_file(&path);
+        }
     }
 
     /// Removes the least recently used entries (and temporary files older
@@ -307,8 +344,10 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("sylva-disk-cache-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let c = DiskCache::open(&dir, 2 * (64 + 100)).unwrap();
-        let entry =
-            |n: u8| Ok(crate::share::Exported { bytes: vec![n; 100], hash: format!("{:064}", n) });
+        let entry = |n: u8| {
+            let bytes = vec![n; 100];
+            Ok(crate::share::Exported { hash: blake3::hash(&bytes).to_hex().to_string(), bytes })
+        };
         let names = ["a", "b", "c"];
         for (i, k) in names.iter().enumerate() {
             c.write(k, entry(i as u8));
@@ -322,6 +361,58 @@ mod tests {
         c.bound();
         let left: Vec<bool> = names.iter().map(|k| c.path(k).exists()).collect();
         assert_eq!(left, [true, false, true]);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// An entry is checked as it streams from the file, before it is held:
+    /// damaged bytes, a folder or a link in its place are refused and
+    /// cleared, and the next write takes the place without leaving its
+    /// temporary file behind.
+    #[test]
+    fn a_damaged_or_foreign_entry_is_refused_and_replaced() {
+        let dir = std::env::temp_dir().join(format!("sylva-disk-cache-bad-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let c = DiskCache::open(&dir, 1 << 30).unwrap();
+        let bytes = vec![7u8; 1000];
+        let good = || {
+            Ok(crate::share::Exported {
+                hash: blake3::hash(&bytes).to_hex().to_string(),
+                bytes: bytes.clone(),
+            })
+        };
+        c.write("k", good());
+        assert_eq!(c.read("k").unwrap().1, bytes);
+        // One byte changed: refused and removed.
+        let mut raw = std::fs::read(c.path("k")).unwrap();
+        raw[500] ^= 1;
+        std::fs::write(c.path("k"), &raw).unwrap();
+        assert!(c.read("k").is_none());
+        assert!(!c.path("k").exists());
+        // A large file of the wrong bytes (sparse: 64 MiB that take no disk)
+        // is refused too, streamed rather than read whole.
+        let f = std::fs::File::create(c.path("k")).unwrap();
+        f.set_len(64 << 20).unwrap();
+        assert!(c.read("k").is_none() && !c.path("k").exists());
+        // A folder in the entry's place: refused, cleared, and written over.
+        std::fs::create_dir_all(c.path("k").join("inside")).unwrap();
+        assert!(c.read("k").is_none() && !c.path("k").exists());
+        std::fs::create_dir_all(c.path("k").join("inside")).unwrap();
+        c.write("k", good());
+        assert_eq!(c.read("k").unwrap().1, bytes);
+        let tmp = std::fs::read_dir(&dir)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.path().extension().is_some_and(|x| x == "tmp"))
+            .count();
+        assert_eq!(tmp, 0, "no temporary file is left behind");
+        // A link in its place is not followed.
+        #[cfg(unix)]
+        {
+            let _ = std::fs::remove_file(c.path("k"));
+            std::os::unix::fs::symlink(dir.join("elsewhere"), c.path("k")).unwrap();
+            assert!(c.read("k").is_none());
+            assert!(std::fs::symlink_metadata(c.path("k")).is_err());
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
