@@ -558,3 +558,44 @@ async fn a_client_that_hoards_connections_does_not_starve_the_page() {
     assert_eq!(answered.ok(), Some((200, 200)), "the page stays served");
     drop((streams, hoard));
 }
+
+/// Issue 37, finding 7: a job's live page and preview answer only those
+/// who may watch jobs, as gRPC's `WatchJob` does: a worker's token is
+/// refused, alike for an id that exists and one that does not, so it
+/// cannot even tell which ids exist. A submitter's token is served.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_workers_token_sees_no_job_on_the_dashboard() {
+    let dir = scratch("dashboard-roles");
+    let state = dir.join("state");
+    let st = state.to_str().unwrap();
+    let add = |user: &str, role: &str| {
+        common::ok(&["token", "add", user, "--role", role, "--state-dir", st]).trim().to_string()
+    };
+    let http = format!("127.0.0.1:{}", free_port());
+    let coord =
+        spawn(&["coordinator", "--listen", "127.0.0.1:0", "--http", &http, "--state-dir", st], &[]);
+    let (alice, wtok) = (add("alice", "submitter"), add("render-01", "worker"));
+    // The coordinator reads new tokens within a few seconds: until then
+    // the farm is open to anyone.
+    let mut anon = coordinator(&coord.addr, None).await;
+    for _ in 0..100 {
+        if anon.list_jobs(sylva_proto::pb::ListJobsRequest {}).await.is_err() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let mut c = coordinator(&coord.addr, Some(&alice)).await;
+    let b = sylva_scene::bundle::pack(&small_scene(&dir.join("scene"))).unwrap();
+    let chunks = submission(spec(16, 8), &b.hash, &b.bytes, b.bytes.len() as u64);
+    let id = c.submit_job(tokio_stream::iter(chunks)).await.unwrap().into_inner().id;
+    let as_worker = format!("Authorization: Bearer {wtok}\r\n");
+    let as_alice = format!("Authorization: Bearer {alice}\r\n");
+    for path in ["live", "preview.png"] {
+        let real = get(&http, &format!("/api/jobs/{id}/{path}"), &as_worker).await;
+        let none = get(&http, &format!("/api/jobs/job-none-1/{path}"), &as_worker).await;
+        assert_eq!((real.0, none.0), (403, 403), "{path}: {real:?} {none:?}");
+        assert_eq!(real.1, none.1);
+    }
+    assert_eq!(get(&http, &format!("/api/jobs/{id}/live"), &as_alice).await.0, 200);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -47,6 +47,10 @@ async fn users_act_within_their_roles_and_every_change_is_audited() {
     let (alice, bob) = (token_add(st, "alice", "submitter"), token_add(st, "bob", "submitter"));
     let (root, wtok) = (token_add(st, "root", "admin"), token_add(st, "render-01", "worker"));
     assert!(alice.starts_with("sylva_") && alice.len() == "sylva_".len() + 12 + 1 + 64);
+    // One user, one role (issue 37, finding 8): ownership is by name, so a
+    // second token under alice's name as an admin would act on her jobs.
+    let said = common::fails(&["token", "add", "alice", "--role", "admin", "--state-dir", st]);
+    assert!(said.contains("already has a submitter token"), "{said}");
     // The farm was open; with users it takes their tokens only.
     let mut anon = coordinator(&coord.addr, None).await;
     until_refused(&mut anon).await;

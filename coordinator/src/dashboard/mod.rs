@@ -173,6 +173,21 @@ fn percent_decode(v: &str) -> String {
     String::from_utf8_lossy(&out).into_owned()
 }
 
+/// The caller of a job's page, who must be one who may watch jobs (an
+/// admin or a submitter, as gRPC's `WatchJob` asks): a worker's token is
+/// refused before any job id is looked up, so it learns nothing of them.
+fn viewer(service: &CoordinatorService, headers: &HeaderMap) -> Result<Caller, Response> {
+    let caller = service.caller_of(token(headers, true).as_deref()).ok_or_else(refused)?;
+    if !matches!(caller.role, crate::access::Role::Admin | crate::access::Role::Submitter) {
+        return Err((
+            StatusCode::FORBIDDEN,
+            format!("a {} token cannot watch jobs", caller.role.name()),
+        )
+            .into_response());
+    }
+    Ok(caller)
+}
+
 fn refused() -> Response {
     (StatusCode::UNAUTHORIZED, "this coordinator needs its token: enter it at the top of the page")
         .into_response()
@@ -321,8 +336,8 @@ async fn live(
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Response {
-    if !service.accepts_token(token(&headers, true).as_deref()) {
-        return refused();
+    if let Err(r) = viewer(&service, &headers) {
+        return r;
     }
     let Some(f) = service.live(&id) else {
         return (StatusCode::NOT_FOUND, "no such job").into_response();
@@ -346,8 +361,9 @@ async fn preview(
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Response {
-    let Some(caller) = service.caller_of(token(&headers, true).as_deref()) else {
-        return refused();
+    let caller = match viewer(&service, &headers) {
+        Ok(c) => c,
+        Err(r) => return r,
     };
     let Some(f) = service.live(&id) else {
         return (StatusCode::NOT_FOUND, "no such job").into_response();

@@ -314,11 +314,6 @@ impl CoordinatorService {
         self.state.access.caller(token)
     }
 
-    /// Whether `token` is one this coordinator accepts (any, when it asks none).
-    pub fn accepts_token(&self, token: Option<&str>) -> bool {
-        self.caller_of(token).is_some()
-    }
-
     /// Whether callers must bring a token.
     pub fn needs_token(&self) -> bool {
         self.state.access.closed()
