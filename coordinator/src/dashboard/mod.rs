@@ -176,14 +176,12 @@ fn percent_decode(v: &str) -> String {
 /// The caller of a job's page, who must be one who may watch jobs (an
 /// admin or a submitter, as gRPC's `WatchJob` asks): a worker's token is
 /// refused before any job id is looked up, so it learns nothing of them.
-fn viewer(service: &CoordinatorService, headers: &HeaderMap) -> Result<Caller, Response> {
-    let caller = service.caller_of(token(headers, true).as_deref()).ok_or_else(refused)?;
+fn viewer(service: &CoordinatorService, headers: &HeaderMap) -> Result<Caller, Box<Response>> {
+    let caller =
+        service.caller_of(token(headers, true).as_deref()).ok_or_else(|| Box::new(refused()))?;
     if !matches!(caller.role, crate::access::Role::Admin | crate::access::Role::Submitter) {
-        return Err((
-            StatusCode::FORBIDDEN,
-            format!("a {} token cannot watch jobs", caller.role.name()),
-        )
-            .into_response());
+        let why = format!("a {} token cannot watch jobs", caller.role.name());
+        return Err(Box::new((StatusCode::FORBIDDEN, why).into_response()));
     }
     Ok(caller)
 }
@@ -337,7 +335,7 @@ async fn live(
     Path(id): Path<String>,
 ) -> Response {
     if let Err(r) = viewer(&service, &headers) {
-        return r;
+        return *r;
     }
     let Some(f) = service.live(&id) else {
         return (StatusCode::NOT_FOUND, "no such job").into_response();
@@ -363,7 +361,7 @@ async fn preview(
 ) -> Response {
     let caller = match viewer(&service, &headers) {
         Ok(c) => c,
-        Err(r) => return r,
+        Err(r) => return *r,
     };
     let Some(f) = service.live(&id) else {
         return (StatusCode::NOT_FOUND, "no such job").into_response();
