@@ -43,14 +43,14 @@ fn durable_coordinator(workers: &str, state: &Path, log: &Path) -> Proc {
 }
 
 /// `sylva ARGS` started and left running (a client whose coordinator
-/// will be killed under it).
-fn in_background(args: &[String]) -> std::process::Child {
+/// will be killed under it), what it says going to `said`.
+fn in_background(args: &[String], said: &Path) -> std::process::Child {
     std::process::Command::new(env!("CARGO_BIN_EXE_sylva"))
         .args(args)
         .env("XDG_RUNTIME_DIR", common::runtime())
         .env("SYLVA_PREPARED_CACHE_MIB", "0")
         .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
+        .stderr(std::fs::File::create(said).unwrap())
         .spawn()
         .unwrap()
 }
@@ -107,7 +107,8 @@ async fn a_coordinator_killed_mid_sequence_resumes_it_and_every_frame_is_the_sam
     // The same job on a durable coordinator, killed once frames are stored.
     let state = dir.join("state");
     let c1 = durable_coordinator(&workers, &state, &dir.join("c1.log"));
-    let mut client = in_background(&submit(&c1.addr, &dir.join("lost/shot.png")));
+    let mut client =
+        in_background(&submit(&c1.addr, &dir.join("lost/shot.png")), &dir.join("client.log"));
     let mut c = coordinator(&c1.addr, None).await;
     let (id, at_kill) = loop {
         let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
@@ -241,13 +242,14 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
 
     let state = dir.join("state");
     let c1 = durable_coordinator(&workers, &state, &dir.join("c1.log"));
-    let mut client = in_background(&submit(&c1.addr, &dir.join("lost.png")));
+    let client_log = dir.join("client.log");
+    let mut client = in_background(&submit(&c1.addr, &dir.join("lost.png")), &client_log);
     let mut c = coordinator(&c1.addr, None).await;
-    let id = loop {
+    let (id, planned) = loop {
         let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
         if let Some(j) = jobs.first().filter(|j| j.strips_done >= 2) {
             assert_eq!(j.frames_done, 0, "the frame ended before the kill: nothing to resume");
-            break j.id.clone();
+            break (j.id.clone(), j.strips_total);
         }
         tokio::time::sleep(Duration::from_millis(5)).await;
     };
@@ -255,6 +257,15 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
     tokio::time::sleep(Duration::from_millis(100)).await;
     kill_9(c1);
     let _ = client.wait();
+    // The client says what happened in a user's words (issue 37, finding
+    // 11: it printed the transport's "h2 protocol error").
+    let said = std::fs::read_to_string(&client_log).unwrap();
+    assert!(
+        said.contains("connection to the coordinator was lost")
+            && said.contains(&format!("sylva fetch {id}"))
+            && !said.contains("h2 protocol"),
+        "{said}"
+    );
 
     let log2 = dir.join("c2.log");
     let c2 = durable_coordinator(&workers, &state, &log2);
@@ -274,6 +285,16 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("the restart says what it resumed from:\n{log}"));
     assert!(kept >= 1, "strips rendered before the kill are kept:\n{log}");
+    // Its progress counts the strips the first run rendered (issue 37,
+    // finding 11: it listed only the rest, "3/3" of a frame of 6).
+    let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
+    let j = jobs.iter().find(|j| j.id == id).unwrap();
+    assert!(
+        j.strips_done == j.strips_total && j.strips_total >= planned,
+        "{}/{} strips with {kept} kept, of {planned} planned",
+        j.strips_done,
+        j.strips_total
+    );
     // Once the frame is whole, the strips kept for it are gone.
     let strips = state.join("results").join(&id).join("strips");
     let left = std::fs::read_dir(&strips).map(|d| d.count()).unwrap_or(0);

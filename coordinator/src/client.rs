@@ -42,7 +42,32 @@ pub async fn connect(
 
 /// A call's error as a person reads it: the code and the server's message.
 pub fn status_error(s: tonic::Status) -> anyhow::Error {
+    if connection_lost(&s) {
+        return anyhow::anyhow!(
+            "the connection to the coordinator was lost (it stopped, or the network failed)"
+        );
+    }
     anyhow::anyhow!("{:?}: {}", s.code(), s.message())
+}
+
+/// Whether a call failed because the connection under it broke (the
+/// coordinator died mid-call), not because the coordinator answered no:
+/// the transport's own words ("h2 protocol error", "broken pipe") mean
+/// nothing to a user.
+fn connection_lost(s: &tonic::Status) -> bool {
+    use tonic::Code;
+    let m = s.message().to_ascii_lowercase();
+    matches!(s.code(), Code::Unknown | Code::Unavailable | Code::Internal | Code::Cancelled)
+        && [
+            "h2 protocol error",
+            "transport error",
+            "broken pipe",
+            "connection reset",
+            "stream closed",
+            "error reading a body",
+        ]
+        .iter()
+        .any(|w| m.contains(w))
 }
 
 /// Sends a job to the coordinator at `addr`, follows it with a progress
@@ -71,10 +96,21 @@ pub async fn submit_and_follow(
     );
     let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(status_error)?.into_inner().id;
     let mut progress = JobProgress::new(&id, views);
-    let mut events = c.watch_job(pb::JobId { id: id.clone() }).await?.into_inner();
+    let lost = |e: anyhow::Error| {
+        e.context(format!(
+            "job {id} was accepted, and is kept if the coordinator keeps a state folder: \
+             `sylva jobs` and `sylva fetch {id}` once it is back"
+        ))
+    };
+    let mut events = c
+        .watch_job(pb::JobId { id: id.clone() })
+        .await
+        .map_err(status_error)
+        .map_err(lost)?
+        .into_inner();
     let mut end = None;
     while let Some(ev) = events.next().await {
-        let ev = ev?;
+        let ev = ev.map_err(status_error).map_err(lost)?;
         progress.update(&ev);
         if !ev.message.is_empty() && !wire_ended(ev.state) {
             tracing::warn!("{}", ev.message);

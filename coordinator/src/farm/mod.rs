@@ -64,8 +64,9 @@ pub enum FarmEvent {
     /// preparing it, sharing what it prepared, tracing.
     Stage(String),
     /// The strips this run will render (fewer than planned when an earlier
-    /// run left frames or strips).
-    Planned { strips: usize },
+    /// run left frames or strips), and those an earlier run rendered: the
+    /// job's progress counts both.
+    Planned { strips: usize, kept: usize },
 }
 
 /// How a job's scene was prepared once for the farm.

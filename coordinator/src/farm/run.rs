@@ -153,6 +153,12 @@ pub async fn render_streamed(
     // What an earlier run left: its strips go in first, and only the
     // columns they leave open are rendered.
     let mut open: std::collections::HashMap<usize, OpenFrame> = Default::default();
+    // Strips an earlier run rendered: those of its whole frames, and those
+    // kept of the others.
+    let mut kept: usize = (0..plans.len())
+        .filter(|i| resume.done.get(*i) == Some(&true))
+        .map(|i| plans[i].len())
+        .sum();
     for (frame, px, render_ms) in resume.strips {
         if frame >= frames.len() || resume.done.get(frame) == Some(&true) {
             continue;
@@ -162,6 +168,7 @@ pub async fn render_streamed(
             .or_insert_with(|| OpenFrame::new(width, height, frames[frame].passes));
         if f.assembly.add(&px).is_ok() {
             f.times.push(StripTime { strip: px.strip, render_ms, call_ms: render_ms });
+            kept += 1;
         }
     }
     let mut queue = VecDeque::new();
@@ -190,7 +197,7 @@ pub async fn render_streamed(
     }
     let left: Vec<usize> =
         (0..frames.len()).map(|i| queue.iter().filter(|(f, _)| *f == i).count()).collect();
-    events(FarmEvent::Planned { strips: queue.len() });
+    events(FarmEvent::Planned { strips: queue.len(), kept });
     if queue.is_empty() {
         return Ok(FarmRun::default());
     }

@@ -446,9 +446,11 @@ impl State {
             FarmEvent::WorkerDropped { worker, error } => {
                 ev.message = format!("worker {worker} dropped: {error}")
             }
-            FarmEvent::Planned { strips } => {
+            FarmEvent::Planned { strips, kept } => {
                 if let Some(j) = lock(&self.jobs).get_mut(jid) {
-                    j.summary.strips_total = j.summary.strips_done + strips as u32;
+                    j.summary.strips_done = kept as u32;
+                    j.summary.strips_total = (kept + strips) as u32;
+                    ev.strips_done = j.summary.strips_done;
                     ev.strips_total = j.summary.strips_total;
                 }
             }
