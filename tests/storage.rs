@@ -111,7 +111,7 @@ async fn a_disk_full_episode_loses_no_acknowledged_job_and_reuses_no_id() {
     let mut outcomes = vec![submit(&mut c, &b).await];
     // The free-space steps that lost jobs before: a few KiB, where some
     // writes land and some do not.
-    for kib in [20, 28] {
+    for kib in [20, 28, 0] {
         let _ = std::fs::remove_file(state.join("filler"));
         fill_to(&state, kib);
         outcomes.push(submit(&mut c, &b).await);
@@ -201,5 +201,55 @@ async fn a_disk_full_episode_loses_no_acknowledged_job_and_reuses_no_id() {
     }
     let last: u64 = last.rsplit('-').next().unwrap().parse().unwrap();
     assert!(rows.iter().all(|r| r.seq <= last) && fresh > last, "ids {last}, then {fresh}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Results carry their hash in the database and are checked when served
+/// (issue 37, finding 11): a stored PNG or EXR changed on disk is refused
+/// as damaged, one removed as missing, each with DATA_LOSS and the cause;
+/// neither is served, and the untouched ones still are.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_result_changed_or_removed_on_disk_is_not_served() {
+    let dir = common::scratch("result-hash");
+    let state = dir.join("state");
+    let b = sylva_scene::bundle::pack(&small_scene(&dir.join("scene"))).unwrap();
+    let worker = spawn(&["worker", "--listen", "127.0.0.1:0"], &[]);
+    let coord = spawn(
+        &[
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--workers",
+            &worker.addr,
+            "--state-dir",
+            state.to_str().unwrap(),
+        ],
+        &[],
+    );
+    let mut c = coordinator(&coord.addr, None).await;
+    let Outcome::Ended(id, s, msg) = submit(&mut c, &b).await else { panic!("refused") };
+    assert_eq!(s, pb::JobState::Done as i32, "{msg}");
+    let fetch = async |c: &mut common::Client, format: &str| {
+        c.fetch_result(pb::FetchRequest { id: id.clone(), format: format.into(), frame: 0 }).await
+    };
+    let png = fetch(&mut c, "png").await.unwrap().into_inner().data;
+    assert!(fetch(&mut c, "exr").await.is_ok());
+    let files = state.join("results").join(&id);
+    // One byte of the PNG changed: refused as damaged, never served.
+    let mut changed = png.clone();
+    let k = changed.len() / 2;
+    changed[k] ^= 1;
+    std::fs::write(files.join("00000.png"), &changed).unwrap();
+    let e = fetch(&mut c, "png").await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::DataLoss, "{e:?}");
+    assert!(e.message().contains("no longer matches what was written"), "{}", e.message());
+    // The EXR removed: refused as missing, not as "no longer kept".
+    std::fs::remove_file(files.join("00000.exr")).unwrap();
+    let e = fetch(&mut c, "exr").await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::DataLoss, "{e:?}");
+    assert!(e.message().contains("missing"), "{}", e.message());
+    // Put back as written, it is served again.
+    std::fs::write(files.join("00000.png"), &png).unwrap();
+    assert_eq!(fetch(&mut c, "png").await.unwrap().into_inner().data, png);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -116,7 +116,35 @@ async fn users_act_within_their_roles_and_every_change_is_audited() {
         .as_str()
         .unwrap()
         .to_string();
+    // Bob follows a long job of his as his token is revoked: the stream
+    // ends (issue 37, finding 11: it kept delivering for 8 s and more).
+    let mut long = spec(320, 160);
+    long.frame.as_mut().unwrap().spp = 4096;
+    let chunks = common::submission(long, &scene.hash, &scene.bytes, scene.bytes.len() as u64);
+    let bobs = b.submit_job(tokio_stream::iter(chunks)).await.unwrap().into_inner().id;
+    let mut events = b.watch_job(pb::JobId { id: bobs.clone() }).await.unwrap().into_inner();
+    tokio_stream::StreamExt::next(&mut events).await.unwrap().unwrap();
     ok(&["token", "revoke", &bob_id, "--state-dir", st]);
+    let revoked = std::time::Instant::now();
+    let ended = loop {
+        match tokio::time::timeout(
+            Duration::from_secs(10),
+            tokio_stream::StreamExt::next(&mut events),
+        )
+        .await
+        {
+            Ok(Some(Ok(ev))) => assert!(
+                !sylva_coordinator::job_state::wire_ended(ev.state),
+                "the job ended first: make it longer"
+            ),
+            Ok(Some(Err(s))) => break s,
+            Ok(None) => panic!("the stream ended without saying why"),
+            Err(_) => panic!("the stream still runs 10 s after its token was revoked"),
+        }
+    };
+    assert_eq!(ended.code(), Code::Unauthenticated, "{ended:?}");
+    assert!(revoked.elapsed() < Duration::from_secs(5), "{:?}", revoked.elapsed());
+    assert!(r.cancel_job(pb::JobId { id: bobs }).await.is_ok());
     until_refused(&mut b).await;
     assert!(!sylva(&["token", "revoke", &bob_id, "--state-dir", st], &[]).status.success());
 

@@ -163,6 +163,12 @@ impl Access {
         })
     }
 
+    /// Whether the user token `id` is still live ("": the coordinator's own
+    /// token or an open farm, which are not revoked).
+    pub fn live(&self, id: &str) -> bool {
+        id.is_empty() || read(&self.tokens).contains_key(id)
+    }
+
     /// The key of a live user token, by id: what that token's worker
     /// proves its identity with.
     pub fn key_of(&self, id: &str) -> Option<[u8; 32]> {

@@ -133,6 +133,7 @@ impl CoordinatorService {
         &self,
         request: Request<pb::JobId>,
     ) -> Result<Response<EventStream>, Status> {
+        let token = caller(&self.state.access, &request)?.token_id;
         let id = request.into_inner().id;
         let id = job_id(&id)?.to_string();
         let (mut rx, current, stage) = {
@@ -155,8 +156,21 @@ impl CoordinatorService {
             if tx.send(Ok(first)).await.is_err() || wire_ended(current.state) {
                 return;
             }
+            // A token revoked while its stream is open ends the stream
+            // (tokens are re-read every heartbeat; this looks once a second).
+            let mut check = tokio::time::interval(Duration::from_secs(1));
             loop {
-                let ev = match rx.recv().await {
+                let next = tokio::select! {
+                    ev = rx.recv() => ev,
+                    _ = check.tick() => {
+                        if state.access.live(&token) {
+                            continue;
+                        }
+                        let _ = tx.send(Err(Status::unauthenticated("this token was revoked"))).await;
+                        break;
+                    }
+                };
+                let ev = match next {
                     Ok(ev) => ev,
                     // A slow watcher missed events: it gets the job's state
                     // now and goes on, rather than a stream that just ends.
