@@ -21,8 +21,15 @@ use sylva_proto::pb;
 /// `/proc/PID/cwd`.
 fn coordinator_on_tmpfs(mount: &Path, size: &str, workers: &str) -> (Proc, PathBuf) {
     let script = r#"mount -t tmpfs -o "size=$1" tmpfs "$0" && cd "$0" && exec "$2" coordinator --listen 127.0.0.1:0 --workers "$3" --state-dir ."#;
+    // Root needs no user namespace (and a chroot allows none); anyone
+    // else maps themselves to root in one of their own.
+    // SAFETY: geteuid has no preconditions.
+    let root = unsafe { libc::geteuid() } == 0;
+    let namespaces: &[&str] =
+        if root { &["--mount"] } else { &["--user", "--map-root-user", "--mount"] };
     let mut child = Command::new("unshare")
-        .args(["--user", "--map-root-user", "--mount", "sh", "-c", script])
+        .args(namespaces)
+        .args(["sh", "-c", script])
         .arg(mount)
         .arg(size)
         .arg(env!("CARGO_BIN_EXE_sylva"))
