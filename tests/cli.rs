@@ -216,3 +216,37 @@ fn lb_benchmark_prints_both_backends_as_json() {
     }
     assert!(v["gpu_over_cpu"].as_f64().unwrap() > 0.0);
 }
+
+/// `bench trace` times the traversal kernel on the GPU itself (timestamp
+/// queries, which lavapipe has), per ray kind, over at least
+/// `--kernel-rays` rays: the camera rays, shadow rays and diffuse bounces
+/// of the same frame, apart from uploads and read-backs.
+#[test]
+fn trace_benchmark_times_each_ray_kind_on_the_gpu() {
+    let out = ok(&[
+        "bench",
+        "trace",
+        "--scale",
+        "0.01",
+        "--width",
+        "32",
+        "--height",
+        "16",
+        "--accel",
+        "bvh",
+        "--no-cpu",
+        "--no-frames",
+        "--no-first-frame",
+        "--kernel-rays",
+        "2000",
+    ]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    let t = &v["traversal"][0];
+    assert!(t["bounce_rays"].as_u64().unwrap() > 0, "{t:#}");
+    for kind in ["camera", "shadow", "bounce"] {
+        let k = &t["kernel"][kind];
+        assert!(k["rays"].as_u64().unwrap() >= 2000, "{kind}: {k:#}");
+        assert!(k["mrays_per_second"].as_f64().unwrap() > 0.0, "{kind}: {k:#}");
+        assert!(k["rays"].as_u64().unwrap().is_multiple_of(k["batch"].as_u64().unwrap()), "{k:#}");
+    }
+}

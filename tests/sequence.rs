@@ -94,6 +94,27 @@ async fn a_sun_sweep_along_a_camera_path_renders_on_the_farm_with_the_lb_solved_
     .unwrap();
     assert_eq!(anim.info().animation_control().map(|a| a.num_frames), Some(4));
 
+    // The same sequence in one process (issue 39: sequences everywhere):
+    // every frame byte for byte the farm's.
+    let here = dir.join("here.png");
+    let mut args = vec!["render", scene.to_str().unwrap(), "--local-workers", "0"];
+    args.extend(["-o", here.to_str().unwrap()]);
+    args.extend(frame_flags);
+    args.extend(sequence_flags);
+    let said = sylva(&args, &[]);
+    let told = String::from_utf8_lossy(&said.stderr);
+    assert!(said.status.success(), "{told}");
+    let printed = String::from_utf8_lossy(&said.stdout);
+    assert!(printed.contains("4 frames in this process"), "{printed}");
+    for i in 0..4 {
+        let (a, b) = (format!("here-{i:04}.png"), format!("shot-{i:04}.png"));
+        assert!(
+            std::fs::read(dir.join(&a)).unwrap() == std::fs::read(dir.join(&b)).unwrap(),
+            "{a} differs from the farm's {b}"
+        );
+    }
+    assert!(dir.join("here-contact.png").exists() && dir.join("here-preview.png").exists());
+
     // The listing counts the frames; each frame's HDR image can be fetched.
     let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     let j = jobs.iter().find(|j| j.id == id).unwrap();

@@ -67,10 +67,13 @@ impl GpuContext {
         if std::env::var_os(NO_RAY_QUERIES_VAR).is_some_and(|v| v == "1") {
             ray_queries = wgpu::Features::empty();
         }
+        // GPU timestamps where the adapter has them: kernels timed by the
+        // device itself, apart from uploads and read-backs (`bench trace`).
+        let timestamps = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("sylva"),
-                required_features: ray_queries,
+                required_features: ray_queries | timestamps,
                 required_limits: limits.clone(),
                 // SAFETY: only the ray-query feature is experimental, and
                 // wgpu validates its use like any other feature's.
@@ -83,6 +86,11 @@ impl GpuContext {
         let ctx = Self { adapter, device, queue, limits };
         tracing::info!(adapter = %ctx.adapter_name(), "GPU opened");
         Ok(ctx)
+    }
+
+    /// Whether the device can time its own passes (timestamp queries).
+    pub fn has_timestamps(&self) -> bool {
+        self.device.features().contains(wgpu::Features::TIMESTAMP_QUERY)
     }
 
     /// Whether the device traces rays in hardware through ray queries

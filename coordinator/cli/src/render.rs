@@ -81,9 +81,12 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         return render_through_coordinator(&a, &request, &views, &scene, lighting, accel, phases);
     }
     if !views.is_empty() {
-        bail!(
-            "a sequence renders on workers, frames and strips scheduled over them: leave out --local-workers 0"
-        );
+        if goal.is_some() || grid_choice.is_some() {
+            bail!(
+                "--lighting auto and --lb-grid auto choose for one frame: give a sequence its method (--lighting NAME) and grids"
+            );
+        }
+        return render_sequence_here(&a, &request, &scene, &views, phases);
     }
     render_here(&a, &request, scene, grid_choice.is_some(), goal, phases)
 }
@@ -107,6 +110,116 @@ fn render_here(
         return render_reference_here(a, &c.frame, &c.scene, c.request.accel, phases);
     }
     render_strips_here(a, &tracer, c, phases)
+}
+
+/// A sequence in this process: each view's frame composed through the
+/// frame layer over one preparation (structures built once, the LB light
+/// kept per sun), traced as strips, and written as the farm writes it —
+/// numbered PNGs tone-mapped with the middle frame's exposure, EXRs when
+/// asked, the contact sheet and the animated preview — so its files are
+/// the farm's byte for byte. The middle frame renders first, so every
+/// other frame is tone-mapped and encoded as it comes: the process holds
+/// one frame's pixels at a time.
+fn render_sequence_here(
+    a: &RenderArgs,
+    request: &FrameSettings,
+    scene: &Scene,
+    views: &[View],
+    mut phases: Vec<(&'static str, f64)>,
+) -> anyhow::Result<()> {
+    use sylva_coordinator::results::encode_png;
+    use sylva_scene::film::reinhard_like;
+    let tracer = Tracer::new()?;
+    let mut fresh = match a.prepared_cache.open()? {
+        Some(cache) => {
+            let bundle = sylva_scene::bundle::pack(&a.scene)?.hash;
+            Fresh::with_disk(DiskSource { cache, bundle, sun: None })
+        }
+        None => Fresh::default(),
+    };
+    let n = views.len();
+    let plan = even_strips(a.frame.width, STRIP);
+    let bar = ProgressBar::new((n * plan.len()) as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} strips {elapsed}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let say = |m: &str| progress::stage(&bar, m);
+    let (mut pngs, mut exrs) = (vec![Vec::new(); n], vec![Vec::new(); n]);
+    let want_exr = a.exr || !a.frame.passes.is_empty();
+    let (mut exposure, mut lighting) = (None, request.lighting_or(scene.lighting));
+    let (mut prepare_ms, mut trace_ms, mut rays) = (0.0, 0.0, 0u64);
+    let t_all = Instant::now();
+    let order = std::iter::once(n / 2).chain((0..n).filter(|&i| i != n / 2));
+    for i in order {
+        bar.set_message(format!("frame {}/{n}", i + 1));
+        let t = Instant::now();
+        let frame = Frame::compose(
+            &tracer,
+            scene,
+            &FrameSettings { view: views[i], ..*request },
+            &mut fresh,
+            &say,
+        )?;
+        prepare_ms += ms(t);
+        lighting = frame.settings.lighting;
+        let t = Instant::now();
+        let rendered = InProcess::new(&frame).render(&plan, &|_| bar.inc(1))?;
+        trace_ms += ms(t);
+        rays += rendered.rays.primary + rendered.rays.shadow;
+        // The farm keeps one exposure for a sequence, its middle frame's.
+        let e = exposure.get_or_insert_with(|| reinhard(&rendered.image, 0.18).1);
+        let ldr = reinhard_like(&rendered.image, e);
+        pngs[i] = encode_png(rendered.image.width, rendered.image.height, &ldr)?;
+        if want_exr {
+            exrs[i] = match &rendered.passes {
+                Some(p) => sylva_scene::passes::encode_layers(&rendered.image, p)?,
+                None => sylva_coordinator::results::encode_exr(&rendered.image)?,
+            };
+        }
+    }
+    if let Some(keep) = fresh.reuse.keeper(scene) {
+        keep();
+    }
+    bar.finish_and_clear();
+    phases.push(("prepare", prepare_ms));
+    phases.push(("trace", trace_ms));
+    let sequence_ms = ms(t_all);
+    phases.push(("sequence", sequence_ms));
+    let written =
+        sylva_coordinator::sequence::write_all(&a.out, &pngs, want_exr.then_some(&exrs[..]))?;
+    let names = |i: usize| written.get(i).map(|p| p.display().to_string()).unwrap_or_default();
+    let wrote = format!(
+        "{} … {}, {}, {}",
+        names(0),
+        names(n - 1),
+        names(written.len() - 2),
+        names(written.len() - 1)
+    );
+    let accel = request.accel;
+    let stats = with_head(
+        a,
+        None,
+        accel,
+        lighting,
+        &phases,
+        json!({
+            "adapter": tracer.summary(),
+            "views": views,
+            "written": written,
+            "tone_map": exposure,
+            "rays": { "primary_and_shadow": rays, "mrays_per_second": rays as f64 / (trace_ms / 1e3) / 1e6 },
+            "frame_ms": sequence_ms / n as f64,
+        }),
+    );
+    let how = format!(
+        "{n} frames in this process in {sequence_ms:.0} ms ({:.0} ms a frame: {:.0} preparing, {:.0} tracing)",
+        sequence_ms / n as f64,
+        prepare_ms / n as f64,
+        trace_ms / n as f64
+    );
+    report_wrote(a, &stats, accel, lighting, &how, &wrote)
 }
 
 /// A frame composed in this process, and what was chosen on the way.

@@ -77,18 +77,25 @@ impl AmbientKey {
 /// This process's preparation: prepared once, reading what the disk cache
 /// holds of the scene where one is given ([`Fresh::with_disk`]), and
 /// leaving in [`Fresh::reuse`] what a next preparation of the same scene
-/// (another LB grid, another lighting) can take.
+/// (another LB grid, another lighting, another view) can take. The LB
+/// light is kept per sun, so a sequence's frames under a sun seen before
+/// solve nothing, and a new sun never takes another's light.
 #[derive(Default)]
 pub struct Fresh {
     /// What was built, solved and chosen, for the next preparation and
     /// for the disk cache ([`Reuse::keeper`]).
     pub reuse: Reuse,
+    /// The LB light solved here, by the sun it was solved under (`None`:
+    /// the scene's own).
+    suns: std::collections::HashMap<Option<[u32; 3]>, Arc<crate::lighting::lb::SceneLb>>,
+    /// The sun `reuse.lb` was solved under.
+    sun: Option<[u32; 3]>,
 }
 
 impl Fresh {
     /// A preparation that reads the prepared-data cache first.
     pub fn with_disk(disk: DiskSource) -> Self {
-        Self { reuse: Reuse { disk: Some(disk), ..Default::default() } }
+        Self { reuse: Reuse { disk: Some(disk), ..Default::default() }, ..Default::default() }
     }
 }
 
@@ -109,6 +116,18 @@ impl Preparer for Fresh {
         } else {
             scene
         };
+        // The light kept for this view's sun, and the disk's entry for it.
+        let sun = view.sun_key();
+        if sun != self.sun {
+            if let Some(lb) = self.reuse.lb.take() {
+                self.suns.insert(self.sun, lb);
+            }
+            self.reuse.lb = self.suns.get(&sun).cloned();
+            self.sun = sun;
+        }
+        if let Some(d) = &mut self.reuse.disk {
+            d.sun = sun;
+        }
         let p = prepare_reusing(tracer, scene, accel, lighting, &mut self.reuse, progress)?;
         let found = self.reuse.found;
         if found.accel || found.lb {

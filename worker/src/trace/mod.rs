@@ -20,7 +20,7 @@ pub use gpu_scene::{
     SceneStructure,
 };
 pub use kernels::{KernelCache, Kernels, Tracer, render_source};
-pub use raycast::{GpuHit, GpuRay, RayCaster};
+pub use raycast::{GpuHit, GpuRay, KernelTime, RayCaster};
 pub use render::MAX_BOUNCES;
 pub use render::{FrameUniform, GpuRayCounts, RenderSettings, RenderedStrip, StripRenderer};
 pub use rq::RqStructures;

@@ -20,6 +20,22 @@ pub struct GpuRay {
     pub t_max: f32,
 }
 
+/// A kernel's time as the GPU measured it.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct KernelTime {
+    /// Rays cast in the timed pass.
+    pub rays: u64,
+    /// Seconds between the pass's first and last timestamp.
+    pub seconds: f64,
+}
+
+impl KernelTime {
+    /// Millions of rays a second.
+    pub fn mrays_per_second(&self) -> f64 {
+        self.rays as f64 / self.seconds.max(1e-12) / 1e6
+    }
+}
+
 /// A hit's triangle when the ray hit nothing (`NO_HIT` in the WGSL).
 pub const NO_HIT: u32 = u32::MAX;
 
@@ -100,6 +116,82 @@ impl RayCaster {
             cache: None,
         });
         Self { pipeline, layout }
+    }
+
+    /// The kernel's own time over at least `at_least` rays: `rays` cast
+    /// again and again, every dispatch in one compute pass whose start and
+    /// end the GPU stamps, so uploads, read-backs and the host's waits are
+    /// not counted. `None` where the adapter has no timestamp queries.
+    pub fn kernel_time(
+        &self,
+        ctx: &GpuContext,
+        scene: &GpuScene,
+        rays: &[GpuRay],
+        at_least: u64,
+    ) -> anyhow::Result<Option<KernelTime>> {
+        if rays.is_empty() || !ctx.has_timestamps() {
+            return Ok(None);
+        }
+        ctx.checked("timing the traversal kernel", || {
+            let device = &ctx.device;
+            let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("rays in"),
+                contents: bytemuck::cast_slice(rays),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+            let output = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("hits out"),
+                size: (rays.len() * size_of::<GpuHit>()) as u64,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            });
+            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("rays"),
+                layout: &self.layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: input.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: output.as_entire_binding() },
+                ],
+            });
+            let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("kernel time"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            });
+            let resolved = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("kernel time"),
+                size: 16,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            let repeats = at_least.div_ceil(rays.len() as u64).max(1);
+            let groups = (rays.len() as u32).div_ceil(WORKGROUP);
+            let gx = groups.min(65_535);
+            let mut enc = device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("timed rays"),
+                    timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
+                        query_set: &queries,
+                        beginning_of_pass_write_index: Some(0),
+                        end_of_pass_write_index: Some(1),
+                    }),
+                });
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &scene.bind_group, &[]);
+                pass.set_bind_group(1, &bg, &[]);
+                for _ in 0..repeats {
+                    pass.dispatch_workgroups(gx, groups.div_ceil(gx), 1);
+                }
+            }
+            enc.resolve_query_set(&queries, 0..2, &resolved, 0);
+            ctx.queue.submit([enc.finish()]);
+            let raw = ctx.read_back(&resolved, 16)?;
+            let stamps: &[u64] = bytemuck::cast_slice(&raw);
+            let ns = stamps[1].saturating_sub(stamps[0]) as f64
+                * ctx.queue.get_timestamp_period() as f64;
+            Ok(Some(KernelTime { rays: repeats * rays.len() as u64, seconds: ns * 1e-9 }))
+        })
     }
 
     /// Casts `rays` and returns their closest hits, in order.

@@ -87,6 +87,10 @@ pub struct TraceBenchArgs {
     /// grows with the instanced triangles: for small scales only).
     #[arg(long)]
     pub flat: bool,
+    /// Rays each kernel timing casts at least (the frame's rays cast again
+    /// and again in one GPU-timed pass), per ray kind and backend.
+    #[arg(long, default_value_t = 4 << 20)]
+    pub kernel_rays: u64,
     /// Print JSON (always JSON; accepted for scripts).
     #[arg(long)]
     pub json: bool,

@@ -297,7 +297,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
     let mut traversal = Vec::new();
     // Shadow rays toward the sun from the first structure's primary hits:
     // the same rays for every structure.
-    let mut shadow: Option<(Vec<Ray>, Vec<GpuRay>)> = None;
+    let mut shadow: Option<SecondRays> = None;
     let backends = measurable(&ctx, &a.accel);
     for &backend in &backends {
         traversal.push(trace_structure(
@@ -308,6 +308,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             &gpu_rays,
             &mut shadow,
             a.no_cpu,
+            a.kernel_rays,
         )?);
     }
     let frame_backends = match &a.frames_accel {
@@ -332,6 +333,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         "first_frame": first_frame,
         "figures": {
             "traversal": "closest hits of one primary ray per pixel, the same rays for every structure and machine; GPU time includes upload of the rays and read-back of the hits",
+            "kernel": "per ray kind (camera: closest hits of the primary rays; shadow: any hit toward the sun from each primary hit; bounce: closest hits of one diffuse bounce from each primary hit, cosine-distributed about the way back to the camera, as the leaves are two-sided), the traversal kernel alone as the GPU's timestamp queries measure it: the kind's rays cast again and again in one compute pass, at least --kernel-rays rays, no upload or read-back; null where the adapter has no timestamps",
             "cpu_flat_opaque": "with --flat: the CPU BVH built over every instance's triangles flattened to world space as one level, opaque: the same triangles and rays benchmarks/embree.py gives Embree",
             "cpu_opaque": "the CPU's closest hits on the same rays with every triangle opaque (no alpha test), as the Embree baseline of benchmarks/embree.py traces them",
             "shadow": "one shadow ray toward the sun from each primary hit, stopping at the first opaque hit; the same rays for every structure",
@@ -370,18 +372,70 @@ fn measurable(
         .collect()
 }
 
+/// Rays from the first backend's primary hits, the same for every
+/// backend: toward the sun (CPU and GPU twins), and one diffuse bounce.
+struct SecondRays {
+    shadow_cpu: Vec<sylva_accel::Ray>,
+    shadow_gpu: Vec<sylva_worker::trace::GpuRay>,
+    bounce: Vec<sylva_worker::trace::GpuRay>,
+}
+
+/// One diffuse bounce from each primary hit: cosine-distributed about the
+/// way back to the camera (the leaves are two-sided, so the side a camera
+/// ray meets faces it), from two numbers hashed from the ray's index, so
+/// every run and backend casts the same rays.
+fn bounce_rays(
+    rays: &[sylva_accel::Ray],
+    hits: &[sylva_worker::trace::GpuHit],
+) -> Vec<sylva_worker::trace::GpuRay> {
+    rays.iter()
+        .zip(hits)
+        .enumerate()
+        .filter(|(_, (_, h))| h.triangle != u32::MAX)
+        .map(|(i, (r, h))| {
+            let n = -r.dir.normalize();
+            let hash = |k: u64| {
+                let mut x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k;
+                x ^= x >> 31;
+                x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                x ^= x >> 29;
+                (x >> 40) as f32 / (1u64 << 24) as f32
+            };
+            let (u1, u2) = (hash(1), hash(2));
+            let (phi, s) = (std::f32::consts::TAU * u1, u2.sqrt());
+            // An orthonormal basis about n (Duff et al. 2017).
+            let sign = 1f32.copysign(n.z);
+            let a = -1.0 / (sign + n.z);
+            let b = n.x * n.y * a;
+            let x = glam::Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+            let y = glam::Vec3::new(b, sign + n.y * n.y * a, -n.y);
+            let dir = x * (s * phi.cos()) + y * (s * phi.sin()) + n * (1.0 - u2).max(0.0).sqrt();
+            sylva_worker::trace::GpuRay {
+                origin: r.at(h.t).to_array(),
+                t_min: 1e-3,
+                dir: dir.to_array(),
+                t_max: f32::MAX,
+            }
+        })
+        .collect()
+}
+
 /// One backend's traversal figures: build, bytes, GPU and (unless
 /// `no_cpu`, and but for ray queries, which have no CPU twin) CPU closest
-/// hits, and shadow rays toward the sun from the first backend's primary
-/// hits (kept in `shadow`, so every backend traces the same rays).
+/// hits, and shadow and bounce rays from the first backend's primary
+/// hits (kept in `second`, so every backend traces the same rays); and
+/// each kind's kernel time as the GPU measures it, over at least
+/// `kernel_rays` rays.
+#[allow(clippy::too_many_arguments)]
 fn trace_structure(
     ctx: &sylva_worker::GpuContext,
     scene: &sylva_scene::Scene,
     backend: sylva_scene::frame::Backend,
     rays: &[sylva_accel::Ray],
     gpu_rays: &[sylva_worker::trace::GpuRay],
-    shadow: &mut Option<(Vec<sylva_accel::Ray>, Vec<sylva_worker::trace::GpuRay>)>,
+    second: &mut Option<SecondRays>,
     no_cpu: bool,
+    kernel_rays: u64,
 ) -> anyhow::Result<serde_json::Value> {
     use rayon::prelude::*;
     use sylva_accel::{Ray, SceneAccel};
@@ -423,7 +477,7 @@ fn trace_structure(
     let gpu_hits = hits.iter().filter(|h| h.triangle != u32::MAX).count();
     let gpu =
         json!({ "mrays_per_second": rays.len() as f64 / s / 1e6, "ms": s * 1e3, "hits": gpu_hits });
-    let (shadow_cpu, shadow_gpu) = shadow.get_or_insert_with(|| {
+    let SecondRays { shadow_cpu, shadow_gpu, bounce } = second.get_or_insert_with(|| {
         let towards = scene.sun.towards;
         let cpu: Vec<Ray> = rays
             .iter()
@@ -440,7 +494,7 @@ fn trace_structure(
                 t_max: f32::MAX,
             })
             .collect();
-        (cpu, gpu)
+        SecondRays { shadow_cpu: cpu, shadow_gpu: gpu, bounce: bounce_rays(rays, &hits) }
     });
     let shadow_caster = RayCaster::shadow(ctx, &gpu_scene)?;
     shadow_caster.cast(ctx, &gpu_scene, &shadow_gpu[..shadow_gpu.len().min(4096)])?;
@@ -449,6 +503,24 @@ fn trace_structure(
     let s = t.elapsed().as_secs_f64();
     let gpu_shadow = json!({ "mrays_per_second": shadow_gpu.len() as f64 / s / 1e6, "ms": s * 1e3,
                              "blocked": blocked.iter().filter(|h| h.triangle != u32::MAX).count() });
+    let t = Instant::now();
+    let bounced = caster.cast(ctx, &gpu_scene, bounce)?;
+    let s = t.elapsed().as_secs_f64();
+    let gpu_bounce = json!({ "mrays_per_second": bounce.len() as f64 / s / 1e6, "ms": s * 1e3,
+                             "hits": bounced.iter().filter(|h| h.triangle != u32::MAX).count() });
+    // The kernel alone, timed by the GPU, per ray kind.
+    let timed = |c: &RayCaster, r: &[GpuRay]| -> anyhow::Result<serde_json::Value> {
+        Ok(match c.kernel_time(ctx, &gpu_scene, r, kernel_rays)? {
+            Some(k) => json!({ "mrays_per_second": k.mrays_per_second(), "rays": k.rays,
+                               "ms": k.seconds * 1e3, "batch": r.len() }),
+            None => serde_json::Value::Null,
+        })
+    };
+    let kernel = json!({
+        "camera": timed(&caster, gpu_rays)?,
+        "shadow": timed(&shadow_caster, shadow_gpu)?,
+        "bounce": timed(&caster, bounce)?,
+    });
     let (cpu, cpu_opaque, cpu_shadow) = if let (false, Some(accel)) = (no_cpu, &accel) {
         let threads = rayon::current_num_threads();
         let time = |alpha: bool| {
@@ -495,6 +567,9 @@ fn trace_structure(
         "shadow_rays": shadow_cpu.len(),
         "cpu_shadow": cpu_shadow,
         "gpu_shadow": gpu_shadow,
+        "bounce_rays": bounce.len(),
+        "gpu_bounce": gpu_bounce,
+        "kernel": kernel,
     }))
 }
 

@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# One device run that measures what issues 38-40 ask of an NVIDIA GPU, in
+# at most 8 minutes: the traversal per ray kind timed by the GPU itself
+# (camera, shadow and diffuse-bounce rays, at least 4 M rays each), whole
+# frames at 1 and 4 spp, the cold and warm first frame, and the LB solve.
+# Prepared here with benchmarks/gpu/prepare.sh; run there in the repo's
+# root (the device tool: carry [".dev", ".gl"], command
+# `bash benchmarks/gpu/run.sh`). Writes each command's JSON, its log and
+# a summary (`summary.json`) to $OUT (the device tool's) or the folder
+# given, by default benchmarks/results/gpu/.
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+BIN=${SYLVA_BIN:-$PWD/.dev/sylva}
+DEST=${1:-${OUT:-benchmarks/results/gpu}}
+mkdir -p "$DEST"
+START=$SECONDS
+BUDGET=${BUDGET:-470}   # seconds for everything, under the 8-minute call
+# A dry run elsewhere (lavapipe): SCALE=0.01 KERNEL_RAYS=100000 BUDGET=200.
+SCALE=${SCALE:-1}
+KERNEL_RAYS=${KERNEL_RAYS:-4194304}
+# The Vulkan loader, where the machine lacks one (prepare.sh fetched it).
+if ls .gl/*.deb >/dev/null 2>&1 && ! ldconfig -p | grep -q libvulkan.so.1; then
+  for f in .gl/*.deb; do dpkg -x "$f" /; done
+  ldconfig
+fi
+nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv > "$DEST/gpu.txt" 2>&1
+cat "$DEST/gpu.txt"
+export RUST_LOG=${RUST_LOG:-info}
+# One step: its JSON to DEST/NAME.json, at most LIMIT seconds (less where
+# the budget has less left), its log appended to DEST/all.log.
+step() {
+  local name=$1 limit=$2; shift 2
+  local left=$((BUDGET - (SECONDS - START)))
+  (( left < limit )) && limit=$left
+  if (( limit < 10 )); then echo "$name: skipped, the budget is spent"; return; fi
+  local t0=$SECONDS
+  timeout "$limit" "$BIN" "$@" > "$DEST/$name.json" 2>> "$DEST/all.log"
+  echo "$name: rc=$? in $((SECONDS - t0)) s (limit $limit s)"
+}
+# wgpu must find the NVIDIA driver, not llvmpipe.
+step probe 60 bench lb --grid 32 --backends gpu
+if ! grep -q '"device"' "$DEST/probe.json" || grep -qi llvmpipe "$DEST/probe.json"; then
+  export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+  step probe 60 bench lb --grid 32 --backends gpu
+fi
+grep -o '"device": *"[^"]*"' "$DEST/probe.json" | head -1
+# The full Table-2 forest: traversal per ray kind and backend (GPU
+# timestamps), frames, and the first frame cold and warm.
+step trace-forest 260 bench trace --scale "$SCALE" --no-cpu --accel bvh,kd \
+  --frames-accel bvh --kernel-rays "$KERNEL_RAYS"
+step lb-128 60 bench lb --grid 128 --backends gpu --repeat 3
+# The figures the issues' tables quote, in one file.
+python3 - "$DEST" <<'PY' || echo "summary: python3 missing or a step failed"
+import json, pathlib, sys
+d = pathlib.Path(sys.argv[1])
+def load(n):
+    try: return json.loads((d / f"{n}.json").read_text())
+    except Exception: return None
+t, lb = load("trace-forest"), load("lb-128")
+out = {"gpu": (d / "gpu.txt").read_text().strip().splitlines()[-1] if (d / "gpu.txt").exists() else None}
+if t:
+    out["adapter"] = t["adapter"]["name"]
+    out["kernel_mrays_per_second"] = {r["accel"]: {k: (v or {}).get("mrays_per_second") for k, v in r["kernel"].items()} for r in t["traversal"]}
+    out["wall_mrays_per_second"] = {r["accel"]: r["gpu"]["mrays_per_second"] for r in t["traversal"]}
+    out["frames_ms"] = [{k: f.get(k) for k in ("accel", "spp", "frame_ms")} for f in t.get("frames", [])]
+    out["first_frame"] = t.get("first_frame")
+if lb:
+    out["lb_128"] = [{k: r.get(k) for k in ("device", "mlups", "step_mlups")} for r in lb.get("results", [])]
+(d / "summary.json").write_text(json.dumps(out, indent=1))
+print(json.dumps(out, indent=1)[:3000])
+PY
+echo "total $((SECONDS - START)) s of a $BUDGET s budget"
