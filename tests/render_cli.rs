@@ -537,3 +537,62 @@ fn compare_lists_every_method_with_its_time_and_error() {
     // Another image size does not reuse it.
     assert_eq!(compare("32", &["--reuse-reference"])["reference"]["reused"], false);
 }
+
+/// Compiled kernels are kept beside the prepared data (issue 39): the
+/// first process leaves a file named by the adapter and driver, holding
+/// the hash of its data; the next reads it; a file changed on disk is
+/// refused, compiled anew and written again, and the image is the same
+/// every time. (On lavapipe the driver keeps little in a pipeline cache —
+/// Mesa keeps compiled shaders in its own disk cache — so what is timed
+/// is for a real GPU, in `benchmarks/gpu/run.sh`.)
+#[test]
+fn compiled_kernels_are_kept_checked_and_read_back() {
+    let dir = scratch("kept-kernels");
+    let cache = dir.join("cache");
+    let scene = small_forest(&dir);
+    let env = [
+        ("SYLVA_PREPARED_CACHE_MIB", "64"),
+        ("SYLVA_PREPARED_CACHE_DIR", cache.to_str().unwrap()),
+        ("RUST_LOG", "sylva_worker::gpu=info"),
+    ];
+    let render = |name: &str| {
+        let out = dir.join(format!("{name}.png"));
+        let o = common::sylva(
+            &["render", scene.to_str().unwrap(), "--local-workers", "0", "--width", "48"]
+                .into_iter()
+                .chain(["--height", "24", "-o", out.to_str().unwrap()])
+                .collect::<Vec<_>>(),
+            &env,
+        );
+        let said = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(o.status.success(), "{said}");
+        (std::fs::read(out).unwrap(), said)
+    };
+    let kept = || -> Vec<PathBuf> {
+        std::fs::read_dir(&cache)
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|x| x == "kernels"))
+            .collect()
+    };
+    let (first, _) = render("first");
+    let files = kept();
+    assert_eq!(files.len(), 1, "one file for this adapter and driver: {files:?}");
+    let raw = std::fs::read(&files[0]).unwrap();
+    assert_eq!(&raw[..64], blake3::hash(&raw[64..]).to_hex().as_bytes(), "the hash, then the data");
+    let (second, said) = render("second");
+    assert!(said.contains("compiled kernels read from the cache"), "{said}");
+    assert_eq!(second, first);
+    // One byte changed: refused, compiled anew, written again whole.
+    let mut bad = raw.clone();
+    let k = bad.len() - 1;
+    bad[k] ^= 0x5a;
+    std::fs::write(&files[0], &bad).unwrap();
+    let (third, said) = render("third");
+    assert!(said.contains("kept kernels refused"), "{said}");
+    assert_eq!(third, first);
+    let again = std::fs::read(&files[0]).unwrap();
+    assert_eq!(&again[..64], blake3::hash(&again[64..]).to_hex().as_bytes());
+    let _ = std::fs::remove_dir_all(&dir);
+}

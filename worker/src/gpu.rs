@@ -42,6 +42,21 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     /// The device's limits (the adapter's own).
     pub limits: wgpu::Limits,
+    /// Compiled kernels kept on disk, once a folder is given
+    /// ([`GpuContext::keep_kernels_in`]).
+    kept: std::sync::Arc<std::sync::OnceLock<KeptKernels>>,
+}
+
+/// The driver's compiled kernels (a Vulkan pipeline cache) kept in a file
+/// between processes, so a warm process compiles nothing it compiled
+/// before. The file is named by the adapter and driver, and holds the
+/// BLAKE3 of its data before the data: what is read is checked before the
+/// driver sees it (wgpu checks only the header, the driver its own).
+struct KeptKernels {
+    cache: wgpu::PipelineCache,
+    path: std::path::PathBuf,
+    /// Bytes of the data last written (or read): nothing new, nothing written.
+    saved: std::sync::atomic::AtomicUsize,
 }
 
 impl GpuContext {
@@ -70,10 +85,12 @@ impl GpuContext {
         // GPU timestamps where the adapter has them: kernels timed by the
         // device itself, apart from uploads and read-backs (`bench trace`).
         let timestamps = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+        // A cache of compiled kernels the process can keep on disk.
+        let pipeline_cache = adapter.features() & wgpu::Features::PIPELINE_CACHE;
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("sylva"),
-                required_features: ray_queries | timestamps,
+                required_features: ray_queries | timestamps | pipeline_cache,
                 required_limits: limits.clone(),
                 // SAFETY: only the ray-query feature is experimental, and
                 // wgpu validates its use like any other feature's.
@@ -83,9 +100,79 @@ impl GpuContext {
             .await
             .with_context(|| format!("cannot open a device on {}", adapter.get_info().name))?;
         device.on_uncaptured_error(std::sync::Arc::new(|e| tracing::error!("wgpu: {e}")));
-        let ctx = Self { adapter, device, queue, limits };
+        let ctx = Self { adapter, device, queue, limits, kept: Default::default() };
         tracing::info!(adapter = %ctx.adapter_name(), "GPU opened");
         Ok(ctx)
+    }
+
+    /// Keeps the driver's compiled kernels in `dir` (the prepared-data
+    /// cache's folder): reads what an earlier process left for this
+    /// adapter and driver, checked, and from then on every kernel compiled
+    /// goes through it. Call it before compiling; later calls do nothing,
+    /// and neither does an adapter without pipeline caches.
+    pub fn keep_kernels_in(&self, dir: &std::path::Path) {
+        if self.kept.get().is_some()
+            || !self.device.features().contains(wgpu::Features::PIPELINE_CACHE)
+        {
+            return;
+        }
+        let info = self.adapter.get_info();
+        let Some(key) = wgpu::util::pipeline_cache_key(&info) else { return };
+        let driver = blake3::hash(format!("{} {}", info.driver, info.driver_info).as_bytes());
+        let path = dir.join(format!("{key}_{}.kernels", &driver.to_hex()[..16]));
+        let data = std::fs::read(&path).ok().and_then(|raw| {
+            let checked = raw.len() > 64
+                && blake3::hash(&raw[64..]).to_hex().as_bytes() == &raw[..64];
+            if !checked {
+                tracing::warn!(file = %path.display(), "kept kernels refused: their bytes do not match their hash; compiling anew");
+                let _ = std::fs::remove_file(&path);
+            }
+            checked.then(|| raw[64..].to_vec())
+        });
+        let read = data.as_ref().map_or(0, Vec::len);
+        // SAFETY: the data is what `PipelineCache::get_data` returned for
+        // this adapter and driver (the file's name), unchanged since (its
+        // hash); wgpu and the driver check their headers, and `fallback`
+        // starts an empty cache where they refuse it.
+        let cache = unsafe {
+            self.device.create_pipeline_cache(&wgpu::PipelineCacheDescriptor {
+                label: Some("kept kernels"),
+                data: data.as_deref(),
+                fallback: true,
+            })
+        };
+        if read > 0 {
+            tracing::info!(file = %path.display(), bytes = read, "compiled kernels read from the cache");
+        }
+        let _ = self.kept.set(KeptKernels { cache, path, saved: read.into() });
+    }
+
+    /// The pipeline cache every kernel compiles through, once one is kept.
+    pub fn pipeline_cache(&self) -> Option<&wgpu::PipelineCache> {
+        self.kept.get().map(|k| &k.cache)
+    }
+
+    /// Writes the kept kernels to their file when they grew (whole or not
+    /// at all: a temporary file renamed into place); failures are logged,
+    /// as the cache only ever saves work.
+    pub fn save_kernels(&self) {
+        use std::sync::atomic::Ordering;
+        let Some(k) = self.kept.get() else { return };
+        let Some(data) = k.cache.get_data() else { return };
+        if data.is_empty() || data.len() == k.saved.load(Ordering::Relaxed) {
+            return;
+        }
+        let mut bytes = blake3::hash(&data).to_hex().as_bytes().to_vec();
+        bytes.extend_from_slice(&data);
+        let tmp = k.path.with_extension(format!("{}.tmp", std::process::id()));
+        let written = std::fs::write(&tmp, &bytes).and_then(|_| std::fs::rename(&tmp, &k.path));
+        match written {
+            Ok(()) => k.saved.store(data.len(), Ordering::Relaxed),
+            Err(e) => {
+                let _ = std::fs::remove_file(&tmp);
+                tracing::warn!(file = %k.path.display(), "compiled kernels not kept: {e}");
+            }
+        }
     }
 
     /// Whether the device can time its own passes (timestamp queries).

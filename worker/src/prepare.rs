@@ -272,5 +272,7 @@ pub fn prepare_reusing(
         ctx.wait()?;
         Ok(r)
     })?;
+    // What was compiled for this preparation, kept for the next process.
+    ctx.save_kernels();
     Ok(PreparedScene { renderer, phases, backend, accel_bytes, light: reports, forest, boulanger })
 }

@@ -132,6 +132,7 @@ fn render_sequence_here(
     let tracer = Tracer::new()?;
     let mut fresh = match a.prepared_cache.open()? {
         Some(cache) => {
+            tracer.keep_kernels_in(cache.dir());
             let bundle = sylva_scene::bundle::pack(&a.scene)?.hash;
             Fresh::with_disk(DiskSource { cache, bundle, sun: None })
         }
@@ -256,6 +257,11 @@ fn compose_here(
     );
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let say = |m: &str| progress::stage(&bar, m);
+    // Compiled kernels are kept beside the prepared data.
+    let disk = a.prepared_cache.open()?;
+    if let Some(d) = &disk {
+        tracer.keep_kernels_in(d.dir());
+    }
     let (request, mut given, auto) = match goal {
         Some(goal) => {
             let t = Instant::now();
@@ -288,7 +294,7 @@ fn compose_here(
     // Otherwise prepared here, reading what the prepared-data cache holds
     // of the scene (its entries named by the bundle's content, as a
     // worker names them).
-    let mut fresh = match (&given, a.prepared_cache.open()?) {
+    let mut fresh = match (&given, disk) {
         (None, Some(cache)) => {
             let bundle = sylva_scene::bundle::pack(&a.scene)?.hash;
             Fresh::with_disk(DiskSource { cache, bundle, sun: None })

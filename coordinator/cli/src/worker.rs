@@ -32,6 +32,10 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
             disk_cache: a.prepared_cache.open()?,
             ..WorkerConfig::default()
         };
+        // Compiled kernels are kept beside the prepared data.
+        if let Some(d) = &config.disk_cache {
+            ctx.keep_kernels_in(d.dir());
+        }
         if let Some(d) = &a.cache_dir {
             config.cache_dir = d.clone();
         }

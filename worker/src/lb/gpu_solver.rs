@@ -192,7 +192,7 @@ impl GpuSolver {
                 module: &module,
                 entry_point: Some(entry),
                 compilation_options: Default::default(),
-                cache: None,
+                cache: self.ctx.pipeline_cache(),
             })
         };
         let (step, totals) = (pipeline("step"), pipeline("totals"));

@@ -126,8 +126,8 @@ impl Kernels {
             ("ACCEL_KIND", accel_kind(backend) as f64),
             ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
         ];
-        let pipelines = Kernel::ALL
-            .map(|kernel| render_pipeline(device, &module, &pl, &constants, kernel, false));
+        let pipelines =
+            Kernel::ALL.map(|kernel| render_pipeline(ctx, &module, &pl, &constants, kernel, false));
         Kernels {
             pipelines,
             layout,
@@ -154,7 +154,7 @@ impl Kernels {
             let built = ctx.checked("building the light split's kernels", || {
                 Ok(Kernel::ALL.map(|kernel| {
                     render_pipeline(
-                        &ctx.device,
+                        ctx,
                         &self.module,
                         &self.pipeline_layout,
                         &self.constants,
@@ -183,7 +183,7 @@ impl Kernels {
                     constants: &self.constants,
                     ..Default::default()
                 },
-                cache: None,
+                cache: ctx.pipeline_cache(),
             }))
         })?;
         Ok(self.guides.get_or_init(|| p))
@@ -192,7 +192,7 @@ impl Kernels {
 
 /// One render kernel: a lighting family, with or without the split.
 fn render_pipeline(
-    device: &wgpu::Device,
+    ctx: &GpuContext,
     module: &wgpu::ShaderModule,
     layout: &wgpu::PipelineLayout,
     constants: &[(&'static str, f64)],
@@ -202,7 +202,7 @@ fn render_pipeline(
     let mut c = constants.to_vec();
     c.push(("LIGHTING_FAMILY", kernel as u32 as f64));
     c.push(("SPLIT", if split { 1.0 } else { 0.0 }));
-    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+    ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
         label: Some("render"),
         layout: Some(layout),
         module,
@@ -211,7 +211,7 @@ fn render_pipeline(
             constants: &c,
             ..Default::default()
         },
-        cache: None,
+        cache: ctx.pipeline_cache(),
     })
 }
 

@@ -113,7 +113,7 @@ impl RayCaster {
                 ],
                 ..Default::default()
             },
-            cache: None,
+            cache: ctx.pipeline_cache(),
         });
         Self { pipeline, layout }
     }
