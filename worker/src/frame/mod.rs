@@ -228,34 +228,40 @@ impl Frame {
     }
 
     /// Columns `[x0, x1)` as [`Frame::strip`] renders them, in pieces of
-    /// columns that each take about [`PIECE_SECONDS`] (sized from the
-    /// pieces before; a few dispatches a strip), asking `stop` before each: a strip whose caller
-    /// went away ends within a piece with [`Cancelled`], and the GPU is
-    /// free for the next. A frame is the same however it is cut, so the
-    /// pieces put together are the strip rendered whole.
+    /// columns that each take about [`PIECE_SECONDS`], asking `stop`
+    /// before each: a strip whose caller went away ends within a piece
+    /// with [`Cancelled`], and the GPU is free for the next. A frame is the
+    /// same however it is cut, so the pieces put together are the strip
+    /// rendered whole. `rate` is the columns a second measured on strips
+    /// like this one before, if any (the first piece is sized by it, so a
+    /// fast GPU renders a strip in one dispatch), and what this one
+    /// measured after.
     pub fn strip_until(
         &self,
         x0: u32,
         x1: u32,
         stop: &dyn Fn() -> bool,
+        rate: &mut Option<f64>,
     ) -> anyhow::Result<RenderedStrip> {
         // A filtered gather renders its filter's reach beyond each piece:
         // pieces a few reaches wide keep that cost small.
         let reach = if self.settings.gather_filtered() { self.settings.gather_filter } else { 0 };
         let least = (4 * reach).max(1);
         let (mut pieces, mut at) = (Vec::new(), x0);
-        // The first piece is as narrow as it may be; each next one is sized
-        // to the measured rate, at most four times the last, so a piece
-        // that misjudged the rate (a column of sky) cannot run long.
-        let mut cols = least;
+        // Without a rate from before, the first piece is as narrow as it
+        // may be; each next one is sized to the rate measured, at most four
+        // times the last, so a piece that misjudged the rate (a column of
+        // sky) cannot run long.
+        let mut cols = rate.map_or(least, |r| ((r * PIECE_SECONDS) as u32).max(least));
         while at < x1 {
             anyhow::ensure!(!stop(), Cancelled);
             let end = (at + cols).min(x1);
             let t = Instant::now();
             pieces.push(self.strip(at, end)?);
             let secs = t.elapsed().as_secs_f64().max(1e-4);
-            let by_rate = ((end - at) as f64 * PIECE_SECONDS / secs) as u32;
-            cols = by_rate.clamp(least, 4 * (end - at));
+            let measured = (end - at) as f64 / secs;
+            *rate = Some(measured);
+            cols = ((measured * PIECE_SECONDS) as u32).clamp(least, 4 * (end - at));
             at = end;
         }
         Ok(join_columns(pieces, self.settings.height))

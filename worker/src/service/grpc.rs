@@ -130,7 +130,22 @@ impl Worker for WorkerService {
             let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
             anyhow::ensure!(!cancelled.load(Ordering::SeqCst), Cancelled);
             let t = Instant::now();
-            let strip = frame.strip_until(r.x0, r.x1, &|| cancelled.load(Ordering::SeqCst))?;
+            let key = format!(
+                "{hash} {}x{} {} {:?} {:?} {}",
+                f.width, f.height, f.spp, frame.settings.lighting, f.accel, f.gather_bounces
+            );
+            let mut rate = lock(&state.strip_rates).get(&key).copied();
+            let stop = || cancelled.load(Ordering::SeqCst);
+            let strip = frame.strip_until(r.x0, r.x1, &stop, &mut rate);
+            if let Some(r) = rate {
+                let mut rates = lock(&state.strip_rates);
+                // A bound, not a cache policy: rates are cheap to measure again.
+                if rates.len() > 1024 {
+                    rates.clear();
+                }
+                rates.insert(key, r);
+            }
+            let strip = strip?;
             anyhow::Ok((strip, prepare_ms, t.elapsed().as_secs_f64() * 1e3))
         })
         .await;

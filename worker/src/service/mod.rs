@@ -170,6 +170,9 @@ struct State {
     /// Bytes of uploads in progress, so concurrent uploads share the limit.
     incoming: Mutex<u64>,
     busy: AtomicU32,
+    /// Columns a second of strips rendered before, by scene and frame
+    /// shape: a strip's first piece is sized by it ([`crate::frame::Frame::strip_until`]).
+    strip_rates: Mutex<HashMap<String, f64>>,
 }
 
 /// The `sylva.v1.Worker` service.
@@ -202,6 +205,7 @@ impl WorkerService {
                 gpu: Mutex::new(()),
                 incoming: Mutex::new(0),
                 busy: AtomicU32::new(0),
+                strip_rates: Default::default(),
             }),
         }
     }
