@@ -43,6 +43,9 @@ if ((tests)); then
   # The Python client's tests (python/run-tests.sh) run in a venv of their own.
   command -v python3 >/dev/null 2>&1 || missing+=(python3)
   python3 -c "import ensurepip, venv" >/dev/null 2>&1 || missing+=(python3-venv)
+  # The disk-full test mounts a small tmpfs in a mount namespace of its own.
+  command -v unshare >/dev/null 2>&1 || missing+=(util-linux)
+  command -v mount >/dev/null 2>&1 || missing+=(mount)
 fi
 sudo=""
 [ "$(id -u)" -eq 0 ] || sudo="sudo"

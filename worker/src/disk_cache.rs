@@ -185,7 +185,12 @@ impl DiskCache {
             self.discard(key, Some("its bytes do not match the hash written with them".into()));
             return None;
         }
-        let body = std::fs::read(&path).ok()?.split_off(64);
+        // The same file read again, from the handle hashed: a writer
+        // renames a new entry into place, so this one cannot change under it.
+        use std::io::Seek;
+        file.seek(std::io::SeekFrom::Start(64)).ok()?;
+        let mut body = Vec::with_capacity(meta.len().saturating_sub(64) as usize);
+        file.read_to_end(&mut body).ok()?;
         // Recency for eviction: the modification time, set on use.
         let _ = std::fs::File::options()
             .append(true)

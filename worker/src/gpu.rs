@@ -47,6 +47,12 @@ pub struct GpuContext {
     kept: std::sync::Arc<std::sync::OnceLock<KeptKernels>>,
 }
 
+/// The most bytes of kept kernels read back: a bound on what a file may
+/// make this process hold, far above a pipeline cache of this project's
+/// few dozen kernels; a larger file is not read, and the kernels are
+/// compiled over it.
+const MAX_KEPT_KERNELS_BYTES: u64 = 256 << 20;
+
 /// The driver's compiled kernels (a Vulkan pipeline cache) kept in a file
 /// between processes, so a warm process compiles nothing it compiled
 /// before. The file is named by the adapter and driver, and holds the
@@ -120,7 +126,9 @@ impl GpuContext {
         let Some(key) = wgpu::util::pipeline_cache_key(&info) else { return };
         let driver = blake3::hash(format!("{} {}", info.driver, info.driver_info).as_bytes());
         let path = dir.join(format!("{key}_{}.kernels", &driver.to_hex()[..16]));
-        let data = std::fs::read(&path).ok().and_then(|raw| {
+        // Larger than any set of kernels a driver keeps: not read at all.
+        let bounded = std::fs::metadata(&path).is_ok_and(|m| m.len() <= MAX_KEPT_KERNELS_BYTES);
+        let data = bounded.then(|| std::fs::read(&path).ok()).flatten().and_then(|raw| {
             let checked = raw.len() > 64
                 && blake3::hash(&raw[64..]).to_hex().as_bytes() == &raw[..64];
             if !checked {

@@ -118,6 +118,37 @@ impl RayCaster {
         Self { pipeline, layout }
     }
 
+    /// `rays` uploaded, room for their hits (with `out_usage` beside
+    /// STORAGE), and the bind group that hands both to the kernel.
+    fn bind(
+        &self,
+        ctx: &GpuContext,
+        rays: &[GpuRay],
+        out_usage: wgpu::BufferUsages,
+    ) -> (wgpu::Buffer, wgpu::Buffer, wgpu::BindGroup) {
+        let device = &ctx.device;
+        let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("rays in"),
+            contents: bytemuck::cast_slice(rays),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let output = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("hits out"),
+            size: (rays.len() * size_of::<GpuHit>()) as u64,
+            usage: wgpu::BufferUsages::STORAGE | out_usage,
+            mapped_at_creation: false,
+        });
+        let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("rays"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: input.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: output.as_entire_binding() },
+            ],
+        });
+        (input, output, bg)
+    }
+
     /// The kernel's own time over at least `at_least` rays: `rays` cast
     /// again and again, every dispatch in one compute pass whose start and
     /// end the GPU stamps, so uploads, read-backs and the host's waits are
@@ -134,25 +165,7 @@ impl RayCaster {
         }
         ctx.checked("timing the traversal kernel", || {
             let device = &ctx.device;
-            let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("rays in"),
-                contents: bytemuck::cast_slice(rays),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
-            let output = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("hits out"),
-                size: (rays.len() * size_of::<GpuHit>()) as u64,
-                usage: wgpu::BufferUsages::STORAGE,
-                mapped_at_creation: false,
-            });
-            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("rays"),
-                layout: &self.layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: input.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: output.as_entire_binding() },
-                ],
-            });
+            let (_input, _output, bg) = self.bind(ctx, rays, wgpu::BufferUsages::empty());
             let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("kernel time"),
                 ty: wgpu::QueryType::Timestamp,
@@ -206,26 +219,8 @@ impl RayCaster {
         }
         ctx.checked("casting rays", || {
             let device = &ctx.device;
-            let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("rays in"),
-                contents: bytemuck::cast_slice(rays),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
-            let bytes = (rays.len() * size_of::<GpuHit>()) as u64;
-            let output = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("hits out"),
-                size: bytes,
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            let bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("rays"),
-                layout: &self.layout,
-                entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: input.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 1, resource: output.as_entire_binding() },
-                ],
-            });
+            let (_input, output, bg) = self.bind(ctx, rays, wgpu::BufferUsages::COPY_SRC);
+            let bytes = output.size();
             let groups = (rays.len() as u32).div_ceil(WORKGROUP);
             let gx = groups.min(65_535);
             let mut enc = device.create_command_encoder(&Default::default());

@@ -382,8 +382,8 @@ struct SecondRays {
 
 /// One diffuse bounce from each primary hit: cosine-distributed about the
 /// way back to the camera (the leaves are two-sided, so the side a camera
-/// ray meets faces it), from two numbers hashed from the ray's index, so
-/// every run and backend casts the same rays.
+/// ray meets faces it), from two numbers of a generator seeded by the
+/// ray's index, so every run and backend casts the same rays.
 fn bounce_rays(
     rays: &[sylva_accel::Ray],
     hits: &[sylva_worker::trace::GpuHit],
@@ -394,21 +394,10 @@ fn bounce_rays(
         .filter(|(_, (_, h))| h.triangle != u32::MAX)
         .map(|(i, (r, h))| {
             let n = -r.dir.normalize();
-            let hash = |k: u64| {
-                let mut x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k;
-                x ^= x >> 31;
-                x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-                x ^= x >> 29;
-                (x >> 40) as f32 / (1u64 << 24) as f32
-            };
-            let (u1, u2) = (hash(1), hash(2));
+            let mut rng = sylva_scene::rng::SplitMix64::new(i as u64);
+            let (u1, u2) = (rng.next_f32(), rng.next_f32());
             let (phi, s) = (std::f32::consts::TAU * u1, u2.sqrt());
-            // An orthonormal basis about n (Duff et al. 2017).
-            let sign = 1f32.copysign(n.z);
-            let a = -1.0 / (sign + n.z);
-            let b = n.x * n.y * a;
-            let x = glam::Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
-            let y = glam::Vec3::new(b, sign + n.y * n.y * a, -n.y);
+            let (x, y) = n.any_orthonormal_pair();
             let dir = x * (s * phi.cos()) + y * (s * phi.sin()) + n * (1.0 - u2).max(0.0).sqrt();
             sylva_worker::trace::GpuRay {
                 origin: r.at(h.t).to_array(),
