@@ -1,6 +1,6 @@
 //! The coordinator's store when its disk fills, as an operator meets it:
-//! its state folder on a real 20 MiB tmpfs (mounted in a private mount
-//! namespace, so no root is needed), filled to a few KiB free while jobs
+//! its state folder on a real 20 MiB tmpfs (mounted by the test as root,
+//! or in a private mount namespace, so no root is needed), filled to a few KiB free while jobs
 //! are submitted, then emptied. Every job the coordinator acknowledged is
 //! in the database as its client last heard of it, read by another
 //! process; no id is handed out twice; the coordinator says while its
@@ -16,20 +16,44 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 use sylva_proto::pb;
 
-/// A coordinator whose state folder is a `size`-byte tmpfs of its own
-/// mount namespace; the folder, as this process sees it, is
-/// `/proc/PID/cwd`.
-fn coordinator_on_tmpfs(mount: &Path, size: &str, workers: &str) -> (Proc, PathBuf) {
-    let script = r#"mount -t tmpfs -o "size=$1" tmpfs "$0" && cd "$0" && exec "$2" coordinator --listen 127.0.0.1:0 --workers "$3" --state-dir ."#;
-    // Root needs no user namespace (and a chroot allows none); anyone
-    // else maps themselves to root in one of their own.
+/// A tmpfs mounted by this (root) process, unmounted when dropped.
+struct Tmpfs(PathBuf);
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
+    }
+}
+
+/// A coordinator whose state folder is a `size`-byte tmpfs: mounted here
+/// when this process is root (a chroot allows neither a user namespace
+/// nor a private copy of its root's mounts), else in a mount namespace of
+/// the coordinator's own, unprivileged. The folder, as this process sees
+/// it, is `/proc/PID/cwd`.
+fn coordinator_on_tmpfs(mount: &Path, size: &str, workers: &str) -> (Proc, PathBuf, Option<Tmpfs>) {
+    let run =
+        r#"cd "$0" && exec "$2" coordinator --listen 127.0.0.1:0 --workers "$3" --state-dir ."#;
     // SAFETY: geteuid has no preconditions.
     let root = unsafe { libc::geteuid() } == 0;
-    let namespaces: &[&str] =
-        if root { &["--mount"] } else { &["--user", "--map-root-user", "--mount"] };
-    let mut child = Command::new("unshare")
-        .args(namespaces)
-        .args(["sh", "-c", script])
+    let mut tmpfs = None;
+    let mut cmd = if root {
+        let ok = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(mount)
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "mount (util-linux) mounts a tmpfs for the test");
+        tmpfs = Some(Tmpfs(mount.to_path_buf()));
+        let mut c = Command::new("sh");
+        c.args(["-c", run]);
+        c
+    } else {
+        let script = format!(r#"mount -t tmpfs -o "size=$1" tmpfs "$0" && {run}"#);
+        let mut c = Command::new("unshare");
+        c.args(["--user", "--map-root-user", "--mount", "sh", "-c", &script]);
+        c
+    };
+    let mut child = cmd
         .arg(mount)
         .arg(size)
         .arg(env!("CARGO_BIN_EXE_sylva"))
@@ -41,7 +65,7 @@ fn coordinator_on_tmpfs(mount: &Path, size: &str, workers: &str) -> (Proc, PathB
         .stdout(Stdio::piped())
         .stderr(std::fs::File::create(mount.with_extension("log")).unwrap())
         .spawn()
-        .expect("unshare (util-linux) runs the coordinator in a mount namespace of its own");
+        .expect("the coordinator starts (through unshare, util-linux, unless root)");
     let mut line = String::new();
     BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
     assert!(
@@ -50,7 +74,7 @@ fn coordinator_on_tmpfs(mount: &Path, size: &str, workers: &str) -> (Proc, PathB
         std::fs::read_to_string(mount.with_extension("log")).unwrap_or_default()
     );
     let folder = PathBuf::from(format!("/proc/{}/cwd", child.id()));
-    (Proc { addr: line.trim().rsplit(' ').next().unwrap().to_string(), child }, folder)
+    (Proc { addr: line.trim().rsplit(' ').next().unwrap().to_string(), child }, folder, tmpfs)
 }
 
 /// KiB free on the file system holding `dir`.
@@ -113,7 +137,7 @@ async fn a_disk_full_episode_loses_no_acknowledged_job_and_reuses_no_id() {
     std::fs::create_dir_all(&mount).unwrap();
     let b = sylva_scene::bundle::pack(&small_scene(&dir.join("scene"))).unwrap();
     let worker = spawn(&["worker", "--listen", "127.0.0.1:0"], &[]);
-    let (coord, state) = coordinator_on_tmpfs(&mount, "20m", &worker.addr);
+    let (coord, state, tmpfs) = coordinator_on_tmpfs(&mount, "20m", &worker.addr);
     let mut c = coordinator(&coord.addr, None).await;
     let mut outcomes = vec![submit(&mut c, &b).await];
     // The free-space steps that lost jobs before: a few KiB, where some
@@ -209,6 +233,7 @@ async fn a_disk_full_episode_loses_no_acknowledged_job_and_reuses_no_id() {
     }
     let last: u64 = last.rsplit('-').next().unwrap().parse().unwrap();
     assert!(rows.iter().all(|r| r.seq <= last) && fresh > last, "ids {last}, then {fresh}");
+    drop(tmpfs);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
