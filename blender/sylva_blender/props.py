@@ -30,6 +30,7 @@ ACCELS = [
     ("auto", "Auto", "Each worker picks its fastest traversal"),
     ("rq", "Ray queries", "The device's own ray-query structures"),
     ("bvh", "BVH", "Sylva's four-wide BVH"),
+    ("cwbvh", "Compressed wide BVH", "Sylva's eight-wide compressed BVH"),
     ("kd", "kd-tree", "Sylva's kd-tree"),
 ]
 PASSES = [

@@ -54,8 +54,9 @@ pub fn accel_from_wire(v: i32) -> Result<Backend, Status> {
         Ok(pb::Accel::Kd) => Ok(Backend::Kd),
         Ok(pb::Accel::Auto) => Ok(Backend::Auto),
         Ok(pb::Accel::Rq) => Ok(Backend::Rq),
+        Ok(pb::Accel::Cwbvh) => Ok(Backend::Cwbvh),
         Err(_) => Err(Status::invalid_argument(format!(
-            "accel {v}: not a traversal this worker knows (auto, rq, bvh, kd)"
+            "accel {v}: not a traversal this worker knows (auto, rq, bvh, cwbvh, kd)"
         ))),
     }
 }
@@ -67,6 +68,7 @@ pub fn accel_to_wire(a: Backend) -> pb::Accel {
         Backend::Rq => pb::Accel::Rq,
         Backend::Bvh => pb::Accel::Bvh,
         Backend::Kd => pb::Accel::Kd,
+        Backend::Cwbvh => pb::Accel::Cwbvh,
     }
 }
 

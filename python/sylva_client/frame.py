@@ -48,6 +48,7 @@ ACCELS: dict[str, _wpb.Accel] = {
     "auto": _wpb.ACCEL_AUTO,
     "rq": _wpb.ACCEL_RQ,
     "bvh": _wpb.ACCEL_BVH,
+    "cwbvh": _wpb.ACCEL_CWBVH,
     "kd": _wpb.ACCEL_KD,
 }
 
@@ -159,8 +160,8 @@ class Frame:
     """A frame to render, with `sylva submit`'s defaults.
 
     `lighting`: a name from `LIGHTINGS` ("lb", "reference", ...), or None /
-    "scene" for the scene file's own method. `accel`: "auto", "rq", "bvh"
-    or "kd". `passes`: names from `PASSES`, or "all" (written as the
+    "scene" for the scene file's own method. `accel`: "auto", "rq", "bvh",
+    "cwbvh" or "kd". `passes`: names from `PASSES`, or "all" (written as the
     layers of the EXR; see docs/passes.md).
     """
 

@@ -39,11 +39,6 @@ fn push_entry(sp: ptr<function, u32>, reference: u32, count: u32, near: f32) {
     *sp += 1u;
 }
 
-// The four bytes of `w` as grid cells.
-fn cells(w: u32) -> vec4<f32> {
-    return vec4<f32>(vec4<u32>(w, w >> 8u, w >> 16u, w >> 24u) & vec4<u32>(0xffu));
-}
-
 // Where a walk is: the ray in the current level's space, the instance
 // being walked (NO_HIT at the top level) and the stack depth when it was
 // entered (entries below it are the top level's), the entry to visit next

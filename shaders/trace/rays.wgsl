@@ -28,7 +28,8 @@ override ANY_HIT: bool = false;
 @group(1) @binding(1) var<storage, read_write> hits_out: array<HitOut>;
 
 @compute @workgroup_size(64)
-fn cast_rays(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+fn cast_rays(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    trace_lane = li;
     let i = gid.x + gid.y * groups.x * 64u;
     if i >= arrayLength(&rays_in) {
         return;

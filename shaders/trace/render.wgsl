@@ -479,6 +479,7 @@ fn camera_ray(x: u32, y: u32, s: u32) -> Ray {
 
 @compute @workgroup_size(8, 8)
 fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    trace_lane = li;
     // The tile's pixels in Morton order: lanes that run in lock-step
     // (8 on lavapipe, a warp's quarter on a GPU) cover 4 × 2 pixels
     // rather than a row of 8, so their rays stay closer together.
@@ -545,7 +546,8 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
 // images of `strip_width × height`: (albedo, depth), (normal, 0),
 // (instance + 1, model + 1, 0, 0); 0 ids for the ground and the sky.
 @compute @workgroup_size(8, 8)
-fn render_guides(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn render_guides(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    trace_lane = li;
     if gid.x >= frame.strip_width || gid.y >= frame.height {
         return;
     }

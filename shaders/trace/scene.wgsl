@@ -249,3 +249,31 @@ fn to_model_vector(inst: Instance, v: vec3<f32>) -> vec3<f32> {
 
 // Hits on transparent texels this invocation passed through (for statistics).
 var<private> transparent_passed: u32;
+
+// Triangle record k from entry `first` (three entries each; the wide
+// BVHs' leaves hold them): the alpha test only where the triangle's
+// texels are mixed.
+fn test_record(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32) -> Hit {
+    let r = first + 3u * k;
+    let a = nodes[r];
+    let b = nodes[r + 1u];
+    let c = nodes[r + 2u];
+    let h = intersect_edges(ray, bitcast<vec3<f32>>(a.xyz), bitcast<vec3<f32>>(b.xyz), bitcast<vec3<f32>>(c.xyz), t_min, t_max);
+    if h.x > t_min {
+        if b.w != COVERAGE_MIXED || !is_transparent_material(c.w, triangle_uv(a.w, h.y, h.z)) {
+            return Hit(NO_HIT, a.w, h.x, h.y, h.z);
+        }
+        transparent_passed += 1u;
+    }
+    return no_hit();
+}
+
+// The four bytes of `w` as grid cells (the wide BVHs' quantized boxes).
+fn cells(w: u32) -> vec4<f32> {
+    return vec4<f32>(vec4<u32>(w, w >> 8u, w >> 16u, w >> 24u) & vec4<u32>(0xffu));
+}
+
+// This invocation's index in its workgroup (every tracing entry point sets
+// it first): the compressed wide BVH's stack is shared by the workgroup's
+// lanes.
+var<private> trace_lane: u32;

@@ -40,23 +40,6 @@ fn test_prim_model(ray: Ray, prim: u32, t_min: f32, t_max: f32, any: bool) -> Hi
     return test_triangle(ray, prim, t_min, t_max);
 }
 
-// The k-th triangle record of a wide BVH leaf (model level): the alpha
-// test only where the triangle's texels are mixed.
-fn test_record(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32) -> Hit {
-    let r = first + 3u * k;
-    let a = nodes[r];
-    let b = nodes[r + 1u];
-    let c = nodes[r + 2u];
-    let h = intersect_edges(ray, bitcast<vec3<f32>>(a.xyz), bitcast<vec3<f32>>(b.xyz), bitcast<vec3<f32>>(c.xyz), t_min, t_max);
-    if h.x > t_min {
-        if b.w != COVERAGE_MIXED || !is_transparent_material(c.w, triangle_uv(a.w, h.y, h.z)) {
-            return Hit(NO_HIT, a.w, h.x, h.y, h.z);
-        }
-        transparent_passed += 1u;
-    }
-    return no_hit();
-}
-
 // The closest opaque hit in the scene in (t_min, t_max).
 fn closest_hit(ray: Ray, t_min: f32, t_max: f32) -> Hit {
     if ACCEL_KIND == 0u {

@@ -328,11 +328,12 @@ mod tests {
     #[test]
     fn a_kept_choice_reads_back_as_the_backend_it_named() {
         use sylva_scene::frame::Backend;
-        let numbers: Vec<u8> = [Backend::Rq, Backend::Bvh, Backend::Kd, Backend::Auto]
-            .iter()
-            .map(|b| postcard::to_stdvec(b).unwrap()[0])
-            .collect();
-        assert_eq!(numbers, [0, 1, 2, 3]);
+        let numbers: Vec<u8> =
+            [Backend::Rq, Backend::Bvh, Backend::Kd, Backend::Auto, Backend::Cwbvh]
+                .iter()
+                .map(|b| postcard::to_stdvec(b).unwrap()[0])
+                .collect();
+        assert_eq!(numbers, [0, 1, 2, 3, 4]);
         let c = crate::share::SharedChoice {
             adapter: "a".into(),
             backend: Backend::Bvh,

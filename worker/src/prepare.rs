@@ -229,14 +229,28 @@ pub fn prepare_reusing(
     progress("uploading the scene");
     let structure = |b: Backend| match b {
         Backend::Rq => SceneStructure::RayQuery(reuse.coverage.as_deref().expect("found above")),
+        Backend::Cwbvh => SceneStructure::Cwbvh(reuse.accel.as_deref().expect("built above")),
         _ => SceneStructure::Walk(reuse.accel.as_deref().expect("built above")),
     };
     let mut uploads = Vec::new();
-    for &b in &candidates {
+    let mut candidates = candidates;
+    for (i, b) in candidates.clone().into_iter().enumerate() {
         // Ray queries: the device builds its structures as the scene goes up.
-        let name = if b == Backend::Rq { "upload rq" } else { "upload" };
-        let gpu_scene = phases.time(name, || GpuScene::upload(ctx, scene, structure(b), &light))?;
-        uploads.push(gpu_scene);
+        let name = match b {
+            Backend::Rq => "upload rq",
+            Backend::Cwbvh => "upload cwbvh",
+            _ => "upload",
+        };
+        match phases.time(name, || GpuScene::upload(ctx, scene, structure(b), &light)) {
+            Ok(g) => uploads.push(g),
+            // `auto` runs without a candidate the scene does not fit (the
+            // first, the BVH, fits every scene).
+            Err(e) if i > 0 => {
+                tracing::warn!("auto: leaving {} out: {e:#}", b.name());
+                candidates.retain(|&c| c != b);
+            }
+            Err(e) => return Err(e),
+        }
     }
     let (gpu_scene, backend) = if uploads.len() == 1 {
         let mut b = crate::trace::BackendChoice::asked(asked, candidates[0], ctx);

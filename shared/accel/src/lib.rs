@@ -23,6 +23,7 @@
 mod aabb;
 pub mod bvh;
 pub mod coverage;
+pub mod cwbvh;
 mod error;
 pub mod kdtree;
 pub mod triangle;

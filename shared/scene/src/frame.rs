@@ -65,6 +65,9 @@ pub enum Backend {
     /// BVH.
     #[default]
     Auto,
+    /// Sylva's eight-wide compressed BVH (derived from the four-wide one),
+    /// walked by a compute kernel with its stack in workgroup memory.
+    Cwbvh,
 }
 
 impl Backend {
@@ -73,7 +76,7 @@ impl Backend {
     pub fn structure(self) -> Option<AccelKind> {
         match self {
             Backend::Rq => None,
-            Backend::Auto | Backend::Bvh => Some(AccelKind::Bvh),
+            Backend::Auto | Backend::Bvh | Backend::Cwbvh => Some(AccelKind::Bvh),
             Backend::Kd => Some(AccelKind::Kd),
         }
     }
@@ -90,6 +93,7 @@ impl Backend {
             Backend::Rq => "rq",
             Backend::Bvh => "bvh",
             Backend::Kd => "kd",
+            Backend::Cwbvh => "cwbvh",
         }
     }
 }

@@ -1,7 +1,8 @@
-//! `--accel auto`: which traversal backend a worker's adapter runs faster.
-//! Ray queries are a candidate only where the device has them; then both
-//! are uploaded, the same probe rays (the camera's, and shadow rays toward
-//! the sun from their hits) are cast through each, and the faster is kept.
+//! `--accel auto`: which traversal backend a worker's adapter runs faster:
+//! the four-wide BVH, the eight-wide compressed one, and ray queries where
+//! the device has them. Each is uploaded, the same probe rays (the
+//! camera's, and shadow rays toward the sun from their hits) are cast
+//! through each, and the fastest is kept.
 //!
 //! The probe grows its batches fourfold until one backend is clearly the
 //! faster or its time is spent: on lavapipe ray queries trace some 300
@@ -55,11 +56,11 @@ impl BackendChoice {
     /// The choice when only one backend was a candidate.
     pub fn asked(asked: Backend, backend: Backend, ctx: &GpuContext) -> Self {
         let why = match asked {
-            Backend::Auto if !ctx.has_ray_queries() => format!(
-                "auto: {} offers no ray queries, so the BVH, the faster compute walk",
+            Backend::Auto => format!(
+                "auto: {}, the one candidate on {} that holds this scene",
+                backend.name(),
                 ctx.adapter_name()
             ),
-            Backend::Auto => format!("auto: {}", backend.name()),
             _ => format!("asked for {}", backend.name()),
         };
         Self { asked, backend, why, probe: Vec::new() }
@@ -76,8 +77,8 @@ pub fn candidates(ctx: &GpuContext, asked: Backend) -> anyhow::Result<Vec<Backen
         Some(b) => vec![b],
         // The BVH first: its hits make the probe's shadow rays (the walk is
         // never pathologically slow).
-        None if ctx.has_ray_queries() => vec![Backend::Bvh, Backend::Rq],
-        None => vec![Backend::Bvh],
+        None if ctx.has_ray_queries() => vec![Backend::Bvh, Backend::Cwbvh, Backend::Rq],
+        None => vec![Backend::Bvh, Backend::Cwbvh],
     })
 }
 

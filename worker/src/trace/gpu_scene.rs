@@ -8,6 +8,7 @@ use crate::lighting::lb::forest::GroundLight;
 use bytemuck::{Pod, Zeroable};
 use sylva_accel::bvh::{self, BvhNode};
 use sylva_accel::coverage::Coverage;
+use sylva_accel::cwbvh::{self, Cwbvh, CwbvhNode, CwbvhScene};
 use sylva_accel::triangle::TriangleRecord;
 use sylva_accel::{Accel, KdNode, SceneAccel};
 use sylva_light::lb::LbGrid;
@@ -22,6 +23,9 @@ use wgpu::util::DeviceExt;
 pub enum SceneStructure<'a> {
     /// A kd-tree or BVH over both levels.
     Walk(&'a SceneAccel),
+    /// The eight-wide compressed BVH derived from a BVH over both levels
+    /// (derived as the scene goes up).
+    Cwbvh(&'a SceneAccel),
     /// Per model, each triangle's coverage class (which BLAS geometry it
     /// goes to, or none).
     RayQuery(&'a [Vec<Coverage>]),
@@ -32,6 +36,7 @@ impl SceneStructure<'_> {
     pub fn backend(&self) -> Backend {
         match self {
             SceneStructure::Walk(a) => a.kind.into(),
+            SceneStructure::Cwbvh(_) => Backend::Cwbvh,
             SceneStructure::RayQuery(_) => Backend::Rq,
         }
     }
@@ -44,6 +49,7 @@ pub fn accel_kind(backend: Backend) -> u32 {
         Backend::Auto | Backend::Bvh => 0,
         Backend::Kd => 1,
         Backend::Rq => 2,
+        Backend::Cwbvh => 3,
     }
 }
 
@@ -294,6 +300,40 @@ impl Flat {
     }
 }
 
+impl Flat {
+    /// Appends one level's eight-wide tree and its `records` (`stride`
+    /// entries each, in the tree's order) after its nodes; returns the
+    /// entries of its root and of its first record.
+    fn push_cwbvh(
+        &mut self,
+        tree: &Cwbvh,
+        records: &[[u32; 4]],
+        stride: u32,
+    ) -> anyhow::Result<(u32, u32)> {
+        let base = self.nodes.len() as u32;
+        let empty = CwbvhNode::zeroed();
+        let nodes = if tree.nodes.is_empty() { std::slice::from_ref(&empty) } else { &tree.nodes };
+        let records_at = base as u64 + nodes.len() as u64 * cwbvh::NODE_ENTRIES as u64;
+        anyhow::ensure!(
+            records_at + records.len() as u64 <= u32::MAX as u64,
+            "the scene's compressed wide BVH is too large to address"
+        );
+        let records_at = records_at as u32;
+        for n in nodes {
+            let n = CwbvhNode {
+                child_base: base + n.child_base * cwbvh::NODE_ENTRIES,
+                record_base: records_at + n.record_base * stride,
+                ..*n
+            };
+            self.nodes.extend_from_slice(bytemuck::cast_slice::<CwbvhNode, [u32; 4]>(
+                std::slice::from_ref(&n),
+            ));
+        }
+        self.nodes.extend_from_slice(records);
+        Ok((base, records_at))
+    }
+}
+
 impl GpuScene {
     /// Uploads `scene` with what its rays traverse and its solved light.
     pub fn upload(
@@ -304,6 +344,10 @@ impl GpuScene {
     ) -> anyhow::Result<Self> {
         match structure {
             SceneStructure::Walk(accel) => Self::upload_walk(ctx, scene, accel, light),
+            SceneStructure::Cwbvh(accel) => {
+                let wide = CwbvhScene::from_accel(scene, accel)?;
+                Self::upload_cwbvh(ctx, scene, &wide, light)
+            }
             SceneStructure::RayQuery(coverage) => Self::upload_rq(ctx, scene, coverage, light),
         }
     }
@@ -343,7 +387,7 @@ impl GpuScene {
             };
             f.rq_triangles.extend(order.iter().map(|t| tri0 + t));
             f.rq_indices.extend(order.iter().flat_map(|&t| sm.model.triangles[t as usize]));
-            push_model(&mut f, m, sm, None, light)?;
+            push_model(&mut f, m, sm, ModelTree::None, light)?;
             let gm = f.models.last_mut().expect("pushed");
             (gm.rq_first, gm.rq_opaque) = (rm.first, rm.opaque);
             f.rq_models.push(rm);
@@ -398,7 +442,8 @@ impl GpuScene {
         let mut model_places = Vec::with_capacity(scene.models.len());
         let mut triangle_offsets = Vec::with_capacity(scene.models.len());
         for (m, sm) in scene.models.iter().enumerate() {
-            let (tri0, root, records_at) = push_model(&mut f, m, sm, Some(accel), light)?;
+            let (tri0, root, records_at) =
+                push_model(&mut f, m, sm, ModelTree::Walk(accel), light)?;
             triangle_offsets.push(tri0);
             model_places.push((root, records_at));
         }
@@ -411,6 +456,51 @@ impl GpuScene {
         push_clouds(&mut f, &light.clouds)?;
         let ground = push_ground(&mut f, light)?;
         let mut scene = Self::create(ctx, f, triangle_offsets, accel.kind.into(), &[])?;
+        scene.ground = ground;
+        Ok(scene)
+    }
+
+    /// The eight-wide walk's upload: both levels' trees flattened into the
+    /// node buffer, each followed by its records (instance parts at the
+    /// top, whose start groups are placed once the models' places are
+    /// known; triangle records in a model).
+    fn upload_cwbvh(
+        ctx: &GpuContext,
+        scene: &Scene,
+        wide: &CwbvhScene,
+        light: &SceneLight,
+    ) -> anyhow::Result<Self> {
+        let need = wide.stack_need();
+        anyhow::ensure!(
+            need <= cwbvh::MAX_STACK,
+            "the scene's compressed wide BVH needs {need} stack entries, more than the GPU walk's {} (use --accel bvh)",
+            cwbvh::MAX_STACK
+        );
+        let mut f = Flat::default();
+        let parts: Vec<[u32; 4]> = wide.parts.iter().map(|p| bytemuck::cast(*p)).collect();
+        let (top_root, parts_at) = f.push_cwbvh(&wide.top, &parts, 1)?;
+        debug_assert_eq!(top_root, 0);
+        let mut model_places = Vec::with_capacity(scene.models.len());
+        let mut triangle_offsets = Vec::with_capacity(scene.models.len());
+        for (m, sm) in scene.models.iter().enumerate() {
+            let (tri0, root, records_at) =
+                push_model(&mut f, m, sm, ModelTree::Cwbvh(wide), light)?;
+            triangle_offsets.push(tri0);
+            model_places.push((root, records_at));
+        }
+        for k in 0..parts.len() {
+            let e = &mut f.nodes[parts_at as usize + k];
+            let (root, records_at) = model_places[scene.instances[e[0] as usize].model as usize];
+            e[1] = if e[2] & cwbvh::NODE_GROUP != 0 {
+                root + e[1] * cwbvh::NODE_ENTRIES
+            } else {
+                records_at + e[1] * RECORD_ENTRIES
+            };
+        }
+        push_instances(&mut f, scene, &wide.to_model, &light.instance_scales);
+        push_clouds(&mut f, &light.clouds)?;
+        let ground = push_ground(&mut f, light)?;
+        let mut scene = Self::create(ctx, f, triangle_offsets, Backend::Cwbvh, &[])?;
         scene.ground = ground;
         Ok(scene)
     }
@@ -587,35 +677,50 @@ fn push_ground(f: &mut Flat, light: &SceneLight) -> anyhow::Result<([f32; 4], [u
 /// placed after the triangles before it), vertices, triangles, materials,
 /// textures, LB grid and Boulanger envelope. Returns its first triangle,
 /// its structure's root and where its records start (zeros without one).
+/// What rays walk in a model, as [`push_model`] flattens it.
+#[derive(Clone, Copy)]
+enum ModelTree<'a> {
+    /// Nothing (ray queries: the device builds its own).
+    None,
+    /// The model's kd-tree or BVH.
+    Walk(&'a SceneAccel),
+    /// The model's eight-wide compressed BVH.
+    Cwbvh(&'a CwbvhScene),
+}
+
 fn push_model(
     f: &mut Flat,
     m: usize,
     sm: &sylva_scene::SceneModel,
-    accel: Option<&SceneAccel>,
+    tree: ModelTree,
     light: &SceneLight,
 ) -> anyhow::Result<(u32, u32, u32)> {
     let model = &sm.model;
     let (tri0, vert0) = (f.triangles.len() as u32, (f.positions.len() / 3) as u32);
     let (mat0, tex0) = (f.materials.len() as u32, f.textures.len() as u32);
-    let (root, records_at) = match accel {
-        Some(accel) => {
-            let records: Vec<[u32; 4]> = accel
-                .records
-                .get(m)
-                .map_or(&[][..], |r| r.as_slice())
-                .iter()
-                .flat_map(|r| {
-                    let r = TriangleRecord {
-                        triangle: r.triangle + tri0,
-                        material: r.material + mat0,
-                        ..*r
-                    };
-                    bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
-                })
-                .collect();
-            f.push_accel(&accel.models[m], tri0, &records, RECORD_ENTRIES)?
+    // The model's triangle records, numbered globally.
+    let records = |records: Option<&Vec<TriangleRecord>>| -> Vec<[u32; 4]> {
+        records
+            .map_or(&[][..], |r| r.as_slice())
+            .iter()
+            .flat_map(|r| {
+                let r = TriangleRecord {
+                    triangle: r.triangle + tri0,
+                    material: r.material + mat0,
+                    ..*r
+                };
+                bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
+            })
+            .collect()
+    };
+    let (root, records_at) = match tree {
+        ModelTree::Walk(accel) => {
+            f.push_accel(&accel.models[m], tri0, &records(accel.records.get(m)), RECORD_ENTRIES)?
         }
-        None => (0, 0),
+        ModelTree::Cwbvh(wide) => {
+            f.push_cwbvh(&wide.models[m], &records(wide.records.get(m)), RECORD_ENTRIES)?
+        }
+        ModelTree::None => (0, 0),
     };
     f.positions.extend(model.positions.iter().flat_map(|p| p.to_array()));
     f.uvs.extend(model.uvs.iter().map(|uv| uv.to_array()));

@@ -10,13 +10,18 @@ const TRAVERSE: &str = include_str!("../../../shaders/trace/traverse.wgsl");
 const BVH: &str = include_str!("../../../shaders/trace/bvh.wgsl");
 const WALK: &str = include_str!("../../../shaders/trace/walk.wgsl");
 const RQ: &str = include_str!("../../../shaders/trace/rq.wgsl");
+const CWBVH: &str = include_str!("../../../shaders/trace/cwbvh.wgsl");
+
+/// Invocations in every tracing entry point's workgroup: the compressed
+/// wide BVH's stack in workgroup memory has a column per lane.
+pub const TRACE_LANES: u32 = 64;
 
 /// The constants the tracer's WGSL shares with the Rust that builds and
 /// uploads what it reads, written from the Rust values so the two cannot
 /// drift apart.
 pub fn shared_constants() -> String {
     use sylva_accel::coverage::Coverage;
-    use sylva_accel::{KdNode, MIN_DIRECTION, bvh, kdtree};
+    use sylva_accel::{KdNode, MIN_DIRECTION, bvh, cwbvh, kdtree};
     [
         // Direction components smaller than this are replaced by it.
         format!("const MIN_DIRECTION: f32 = {MIN_DIRECTION:e};"),
@@ -30,6 +35,12 @@ pub fn shared_constants() -> String {
         // A triangle record's coverage: only mixed triangles take the alpha test.
         format!("const COVERAGE_MIXED: u32 = {}u;", Coverage::Mixed as u32),
         format!("const SHORT_STACK: u32 = {}u;", kdtree::SHORT_STACK),
+        // The compressed wide BVH: a group's node-group flag, a node's
+        // entries, and its stack (entries per lane, lanes).
+        format!("const CW_NODE_GROUP: u32 = {}u;", cwbvh::NODE_GROUP),
+        format!("const CW_NODE_ENTRIES: u32 = {}u;", cwbvh::NODE_ENTRIES),
+        format!("const TRACE_LANES: u32 = {TRACE_LANES}u;"),
+        format!("const CW_STACK_ENTRIES: u32 = {}u;", cwbvh::MAX_STACK as u32 * TRACE_LANES),
         format!("const KD_LEAF: u32 = {}u;", KdNode::LEAF),
         format!("const NO_TEXTURE: u32 = {}u;", super::gpu_scene::NO_TEXTURE),
         format!("const NO_HIT: u32 = {}u;", super::raycast::NO_HIT),
@@ -41,7 +52,8 @@ pub fn shared_constants() -> String {
 /// The full module for an entry-point file's source, tracing with
 /// `backend` (the kd-tree and the BVH share one module, chosen between by
 /// the `ACCEL_KIND` override; ray queries need a module of their own,
-/// which only a device with the feature accepts).
+/// which only a device with the feature accepts, and the compressed wide
+/// BVH one whose stack in workgroup memory no other backend pays for).
 pub fn tracer_source(entry: &str, backend: Backend) -> String {
     let constants = shared_constants();
     let mut s = String::with_capacity(
@@ -56,6 +68,9 @@ pub fn tracer_source(entry: &str, backend: Backend) -> String {
     if backend == Backend::Rq {
         s.push('\n');
         s.push_str(RQ);
+    } else if backend == Backend::Cwbvh {
+        s.push('\n');
+        s.push_str(CWBVH);
     } else {
         for level in ["top", "model"] {
             s.push('\n');
@@ -90,9 +105,28 @@ mod tests {
 
     #[test]
     fn ray_casting_and_render_modules_are_valid_wgsl() {
-        for backend in [Backend::Bvh, Backend::Rq] {
+        for backend in [Backend::Bvh, Backend::Rq, Backend::Cwbvh] {
             validate(&tracer_source(include_str!("../../../shaders/trace/rays.wgsl"), backend));
             validate(&crate::trace::kernels::render_source(backend));
+        }
+    }
+
+    /// Every tracing entry point's workgroup has `TRACE_LANES` lanes, the
+    /// columns of the compressed wide BVH's stack, and sets its lane.
+    #[test]
+    fn every_tracing_entry_point_has_the_stacks_lanes() {
+        for src in [
+            tracer_source(include_str!("../../../shaders/trace/rays.wgsl"), Backend::Cwbvh),
+            crate::trace::kernels::render_source(Backend::Cwbvh),
+        ] {
+            let m = validate(&src);
+            for e in &m.entry_points {
+                let [x, y, z] = e.workgroup_size;
+                assert_eq!(x * y * z, TRACE_LANES, "{}", e.name);
+                let body = &src[src.find(&format!("fn {}(", e.name)).expect("the entry")..];
+                let body = &body[..body.find("\n}\n").expect("its end")];
+                assert!(body.contains("trace_lane = "), "{} does not set its lane", e.name);
+            }
         }
     }
 

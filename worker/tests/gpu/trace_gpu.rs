@@ -3,6 +3,7 @@
 //! on the machine's real adapter.
 
 use glam::Vec3;
+use sylva_accel::cwbvh::CwbvhScene;
 use sylva_accel::{Accel, AccelKind, KdNode, Ray, SceneAccel};
 use sylva_scene::rng::SplitMix64;
 use sylva_scene::{Scene, parse};
@@ -71,7 +72,53 @@ fn gpu_traversal_matches_the_cpu_reference_for_both_structures() {
             GpuScene::upload(&ctx, &scene, SceneStructure::Walk(&accel), &Default::default())
                 .unwrap();
         // The walk's arithmetic is the CPU's.
-        check_against_cpu(&ctx, &scene, &gpu_scene, &accel, &format!("{kind:?}"), true);
+        let cpu = Cpu::Walk(&accel);
+        check_against_cpu(&ctx, &scene, &gpu_scene, &accel, cpu, &format!("{kind:?}"), true);
+    }
+}
+
+/// The eight-wide compressed BVH's walk (stack in workgroup memory,
+/// children by octant) against its CPU twin, which visits in the same
+/// order: the same hits, ties included.
+#[test]
+fn compressed_wide_bvh_traversal_matches_its_cpu_reference() {
+    let ctx = common::ctx();
+    let scene = scene();
+    let accel = SceneAccel::build(&scene, AccelKind::Bvh);
+    let wide = CwbvhScene::from_accel(&scene, &accel).unwrap();
+    let gpu_scene =
+        GpuScene::upload(&ctx, &scene, SceneStructure::Cwbvh(&accel), &Default::default()).unwrap();
+    check_against_cpu(&ctx, &scene, &gpu_scene, &accel, Cpu::Wide(&wide), "cwbvh", true);
+}
+
+/// A CPU traversal the GPU's is checked against.
+#[derive(Clone, Copy)]
+enum Cpu<'a> {
+    /// The kd-tree's or the four-wide BVH's.
+    Walk(&'a SceneAccel),
+    /// The eight-wide compressed BVH's.
+    Wide(&'a CwbvhScene),
+}
+
+impl Cpu<'_> {
+    fn closest(
+        self,
+        scene: &Scene,
+        r: &Ray,
+        t_min: f32,
+        t_max: f32,
+    ) -> Option<sylva_accel::SceneHit> {
+        match self {
+            Cpu::Walk(a) => a.closest(scene, r, t_min, t_max),
+            Cpu::Wide(w) => w.closest(scene, r, t_min, t_max),
+        }
+    }
+
+    fn occluded(self, scene: &Scene, r: &Ray, t_min: f32, t_max: f32) -> bool {
+        match self {
+            Cpu::Walk(a) => a.occluded(scene, r, t_min, t_max),
+            Cpu::Wide(w) => w.occluded(scene, r, t_min, t_max),
+        }
     }
 }
 
@@ -95,11 +142,11 @@ fn ray_query_traversal_matches_the_cpu_reference() {
     // The device transforms rays into model space with its own inverse of
     // each instance's matrix and tests triangles its own (watertight) way:
     // the same triangles, t to float precision of the transforms.
-    check_against_cpu(&ctx, &scene, &gpu_scene, &accel, "ray queries", false);
+    check_against_cpu(&ctx, &scene, &gpu_scene, &accel, Cpu::Walk(&accel), "ray queries", false);
 }
 
-/// Closest hits and shadow rays of `gpu_scene` against the CPU's `accel`
-/// on random rays through the trees (alpha-cut leaves among them): the
+/// Closest hits and shadow rays of `gpu_scene` against the CPU's `cpu`
+/// (`accel` the scene's structures, for the rays and statistics) on random rays through the trees (alpha-cut leaves among them): the
 /// same instance and triangle, `t` to 1e-4 (relative). Unless `exact` (the
 /// walk, whose arithmetic is the CPU's): `t` to 1e-3, and a ray through an
 /// edge or a texel line may take either side of it, in at most one ray in
@@ -109,6 +156,7 @@ fn check_against_cpu(
     scene: &Scene,
     gpu_scene: &GpuScene,
     accel: &SceneAccel,
+    cpu: Cpu,
     kind: &str,
     exact: bool,
 ) {
@@ -129,7 +177,7 @@ fn check_against_cpu(
         let (mut worst_dt, mut ties) = (0f32, 0);
         let t_tol = if exact { 1e-4 } else { 1e-3 };
         for (i, (r, g)) in rays.iter().zip(&hits).enumerate() {
-            let c = accel.closest(scene, r, 1e-4, f32::MAX);
+            let c = cpu.closest(scene, r, 1e-4, f32::MAX);
             // The GPU's hit as (instance, model-local triangle), if any.
             let g_local = (g.triangle != u32::MAX).then(|| {
                 let m = scene.instances[g.instance as usize].model as usize;
@@ -220,12 +268,12 @@ fn check_against_cpu(
         let (mut shadow_mismatches, mut grazing) = (Vec::new(), 0);
         let mut blocked_count = 0;
         for ((r, b), g) in shadow.iter().zip(&blocked).zip(&gpu_closest) {
-            let cpu = accel.occluded(scene, r, 1e-3, f32::MAX);
-            blocked_count += cpu as usize;
+            let blocked_cpu = cpu.occluded(scene, r, 1e-3, f32::MAX);
+            blocked_count += blocked_cpu as usize;
             // Occlusion is whether a closest hit exists.
-            let c = accel.closest(scene, r, 1e-3, f32::MAX);
-            assert_eq!(cpu, c.is_some(), "{kind} {r:?}");
-            if cpu != (b.triangle != u32::MAX) {
+            let c = cpu.closest(scene, r, 1e-3, f32::MAX);
+            assert_eq!(blocked_cpu, c.is_some(), "{kind} {r:?}");
+            if blocked_cpu != (b.triangle != u32::MAX) {
                 // A ray leaving the surface it starts on at a grazing angle
                 // meets it again about t_min away, where the device's
                 // intersection test and Möller–Trumbore round differently:

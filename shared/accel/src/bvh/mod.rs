@@ -107,17 +107,7 @@ impl BvhNode {
     /// in `slot`; the grid must be set.
     fn set_child(&mut self, slot: usize, b: &Binary) {
         for a in 0..3 {
-            let step = self.step(a);
-            let cell = |v: f32| (v - self.origin[a]) / step;
-            // Rounded outward, then checked against f32's own arithmetic.
-            let mut lo = cell(b.bounds.min[a]).floor().clamp(0.0, 255.0) as u32;
-            while lo > 0 && self.origin[a] + lo as f32 * step > b.bounds.min[a] {
-                lo -= 1;
-            }
-            let mut hi = cell(b.bounds.max[a]).ceil().clamp(0.0, 255.0) as u32;
-            while hi < 255 && self.origin[a] + (hi as f32) * step < b.bounds.max[a] {
-                hi += 1;
-            }
+            let (lo, hi) = cells(self.origin[a], self.step(a), b.bounds.min[a], b.bounds.max[a]);
             self.lo[a] |= lo << (8 * slot);
             self.hi[a] |= hi << (8 * slot);
         }
@@ -130,21 +120,44 @@ impl BvhNode {
 
     /// A node whose grid covers `bounds`, children to be set.
     fn over(bounds: Aabb) -> Self {
-        let mut n = BvhNode { origin: bounds.min.to_array(), ..BvhNode::EMPTY };
-        for a in 0..3 {
-            let extent = bounds.max[a] - bounds.min[a];
-            // The smallest power-of-two step whose 255 cells reach the top.
-            let mut e = if extent > 0.0 { (extent / 255.0).log2().ceil() as i32 } else { -126 };
-            e = e.clamp(-126, 127);
-            while e < 127
-                && bounds.min[a] + 255.0 * f32::from_bits(((e + 127) as u32) << 23) < bounds.max[a]
-            {
-                e += 1;
-            }
-            n.exponents |= ((e + 127) as u32) << (8 * a);
-        }
-        n
+        let (origin, exponents) = grid(bounds);
+        BvhNode { origin, exponents, ..BvhNode::EMPTY }
     }
+}
+
+/// A grid of 255 power-of-two steps per axis over `bounds`: its lower
+/// corner, and per axis (byte `a`) the step's biased exponent.
+pub(crate) fn grid(bounds: Aabb) -> ([f32; 3], u32) {
+    let mut exponents = 0;
+    for a in 0..3 {
+        let extent = bounds.max[a] - bounds.min[a];
+        // The smallest power-of-two step whose 255 cells reach the top.
+        let mut e = if extent > 0.0 { (extent / 255.0).log2().ceil() as i32 } else { -126 };
+        e = e.clamp(-126, 127);
+        while e < 127
+            && bounds.min[a] + 255.0 * f32::from_bits(((e + 127) as u32) << 23) < bounds.max[a]
+        {
+            e += 1;
+        }
+        exponents |= ((e + 127) as u32) << (8 * a);
+    }
+    (bounds.min.to_array(), exponents)
+}
+
+/// The cells of `[min, max]` on one axis of a grid (`origin`, `step`),
+/// rounded outward and checked against f32's own arithmetic, so the
+/// quantized box holds the exact one.
+pub(crate) fn cells(origin: f32, step: f32, min: f32, max: f32) -> (u32, u32) {
+    let cell = |v: f32| (v - origin) / step;
+    let mut lo = cell(min).floor().clamp(0.0, 255.0) as u32;
+    while lo > 0 && origin + lo as f32 * step > min {
+        lo -= 1;
+    }
+    let mut hi = cell(max).ceil().clamp(0.0, 255.0) as u32;
+    while hi < 255 && origin + (hi as f32) * step < max {
+        hi += 1;
+    }
+    (lo, hi)
 }
 
 /// Asks for the cache line at `item` ahead of its use: traversal waits on
@@ -164,7 +177,7 @@ pub fn prefetch<T>(item: &T) {
 
 /// Byte `i` of `w`.
 #[inline(always)]
-fn byte(w: u32, i: usize) -> u32 {
+pub(crate) fn byte(w: u32, i: usize) -> u32 {
     (w >> (8 * i)) & 0xff
 }
 
@@ -172,7 +185,7 @@ fn byte(w: u32, i: usize) -> u32 {
 /// instructions on x86-64 (with scalar conversions the CPU traversal was
 /// about 14 % slower).
 #[inline(always)]
-fn bytes(w: u32) -> Vec4 {
+pub(crate) fn bytes(w: u32) -> Vec4 {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::*;

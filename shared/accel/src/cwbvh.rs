@@ -1,0 +1,856 @@
+//! The compressed eight-wide BVH of Ylitie, Karras and Laine (2017,
+//! "Efficient incoherent ray traversal on GPUs through compressed wide
+//! BVHs"), laid out for a GPU's compute units: 80-byte nodes read as five
+//! `vec4<u32>`, children's boxes in 8 bits per coordinate on a grid over
+//! the node, children placed in slots by direction so that a ray visits
+//! them nearest-first approximately by its octant alone (no sort), and a
+//! walk whose stack holds *groups* (what is left of one node's children)
+//! instead of single children, so a tree of height h needs at most h
+//! entries: short enough for workgroup memory on the GPU.
+//!
+//! It is derived from the four-wide [`Bvh`] (the structure workers build,
+//! cache and share): each node opens its largest inner children into
+//! grandchildren while eight slots and 31 records allow. The walk here is
+//! the reference `shaders/trace/cwbvh.wgsl` is tested against, in the same
+//! visiting order, so ties resolve alike.
+
+use crate::bvh::{self, Bvh, EMPTY, LEAF};
+use crate::coverage::Coverage;
+use crate::triangle::TriangleRecord;
+use crate::two_level::{PARTS_PER_INSTANCE, SceneHit, uv_at};
+use crate::{Aabb, Accel, Error, Ray, SceneAccel};
+use bytemuck::{Pod, Zeroable};
+use glam::{Affine3A, Vec3, Vec4};
+use rayon::prelude::*;
+use sylva_scene::Scene;
+
+/// Children per node.
+pub const WIDTH: usize = 8;
+/// Most records (triangles, or instance parts at the top level) one node's
+/// leaves hold together: a record group's mask has 31 bits (bit 31 tells
+/// node groups apart).
+pub const MAX_NODE_RECORDS: u32 = 31;
+/// Most records in one leaf (a meta byte's 3-bit count).
+pub const MAX_LEAF: u32 = 7;
+/// Bit 31 of a group's `bits`: a node group.
+pub const NODE_GROUP: u32 = 1 << 31;
+/// Entries (16 bytes) of one node in the GPU's node buffer.
+pub const NODE_ENTRIES: u32 = (size_of::<CwbvhNode>() / 16) as u32;
+/// Tallest tree the walk's stack can hold (both levels together, with the
+/// two entries an instance's entry pushes); the GPU's workgroup stack has
+/// this many entries per lane.
+pub const MAX_STACK: usize = 32;
+
+/// One node (80 bytes): a grid over the node, eight children's boxes in
+/// grid cells, and where its inner children (contiguous, in slot order
+/// from `child_base`) and its leaves' records (from `record_base`) are.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct CwbvhNode {
+    /// The grid's lower corner.
+    pub origin: [f32; 3],
+    /// Bytes 0–2: per axis, the step's biased exponent (as
+    /// [`bvh::BvhNode::exponents`]); byte 3: a bit per slot holding an
+    /// inner child.
+    pub grid: u32,
+    /// The first inner child's node.
+    pub child_base: u32,
+    /// The first record of the node's leaves.
+    pub record_base: u32,
+    /// A byte per slot (slots 0–3 in word 0): for a leaf, its records'
+    /// count (bits 5–7, 1 to [`MAX_LEAF`]) and offset from `record_base`
+    /// (bits 0–4); 0 for an inner child or an empty slot.
+    pub meta: [u32; 2],
+    /// Lower corners in cells: `lo[2a]` holds axis `a` of slots 0–3 (a
+    /// byte each), `lo[2a + 1]` of slots 4–7.
+    pub lo: [u32; 6],
+    /// Upper corners in cells, as `lo`.
+    pub hi: [u32; 6],
+}
+
+/// What a walk visits next: a node group, some inner children of one node
+/// (`base` its `child_base`; `bits` = [`NODE_GROUP`] | the children still
+/// to visit << 8 | the node's inner-slot mask), or a record group (`base`
+/// a node's `record_base`, `bits` a mask of its records still to test).
+/// In a walk, a node group's children are bits by visiting position
+/// (slot XOR the ray's octant); stored outside one (a part, a root), by
+/// slot.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct Group {
+    /// A node's `child_base` or `record_base`.
+    pub base: u32,
+    /// See the type's description.
+    pub bits: u32,
+}
+
+impl Group {
+    /// Nothing to visit.
+    pub const EMPTY: Group = Group { base: 0, bits: 0 };
+    /// A tree's root: node 0 as the one inner child in slot 0.
+    pub const ROOT: Group = Group { base: 0, bits: NODE_GROUP | 1 << 8 | 1 };
+
+    /// Whether it is a node group.
+    #[inline(always)]
+    pub fn is_nodes(self) -> bool {
+        self.bits & NODE_GROUP != 0
+    }
+
+    /// Whether anything is left to visit.
+    #[inline(always)]
+    pub fn has_work(self) -> bool {
+        if self.is_nodes() { self.bits & 0xff00 != 0 } else { self.bits != 0 }
+    }
+
+    /// A group stored by slot, in a walk's positions for a ray of octant
+    /// `oct` (record groups are the same in both).
+    #[inline(always)]
+    pub fn in_positions(self, oct: u32) -> Group {
+        if !self.is_nodes() {
+            return self;
+        }
+        let hits = permute((self.bits >> 8) & 0xff, oct);
+        Group { base: self.base, bits: (self.bits & !0xff00) | hits << 8 }
+    }
+}
+
+/// Moves bit `s` of an 8-bit mask to bit `s ^ oct`: three swaps.
+#[inline(always)]
+pub fn permute(mut m: u32, oct: u32) -> u32 {
+    if oct & 1 != 0 {
+        m = ((m & 0x55) << 1) | ((m >> 1) & 0x55);
+    }
+    if oct & 2 != 0 {
+        m = ((m & 0x33) << 2) | ((m >> 2) & 0x33);
+    }
+    if oct & 4 != 0 {
+        m = ((m & 0x0f) << 4) | ((m >> 4) & 0x0f);
+    }
+    m
+}
+
+/// A ray's octant: bit `a` set where its direction is negative on axis `a`.
+#[inline(always)]
+pub fn octant(dir: Vec3) -> u32 {
+    (dir.x < 0.0) as u32 | ((dir.y < 0.0) as u32) << 1 | ((dir.z < 0.0) as u32) << 2
+}
+
+impl CwbvhNode {
+    /// The grid step on `axis`.
+    #[inline(always)]
+    pub fn step(&self, axis: usize) -> f32 {
+        f32::from_bits(((self.grid >> (8 * axis)) & 0xff) << 23)
+    }
+
+    /// A bit per slot holding an inner child.
+    #[inline(always)]
+    pub fn imask(&self) -> u32 {
+        self.grid >> 24
+    }
+
+    /// Slot `s`'s meta byte.
+    #[inline(always)]
+    pub fn meta(&self, s: usize) -> u32 {
+        bvh::byte(self.meta[s / 4], s % 4)
+    }
+
+    /// Slot `s`'s box (meaningful for a used slot).
+    pub fn child_box(&self, s: usize) -> Aabb {
+        let corner = |q: &[u32; 6]| {
+            Vec3::from_array(std::array::from_fn(|a| {
+                self.origin[a] + bvh::byte(q[2 * a + s / 4], s % 4) as f32 * self.step(a)
+            }))
+        };
+        Aabb { min: corner(&self.lo), max: corner(&self.hi) }
+    }
+
+    /// A bit per slot whose box the ray crosses within `(t_min, t_max)`:
+    /// two four-lane tests, the arithmetic of the GPU's.
+    #[inline(always)]
+    pub fn hit_mask(&self, ray: &Ray, t_min: f32, t_max: f32) -> u32 {
+        let mut mask = 0;
+        for half in 0..2 {
+            let slab = |a: usize| {
+                let (o, s) = (Vec4::splat(self.origin[a]), Vec4::splat(self.step(a)));
+                let (oa, ia) = (Vec4::splat(ray.origin[a]), Vec4::splat(ray.inv_dir[a]));
+                let lo = ((o + bvh::bytes(self.lo[2 * a + half]) * s) - oa) * ia;
+                let hi = ((o + bvh::bytes(self.hi[2 * a + half]) * s) - oa) * ia;
+                (lo.min(hi), lo.max(hi))
+            };
+            let (x0, x1) = slab(0);
+            let (y0, y1) = slab(1);
+            let (z0, z1) = slab(2);
+            let near = x0.max(y0).max(z0.max(Vec4::splat(t_min)));
+            let far = x1.min(y1).min(z1.min(Vec4::splat(t_max)));
+            mask |= near.cmple(far).bitmask() << (4 * half);
+        }
+        mask
+    }
+
+    /// The groups a visit makes of the hit slots `hit`: the inner ones (by
+    /// position for octant `oct`) and the leaves' records.
+    #[inline(always)]
+    pub fn groups(&self, hit: u32, oct: u32) -> (Group, Group) {
+        let imask = self.imask();
+        let inner = permute(hit & imask, oct);
+        let mut records = 0;
+        let mut leaves = hit & !imask;
+        while leaves != 0 {
+            let s = leaves.trailing_zeros() as usize;
+            leaves &= leaves - 1;
+            let m = self.meta(s);
+            records |= ((1u32 << (m >> 5)) - 1) << (m & 31);
+        }
+        (
+            Group { base: self.child_base, bits: NODE_GROUP | inner << 8 | imask },
+            Group { base: self.record_base, bits: records },
+        )
+    }
+}
+
+/// An eight-wide compressed BVH over the records of a [`Bvh`].
+#[derive(Clone, Debug, Default)]
+pub struct Cwbvh {
+    /// Nodes; the root is node 0. Empty when there is nothing to hit.
+    pub nodes: Vec<CwbvhNode>,
+    /// Per record of this tree, the source BVH's primitive slot it is:
+    /// node `n`'s leaves hold records `n.record_base ..` of it.
+    pub order: Vec<u32>,
+    /// Height in nodes: a walk of this tree pushes fewer stack entries.
+    pub height: usize,
+}
+
+/// A child while a node is put together.
+#[derive(Clone, Debug)]
+enum Kid {
+    /// An inner node of the source BVH.
+    Inner(u32, Aabb),
+    /// Source slots `first..first + count`.
+    Leaf(u32, u32, Aabb),
+    /// A node made here: what it holds, and its box.
+    Made(Vec<Kid>, Aabb),
+}
+
+impl Kid {
+    fn bounds(&self) -> Aabb {
+        match self {
+            Kid::Inner(_, b) | Kid::Leaf(_, _, b) | Kid::Made(_, b) => *b,
+        }
+    }
+
+    /// Records it puts in the node when it is a leaf there.
+    fn records(&self) -> u32 {
+        match self {
+            Kid::Leaf(_, n, _) => *n,
+            _ => 0,
+        }
+    }
+}
+
+/// The children of source node `n`; leaves too big for one meta byte are
+/// cut into pieces under a node of their own.
+fn kids_of(src: &Bvh, n: u32) -> Vec<Kid> {
+    let node = &src.nodes[n as usize];
+    (0..bvh::WIDTH)
+        .filter(|&i| node.child[i] != EMPTY)
+        .map(|i| {
+            let (c, b) = (node.child[i], node.child_box(i));
+            if c & LEAF == 0 {
+                return Kid::Inner(c, b);
+            }
+            let (first, count) = (c & !LEAF, node.leaf_count(i));
+            if count <= MAX_LEAF {
+                return Kid::Leaf(first, count, b);
+            }
+            let pieces = (0..count.div_ceil(MAX_LEAF))
+                .map(|k| {
+                    let at = k * MAX_LEAF;
+                    Kid::Leaf(first + at, MAX_LEAF.min(count - at), b)
+                })
+                .collect();
+            Kid::Made(pieces, b)
+        })
+        .collect()
+}
+
+impl Cwbvh {
+    /// The eight-wide tree of `src`, its records in [`Cwbvh::order`].
+    pub fn from_bvh(src: &Bvh) -> Self {
+        let mut w = Cwbvh::default();
+        if src.nodes.is_empty() {
+            return w;
+        }
+        let kids = kids_of(src, 0);
+        let bounds = kids.iter().fold(Aabb::EMPTY, |b, k| b.union(k.bounds()));
+        w.nodes.push(CwbvhNode::zeroed());
+        w.height = w.fill(src, 0, bounds, kids);
+        w
+    }
+
+    /// Fills node `index` (its box `bounds`) with `kids`, opening the
+    /// largest inner ones into their children while the node has room,
+    /// then its inner children after it; returns its height.
+    fn fill(&mut self, src: &Bvh, index: usize, bounds: Aabb, mut kids: Vec<Kid>) -> usize {
+        // Open the largest inner child whose children fit.
+        loop {
+            let records: u32 = kids.iter().map(Kid::records).sum();
+            let mut open: Option<(usize, Vec<Kid>)> = None;
+            let mut order: Vec<usize> =
+                (0..kids.len()).filter(|&i| matches!(kids[i], Kid::Inner(..))).collect();
+            order.sort_by(|&i, &j| kids[j].bounds().area().total_cmp(&kids[i].bounds().area()));
+            for i in order {
+                let Kid::Inner(n, _) = kids[i] else { unreachable!() };
+                let grand = kids_of(src, n);
+                let more: u32 = grand.iter().map(Kid::records).sum();
+                if kids.len() - 1 + grand.len() <= WIDTH && records + more <= MAX_NODE_RECORDS {
+                    open = Some((i, grand));
+                    break;
+                }
+            }
+            let Some((i, grand)) = open else { break };
+            kids.swap_remove(i);
+            kids.extend(grand);
+        }
+        // Leaves while their records fit; the rest (and leaves that do
+        // not fit) take the other slots, shared among made nodes when
+        // there are more than slots.
+        let mut records = 0;
+        let (mut placed, mut rest) = (Vec::with_capacity(WIDTH), Vec::new());
+        for k in kids {
+            match k {
+                Kid::Leaf(_, n, _) if records + n <= MAX_NODE_RECORDS => {
+                    records += n;
+                    placed.push(k);
+                }
+                k => rest.push(k),
+            }
+        }
+        if placed.len() + rest.len() > WIDTH {
+            let groups = rest.len().min(WIDTH / 2);
+            rest.extend(placed.drain(WIDTH - groups..));
+            let share = rest.len().div_ceil(groups);
+            while !rest.is_empty() {
+                let chunk: Vec<Kid> = rest.drain(..share.min(rest.len())).collect();
+                let b = chunk.iter().fold(Aabb::EMPTY, |b, k| b.union(k.bounds()));
+                placed.push(Kid::Made(chunk, b));
+            }
+        } else {
+            placed.extend(rest.into_iter().map(|k| match k {
+                Kid::Leaf(_, _, b) => Kid::Made(vec![k], b),
+                k => k,
+            }));
+        }
+        let slots = assign_slots(bounds, &placed);
+        let (origin, exponents) = bvh::grid(bounds);
+        let mut node = CwbvhNode { origin, grid: exponents, ..CwbvhNode::zeroed() };
+        node.record_base = self.order.len() as u32;
+        let mut inner = Vec::new();
+        let mut imask = 0;
+        let mut offset = 0;
+        for s in 0..WIDTH {
+            let Some(k) = slots[s].map(|i| &placed[i]) else { continue };
+            let b = k.bounds();
+            for a in 0..3 {
+                let (lo, hi) = bvh::cells(origin[a], node.step(a), b.min[a], b.max[a]);
+                node.lo[2 * a + s / 4] |= lo << (8 * (s % 4));
+                node.hi[2 * a + s / 4] |= hi << (8 * (s % 4));
+            }
+            match k {
+                Kid::Leaf(first, count, _) => {
+                    debug_assert!(offset + count <= MAX_NODE_RECORDS);
+                    node.meta[s / 4] |= (count << 5 | offset) << (8 * (s % 4));
+                    self.order.extend(*first..first + count);
+                    offset += count;
+                }
+                _ => {
+                    imask |= 1 << s;
+                    inner.push(k.clone());
+                }
+            }
+        }
+        node.grid |= imask << 24;
+        node.child_base = self.nodes.len() as u32;
+        self.nodes[index] = node;
+        let first = self.nodes.len();
+        self.nodes.extend(std::iter::repeat_n(CwbvhNode::zeroed(), inner.len()));
+        let mut tallest = 0;
+        for (k, kid) in inner.into_iter().enumerate() {
+            let (b, kids) = match kid {
+                Kid::Inner(n, b) => (b, kids_of(src, n)),
+                Kid::Made(kids, b) => (b, kids),
+                Kid::Leaf(..) => unreachable!("leaves are placed in the node"),
+            };
+            tallest = tallest.max(self.fill(src, first + k, b, kids));
+        }
+        tallest + 1
+    }
+
+    /// Up to `max` groups that together hold every record, each with its
+    /// box: the root's children, then the largest inner one opened into
+    /// its children while the count allows. Groups are by slot (as
+    /// stored), one child each.
+    pub fn parts(&self, max: usize) -> Vec<(Group, Aabb)> {
+        let Some(root) = self.nodes.first() else { return Vec::new() };
+        let entries = |n: &CwbvhNode| {
+            let imask = n.imask();
+            (0..WIDTH)
+                .filter_map(|s| {
+                    let b = n.child_box(s);
+                    if imask >> s & 1 != 0 {
+                        let g =
+                            Group { base: n.child_base, bits: NODE_GROUP | 1 << (8 + s) | imask };
+                        Some((g, b))
+                    } else {
+                        let m = n.meta(s);
+                        (m != 0).then(|| {
+                            (
+                                Group {
+                                    base: n.record_base,
+                                    bits: ((1 << (m >> 5)) - 1) << (m & 31),
+                                },
+                                b,
+                            )
+                        })
+                    }
+                })
+                .collect::<Vec<_>>()
+        };
+        let node_of = |g: Group| {
+            let s = ((g.bits >> 8) & 0xff).trailing_zeros();
+            g.base + (g.bits & 0xff & ((1 << s) - 1)).count_ones()
+        };
+        let mut parts = entries(root);
+        loop {
+            let open = (0..parts.len())
+                .filter(|&i| parts[i].0.is_nodes())
+                .max_by(|&i, &j| parts[i].1.area().total_cmp(&parts[j].1.area()));
+            let Some(i) = open else { break };
+            let kids = entries(&self.nodes[node_of(parts[i].0) as usize]);
+            if parts.len() - 1 + kids.len() > max {
+                break;
+            }
+            parts.swap_remove(i);
+            parts.extend(kids);
+        }
+        parts
+    }
+
+    /// Visits the records a ray reaches before its closest hit, from
+    /// `start` (stored by slot; [`Group::ROOT`] for the whole tree), in
+    /// the GPU's order: `record(index, closest so far)` returns a closer
+    /// hit distance when it finds one, `-∞` to end the walk. Returns the
+    /// closest distance.
+    pub fn walk(
+        &self,
+        start: Group,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        mut record: impl FnMut(u32, f32) -> Option<f32>,
+    ) -> f32 {
+        let mut closest = t_max;
+        if self.nodes.is_empty() {
+            return closest;
+        }
+        let oct = octant(ray.dir);
+        let mut stack = [Group::EMPTY; MAX_STACK];
+        let mut sp = 0;
+        let mut g = start.in_positions(oct);
+        loop {
+            let mut records = Group::EMPTY;
+            if g.is_nodes() && g.has_work() {
+                let p = ((g.bits >> 8) & 0xff).trailing_zeros();
+                let slot = p ^ oct;
+                let node = g.base + (g.bits & 0xff & ((1 << slot) - 1)).count_ones();
+                g.bits &= !(1 << (8 + p));
+                if g.has_work() {
+                    stack[sp] = g;
+                    sp += 1;
+                }
+                let n = &self.nodes[node as usize];
+                (g, records) = n.groups(n.hit_mask(ray, t_min, closest), oct);
+            } else {
+                std::mem::swap(&mut g, &mut records);
+            }
+            while records.bits != 0 {
+                let k = records.bits.trailing_zeros();
+                records.bits &= records.bits - 1;
+                if let Some(t) = record(records.base + k, closest) {
+                    if t == f32::NEG_INFINITY {
+                        return t;
+                    }
+                    closest = t;
+                }
+            }
+            if !g.has_work() {
+                if sp == 0 {
+                    return closest;
+                }
+                sp -= 1;
+                g = stack[sp];
+            }
+        }
+    }
+}
+
+/// Which kid goes in each slot: slot `s` takes the kid that comes first
+/// along the diagonal of octant `s` (bit `a` set: negative on axis `a`),
+/// pairs taken greedily by cost, so a ray of octant `o` meets them nearly
+/// nearest first visiting slots `o`, `o ^ 1`, … `o ^ 7`.
+fn assign_slots(bounds: Aabb, kids: &[Kid]) -> [Option<usize>; WIDTH] {
+    let centre = (bounds.min + bounds.max) * 0.5;
+    let mut pairs = Vec::with_capacity(kids.len() * WIDTH);
+    for (k, kid) in kids.iter().enumerate() {
+        let b = kid.bounds();
+        let c = (b.min + b.max) * 0.5 - centre;
+        for s in 0..WIDTH {
+            let d = Vec3::new(
+                if s & 1 != 0 { -1.0 } else { 1.0 },
+                if s & 2 != 0 { -1.0 } else { 1.0 },
+                if s & 4 != 0 { -1.0 } else { 1.0 },
+            );
+            pairs.push((c.dot(d), k, s));
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut slots = [None; WIDTH];
+    let mut taken = vec![false; kids.len()];
+    for (_, k, s) in pairs {
+        if !taken[k] && slots[s].is_none() {
+            taken[k] = true;
+            slots[s] = Some(k);
+        }
+    }
+    slots
+}
+
+/// A piece of an instance at the top level: where in its model's tree a
+/// walk starts (one child of a node, by slot).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct CwbvhPart {
+    /// Instance index.
+    pub instance: u32,
+    /// The start group in the instance's model's tree.
+    pub start: Group,
+    /// Padding (the GPU reads a part as one 16-byte entry).
+    pub pad: u32,
+}
+
+/// Both levels of a scene as eight-wide trees, derived from its four-wide
+/// [`SceneAccel`]: one per model over its triangle records, one over
+/// instance parts (pieces of instances: [`crate::two_level::PARTS_PER_INSTANCE`]
+/// subtrees each, as the four-wide top level has).
+#[derive(Clone, Debug)]
+pub struct CwbvhScene {
+    /// Over the parts' world boxes; its records are `parts`.
+    pub top: Cwbvh,
+    /// The top level's records, in its order.
+    pub parts: Vec<CwbvhPart>,
+    /// One per model; its records are that model's `records`.
+    pub models: Vec<Cwbvh>,
+    /// Per model, its triangle records in its tree's order.
+    pub records: Vec<Vec<TriangleRecord>>,
+    /// World to model space, per instance.
+    pub to_model: Vec<Affine3A>,
+}
+
+impl CwbvhScene {
+    /// The wide trees of a four-wide `accel` (an error for a kd-tree).
+    pub fn from_accel(scene: &Scene, accel: &SceneAccel) -> crate::Result<Self> {
+        let wide = |a: &Accel| match a {
+            Accel::Bvh(b) => Ok(Cwbvh::from_bvh(b)),
+            Accel::Kd(_) => {
+                Err(Error::Malformed("a compressed wide BVH is made from a BVH".into()))
+            }
+        };
+        let models: Vec<Cwbvh> = accel.models.par_iter().map(wide).collect::<crate::Result<_>>()?;
+        let records = models
+            .iter()
+            .zip(&accel.records)
+            .map(|(w, r)| w.order.iter().map(|&slot| r[slot as usize]).collect())
+            .collect();
+        let model_parts: Vec<Vec<(Group, Aabb)>> =
+            models.iter().map(|w| w.parts(PARTS_PER_INSTANCE)).collect();
+        let (mut parts, mut world) = (Vec::new(), Vec::new());
+        for (i, inst) in scene.instances.iter().enumerate() {
+            for &(start, b) in &model_parts[inst.model as usize] {
+                parts.push(CwbvhPart { instance: i as u32, start, pad: 0 });
+                world.push(b.transformed(&inst.to_world));
+            }
+        }
+        let top_bvh = Bvh::build(&world);
+        let top = Cwbvh::from_bvh(&top_bvh);
+        let parts =
+            top.order.iter().map(|&slot| parts[top_bvh.prims[slot as usize] as usize]).collect();
+        Ok(Self { top, parts, models, records, to_model: accel.to_model.clone() })
+    }
+
+    /// Stack entries the walk of both levels can need: each tree's height,
+    /// and the two an instance's entry pushes.
+    pub fn stack_need(&self) -> usize {
+        self.top.height + 2 + self.models.iter().map(|m| m.height).max().unwrap_or(0)
+    }
+
+    /// Bytes of all nodes, records and parts.
+    pub fn bytes(&self) -> usize {
+        size_of_val(self.top.nodes.as_slice())
+            + size_of_val(self.parts.as_slice())
+            + self.models.iter().map(|m| size_of_val(m.nodes.as_slice())).sum::<usize>()
+            + self.records.iter().map(|r| size_of_val(r.as_slice())).sum::<usize>()
+    }
+
+    /// The closest opaque hit in `(t_min, t_max)`, as the GPU's walk finds it.
+    pub fn closest(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> Option<SceneHit> {
+        self.trace(scene, ray, t_min, t_max, false)
+    }
+
+    /// Whether anything opaque lies along the ray in `(t_min, t_max)`.
+    pub fn occluded(&self, scene: &Scene, ray: &Ray, t_min: f32, t_max: f32) -> bool {
+        self.trace(scene, ray, t_min, t_max, true).is_some()
+    }
+
+    fn trace(
+        &self,
+        scene: &Scene,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        any: bool,
+    ) -> Option<SceneHit> {
+        let mut best = None;
+        self.top.walk(Group::ROOT, ray, t_min, t_max, |p, limit| {
+            let part = self.parts[p as usize];
+            let inst = part.instance;
+            let m = scene.instances[inst as usize].model as usize;
+            let model = &scene.models[m].model;
+            let to_model = &self.to_model[inst as usize];
+            let local = Ray::new(
+                to_model.transform_point3(ray.origin),
+                to_model.transform_vector3(ray.dir),
+            );
+            let records = &self.records[m];
+            let mut found = None;
+            self.models[m].walk(part.start, &local, t_min, limit, |k, lim| {
+                let r = &records[k as usize];
+                let (t, u, v) = r.intersect(&local, t_min, lim)?;
+                if r.coverage == Coverage::Mixed as u32
+                    && model.is_transparent(r.triangle as usize, uv_at(model, r.triangle, u, v))
+                {
+                    return None;
+                }
+                found = Some(SceneHit { instance: inst, triangle: r.triangle, t, u, v });
+                Some(if any { f32::NEG_INFINITY } else { t })
+            });
+            let h = found?;
+            best = Some(h);
+            Some(if any { f32::NEG_INFINITY } else { h.t })
+        });
+        best
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sylva_scene::rng::SplitMix64;
+
+    fn boxes(n: usize, rng: &mut SplitMix64) -> Vec<Aabb> {
+        (0..n)
+            .map(|_| {
+                let p = Vec3::new(
+                    rng.range(-10.0, 10.0),
+                    rng.range(-10.0, 10.0),
+                    rng.range(-10.0, 10.0),
+                );
+                let s = Vec3::new(rng.range(0.01, 1.0), rng.range(0.01, 1.0), rng.range(0.01, 1.0));
+                Aabb::around(&[p, p + s])
+            })
+            .collect()
+    }
+
+    /// Every record slot appears once, inside every ancestor's box, and
+    /// nodes keep their limits.
+    #[test]
+    fn every_record_is_in_one_leaf_inside_its_ancestors_boxes() {
+        let mut rng = SplitMix64::new(5);
+        for n in [1, 2, 9, 40, 3000] {
+            let b = boxes(n, &mut rng);
+            let src = Bvh::build(&b);
+            let w = Cwbvh::from_bvh(&src);
+            let mut seen = vec![0; src.prims.len()];
+            fn visit(
+                w: &Cwbvh,
+                n: usize,
+                inside: &[Aabb],
+                src: &Bvh,
+                b: &[Aabb],
+                seen: &mut [u32],
+            ) {
+                let node = &w.nodes[n];
+                let mut inner = 0;
+                let mut records = 0;
+                for s in 0..WIDTH {
+                    let cb = node.child_box(s);
+                    let mut chain = inside.to_vec();
+                    chain.push(cb);
+                    if node.imask() >> s & 1 != 0 {
+                        visit(w, (node.child_base + inner) as usize, &chain, src, b, seen);
+                        inner += 1;
+                    } else if node.meta(s) != 0 {
+                        let m = node.meta(s);
+                        records += m >> 5;
+                        for r in 0..m >> 5 {
+                            let slot = w.order[(node.record_base + (m & 31) + r) as usize];
+                            seen[slot as usize] += 1;
+                            let pb = b[src.prims[slot as usize] as usize];
+                            for a in &chain {
+                                assert_eq!(a.union(pb), *a, "a record leaves an ancestor's box");
+                            }
+                        }
+                    }
+                }
+                assert!(records <= MAX_NODE_RECORDS);
+            }
+            visit(&w, 0, &[], &src, &b, &mut seen);
+            assert!(seen.iter().all(|&s| s == 1), "n = {n}");
+            assert!(w.height <= MAX_STACK);
+        }
+    }
+
+    /// Closest hits of the walk agree with the four-wide BVH's (boxes as
+    /// primitives, hit where the ray enters them).
+    #[test]
+    fn the_walk_finds_the_closest_hit_of_the_four_wide_tree() {
+        let mut rng = SplitMix64::new(9);
+        let b = boxes(2000, &mut rng);
+        let src = Bvh::build(&b);
+        let w = Cwbvh::from_bvh(&src);
+        let hit = |p: u32, ray: &Ray, lim: f32| b[p as usize].clip(ray, 0.0, lim).map(|(t, _)| t);
+        for _ in 0..2000 {
+            let o =
+                Vec3::new(rng.range(-15.0, 15.0), rng.range(-15.0, 15.0), rng.range(-15.0, 15.0));
+            let d = Vec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+            let ray = Ray::new(o, d);
+            let want =
+                src.closest(&ray, 0.0, f32::MAX, &mut |p, lim| hit(p, &ray, lim)).map(|h| h.1);
+            let mut got = None;
+            w.walk(Group::ROOT, &ray, 0.0, f32::MAX, |r, lim| {
+                let t = hit(src.prims[w.order[r as usize] as usize], &ray, lim)?;
+                (t < lim && t > 0.0).then(|| {
+                    got = Some(t);
+                    t
+                })
+            });
+            assert_eq!(got, want, "{ray:?}");
+        }
+    }
+
+    /// Leaves the four-wide tree could not split (coincident boxes) are
+    /// cut to fit; every record is still reached.
+    #[test]
+    fn oversized_leaves_are_cut_to_fit() {
+        let b = vec![Aabb::around(&[Vec3::ZERO, Vec3::ONE]); 300];
+        let src = Bvh::build(&b);
+        let w = Cwbvh::from_bvh(&src);
+        let mut seen = vec![false; src.prims.len()];
+        let ray = Ray::new(Vec3::new(0.5, 0.5, -1.0), Vec3::Z);
+        w.walk(Group::ROOT, &ray, 0.0, f32::MAX, |r, _| {
+            seen[w.order[r as usize] as usize] = true;
+            None
+        });
+        assert!(
+            seen.iter().all(|&s| s),
+            "{} of {}",
+            seen.iter().filter(|&&s| s).count(),
+            seen.len()
+        );
+        assert!(w.height <= MAX_STACK, "height {}", w.height);
+    }
+
+    /// Parts cover every record once.
+    #[test]
+    fn parts_cover_every_record_once() {
+        let mut rng = SplitMix64::new(3);
+        let b = boxes(500, &mut rng);
+        let w = Cwbvh::from_bvh(&Bvh::build(&b));
+        let parts = w.parts(8);
+        assert!(parts.len() > 1 && parts.len() <= 8);
+        let mut seen = vec![0; w.order.len()];
+        for (g, _) in &parts {
+            // Counted by structure: every child of every node under it.
+            let mut stack = vec![*g];
+            while let Some(g) = stack.pop() {
+                if g.is_nodes() {
+                    let mut hits = (g.bits >> 8) & 0xff;
+                    while hits != 0 {
+                        let s = hits.trailing_zeros();
+                        hits &= hits - 1;
+                        let node = g.base + (g.bits & 0xff & ((1 << s) - 1)).count_ones();
+                        let n = &w.nodes[node as usize];
+                        let (inner, recs) = n.groups(0xff, 0);
+                        stack.push(inner);
+                        stack.push(recs);
+                    }
+                } else {
+                    let mut m = g.bits;
+                    while m != 0 {
+                        seen[(g.base + m.trailing_zeros()) as usize] += 1;
+                        m &= m - 1;
+                    }
+                }
+            }
+        }
+        assert!(seen.iter().all(|&s| s == 1));
+    }
+
+    /// Both levels walked as the GPU walks them agree with the four-wide
+    /// scene's walk: the same instance and triangle on every ray but the
+    /// few where two hits tie.
+    #[test]
+    fn the_scene_walk_agrees_with_the_four_wide_scene() {
+        let text = r#"{
+            "models": { "birch": { "tree": { "species": "paper_birch", "triangles": 6000, "seed": 2 } } },
+            "instances": [ { "model": "birch", "position": [0, 0, 0] },
+                           { "model": "birch", "position": [6, 0, 1], "rotate_y_deg": 70, "scale": 0.6 },
+                           { "model": "birch", "matrix": [0.8,0,0,0, 0,1.3,0,0, 0,0,0.8,0, -5,0,3,1] } ],
+            "camera": { "position": [0, 5, -30], "look_at": [0, 5, 0] },
+            "sun": { "elevation_deg": 40, "azimuth_deg": 30 }
+        }"#;
+        let scene = Scene::build(
+            sylva_scene::parse(text, "t.json").unwrap(),
+            std::path::Path::new("."),
+            "t.json",
+        )
+        .unwrap();
+        let four = SceneAccel::build(&scene, crate::AccelKind::Bvh);
+        let wide = CwbvhScene::from_accel(&scene, &four).unwrap();
+        assert!(wide.stack_need() <= MAX_STACK, "{}", wide.stack_need());
+        let mut rng = SplitMix64::new(8);
+        let (mut hits, mut same, mut blocked) = (0, 0, 0);
+        for _ in 0..10_000 {
+            let o = Vec3::new(rng.range(-12.0, 12.0), rng.range(0.0, 24.0), -15.0);
+            let target =
+                Vec3::new(rng.range(-8.0, 8.0), rng.range(0.0, 20.0), rng.range(-3.0, 5.0));
+            let ray = Ray::new(o, target - o);
+            let (got, want) = (
+                wide.closest(&scene, &ray, 1e-4, f32::MAX),
+                four.closest(&scene, &ray, 1e-4, f32::MAX),
+            );
+            assert_eq!(got.is_some(), want.is_some(), "{ray:?}");
+            assert_eq!(wide.occluded(&scene, &ray, 1e-4, f32::MAX), want.is_some());
+            if let (Some(g), Some(w)) = (got, want) {
+                hits += 1;
+                assert_eq!(g.t, w.t, "{ray:?}");
+                same += ((g.instance, g.triangle) == (w.instance, w.triangle)) as u32;
+                let shadow = Ray::new(ray.at(g.t), Vec3::new(0.4, 0.8, 0.3));
+                let b = wide.occluded(&scene, &shadow, 1e-3, f32::MAX);
+                assert_eq!(b, four.occluded(&scene, &shadow, 1e-3, f32::MAX), "{shadow:?}");
+                blocked += b as u32;
+            }
+        }
+        assert!(hits > 400, "{hits} hits");
+        assert!(blocked > 50, "{blocked} shadow rays blocked");
+        assert!(same * 1000 >= hits * 999, "{same} of {hits} the same triangle");
+    }
+}
