@@ -442,6 +442,7 @@ fn trace_structure(
         ),
     };
     let structure = match &accel {
+        Some(a) if backend == sylva_scene::frame::Backend::Cwbvh => SceneStructure::Cwbvh(a),
         Some(a) => SceneStructure::Walk(a),
         None => SceneStructure::RayQuery(&coverage),
     };
@@ -454,6 +455,9 @@ fn trace_structure(
     let build_ms = cpu_build_ms + device_build_ms;
     let built_bytes = gpu_scene.rq.as_ref().and_then(|r| r.built_bytes);
     let bytes = match (&accel, &gpu_scene.rq) {
+        (Some(a), _) if backend == sylva_scene::frame::Backend::Cwbvh => {
+            Some(sylva_accel::cwbvh::CwbvhScene::from_accel(scene, a)?.bytes() as u64)
+        }
         (Some(a), _) => Some(a.bytes() as u64),
         (None, Some(rq)) => rq.bytes,
         (None, None) => None,
@@ -510,6 +514,8 @@ fn trace_structure(
         "shadow": timed(&shadow_caster, shadow_gpu)?,
         "bounce": timed(&caster, bounce)?,
     });
+    // The compressed wide BVH's CPU walk is a test reference, not a renderer.
+    let no_cpu = no_cpu || backend == sylva_scene::frame::Backend::Cwbvh;
     let (cpu, cpu_opaque, cpu_shadow) = if let (false, Some(accel)) = (no_cpu, &accel) {
         let threads = rayon::current_num_threads();
         let time = |alpha: bool| {
@@ -605,7 +611,11 @@ fn bench_first_frame(a: &TraceBenchArgs) -> anyhow::Result<serde_json::Value> {
             // The chosen backend's buffers (and structures, for rq) and
             // its kernels (compiled beside the LB) and pipeline: what the
             // issue calls the upload.
-            "upload_ms": phase(if stats["backend"]["backend"] == "rq" { "upload rq" } else { "upload" })
+            "upload_ms": phase(match stats["backend"]["backend"].as_str() {
+                Some("rq") => "upload rq",
+                Some("cwbvh") => "upload cwbvh",
+                _ => "upload",
+            })
                 + phase("kernels") + phase("pipeline"),
             // What `auto` chose, and why (its probe's figures).
             "backend": stats["backend"],
