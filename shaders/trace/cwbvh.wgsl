@@ -2,19 +2,20 @@
 // levels in one loop as bvh.wgsl, built for a GPU's compute units:
 // - a node is five vec4<u32> loads (80 bytes), its eight boxes tested as
 //   two vec4 slabs;
-// - children are visited by slot XOR the ray's octant, nearly nearest
-//   first with no sort (slots were assigned by direction when built);
-// - the stack holds groups (what is left of one node's inner children, or
-//   of its leaves' records), at most one per level, in workgroup memory:
-//   no dynamically indexed private array, so nothing spills to local memory.
+// - a visited node's hit children are sorted by entry distance in
+//   registers (a 19-exchange network over 8 keys) and kept as one group:
+//   their slots, 3 bits each;
+// - the stack holds such groups, at most one per level, in workgroup
+//   memory: no dynamically indexed private array, so nothing spills to
+//   local memory.
 // shared/accel/src/cwbvh.rs is its reference, in the same order, so ties
 // resolve alike. worker/src/trace/shaders.rs puts it after scene.wgsl.
 //
-// A group is vec2(base, bits): a node group has CW_NODE_GROUP set, the
-// children still to visit in bits 8-15 (by position: slot ^ octant) and
-// the node's inner-slot mask in bits 0-7, base its first inner child's
-// entry; a record group has a mask of records from entry `base`
-// (triangle records at a model, instance parts at the top).
+// A group is vec2(base, bits): CW_VISIT | node (an entry) to visit;
+// CW_LIST | node with the slots of its hit children still to visit,
+// nearest first (3 bits each from bit 0, how many in bits 24-27); or a
+// first record (an entry) with a mask of records from it (triangle records
+// in a model, instance parts at the top).
 
 // Entry i of lane l is at i * TRACE_LANES + l: lanes at the same depth
 // touch neighbouring words.
@@ -25,41 +26,22 @@ fn cw_push(sp: ptr<function, u32>, g: vec2<u32>) {
     *sp += 1u;
 }
 
-// Bit a set where the direction is negative on axis a.
-fn cw_octant(d: vec3<f32>) -> u32 {
-    return select(0u, 1u, d.x < 0.0) | select(0u, 2u, d.y < 0.0) | select(0u, 4u, d.z < 0.0);
-}
-
-// Moves bit s of an 8-bit mask to bit s ^ oct.
-fn cw_permute(mask: u32, oct: u32) -> u32 {
-    var m = mask;
-    if (oct & 1u) != 0u {
-        m = ((m & 0x55u) << 1u) | ((m >> 1u) & 0x55u);
-    }
-    if (oct & 2u) != 0u {
-        m = ((m & 0x33u) << 2u) | ((m >> 2u) & 0x33u);
-    }
-    if (oct & 4u) != 0u {
-        m = ((m & 0x0fu) << 4u) | ((m >> 4u) & 0x0fu);
-    }
-    return m;
-}
-
 fn cw_has_work(g: vec2<u32>) -> bool {
-    return select(g.y != 0u, (g.y & 0xff00u) != 0u, (g.y & CW_NODE_GROUP) != 0u);
+    return (g.x & (CW_LIST | CW_VISIT)) != 0u || g.y != 0u;
 }
 
-// A group stored by slot (a part, the root) in positions for `oct`.
-fn cw_in_positions(g: vec2<u32>, oct: u32) -> vec2<u32> {
-    if (g.y & CW_NODE_GROUP) == 0u {
-        return g;
-    }
-    return vec2<u32>(g.x, (g.y & ~0xff00u) | (cw_permute((g.y >> 8u) & 0xffu, oct) << 8u));
+// Orders two keys.
+fn cw_exchange(a: ptr<function, u32>, b: ptr<function, u32>) {
+    let lo = min(*a, *b);
+    *b = max(*a, *b);
+    *a = lo;
 }
 
-// Which of four children (a byte each of the words) the ray crosses in
-// (t_min, t_max): bit i for byte i.
-fn cw_hits4(org: vec3<f32>, step: vec3<f32>, ray: Ray, lx: u32, ly: u32, lz: u32, hx: u32, hy: u32, hz: u32, t_min: f32, t_max: f32) -> u32 {
+// The sort keys of four children (a byte each of the words) the ray
+// crosses in (t_min, t_max) among `used` (bit i for byte i): the entry
+// distance's bits, sign cleared, with slot `first + i` in the lowest three
+// (cwbvh::sort_key); 0xffffffff for the rest.
+fn cw_keys4(org: vec3<f32>, step: vec3<f32>, ray: Ray, lx: u32, ly: u32, lz: u32, hx: u32, hy: u32, hz: u32, t_min: f32, t_max: f32, used: u32, first: u32) -> vec4<u32> {
     let o = ray.origin;
     let inv = ray.inv_dir;
     let x0 = (org.x + cells(lx) * step.x - o.x) * inv.x;
@@ -70,7 +52,94 @@ fn cw_hits4(org: vec3<f32>, step: vec3<f32>, ray: Ray, lx: u32, ly: u32, lz: u32
     let z1 = (org.z + cells(hz) * step.z - o.z) * inv.z;
     let near = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), vec4<f32>(t_min)));
     let far = min(min(max(x0, x1), max(y0, y1)), min(max(z0, z1), vec4<f32>(t_max)));
-    return dot(select(vec4<u32>(0u), vec4<u32>(1u, 2u, 4u, 8u), near <= far), vec4<u32>(1u));
+    let lanes = vec4<u32>(0u, 1u, 2u, 3u);
+    let in_use = ((vec4<u32>(used) >> lanes) & vec4<u32>(1u)) != vec4<u32>(0u);
+    let key = (bitcast<vec4<u32>>(near) & vec4<u32>(0x7ffffff8u)) | (lanes + vec4<u32>(first));
+    return select(vec4<u32>(0xffffffffu), key, (near <= far) & in_use);
+}
+
+// The meta byte of slot s.
+fn cw_meta(e1: vec4<u32>, s: u32) -> u32 {
+    return (select(e1.w, e1.z, s < 4u) >> ((s & 3u) * 8u)) & 0xffu;
+}
+
+// What slot s of the node at entry `node` holds: a node to visit, or a
+// leaf's records (count in its meta byte's bits 5-7, offset in 0-4).
+fn cw_child(node: u32, s: u32) -> vec2<u32> {
+    let imask = nodes[node].w >> 24u;
+    let e1 = nodes[node + 1u];
+    if ((imask >> s) & 1u) != 0u {
+        return vec2<u32>(CW_VISIT | (e1.x + CW_NODE_ENTRIES * countOneBits(imask & ((1u << s) - 1u))), 0u);
+    }
+    let m = cw_meta(e1, s);
+    return vec2<u32>(e1.y, ((1u << (m >> 5u)) - 1u) << (m & 31u));
+}
+
+// Visits the node at entry `node`: its hit children nearest first, as a
+// list group (nothing when none is hit).
+fn cw_visit(node: u32, ray: Ray, t_min: f32, t_max: f32) -> vec2<u32> {
+    // (grid origin, exponents | imask << 24), (child base, record base,
+    // meta 0-3, meta 4-7), then the quantized corners: (lo x, lo y),
+    // (lo z, hi x), (hi y, hi z), slots 0-3 then 4-7.
+    let e0 = nodes[node];
+    let e1 = nodes[node + 1u];
+    let e2 = nodes[node + 2u];
+    let e3 = nodes[node + 3u];
+    let e4 = nodes[node + 4u];
+    let org = bitcast<vec3<f32>>(e0.xyz);
+    let step = vec3<f32>(
+        bitcast<f32>((e0.w & 0xffu) << 23u),
+        bitcast<f32>(((e0.w >> 8u) & 0xffu) << 23u),
+        bitcast<f32>(((e0.w >> 16u) & 0xffu) << 23u),
+    );
+    // Used slots: inner children, and leaves (a non-zero meta byte).
+    let metas = vec4<u32>(e1.z, e1.z >> 8u, e1.z >> 16u, e1.z >> 24u) & vec4<u32>(0xffu);
+    let metas_hi = vec4<u32>(e1.w, e1.w >> 8u, e1.w >> 16u, e1.w >> 24u) & vec4<u32>(0xffu);
+    let leaves = dot(select(vec4<u32>(0u), vec4<u32>(1u, 2u, 4u, 8u), metas != vec4<u32>(0u)), vec4<u32>(1u))
+        | (dot(select(vec4<u32>(0u), vec4<u32>(1u, 2u, 4u, 8u), metas_hi != vec4<u32>(0u)), vec4<u32>(1u)) << 4u);
+    let used = (e0.w >> 24u) | leaves;
+    let a = cw_keys4(org, step, ray, e2.x, e2.z, e3.x, e3.z, e4.x, e4.z, t_min, t_max, used, 0u);
+    let b = cw_keys4(org, step, ray, e2.y, e2.w, e3.y, e3.w, e4.y, e4.w, t_min, t_max, used >> 4u, 4u);
+    var k0 = a.x;
+    var k1 = a.y;
+    var k2 = a.z;
+    var k3 = a.w;
+    var k4 = b.x;
+    var k5 = b.y;
+    var k6 = b.z;
+    var k7 = b.w;
+    cw_exchange(&k0, &k2);
+    cw_exchange(&k1, &k3);
+    cw_exchange(&k4, &k6);
+    cw_exchange(&k5, &k7);
+    cw_exchange(&k0, &k4);
+    cw_exchange(&k1, &k5);
+    cw_exchange(&k2, &k6);
+    cw_exchange(&k3, &k7);
+    cw_exchange(&k0, &k1);
+    cw_exchange(&k2, &k3);
+    cw_exchange(&k4, &k5);
+    cw_exchange(&k6, &k7);
+    cw_exchange(&k2, &k4);
+    cw_exchange(&k3, &k5);
+    cw_exchange(&k1, &k4);
+    cw_exchange(&k3, &k6);
+    cw_exchange(&k1, &k2);
+    cw_exchange(&k3, &k4);
+    cw_exchange(&k5, &k6);
+    let lo = vec4<u32>(k0, k1, k2, k3);
+    let hi = vec4<u32>(k4, k5, k6, k7);
+    let none = vec4<u32>(0xffffffffu);
+    let count = dot(select(vec4<u32>(0u), vec4<u32>(1u), lo != none), vec4<u32>(1u))
+        + dot(select(vec4<u32>(0u), vec4<u32>(1u), hi != none), vec4<u32>(1u));
+    if count == 0u {
+        return vec2<u32>(0u);
+    }
+    let slots = dot((lo & vec4<u32>(7u)) << vec4<u32>(0u, 3u, 6u, 9u), vec4<u32>(1u))
+        | dot((hi & vec4<u32>(7u)) << vec4<u32>(12u, 15u, 18u, 21u), vec4<u32>(1u));
+    // Slots past the count are masked off.
+    let list = slots & ((1u << (3u * count)) - 1u);
+    return vec2<u32>(CW_LIST | node, list | (count << 24u));
 }
 
 // The closest opaque hit in (t_min, t_max); with `any`, the first found.
@@ -80,94 +149,53 @@ fn traverse_cwbvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
     var best = no_hit();
     var closest = t_max;
     var ray = world;
-    let world_oct = cw_octant(world.dir);
-    var oct = world_oct;
     // The instance being walked (NO_HIT at the top level), and the stack
     // depth when it was entered (entries below are the top level's).
     var inst = NO_HIT;
     var inst_sp = 0u;
     var sp = 0u;
-    // The root: node 0 as the one inner child in slot 0.
-    var g = cw_in_positions(vec2<u32>(0u, CW_NODE_GROUP | 0x101u), oct);
+    // The top level's root.
+    var g = vec2<u32>(CW_VISIT, 0u);
     loop {
-        var records = vec2<u32>(0u);
-        if (g.y & CW_NODE_GROUP) != 0u && (g.y & 0xff00u) != 0u {
-            // The group's next child, by position; the rest wait.
-            let p = firstTrailingBit((g.y >> 8u) & 0xffu);
-            let slot = p ^ oct;
-            let node = g.x + CW_NODE_ENTRIES * countOneBits(g.y & 0xffu & ((1u << slot) - 1u));
-            g.y &= ~(0x100u << p);
-            if (g.y & 0xff00u) != 0u {
-                cw_push(&sp, g);
+        if (g.x & CW_LIST) != 0u {
+            // The list's next child; the rest wait.
+            let count = g.y >> 24u;
+            if count > 1u {
+                cw_push(&sp, vec2<u32>(g.x, ((g.y >> 3u) & 0x1fffffu) | ((count - 1u) << 24u)));
             }
-            // (grid origin, exponents | imask << 24), (child base, record
-            // base, meta 0-3, meta 4-7), then the quantized corners:
-            // (lo x, lo y), (lo z, hi x), (hi y, hi z), slots 0-3 then 4-7.
-            let e0 = nodes[node];
-            let e1 = nodes[node + 1u];
-            let e2 = nodes[node + 2u];
-            let e3 = nodes[node + 3u];
-            let e4 = nodes[node + 4u];
-            let org = bitcast<vec3<f32>>(e0.xyz);
-            let step = vec3<f32>(
-                bitcast<f32>((e0.w & 0xffu) << 23u),
-                bitcast<f32>(((e0.w >> 8u) & 0xffu) << 23u),
-                bitcast<f32>(((e0.w >> 16u) & 0xffu) << 23u),
-            );
-            let hit = cw_hits4(org, step, ray, e2.x, e2.z, e3.x, e3.z, e4.x, e4.z, t_min, closest)
-                | (cw_hits4(org, step, ray, e2.y, e2.w, e3.y, e3.w, e4.y, e4.w, t_min, closest) << 4u);
-            let imask = e0.w >> 24u;
-            // Hit leaves add their records: count in a meta byte's bits
-            // 5-7, offset in bits 0-4.
-            var leaves = hit & ~imask;
-            var mask = 0u;
+            g = cw_child(g.x & ~CW_LIST, g.y & 7u);
+        }
+        if (g.x & CW_VISIT) != 0u {
+            g = cw_visit(g.x & ~CW_VISIT, ray, t_min, closest);
+        } else {
             loop {
-                if leaves == 0u {
+                if g.y == 0u {
                     break;
                 }
-                let s = firstTrailingBit(leaves);
-                leaves &= leaves - 1u;
-                let m = (select(e1.w, e1.z, s < 4u) >> ((s & 3u) * 8u)) & 0xffu;
-                mask |= ((1u << (m >> 5u)) - 1u) << (m & 31u);
-            }
-            g = vec2<u32>(e1.x, CW_NODE_GROUP | (cw_permute(hit & imask, oct) << 8u) | imask);
-            records = vec2<u32>(e1.y, mask);
-        } else {
-            records = g;
-            g = vec2<u32>(0u);
-        }
-        loop {
-            if records.y == 0u {
-                break;
-            }
-            let k = firstTrailingBit(records.y);
-            records.y &= records.y - 1u;
-            if inst == NO_HIT {
-                // An instance part: keep what is left at the top level
-                // (the parts after the node group, so they come first),
-                // then walk the part in model space.
-                let part = nodes[records.x + k];
-                if cw_has_work(g) {
-                    cw_push(&sp, g);
+                let k = firstTrailingBit(g.y);
+                g.y &= g.y - 1u;
+                if inst == NO_HIT {
+                    // An instance part: keep the parts left, then walk this
+                    // one in model space.
+                    let part = nodes[g.x + k];
+                    if g.y != 0u {
+                        cw_push(&sp, g);
+                    }
+                    inst = part.x;
+                    inst_sp = sp;
+                    let instance = instances[inst];
+                    ray = make_ray(to_model_point(instance, world.origin), to_model_vector(instance, world.dir));
+                    g = part.yz;
+                    break;
                 }
-                if records.y != 0u {
-                    cw_push(&sp, records);
-                }
-                inst = part.x;
-                inst_sp = sp;
-                let instance = instances[inst];
-                ray = make_ray(to_model_point(instance, world.origin), to_model_vector(instance, world.dir));
-                oct = cw_octant(ray.dir);
-                g = cw_in_positions(part.yz, oct);
-                break;
-            }
-            let h = test_record(ray, records.x, k, t_min, closest);
-            if h.triangle != NO_HIT {
-                best = h;
-                best.instance = inst;
-                closest = h.t;
-                if any {
-                    return best;
+                let h = test_record(ray, g.x, k, t_min, closest);
+                if h.triangle != NO_HIT {
+                    best = h;
+                    best.instance = inst;
+                    closest = h.t;
+                    if any {
+                        return best;
+                    }
                 }
             }
         }
@@ -180,7 +208,6 @@ fn traverse_cwbvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
                 inst = NO_HIT;
                 inst_sp = 0u;
                 ray = world;
-                oct = world_oct;
             }
             g = cw_stack[sp * TRACE_LANES + trace_lane];
         }

@@ -2,11 +2,14 @@
 //! "Efficient incoherent ray traversal on GPUs through compressed wide
 //! BVHs"), laid out for a GPU's compute units: 80-byte nodes read as five
 //! `vec4<u32>`, children's boxes in 8 bits per coordinate on a grid over
-//! the node, children placed in slots by direction so that a ray visits
-//! them nearest-first approximately by its octant alone (no sort), and a
-//! walk whose stack holds *groups* (what is left of one node's children)
-//! instead of single children, so a tree of height h needs at most h
-//! entries: short enough for workgroup memory on the GPU.
+//! the node, and a walk whose stack holds *groups* (what is left of one
+//! node's children, in order) instead of single children, so a tree of
+//! height h needs at most h entries: short enough for workgroup memory on
+//! the GPU. A visited node's hit children are sorted by entry distance (a
+//! 19-exchange network over 8 keys in registers) and kept as a list of
+//! 3-bit slots: the paper orders them by the ray's octant instead, which
+//! on Sylva's forest visits 35 % more nodes and 70 % more triangles
+//! (docs/tracing.md).
 //!
 //! It is derived from the four-wide [`Bvh`] (the structure workers build,
 //! cache and share): each node opens its largest inner children into
@@ -27,18 +30,19 @@ use sylva_scene::Scene;
 /// Children per node.
 pub const WIDTH: usize = 8;
 /// Most records (triangles, or instance parts at the top level) one node's
-/// leaves hold together: a record group's mask has 31 bits (bit 31 tells
-/// node groups apart).
-pub const MAX_NODE_RECORDS: u32 = 31;
+/// leaves hold together: a record group's mask has 32 bits.
+pub const MAX_NODE_RECORDS: u32 = 32;
 /// Most records in one leaf (a meta byte's 3-bit count).
 pub const MAX_LEAF: u32 = 7;
-/// Bit 31 of a group's `bits`: a node group.
-pub const NODE_GROUP: u32 = 1 << 31;
+/// Bit 31 of a group's `base`: a list of a node's children still to visit.
+pub const LIST: u32 = 1 << 31;
+/// Bit 30 of a group's `base`: a node to visit.
+pub const VISIT: u32 = 1 << 30;
 /// Entries (16 bytes) of one node in the GPU's node buffer.
 pub const NODE_ENTRIES: u32 = (size_of::<CwbvhNode>() / 16) as u32;
 /// Tallest tree the walk's stack can hold (both levels together, with the
-/// two entries an instance's entry pushes); the GPU's workgroup stack has
-/// this many entries per lane.
+/// entry an instance's entry pushes); the GPU's workgroup stack has this
+/// many entries per lane.
 pub const MAX_STACK: usize = 32;
 
 /// One node (80 bytes): a grid over the node, eight children's boxes in
@@ -68,71 +72,39 @@ pub struct CwbvhNode {
     pub hi: [u32; 6],
 }
 
-/// What a walk visits next: a node group, some inner children of one node
-/// (`base` its `child_base`; `bits` = [`NODE_GROUP`] | the children still
-/// to visit << 8 | the node's inner-slot mask), or a record group (`base`
-/// a node's `record_base`, `bits` a mask of its records still to test).
-/// In a walk, a node group's children are bits by visiting position
-/// (slot XOR the ray's octant); stored outside one (a part, a root), by
-/// slot.
+/// What a walk does next, one stack entry (8 bytes): visit a node (`base`
+/// = [`VISIT`] | the node), go on through a visited node's hit children
+/// (`base` = [`LIST`] | the node; `bits`: their slots nearest first, 3 bits
+/// each from bit 0, and how many in bits 24–27), or test records (`base`
+/// the first, `bits` a mask from it).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 pub struct Group {
-    /// A node's `child_base` or `record_base`.
+    /// A node with [`VISIT`] or [`LIST`], or a record.
     pub base: u32,
     /// See the type's description.
     pub bits: u32,
 }
 
 impl Group {
-    /// Nothing to visit.
+    /// Nothing to do.
     pub const EMPTY: Group = Group { base: 0, bits: 0 };
-    /// A tree's root: node 0 as the one inner child in slot 0.
-    pub const ROOT: Group = Group { base: 0, bits: NODE_GROUP | 1 << 8 | 1 };
+    /// A tree's root.
+    pub const ROOT: Group = Group { base: VISIT, bits: 0 };
 
-    /// Whether it is a node group.
-    #[inline(always)]
-    pub fn is_nodes(self) -> bool {
-        self.bits & NODE_GROUP != 0
-    }
-
-    /// Whether anything is left to visit.
+    /// Whether anything is left to do.
     #[inline(always)]
     pub fn has_work(self) -> bool {
-        if self.is_nodes() { self.bits & 0xff00 != 0 } else { self.bits != 0 }
-    }
-
-    /// A group stored by slot, in a walk's positions for a ray of octant
-    /// `oct` (record groups are the same in both).
-    #[inline(always)]
-    pub fn in_positions(self, oct: u32) -> Group {
-        if !self.is_nodes() {
-            return self;
-        }
-        let hits = permute((self.bits >> 8) & 0xff, oct);
-        Group { base: self.base, bits: (self.bits & !0xff00) | hits << 8 }
+        self.base & (LIST | VISIT) != 0 || self.bits != 0
     }
 }
 
-/// Moves bit `s` of an 8-bit mask to bit `s ^ oct`: three swaps.
+/// A child's sort key: its entry distance's bits (a non-negative float's
+/// order is its bits' order; the sign of −0 cleared) with its slot in the
+/// three lowest, so keys are distinct and a sort is the same everywhere.
 #[inline(always)]
-pub fn permute(mut m: u32, oct: u32) -> u32 {
-    if oct & 1 != 0 {
-        m = ((m & 0x55) << 1) | ((m >> 1) & 0x55);
-    }
-    if oct & 2 != 0 {
-        m = ((m & 0x33) << 2) | ((m >> 2) & 0x33);
-    }
-    if oct & 4 != 0 {
-        m = ((m & 0x0f) << 4) | ((m >> 4) & 0x0f);
-    }
-    m
-}
-
-/// A ray's octant: bit `a` set where its direction is negative on axis `a`.
-#[inline(always)]
-pub fn octant(dir: Vec3) -> u32 {
-    (dir.x < 0.0) as u32 | ((dir.y < 0.0) as u32) << 1 | ((dir.z < 0.0) as u32) << 2
+pub fn sort_key(near: f32, slot: u32) -> u32 {
+    (near.to_bits() & 0x7fff_fff8) | slot
 }
 
 impl CwbvhNode {
@@ -164,11 +136,13 @@ impl CwbvhNode {
         Aabb { min: corner(&self.lo), max: corner(&self.hi) }
     }
 
-    /// A bit per slot whose box the ray crosses within `(t_min, t_max)`:
-    /// two four-lane tests, the arithmetic of the GPU's.
+    /// Per slot, the sort key of a used child whose box the ray crosses
+    /// within `(t_min, t_max)`, `u32::MAX` otherwise: two four-lane tests,
+    /// the arithmetic of the GPU's.
     #[inline(always)]
-    pub fn hit_mask(&self, ray: &Ray, t_min: f32, t_max: f32) -> u32 {
-        let mut mask = 0;
+    pub fn keys(&self, ray: &Ray, t_min: f32, t_max: f32) -> [u32; WIDTH] {
+        let mut keys = [u32::MAX; WIDTH];
+        let used = self.imask() | self.leaf_mask();
         for half in 0..2 {
             let slab = |a: usize| {
                 let (o, s) = (Vec4::splat(self.origin[a]), Vec4::splat(self.step(a)));
@@ -182,29 +156,56 @@ impl CwbvhNode {
             let (z0, z1) = slab(2);
             let near = x0.max(y0).max(z0.max(Vec4::splat(t_min)));
             let far = x1.min(y1).min(z1.min(Vec4::splat(t_max)));
-            mask |= near.cmple(far).bitmask() << (4 * half);
+            let hit = near.cmple(far).bitmask();
+            let near = near.to_array();
+            for i in 0..4 {
+                let s = 4 * half + i;
+                if hit >> i & 1 != 0 && used >> s & 1 != 0 {
+                    keys[s] = sort_key(near[i], s as u32);
+                }
+            }
         }
-        mask
+        keys
     }
 
-    /// The groups a visit makes of the hit slots `hit`: the inner ones (by
-    /// position for octant `oct`) and the leaves' records.
+    /// A bit per slot holding a leaf.
     #[inline(always)]
-    pub fn groups(&self, hit: u32, oct: u32) -> (Group, Group) {
-        let imask = self.imask();
-        let inner = permute(hit & imask, oct);
-        let mut records = 0;
-        let mut leaves = hit & !imask;
-        while leaves != 0 {
-            let s = leaves.trailing_zeros() as usize;
-            leaves &= leaves - 1;
-            let m = self.meta(s);
-            records |= ((1u32 << (m >> 5)) - 1) << (m & 31);
+    pub fn leaf_mask(&self) -> u32 {
+        (0..WIDTH).fold(0, |m, s| m | ((self.meta(s) != 0) as u32) << s)
+    }
+
+    /// The list of this node's (`index`) hit children, nearest first, as
+    /// a group; empty when none is hit.
+    #[inline(always)]
+    pub fn visit(&self, index: u32, ray: &Ray, t_min: f32, t_max: f32) -> Group {
+        let mut keys = self.keys(ray, t_min, t_max);
+        keys.sort_unstable();
+        let mut list = 0;
+        let mut count = 0;
+        for k in keys.into_iter().take_while(|&k| k != u32::MAX) {
+            list |= (k & 7) << (3 * count);
+            count += 1;
         }
-        (
-            Group { base: self.child_base, bits: NODE_GROUP | inner << 8 | imask },
-            Group { base: self.record_base, bits: records },
-        )
+        if count == 0 {
+            Group::EMPTY
+        } else {
+            Group { base: LIST | index, bits: list | count << 24 }
+        }
+    }
+
+    /// What slot `s` holds, as a group: a node to visit, or a leaf's records.
+    #[inline(always)]
+    pub fn child(&self, s: u32) -> Group {
+        let imask = self.imask();
+        if imask >> s & 1 != 0 {
+            Group {
+                base: VISIT | (self.child_base + (imask & ((1 << s) - 1)).count_ones()),
+                bits: 0,
+            }
+        } else {
+            let m = self.meta(s as usize);
+            Group { base: self.record_base, bits: (((1u64 << (m >> 5)) - 1) << (m & 31)) as u32 }
+        }
     }
 }
 
@@ -340,7 +341,8 @@ impl Cwbvh {
                 k => k,
             }));
         }
-        let slots = assign_slots(bounds, &placed);
+        let slots: [Option<usize>; WIDTH] =
+            std::array::from_fn(|s| (s < placed.len()).then_some(s));
         let (origin, exponents) = bvh::grid(bounds);
         let mut node = CwbvhNode { origin, grid: exponents, ..CwbvhNode::zeroed() };
         node.record_base = self.order.len() as u32;
@@ -387,45 +389,24 @@ impl Cwbvh {
 
     /// Up to `max` groups that together hold every record, each with its
     /// box: the root's children, then the largest inner one opened into
-    /// its children while the count allows. Groups are by slot (as
-    /// stored), one child each.
+    /// its children while the count allows. Each is one child: a node to
+    /// visit or a leaf's records.
     pub fn parts(&self, max: usize) -> Vec<(Group, Aabb)> {
         let Some(root) = self.nodes.first() else { return Vec::new() };
         let entries = |n: &CwbvhNode| {
-            let imask = n.imask();
-            (0..WIDTH)
-                .filter_map(|s| {
-                    let b = n.child_box(s);
-                    if imask >> s & 1 != 0 {
-                        let g =
-                            Group { base: n.child_base, bits: NODE_GROUP | 1 << (8 + s) | imask };
-                        Some((g, b))
-                    } else {
-                        let m = n.meta(s);
-                        (m != 0).then(|| {
-                            (
-                                Group {
-                                    base: n.record_base,
-                                    bits: ((1 << (m >> 5)) - 1) << (m & 31),
-                                },
-                                b,
-                            )
-                        })
-                    }
-                })
+            let used = n.imask() | n.leaf_mask();
+            (0..WIDTH as u32)
+                .filter(|&s| used >> s & 1 != 0)
+                .map(|s| (n.child(s), n.child_box(s as usize)))
                 .collect::<Vec<_>>()
-        };
-        let node_of = |g: Group| {
-            let s = ((g.bits >> 8) & 0xff).trailing_zeros();
-            g.base + (g.bits & 0xff & ((1 << s) - 1)).count_ones()
         };
         let mut parts = entries(root);
         loop {
             let open = (0..parts.len())
-                .filter(|&i| parts[i].0.is_nodes())
+                .filter(|&i| parts[i].0.base & VISIT != 0)
                 .max_by(|&i, &j| parts[i].1.area().total_cmp(&parts[j].1.area()));
             let Some(i) = open else { break };
-            let kids = entries(&self.nodes[node_of(parts[i].0) as usize]);
+            let kids = entries(&self.nodes[(parts[i].0.base & !VISIT) as usize]);
             if parts.len() - 1 + kids.len() > max {
                 break;
             }
@@ -436,10 +417,9 @@ impl Cwbvh {
     }
 
     /// Visits the records a ray reaches before its closest hit, from
-    /// `start` (stored by slot; [`Group::ROOT`] for the whole tree), in
-    /// the GPU's order: `record(index, closest so far)` returns a closer
-    /// hit distance when it finds one, `-∞` to end the walk. Returns the
-    /// closest distance.
+    /// `start` ([`Group::ROOT`] for the whole tree), in the GPU's order:
+    /// `record(index, closest so far)` returns a closer hit distance when
+    /// it finds one, `-∞` to end the walk. Returns the closest distance.
     pub fn walk(
         &self,
         start: Group,
@@ -452,34 +432,33 @@ impl Cwbvh {
         if self.nodes.is_empty() {
             return closest;
         }
-        let oct = octant(ray.dir);
         let mut stack = [Group::EMPTY; MAX_STACK];
         let mut sp = 0;
-        let mut g = start.in_positions(oct);
+        let mut g = start;
         loop {
-            let mut records = Group::EMPTY;
-            if g.is_nodes() && g.has_work() {
-                let p = ((g.bits >> 8) & 0xff).trailing_zeros();
-                let slot = p ^ oct;
-                let node = g.base + (g.bits & 0xff & ((1 << slot) - 1)).count_ones();
-                g.bits &= !(1 << (8 + p));
-                if g.has_work() {
-                    stack[sp] = g;
+            if g.base & LIST != 0 {
+                // The list's next child; the rest wait.
+                let count = g.bits >> 24;
+                if count > 1 {
+                    stack[sp] =
+                        Group { base: g.base, bits: (g.bits >> 3 & 0x1f_ffff) | (count - 1) << 24 };
                     sp += 1;
                 }
-                let n = &self.nodes[node as usize];
-                (g, records) = n.groups(n.hit_mask(ray, t_min, closest), oct);
-            } else {
-                std::mem::swap(&mut g, &mut records);
+                g = self.nodes[(g.base & !LIST) as usize].child(g.bits & 7);
             }
-            while records.bits != 0 {
-                let k = records.bits.trailing_zeros();
-                records.bits &= records.bits - 1;
-                if let Some(t) = record(records.base + k, closest) {
-                    if t == f32::NEG_INFINITY {
-                        return t;
+            if g.base & VISIT != 0 {
+                let i = g.base & !VISIT;
+                g = self.nodes[i as usize].visit(i, ray, t_min, closest);
+            } else {
+                while g.bits != 0 {
+                    let k = g.bits.trailing_zeros();
+                    g.bits &= g.bits - 1;
+                    if let Some(t) = record(g.base + k, closest) {
+                        if t == f32::NEG_INFINITY {
+                            return t;
+                        }
+                        closest = t;
                     }
-                    closest = t;
                 }
             }
             if !g.has_work() {
@@ -491,37 +470,6 @@ impl Cwbvh {
             }
         }
     }
-}
-
-/// Which kid goes in each slot: slot `s` takes the kid that comes first
-/// along the diagonal of octant `s` (bit `a` set: negative on axis `a`),
-/// pairs taken greedily by cost, so a ray of octant `o` meets them nearly
-/// nearest first visiting slots `o`, `o ^ 1`, … `o ^ 7`.
-fn assign_slots(bounds: Aabb, kids: &[Kid]) -> [Option<usize>; WIDTH] {
-    let centre = (bounds.min + bounds.max) * 0.5;
-    let mut pairs = Vec::with_capacity(kids.len() * WIDTH);
-    for (k, kid) in kids.iter().enumerate() {
-        let b = kid.bounds();
-        let c = (b.min + b.max) * 0.5 - centre;
-        for s in 0..WIDTH {
-            let d = Vec3::new(
-                if s & 1 != 0 { -1.0 } else { 1.0 },
-                if s & 2 != 0 { -1.0 } else { 1.0 },
-                if s & 4 != 0 { -1.0 } else { 1.0 },
-            );
-            pairs.push((c.dot(d), k, s));
-        }
-    }
-    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-    let mut slots = [None; WIDTH];
-    let mut taken = vec![false; kids.len()];
-    for (_, k, s) in pairs {
-        if !taken[k] && slots[s].is_none() {
-            taken[k] = true;
-            slots[s] = Some(k);
-        }
-    }
-    slots
 }
 
 /// A piece of an instance at the top level: where in its model's tree a
@@ -781,17 +729,12 @@ mod tests {
             // Counted by structure: every child of every node under it.
             let mut stack = vec![*g];
             while let Some(g) = stack.pop() {
-                if g.is_nodes() {
-                    let mut hits = (g.bits >> 8) & 0xff;
-                    while hits != 0 {
-                        let s = hits.trailing_zeros();
-                        hits &= hits - 1;
-                        let node = g.base + (g.bits & 0xff & ((1 << s) - 1)).count_ones();
-                        let n = &w.nodes[node as usize];
-                        let (inner, recs) = n.groups(0xff, 0);
-                        stack.push(inner);
-                        stack.push(recs);
-                    }
+                if g.base & VISIT != 0 {
+                    let n = &w.nodes[(g.base & !VISIT) as usize];
+                    let used = n.imask() | n.leaf_mask();
+                    stack.extend(
+                        (0..WIDTH as u32).filter(|&s| used >> s & 1 != 0).map(|s| n.child(s)),
+                    );
                 } else {
                     let mut m = g.bits;
                     while m != 0 {

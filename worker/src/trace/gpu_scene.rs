@@ -314,13 +314,15 @@ impl Flat {
         let empty = CwbvhNode::zeroed();
         let nodes = if tree.nodes.is_empty() { std::slice::from_ref(&empty) } else { &tree.nodes };
         let records_at = base as u64 + nodes.len() as u64 * cwbvh::NODE_ENTRIES as u64;
+        // Groups flag nodes in bits 30 and 31 of an entry's index.
         anyhow::ensure!(
-            records_at + records.len() as u64 <= u32::MAX as u64,
+            records_at + (records.len() as u64) < cwbvh::VISIT as u64,
             "the scene's compressed wide BVH is too large to address"
         );
         let records_at = records_at as u32;
         for n in nodes {
             let n = CwbvhNode {
+                // Inner children as entries (the walk adds NODE_ENTRIES a slot).
                 child_base: base + n.child_base * cwbvh::NODE_ENTRIES,
                 record_base: records_at + n.record_base * stride,
                 ..*n
@@ -491,8 +493,8 @@ impl GpuScene {
         for k in 0..parts.len() {
             let e = &mut f.nodes[parts_at as usize + k];
             let (root, records_at) = model_places[scene.instances[e[0] as usize].model as usize];
-            e[1] = if e[2] & cwbvh::NODE_GROUP != 0 {
-                root + e[1] * cwbvh::NODE_ENTRIES
+            e[1] = if e[1] & cwbvh::VISIT != 0 {
+                cwbvh::VISIT | (root + (e[1] & !cwbvh::VISIT) * cwbvh::NODE_ENTRIES)
             } else {
                 records_at + e[1] * RECORD_ENTRIES
             };

@@ -35,9 +35,10 @@ pub fn shared_constants() -> String {
         // A triangle record's coverage: only mixed triangles take the alpha test.
         format!("const COVERAGE_MIXED: u32 = {}u;", Coverage::Mixed as u32),
         format!("const SHORT_STACK: u32 = {}u;", kdtree::SHORT_STACK),
-        // The compressed wide BVH: a group's node-group flag, a node's
-        // entries, and its stack (entries per lane, lanes).
-        format!("const CW_NODE_GROUP: u32 = {}u;", cwbvh::NODE_GROUP),
+        // The compressed wide BVH: a group's flags, a node's entries, and
+        // its stack (entries per lane, lanes).
+        format!("const CW_LIST: u32 = {}u;", cwbvh::LIST),
+        format!("const CW_VISIT: u32 = {}u;", cwbvh::VISIT),
         format!("const CW_NODE_ENTRIES: u32 = {}u;", cwbvh::NODE_ENTRIES),
         format!("const TRACE_LANES: u32 = {TRACE_LANES}u;"),
         format!("const CW_STACK_ENTRIES: u32 = {}u;", cwbvh::MAX_STACK as u32 * TRACE_LANES),
