@@ -34,7 +34,7 @@ fn a_lit_quad_matches_the_shading_formula() {
     }"#;
     let scene = Scene::build(parse(text, "quad.json").unwrap(), &dir, "quad.json").unwrap();
     let ctx = ctx();
-    let mut kinds = vec![Backend::Bvh, Backend::Kd];
+    let mut kinds = vec![Backend::Bvh, Backend::Cwbvh, Backend::Kd];
     if ray_queries(&ctx) {
         kinds.push(Backend::Rq);
     }
@@ -157,6 +157,39 @@ fn ray_queries_render_the_frame_the_bvh_renders() {
     assert!(differ * 50 <= rq.pixels.len(), "{differ} of {} pixels differ", rq.pixels.len());
     let lit = bvh.coverage.iter().filter(|&&c| c > 0.0).count();
     assert!(lit > rq.pixels.len() / 20, "the trees cover {lit} pixels");
+}
+
+/// The reference path tracer's every ray (camera, shadow, bounces through
+/// alpha-cut leaves) through the compressed wide BVH: the BVH's frame to
+/// the bit, as both find the same hits with the same arithmetic.
+#[test]
+fn the_compressed_wide_bvh_renders_the_frame_the_bvh_renders() {
+    let ctx = ctx();
+    let scene = small_forest();
+    let f = RenderSettings {
+        width: 48,
+        height: 32,
+        spp: 2,
+        seed: 3,
+        lighting: LightingMode::Reference,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+        view: Default::default(),
+        gather_bounces: 1,
+        gather_filter: 0,
+        passes: Default::default(),
+    };
+    let frame = |kind: Backend| {
+        let p = prepare(&ctx, &scene, kind, LightingMode::Reference, &|_| {}).unwrap();
+        assert_eq!(p.backend.backend, kind);
+        p.renderer.render_strip(&ctx, &f, 0, f.width).unwrap()
+    };
+    let (wide, bvh) = (frame(Backend::Cwbvh), frame(Backend::Bvh));
+    assert_eq!(wide.rays.primary, bvh.rays.primary);
+    let lit = bvh.coverage.iter().filter(|&&c| c > 0.0).count();
+    assert!(lit > bvh.pixels.len() / 20, "the trees cover {lit} pixels");
+    assert_eq!(wide.coverage, bvh.coverage);
+    assert!(wide.pixels == bvh.pixels, "the frames differ");
 }
 
 #[test]
