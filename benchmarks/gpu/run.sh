@@ -56,9 +56,12 @@ fi
 grep -o '"device": *"[^"]*"' "$DEST/probe.json" | head -1
 # The full Table-2 forest: traversal per ray kind and backend (GPU
 # timestamps), frames, and the first frame cold and warm.
-step trace-forest 260 bench trace --scale "$SCALE" --no-cpu --accel bvh,kd \
-  --frames-accel bvh --kernel-rays "$KERNEL_RAYS"
-step lb-128 60 bench lb --grid 128 --backends gpu --repeat 3
+# bvh: the four-wide BVH (private stacks); cwbvh: the eight-wide
+# compressed one (stack in workgroup memory), issue 38's; kd: the paper's.
+# The first frame's `auto` measures bvh against cwbvh and says why.
+step trace-forest 280 bench trace --scale "$SCALE" --no-cpu --accel bvh,cwbvh,kd \
+  --frames-accel bvh,cwbvh --kernel-rays "$KERNEL_RAYS"
+step lb-128 50 bench lb --grid 128 --backends gpu --repeat 3
 # The figures the issues' tables quote, in one file.
 python3 - "$DEST" <<'PY' || echo "summary: python3 missing or a step failed"
 import json, pathlib, sys
@@ -74,6 +77,8 @@ if t:
     out["wall_mrays_per_second"] = {r["accel"]: r["gpu"]["mrays_per_second"] for r in t["traversal"]}
     out["frames_ms"] = [{k: f.get(k) for k in ("accel", "spp", "frame_ms")} for f in t.get("frames", [])]
     out["first_frame"] = t.get("first_frame")
+    ff = t.get("first_frame") or {}
+    out["auto_chose"] = ((ff.get("cold") or {}).get("backend") or {}).get("why")
 if lb:
     out["lb_128"] = [{k: r.get(k) for k in ("device", "mlups", "step_mlups")} for r in lb.get("results", [])]
 (d / "summary.json").write_text(json.dumps(out, indent=1))
