@@ -108,8 +108,6 @@ fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
             w.count = part.z;
         }
         if (w.cur & BVH_LEAF) == 0u {
-            let o = w.ray.origin;
-            let inv = w.ray.inv_dir;
             let cur = w.cur;
             // (grid origin, exponents), children, (lo x y z, hi x), (hi y z, counts).
             let e0 = nodes[cur];
@@ -117,20 +115,11 @@ fn traverse_bvh(world: Ray, t_min: f32, t_max: f32, any: bool) -> Hit {
             let q0 = nodes[cur + 2u];
             let q1 = nodes[cur + 3u];
             let org = bitcast<vec3<f32>>(e0.xyz);
-            let step = vec3<f32>(
-                bitcast<f32>((e0.w & 0xffu) << 23u),
-                bitcast<f32>(((e0.w >> 8u) & 0xffu) << 23u),
-                bitcast<f32>(((e0.w >> 16u) & 0xffu) << 23u),
-            );
-            let x0 = (org.x + cells(q0.x) * step.x - o.x) * inv.x;
-            let y0 = (org.y + cells(q0.y) * step.y - o.y) * inv.y;
-            let z0 = (org.z + cells(q0.z) * step.z - o.z) * inv.z;
-            let x1 = (org.x + cells(q0.w) * step.x - o.x) * inv.x;
-            let y1 = (org.y + cells(q1.x) * step.y - o.y) * inv.y;
-            let z1 = (org.z + cells(q1.y) * step.z - o.z) * inv.z;
+            let step = grid_step(e0.w);
+            let box = slabs4(org, step, w.ray, q0.x, q0.y, q0.z, q0.w, q1.x, q1.y, t_min, closest);
+            let near = box.near;
+            let far = box.far;
             let counts = vec4<u32>(q1.z & 0xffffu, q1.z >> 16u, q1.w & 0xffffu, q1.w >> 16u);
-            let near = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), vec4<f32>(t_min)));
-            let far = min(min(max(x0, x1), max(y0, y1)), min(max(z0, z1), vec4<f32>(closest)));
             let hit = (near <= far) & (child != vec4<u32>(BVH_EMPTY));
             let n_hit = dot(select(vec4<u32>(0u), vec4<u32>(1u), hit), vec4<u32>(1u));
             if n_hit > 0u {

@@ -42,16 +42,9 @@ fn cw_exchange(a: ptr<function, u32>, b: ptr<function, u32>) {
 // distance's bits, sign cleared, with slot `first + i` in the lowest three
 // (cwbvh::sort_key); 0xffffffff for the rest.
 fn cw_keys4(org: vec3<f32>, step: vec3<f32>, ray: Ray, lx: u32, ly: u32, lz: u32, hx: u32, hy: u32, hz: u32, t_min: f32, t_max: f32, used: u32, first: u32) -> vec4<u32> {
-    let o = ray.origin;
-    let inv = ray.inv_dir;
-    let x0 = (org.x + cells(lx) * step.x - o.x) * inv.x;
-    let y0 = (org.y + cells(ly) * step.y - o.y) * inv.y;
-    let z0 = (org.z + cells(lz) * step.z - o.z) * inv.z;
-    let x1 = (org.x + cells(hx) * step.x - o.x) * inv.x;
-    let y1 = (org.y + cells(hy) * step.y - o.y) * inv.y;
-    let z1 = (org.z + cells(hz) * step.z - o.z) * inv.z;
-    let near = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), vec4<f32>(t_min)));
-    let far = min(min(max(x0, x1), max(y0, y1)), min(max(z0, z1), vec4<f32>(t_max)));
+    let box = slabs4(org, step, ray, lx, ly, lz, hx, hy, hz, t_min, t_max);
+    let near = box.near;
+    let far = box.far;
     let lanes = vec4<u32>(0u, 1u, 2u, 3u);
     let in_use = ((vec4<u32>(used) >> lanes) & vec4<u32>(1u)) != vec4<u32>(0u);
     let key = (bitcast<vec4<u32>>(near) & vec4<u32>(0x7ffffff8u)) | (lanes + vec4<u32>(first));
@@ -87,11 +80,7 @@ fn cw_visit(node: u32, ray: Ray, t_min: f32, t_max: f32) -> vec2<u32> {
     let e3 = nodes[node + 3u];
     let e4 = nodes[node + 4u];
     let org = bitcast<vec3<f32>>(e0.xyz);
-    let step = vec3<f32>(
-        bitcast<f32>((e0.w & 0xffu) << 23u),
-        bitcast<f32>(((e0.w >> 8u) & 0xffu) << 23u),
-        bitcast<f32>(((e0.w >> 16u) & 0xffu) << 23u),
-    );
+    let step = grid_step(e0.w);
     // Used slots: inner children, and leaves (a non-zero meta byte).
     let metas = vec4<u32>(e1.z, e1.z >> 8u, e1.z >> 16u, e1.z >> 24u) & vec4<u32>(0xffu);
     let metas_hi = vec4<u32>(e1.w, e1.w >> 8u, e1.w >> 16u, e1.w >> 24u) & vec4<u32>(0xffu);

@@ -273,6 +273,39 @@ fn cells(w: u32) -> vec4<f32> {
     return vec4<f32>(vec4<u32>(w, w >> 8u, w >> 16u, w >> 24u) & vec4<u32>(0xffu));
 }
 
+// A wide node's grid step per axis from its exponent bytes (bytes 0-2 of
+// `w`: biased exponents of powers of two).
+fn grid_step(w: u32) -> vec3<f32> {
+    return vec3<f32>(
+        bitcast<f32>((w & 0xffu) << 23u),
+        bitcast<f32>(((w >> 8u) & 0xffu) << 23u),
+        bitcast<f32>(((w >> 16u) & 0xffu) << 23u),
+    );
+}
+
+// Where the ray enters and leaves four boxes within (t_min, t_max): boxes
+// in cells of a grid (`org`, `step`), lower and upper corners a byte each
+// of the words `l*` and `h*`. A box is crossed where near <= far. The
+// arithmetic of the CPU's (bvh::child_entries, CwbvhNode::keys).
+struct Slabs4 {
+    near: vec4<f32>,
+    far: vec4<f32>,
+}
+
+fn slabs4(org: vec3<f32>, step: vec3<f32>, ray: Ray, lx: u32, ly: u32, lz: u32, hx: u32, hy: u32, hz: u32, t_min: f32, t_max: f32) -> Slabs4 {
+    let o = ray.origin;
+    let inv = ray.inv_dir;
+    let x0 = (org.x + cells(lx) * step.x - o.x) * inv.x;
+    let y0 = (org.y + cells(ly) * step.y - o.y) * inv.y;
+    let z0 = (org.z + cells(lz) * step.z - o.z) * inv.z;
+    let x1 = (org.x + cells(hx) * step.x - o.x) * inv.x;
+    let y1 = (org.y + cells(hy) * step.y - o.y) * inv.y;
+    let z1 = (org.z + cells(hz) * step.z - o.z) * inv.z;
+    let near = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), vec4<f32>(t_min)));
+    let far = min(min(max(x0, x1), max(y0, y1)), min(max(z0, z1), vec4<f32>(t_max)));
+    return Slabs4(near, far);
+}
+
 // This invocation's index in its workgroup (every tracing entry point sets
 // it first): the compressed wide BVH's stack is shared by the workgroup's
 // lanes.

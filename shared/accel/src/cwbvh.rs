@@ -157,11 +157,10 @@ impl CwbvhNode {
             let near = x0.max(y0).max(z0.max(Vec4::splat(t_min)));
             let far = x1.min(y1).min(z1.min(Vec4::splat(t_max)));
             let hit = near.cmple(far).bitmask();
-            let near = near.to_array();
-            for i in 0..4 {
+            for (i, &d) in near.to_array().iter().enumerate() {
                 let s = 4 * half + i;
                 if hit >> i & 1 != 0 && used >> s & 1 != 0 {
-                    keys[s] = sort_key(near[i], s as u32);
+                    keys[s] = sort_key(d, s as u32);
                 }
             }
         }
@@ -341,19 +340,17 @@ impl Cwbvh {
                 k => k,
             }));
         }
-        let slots: [Option<usize>; WIDTH] =
-            std::array::from_fn(|s| (s < placed.len()).then_some(s));
         let (origin, exponents) = bvh::grid(bounds);
         let mut node = CwbvhNode { origin, grid: exponents, ..CwbvhNode::zeroed() };
         node.record_base = self.order.len() as u32;
         let mut inner = Vec::new();
         let mut imask = 0;
         let mut offset = 0;
-        for s in 0..WIDTH {
-            let Some(k) = slots[s].map(|i| &placed[i]) else { continue };
+        // Slots in the kids' order: the walk sorts by distance, not slot.
+        for (s, k) in placed.iter().enumerate() {
             let b = k.bounds();
-            for a in 0..3 {
-                let (lo, hi) = bvh::cells(origin[a], node.step(a), b.min[a], b.max[a]);
+            for (a, &o) in origin.iter().enumerate() {
+                let (lo, hi) = bvh::cells(o, node.step(a), b.min[a], b.max[a]);
                 node.lo[2 * a + s / 4] |= lo << (8 * (s % 4));
                 node.hi[2 * a + s / 4] |= hi << (8 * (s % 4));
             }
@@ -752,20 +749,7 @@ mod tests {
     /// few where two hits tie.
     #[test]
     fn the_scene_walk_agrees_with_the_four_wide_scene() {
-        let text = r#"{
-            "models": { "birch": { "tree": { "species": "paper_birch", "triangles": 6000, "seed": 2 } } },
-            "instances": [ { "model": "birch", "position": [0, 0, 0] },
-                           { "model": "birch", "position": [6, 0, 1], "rotate_y_deg": 70, "scale": 0.6 },
-                           { "model": "birch", "matrix": [0.8,0,0,0, 0,1.3,0,0, 0,0,0.8,0, -5,0,3,1] } ],
-            "camera": { "position": [0, 5, -30], "look_at": [0, 5, 0] },
-            "sun": { "elevation_deg": 40, "azimuth_deg": 30 }
-        }"#;
-        let scene = Scene::build(
-            sylva_scene::parse(text, "t.json").unwrap(),
-            std::path::Path::new("."),
-            "t.json",
-        )
-        .unwrap();
+        let scene = crate::two_level::test_scene();
         let four = SceneAccel::build(&scene, crate::AccelKind::Bvh);
         let wide = CwbvhScene::from_accel(&scene, &four).unwrap();
         assert!(wide.stack_need() <= MAX_STACK, "{}", wide.stack_need());

@@ -364,23 +364,26 @@ pub fn model_bounds(model: &Model) -> Aabb {
     model.bounds().map_or(Aabb { min: Vec3::ZERO, max: Vec3::ZERO }, |(min, max)| Aabb { min, max })
 }
 
+/// Three instances of one small birch, moved, turned and sheared: the
+/// unit tests' scene.
+#[cfg(test)]
+pub(crate) fn test_scene() -> Scene {
+    let text = r#"{
+        "models": { "birch": { "tree": { "species": "paper_birch", "triangles": 6000, "seed": 2 } } },
+        "instances": [ { "model": "birch", "position": [0, 0, 0] },
+                       { "model": "birch", "position": [6, 0, 1], "rotate_y_deg": 70, "scale": 0.6 },
+                       { "model": "birch", "matrix": [0.8,0,0,0, 0,1.3,0,0, 0,0,0.8,0, -5,0,3,1] } ],
+        "camera": { "position": [0, 5, -30], "look_at": [0, 5, 0] },
+        "sun": { "elevation_deg": 40, "azimuth_deg": 30 }
+    }"#;
+    let file = sylva_scene::parse(text, "t.json").unwrap();
+    Scene::build(file, std::path::Path::new("."), "t.json").unwrap()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sylva_scene::parse;
     use sylva_scene::rng::SplitMix64;
-
-    fn scene() -> Scene {
-        let text = r#"{
-            "models": { "birch": { "tree": { "species": "paper_birch", "triangles": 6000, "seed": 2 } } },
-            "instances": [ { "model": "birch", "position": [0, 0, 0] },
-                           { "model": "birch", "position": [6, 0, 1], "rotate_y_deg": 70, "scale": 0.6 },
-                           { "model": "birch", "matrix": [0.8,0,0,0, 0,1.3,0,0, 0,0,0.8,0, -5,0,3,1] } ],
-            "camera": { "position": [0, 5, -30], "look_at": [0, 5, 0] },
-            "sun": { "elevation_deg": 40, "azimuth_deg": 30 }
-        }"#;
-        Scene::build(parse(text, "t.json").unwrap(), std::path::Path::new("."), "t.json").unwrap()
-    }
 
     /// Every instance's every triangle, in world space, with the alpha test.
     fn brute(scene: &Scene, ray: &Ray) -> Option<SceneHit> {
@@ -402,7 +405,7 @@ mod tests {
 
     #[test]
     fn instances_are_hit_where_their_transforms_put_them() {
-        let s = scene();
+        let s = test_scene();
         let mut rng = SplitMix64::new(8);
         for kind in [AccelKind::Bvh, AccelKind::Kd] {
             let accel = SceneAccel::build(&s, kind);

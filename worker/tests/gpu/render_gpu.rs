@@ -128,19 +128,7 @@ fn ray_queries_render_the_frame_the_bvh_renders() {
         return;
     }
     let scene = small_forest();
-    let f = RenderSettings {
-        width: 48,
-        height: 32,
-        spp: 2,
-        seed: 3,
-        lighting: LightingMode::Reference,
-        ambient: [0.0; 3],
-        lb_strength: 0.35,
-        view: Default::default(),
-        gather_bounces: 1,
-        gather_filter: 0,
-        passes: Default::default(),
-    };
+    let f = reference_frame();
     let frame = |kind: Backend| {
         let p = prepare(&ctx, &scene, kind, LightingMode::Reference, &|_| {}).unwrap();
         p.renderer.render_strip(&ctx, &f, 0, f.width).unwrap()
@@ -159,14 +147,10 @@ fn ray_queries_render_the_frame_the_bvh_renders() {
     assert!(lit > rq.pixels.len() / 20, "the trees cover {lit} pixels");
 }
 
-/// The reference path tracer's every ray (camera, shadow, bounces through
-/// alpha-cut leaves) through the compressed wide BVH: the BVH's frame to
-/// the bit, as both find the same hits with the same arithmetic.
-#[test]
-fn the_compressed_wide_bvh_renders_the_frame_the_bvh_renders() {
-    let ctx = ctx();
-    let scene = small_forest();
-    let f = RenderSettings {
+/// A small reference frame: camera, shadow and bounce rays through
+/// alpha-cut leaves.
+fn reference_frame() -> RenderSettings {
+    RenderSettings {
         width: 48,
         height: 32,
         spp: 2,
@@ -178,7 +162,17 @@ fn the_compressed_wide_bvh_renders_the_frame_the_bvh_renders() {
         gather_bounces: 1,
         gather_filter: 0,
         passes: Default::default(),
-    };
+    }
+}
+
+/// The reference path tracer's every ray (camera, shadow, bounces through
+/// alpha-cut leaves) through the compressed wide BVH: the BVH's frame to
+/// the bit, as both find the same hits with the same arithmetic.
+#[test]
+fn the_compressed_wide_bvh_renders_the_frame_the_bvh_renders() {
+    let ctx = ctx();
+    let scene = small_forest();
+    let f = reference_frame();
     let frame = |kind: Backend| {
         let p = prepare(&ctx, &scene, kind, LightingMode::Reference, &|_| {}).unwrap();
         assert_eq!(p.backend.backend, kind);
