@@ -109,17 +109,19 @@ fn render_writes_image_and_stats() {
         .map(|p| p["phase"].as_str().unwrap())
         .collect();
     // The structures are built while the LB solves (their phases overlap;
-    // `prepare` is the wall time of both); `auto` adds ray queries and its
-    // measurement where the adapter has them.
+    // `prepare` is the wall time of both); `auto` uploads the compressed
+    // wide BVH too, and ray queries where the adapter has them, and
+    // measures them.
     let rq = stats["adapter"]["ray_queries"].as_bool().unwrap();
     let mut want = vec!["load", "voxelize", "lb", "forest lb", "build"];
     if rq {
         want.push("coverage");
     }
-    want.push("upload");
+    want.extend(["upload", "upload cwbvh"]);
     if rq {
-        want.extend(["upload rq", "choose backend"]);
+        want.push("upload rq");
     }
+    want.push("choose backend");
     want.extend(["pipeline", "prepare", "trace", "tone map"]);
     assert_eq!(phases, want);
     assert_eq!(stats["lb"].as_array().unwrap().len(), 5);
