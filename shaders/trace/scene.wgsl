@@ -250,9 +250,24 @@ fn to_model_vector(inst: Instance, v: vec3<f32>) -> vec3<f32> {
 // Hits on transparent texels this invocation passed through (for statistics).
 var<private> transparent_passed: u32;
 
+// The micro-triangle barycentrics (u, v) fall in: coverage::micro_index's
+// arithmetic (which micro-triangle a hair's breadth decides, either is
+// right: a map knows only what holds with a texel's margin).
+fn micro_index(u: f32, v: f32) -> u32 {
+    let n = f32(MICRO_EDGE);
+    let fu = u * n;
+    let fv = v * n;
+    let j = min(u32(max(floor(fv), 0.0)), MICRO_EDGE - 1u);
+    let i = min(u32(max(floor(fu), 0.0)), MICRO_EDGE - 1u - j);
+    let upper = (fu - f32(i)) + (fv - f32(j)) > 1.0 && i + j < MICRO_EDGE - 1u;
+    return j * (2u * MICRO_EDGE - j) + 2u * i + select(0u, 1u, upper);
+}
+
 // Triangle record k from entry `first` (three entries each; the wide
-// BVHs' leaves hold them): the alpha test only where the triangle's
-// texels are mixed.
+// BVHs' leaves hold them). Its opacity word (b.w) is OPACITY_OPAQUE or the
+// entry of its micromap (four entries, 2 bits per micro-triangle), which
+// says where it is opaque or a hole; only where the map does not know is
+// the alpha texel fetched.
 fn test_record(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32) -> Hit {
     let r = first + 3u * k;
     let a = nodes[r];
@@ -260,7 +275,13 @@ fn test_record(ray: Ray, first: u32, k: u32, t_min: f32, t_max: f32) -> Hit {
     let c = nodes[r + 2u];
     let h = intersect_edges(ray, bitcast<vec3<f32>>(a.xyz), bitcast<vec3<f32>>(b.xyz), bitcast<vec3<f32>>(c.xyz), t_min, t_max);
     if h.x > t_min {
-        if b.w != COVERAGE_MIXED || !is_transparent_material(c.w, triangle_uv(a.w, h.y, h.z)) {
+        var state = MICRO_OPAQUE;
+        if b.w != OPACITY_OPAQUE {
+            let m = micro_index(h.y, h.z);
+            let word = nodes[b.w + (m >> 6u)][(m >> 4u) & 3u];
+            state = (word >> (2u * (m & 15u))) & 3u;
+        }
+        if state == MICRO_OPAQUE || (state != MICRO_HOLE && !is_transparent_material(c.w, triangle_uv(a.w, h.y, h.z))) {
             return Hit(NO_HIT, a.w, h.x, h.y, h.z);
         }
         transparent_passed += 1u;

@@ -18,9 +18,9 @@
 //! visiting order, so ties resolve alike.
 
 use crate::bvh::{self, Bvh, EMPTY, LEAF};
-use crate::coverage::Coverage;
+use crate::coverage::OpacityMaps;
 use crate::triangle::TriangleRecord;
-use crate::two_level::{PARTS_PER_INSTANCE, SceneHit, uv_at};
+use crate::two_level::{PARTS_PER_INSTANCE, SceneHit};
 use crate::{Aabb, Accel, Error, Ray, SceneAccel};
 use bytemuck::{Pod, Zeroable};
 use glam::{Affine3A, Vec3, Vec4};
@@ -496,6 +496,8 @@ pub struct CwbvhScene {
     pub models: Vec<Cwbvh>,
     /// Per model, its triangle records in its tree's order.
     pub records: Vec<Vec<TriangleRecord>>,
+    /// Per model, the opacity micromaps its records' words index.
+    pub opacity: Vec<OpacityMaps>,
     /// World to model space, per instance.
     pub to_model: Vec<Affine3A>,
 }
@@ -528,7 +530,8 @@ impl CwbvhScene {
         let top = Cwbvh::from_bvh(&top_bvh);
         let parts =
             top.order.iter().map(|&slot| parts[top_bvh.prims[slot as usize] as usize]).collect();
-        Ok(Self { top, parts, models, records, to_model: accel.to_model.clone() })
+        let opacity = accel.opacity.clone();
+        Ok(Self { top, parts, models, records, opacity, to_model: accel.to_model.clone() })
     }
 
     /// Stack entries the walk of both levels can need: each tree's height,
@@ -543,6 +546,7 @@ impl CwbvhScene {
             + size_of_val(self.parts.as_slice())
             + self.models.iter().map(|m| size_of_val(m.nodes.as_slice())).sum::<usize>()
             + self.records.iter().map(|r| size_of_val(r.as_slice())).sum::<usize>()
+            + self.opacity.iter().map(|o| size_of_val(o.maps.as_slice())).sum::<usize>()
     }
 
     /// The closest opaque hit in `(t_min, t_max)`, as the GPU's walk finds it.
@@ -579,9 +583,7 @@ impl CwbvhScene {
             self.models[m].walk(part.start, &local, t_min, limit, |k, lim| {
                 let r = &records[k as usize];
                 let (t, u, v) = r.intersect(&local, t_min, lim)?;
-                if r.coverage == Coverage::Mixed as u32
-                    && model.is_transparent(r.triangle as usize, uv_at(model, r.triangle, u, v))
-                {
+                if self.opacity[m].is_hole(model, r.opacity, r.triangle, u, v) {
                     return None;
                 }
                 found = Some(SceneHit { instance: inst, triangle: r.triangle, t, u, v });

@@ -2,7 +2,6 @@
 //! BVH's leaves hold so the test reads one contiguous 48-byte block.
 
 use super::Ray;
-use super::coverage::Coverage;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
@@ -17,8 +16,9 @@ pub struct TriangleRecord {
     pub triangle: u32,
     /// Second vertex minus the first.
     pub e1: [f32; 3],
-    /// [`Coverage`] as a number.
-    pub coverage: u32,
+    /// Its opacity micromap ([`crate::coverage::opacity_maps`]): which
+    /// parts of it are opaque, holes, or need the alpha texel.
+    pub opacity: u32,
     /// Third vertex minus the first.
     pub e2: [f32; 3],
     /// Material index (in its model; global on the GPU).
@@ -27,12 +27,12 @@ pub struct TriangleRecord {
 
 impl TriangleRecord {
     /// The record of triangle `(a, b, c)`.
-    pub fn new(triangle: u32, [a, b, c]: [Vec3; 3], coverage: Coverage, material: u32) -> Self {
+    pub fn new(triangle: u32, [a, b, c]: [Vec3; 3], opacity: u32, material: u32) -> Self {
         Self {
             a: a.to_array(),
             triangle,
             e1: (b - a).to_array(),
-            coverage: coverage as u32,
+            opacity,
             e2: (c - a).to_array(),
             material,
         }

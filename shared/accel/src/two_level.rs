@@ -2,7 +2,7 @@
 //! over its triangles. A ray entering an instance is carried into model
 //! space unnormalized, so `t` means the same on both levels.
 
-use super::coverage::{Coverage, triangle_coverage};
+use super::coverage::{Coverage, OpacityMaps, triangle_coverage};
 use super::triangle::{TriangleRecord, intersect};
 use super::{Aabb, Accel, AccelKind, Error, Ray};
 use glam::{Affine3A, Vec2, Vec3};
@@ -38,6 +38,9 @@ pub struct SceneAccel {
     pub to_model: Vec<Affine3A>,
     /// Per model, with a BVH: its triangles in the BVH's slot order.
     pub records: Vec<Vec<TriangleRecord>>,
+    /// Per model, with a BVH: the opacity micromaps its records' opacity
+    /// words index.
+    pub opacity: Vec<OpacityMaps>,
     /// With a BVH, what the top level is built over: pieces of instances.
     pub parts: Vec<InstancePart>,
 }
@@ -133,18 +136,22 @@ impl SceneAccel {
         models: Vec<Accel>,
         coverage: Vec<Vec<Coverage>>,
     ) -> Self {
-        let records = scene
+        let (records, opacity) = scene
             .models
             .par_iter()
             .zip(&models)
             .zip(&coverage)
             .map(|((m, accel), coverage)| match accel {
                 Accel::Bvh(b) => {
-                    b.prims.iter().map(|&t| record(&m.model, t, coverage[t as usize])).collect()
+                    let maps = OpacityMaps::new(&m.model, coverage);
+                    let words = &maps.of_triangle;
+                    let r =
+                        b.prims.iter().map(|&t| record(&m.model, t, words[t as usize])).collect();
+                    (r, maps)
                 }
-                Accel::Kd(_) => Vec::new(),
+                Accel::Kd(_) => (Vec::new(), OpacityMaps::default()),
             })
-            .collect();
+            .unzip();
         let to_model = scene.instances.iter().map(|i| i.to_world.inverse()).collect();
         let mut parts = Vec::new();
         let top = match kind {
@@ -176,7 +183,7 @@ impl SceneAccel {
                 Accel::build(kind, &world)
             }
         };
-        Self { kind, top, models, to_model, records, parts }
+        Self { kind, top, models, to_model, records, opacity, parts }
     }
 
     /// Bytes of all nodes, primitive lists and triangle records.
@@ -184,6 +191,7 @@ impl SceneAccel {
         self.top.bytes()
             + self.models.iter().map(Accel::bytes).sum::<usize>()
             + self.records.iter().map(|r| size_of_val(r.as_slice())).sum::<usize>()
+            + self.opacity.iter().map(|o| size_of_val(o.maps.as_slice())).sum::<usize>()
             + size_of_val(self.parts.as_slice())
     }
 
@@ -301,17 +309,13 @@ impl SceneAccel {
         let mut found = None;
         match &self.models[m] {
             Accel::Bvh(bvh) => {
-                let records = &self.records[m];
+                let (records, opacity) = (&self.records[m], &self.opacity[m]);
                 let ahead = |first: u32| super::bvh::prefetch(&records[first as usize]);
                 bvh.walk_from(start, ray, t_min, t_max, ahead, |first, count, limit| {
                     let mut closest = limit;
                     for r in &records[first as usize..(first + count) as usize] {
                         let Some((t, u, v)) = r.intersect(ray, t_min, closest) else { continue };
-                        if alpha
-                            && r.coverage == Coverage::Mixed as u32
-                            && model
-                                .is_transparent(r.triangle as usize, uv_at(model, r.triangle, u, v))
-                        {
+                        if alpha && opacity.is_hole(model, r.opacity, r.triangle, u, v) {
                             continue;
                         }
                         closest = t;
@@ -339,9 +343,9 @@ impl SceneAccel {
     }
 }
 
-/// Triangle `t`'s record.
-fn record(model: &Model, t: u32, coverage: Coverage) -> TriangleRecord {
-    TriangleRecord::new(t, model.triangle(t as usize), coverage, model.material[t as usize])
+/// Triangle `t`'s record, with its opacity word.
+fn record(model: &Model, t: u32, opacity: u32) -> TriangleRecord {
+    TriangleRecord::new(t, model.triangle(t as usize), opacity, model.material[t as usize])
 }
 
 /// Texture coordinates at barycentrics (u, v) of triangle `tri`.

@@ -7,7 +7,7 @@ use crate::lighting::clouds::CloudGrid;
 use crate::lighting::lb::forest::GroundLight;
 use bytemuck::{Pod, Zeroable};
 use sylva_accel::bvh::{self, BvhNode};
-use sylva_accel::coverage::Coverage;
+use sylva_accel::coverage::{self, Coverage, Micromap, OpacityMaps};
 use sylva_accel::cwbvh::{self, Cwbvh, CwbvhNode, CwbvhScene};
 use sylva_accel::triangle::TriangleRecord;
 use sylva_accel::{Accel, KdNode, SceneAccel};
@@ -60,6 +60,8 @@ pub const GPU_BVH_STACK: usize = 96;
 pub const NO_TEXTURE: u32 = u32::MAX;
 /// Entries (16 bytes) of one wide BVH node.
 const NODE_ENTRIES: u32 = (size_of::<BvhNode>() / 16) as u32;
+/// Entries of one opacity micromap.
+const MICROMAP_ENTRIES: u32 = (size_of::<Micromap>() / 16) as u32;
 /// Entries of one triangle record (`test_record` in scene.wgsl reads three).
 const RECORD_ENTRIES: u32 = (size_of::<TriangleRecord>() / 16) as u32;
 
@@ -700,27 +702,40 @@ fn push_model(
     let model = &sm.model;
     let (tri0, vert0) = (f.triangles.len() as u32, (f.positions.len() / 3) as u32);
     let (mat0, tex0) = (f.materials.len() as u32, f.textures.len() as u32);
-    // The model's triangle records, numbered globally.
-    let records = |records: Option<&Vec<TriangleRecord>>| -> Vec<[u32; 4]> {
+    // The model's micromaps, then its triangle records, numbered globally
+    // (an opacity word names its map's entry).
+    let maps_at = f.nodes.len() as u32;
+    let mut records = |records: Option<&Vec<TriangleRecord>>, opacity: Option<&OpacityMaps>| {
+        if let Some(o) = opacity {
+            f.nodes
+                .extend(o.maps.iter().flat_map(|m| bytemuck::cast::<Micromap, [[u32; 4]; 4]>(*m)));
+        }
         records
             .map_or(&[][..], |r| r.as_slice())
             .iter()
             .flat_map(|r| {
+                let opacity = match r.opacity {
+                    coverage::OPAQUE => coverage::OPAQUE,
+                    map => maps_at + MICROMAP_ENTRIES * map,
+                };
                 let r = TriangleRecord {
                     triangle: r.triangle + tri0,
                     material: r.material + mat0,
+                    opacity,
                     ..*r
                 };
                 bytemuck::cast::<TriangleRecord, [[u32; 4]; 3]>(r)
             })
-            .collect()
+            .collect::<Vec<[u32; 4]>>()
     };
     let (root, records_at) = match tree {
         ModelTree::Walk(accel) => {
-            f.push_accel(&accel.models[m], tri0, &records(accel.records.get(m)), RECORD_ENTRIES)?
+            let r = records(accel.records.get(m), accel.opacity.get(m));
+            f.push_accel(&accel.models[m], tri0, &r, RECORD_ENTRIES)?
         }
         ModelTree::Cwbvh(wide) => {
-            f.push_cwbvh(&wide.models[m], &records(wide.records.get(m)), RECORD_ENTRIES)?
+            let r = records(wide.records.get(m), wide.opacity.get(m));
+            f.push_cwbvh(&wide.models[m], &r, RECORD_ENTRIES)?
         }
         ModelTree::None => (0, 0),
     };

@@ -20,7 +20,7 @@ pub const TRACE_LANES: u32 = 64;
 /// uploads what it reads, written from the Rust values so the two cannot
 /// drift apart.
 pub fn shared_constants() -> String {
-    use sylva_accel::coverage::Coverage;
+    use sylva_accel::coverage;
     use sylva_accel::{KdNode, MIN_DIRECTION, bvh, cwbvh, kdtree};
     [
         // Direction components smaller than this are replaced by it.
@@ -32,8 +32,12 @@ pub fn shared_constants() -> String {
         // slot), or empty.
         format!("const BVH_LEAF: u32 = {}u;", bvh::LEAF),
         format!("const BVH_EMPTY: u32 = {}u;", bvh::EMPTY),
-        // A triangle record's coverage: only mixed triangles take the alpha test.
-        format!("const COVERAGE_MIXED: u32 = {}u;", Coverage::Mixed as u32),
+        // A triangle record's opacity micromap: micro-triangles per edge,
+        // and the states that spare the alpha texel.
+        format!("const MICRO_EDGE: u32 = {}u;", coverage::MICRO_EDGE),
+        format!("const MICRO_OPAQUE: u32 = {}u;", coverage::MICRO_OPAQUE),
+        format!("const MICRO_HOLE: u32 = {}u;", coverage::MICRO_HOLE),
+        format!("const OPACITY_OPAQUE: u32 = {}u;", coverage::OPAQUE),
         format!("const SHORT_STACK: u32 = {}u;", kdtree::SHORT_STACK),
         // The compressed wide BVH: a group's flags, a node's entries, and
         // its stack (entries per lane, lanes).

@@ -177,17 +177,14 @@ fn export_rays(
 /// every triangle opaque: Sylva's traversal in Embree's setup.
 fn flat_opaque(tris: &[[glam::Vec3; 3]], rays: &[sylva_accel::Ray]) -> serde_json::Value {
     use rayon::prelude::*;
-    use sylva_accel::coverage::Coverage;
+    use sylva_accel::coverage::OPAQUE;
     use sylva_accel::triangle::TriangleRecord;
     use sylva_accel::{Aabb, Bvh};
     let t = Instant::now();
     let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
     let bvh = Bvh::build(&bounds);
-    let records: Vec<TriangleRecord> = bvh
-        .prims
-        .iter()
-        .map(|&p| TriangleRecord::new(p, tris[p as usize], Coverage::Opaque, 0))
-        .collect();
+    let records: Vec<TriangleRecord> =
+        bvh.prims.iter().map(|&p| TriangleRecord::new(p, tris[p as usize], OPAQUE, 0)).collect();
     let build_ms = t.elapsed().as_secs_f64() * 1e3;
     // Best of three, as benchmarks/embree.py times Embree.
     let (mut s, mut hits) = (f64::INFINITY, 0);
