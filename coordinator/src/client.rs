@@ -20,6 +20,19 @@ pub struct FinishedJob {
     pub exrs: Option<Vec<Vec<u8>>>,
     /// The coordinator's stats of the frame.
     pub stats: serde_json::Value,
+    /// Where the client's time went.
+    pub times: ClientTimes,
+}
+
+/// Where a submission's time went on the client, ms.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct ClientTimes {
+    /// Connecting and sending the spec and the bundle, until the job's id.
+    pub submit_ms: f64,
+    /// Watching the job until its end event.
+    pub wait_ms: f64,
+    /// Fetching the results.
+    pub fetch_ms: f64,
 }
 
 /// A client of the coordinator at `addr`, carrying `token`.
@@ -81,6 +94,8 @@ pub async fn submit_and_follow(
     exr: bool,
 ) -> anyhow::Result<FinishedJob> {
     let views = spec.views.len();
+    let t = std::time::Instant::now();
+    let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1e3;
     let mut c = connect(addr, token, tls).await?;
     let mut chunks = vec![pb::SubmitChunk {
         spec: Some(spec),
@@ -95,6 +110,8 @@ pub async fn submit_and_follow(
             .map(|d| pb::SubmitChunk { data: d.to_vec(), ..Default::default() }),
     );
     let id = c.submit_job(tokio_stream::iter(chunks)).await.map_err(status_error)?.into_inner().id;
+    let mut times = ClientTimes { submit_ms: ms(t), ..Default::default() };
+    let t = std::time::Instant::now();
     let mut progress = JobProgress::new(&id, views);
     let lost = |e: anyhow::Error| {
         e.context(format!(
@@ -125,6 +142,8 @@ pub async fn submit_and_follow(
     if JobState::from_wire(end.state) != Some(JobState::Done) {
         bail!("job {id} {}: {}", wire_name(end.state), end.message);
     }
+    times.wait_ms = ms(t);
+    let t = std::time::Instant::now();
     let frames = views.max(1) as u32;
     let mut fetch = async |format: &str| -> anyhow::Result<Vec<Vec<u8>>> {
         let mut out = Vec::new();
@@ -141,8 +160,9 @@ pub async fn submit_and_follow(
     };
     let pngs = fetch("png").await?;
     let exrs = if exr { Some(fetch("exr").await?) } else { None };
+    times.fetch_ms = ms(t);
     let stats = serde_json::from_str(&end.stats_json).unwrap_or(serde_json::Value::Null);
-    Ok(FinishedJob { id, pngs, exrs, stats })
+    Ok(FinishedJob { id, pngs, exrs, stats, times })
 }
 
 /// What a person sees of a job while it runs: on a terminal, a bar whose

@@ -96,9 +96,16 @@ impl State {
             plans: &plans,
             deadline: self.config.strip_deadline,
         };
-        let farm =
-            farm::render_streamed(job, move |e| me.on_farm_event(&jid, e, &tx2), resume, out);
-        let (run, kept) = tokio::join!(farm, self.keep_frames(id, finished, started, &tx));
+        let farm = async move {
+            let run =
+                farm::render_streamed(job, move |e| me.on_farm_event(&jid, e, &tx2), resume, out)
+                    .await;
+            (run, started.elapsed().as_secs_f64() * 1e3)
+        };
+        let mut phases = stats::JobPhases::default();
+        let ((run, farm_ms), kept) =
+            tokio::join!(farm, self.keep_frames(id, finished, started, &tx, &mut phases.store_ms));
+        phases.farm_ms = farm_ms;
         drop(bundle);
         let run = match run {
             Ok(r) => r,
@@ -110,12 +117,14 @@ impl State {
                 return self.fail(id, &tx, format!("the result could not be stored: {e:#}")).await;
             }
         };
+        let tone_started = Instant::now();
         let (per_frame, bytes) = match self.tone_map(id, frames.len()).await {
             Ok(t) => t,
             Err(e) => {
                 return self.fail(id, &tx, format!("the frames could not be encoded: {e:#}")).await;
             }
         };
+        phases.tone_map_ms = tone_started.elapsed().as_secs_f64() * 1e3;
         let frame_ms = started.elapsed().as_secs_f64() * 1e3;
         if let Some(times) = first {
             self.remember_cost(cost_key, frame.width, &times);
@@ -134,6 +143,7 @@ impl State {
             strip_cost: cost_source,
             frame_ms,
             upload_ms: run.upload_ms,
+            phases,
             prepared_once: run.prepared.clone(),
             workers: run.workers.clone(),
             frame: views.is_empty().then(|| per_frame[0].clone()),
@@ -210,6 +220,7 @@ impl State {
         mut finished: tokio::sync::mpsc::Receiver<farm::Finished>,
         started: Instant,
         tx: &broadcast::Sender<pb::JobEvent>,
+        store_ms: &mut f64,
     ) -> anyhow::Result<Option<Vec<crate::schedule::StripTime>>> {
         use prost::Message;
         let dir = crate::results::job_dir(&self.config.state_dir, id);
@@ -238,6 +249,7 @@ impl State {
                     self.store.put_strip(id, &row).await?;
                 }
                 farm::Finished::Frame { frame, rendered } => {
+                    let stored_at = Instant::now();
                     in_run += 1;
                     let ms = started.elapsed().as_secs_f64() * 1e3 / in_run as f64;
                     let figures = stats::FrameStats::of(&rendered, &Default::default(), ms);
@@ -292,6 +304,7 @@ impl State {
                         })
                     };
                     self.save_progress(id).await;
+                    *store_ms += stored_at.elapsed().as_secs_f64() * 1e3;
                     if let Some(ev) = ev {
                         let _ = tx.send(ev);
                     }

@@ -18,6 +18,8 @@ pub struct JobStats {
     pub frame_ms: f64,
     /// Time to get the scene to the workers, ms.
     pub upload_ms: f64,
+    /// Where the job's time went on the coordinator.
+    pub phases: JobPhases,
     /// How the scene was prepared once and shared, when it was.
     pub prepared_once: Option<PreparedShare>,
     /// Per worker.
@@ -29,6 +31,22 @@ pub struct JobStats {
     /// A sequence's figures.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sequence: Option<SequenceStats>,
+}
+
+/// Where a job's time went on the coordinator, ms (`sylva bench farm`
+/// tables them against the client's and the workers' times).
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct JobPhases {
+    /// From the job's start until the farm handed over its last frame:
+    /// the scene's upload, the strips rendered and sent back, the frames
+    /// assembled.
+    pub farm_ms: f64,
+    /// Encoding, hashing and writing the frames' EXRs and recording them
+    /// (beside the farm, as frames come; what the farm waits on it is in
+    /// `farm_ms` too).
+    pub store_ms: f64,
+    /// After the farm: the frames tone mapped and their PNGs written.
+    pub tone_map_ms: f64,
 }
 
 /// One frame's figures.

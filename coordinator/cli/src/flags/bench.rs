@@ -14,6 +14,9 @@ pub enum BenchCommand {
     /// Sequences: a camera path as one job against one job per frame, and
     /// a sun sweep's second pass with the workers' LB cache against without.
     Sequence(crate::flags::bench_sequence::SequenceBenchArgs),
+    /// Where one frame's time goes between `sylva submit` and its file, on
+    /// one warm local worker: the farm's own overhead beside the trace.
+    Farm(crate::flags::bench_farm::FarmBenchArgs),
 }
 
 /// What the benchmark solves.

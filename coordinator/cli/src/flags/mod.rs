@@ -5,6 +5,7 @@
 //! its flags from here.
 
 pub mod bench;
+pub mod bench_farm;
 pub mod bench_sequence;
 pub mod caps;
 pub mod cli;

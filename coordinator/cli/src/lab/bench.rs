@@ -24,6 +24,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Trace(a) => bench_trace(a),
         BenchCommand::Scaling(a) => bench_scaling(a),
         BenchCommand::Sequence(a) => super::bench_sequence::run(a),
+        BenchCommand::Farm(a) => super::bench_farm::run(a),
     }
 }
 

@@ -34,8 +34,8 @@ fn angles(s: &str) -> anyhow::Result<SunAngles> {
     Ok(SunAngles { elevation_deg: v[0], azimuth_deg: v[1] })
 }
 
-/// A farm of local processes for the benchmark.
-struct Farm {
+/// A farm of local processes for a benchmark.
+pub(super) struct Farm {
     _processes: LoopbackProcesses,
     coordinator: String,
     workers: Vec<String>,
@@ -43,7 +43,8 @@ struct Farm {
 }
 
 impl Farm {
-    fn start(n: usize, worker_flags: &[String]) -> anyhow::Result<Self> {
+    /// `n` workers (with `worker_flags`) and a coordinator over them.
+    pub(super) fn start(n: usize, worker_flags: &[String]) -> anyhow::Result<Self> {
         let token = sylva_proto::auth::random_token();
         let mut p = LoopbackProcesses::default();
         let workers = p.start_workers_with(n, &token, worker_flags)?;
@@ -59,8 +60,20 @@ impl Farm {
         frame: &FrameSettings,
         views: &[View],
     ) -> anyhow::Result<f64> {
-        let spec = job_spec(frame, views, ScheduleKind::Dynamic, 0, "bench sequence");
         let t = Instant::now();
+        self.job(rt, bundle, frame, views)?;
+        Ok(t.elapsed().as_secs_f64() * 1e3)
+    }
+
+    /// Renders `views` as one job, as `sylva submit` does.
+    pub(super) fn job(
+        &self,
+        rt: &tokio::runtime::Runtime,
+        bundle: &SceneBundle,
+        frame: &FrameSettings,
+        views: &[View],
+    ) -> anyhow::Result<sylva_coordinator::client::FinishedJob> {
+        let spec = job_spec(frame, views, ScheduleKind::Dynamic, 0, "bench");
         rt.block_on(submit_and_follow(
             &self.coordinator,
             Some(self.token.clone()),
@@ -68,12 +81,14 @@ impl Farm {
             spec,
             bundle,
             false,
-        ))?;
-        Ok(t.elapsed().as_secs_f64() * 1e3)
+        ))
     }
 
     /// The workers' statuses.
-    fn statuses(&self, rt: &tokio::runtime::Runtime) -> anyhow::Result<Vec<pb::WorkerStatus>> {
+    pub(super) fn statuses(
+        &self,
+        rt: &tokio::runtime::Runtime,
+    ) -> anyhow::Result<Vec<pb::WorkerStatus>> {
         rt.block_on(async {
             let mut out = Vec::new();
             for w in &self.workers {
