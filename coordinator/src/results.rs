@@ -36,11 +36,15 @@ pub fn relative(id: &str, name: &str) -> String {
 
 /// An 8-bit sRGB image as PNG.
 pub fn encode_png(w: u32, h: u32, px: &[[u8; 3]]) -> anyhow::Result<Vec<u8>> {
-    let img = image::RgbImage::from_raw(w, h, px.iter().flatten().copied().collect())
-        .ok_or_else(|| anyhow::anyhow!("image size"))?;
-    let mut out = std::io::Cursor::new(Vec::new());
-    img.write_to(&mut out, image::ImageFormat::Png)?;
-    Ok(out.into_inner())
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    anyhow::ensure!(px.len() == w as usize * h as usize, "image size");
+    let mut out = Vec::new();
+    // Fast deflate: the PNG is a preview beside the EXR, and the default
+    // level cost a frame more than its trace through the farm.
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive)
+        .write_image(px.as_flattened(), w, h, image::ExtendedColorType::Rgb8)?;
+    Ok(out)
 }
 
 /// A linear HDR image as OpenEXR (32-bit floats: read back bit for bit).

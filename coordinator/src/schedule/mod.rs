@@ -76,6 +76,13 @@ mod tests {
     }
 
     #[test]
+    fn one_worker_gets_the_frame_as_one_strip() {
+        for kind in [ScheduleKind::Static, ScheduleKind::Dynamic] {
+            assert_eq!(scheduler(kind).plan(896, 1, &[]), vec![(0, 896)], "{kind:?}");
+        }
+    }
+
+    #[test]
     fn static_gives_one_equal_strip_per_worker_and_dynamic_more_shrinking_ones() {
         assert_eq!(Static.plan(896, 4, &[]), vec![(0, 224), (224, 448), (448, 672), (672, 896)]);
         let d = Dynamic::default().plan(896, 4, &[]);

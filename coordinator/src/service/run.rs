@@ -329,11 +329,14 @@ impl State {
         let read = move |r: &crate::store::FrameRow| {
             crate::results::decode_exr(&std::fs::read(state.join(&r.exr))?)
         };
-        let middle = rows[n / 2].clone();
-        let read2 = read.clone();
-        let exposure =
+        // A single frame is exposed for itself, below: no frame is read twice.
+        let exposure = if n > 1 {
+            let (middle, read2) = (rows[n / 2].clone(), read.clone());
             tokio::task::spawn_blocking(move || anyhow::Ok(reinhard(&read2(&middle)?, 0.18).1))
-                .await??;
+                .await??
+        } else {
+            Default::default()
+        };
         let (mut per_frame, mut total) = (Vec::with_capacity(n), 0u64);
         for row in rows {
             let read = read.clone();
