@@ -2,7 +2,8 @@
 # One device run that measures what issues 38-40 ask of an NVIDIA GPU, in
 # at most 8 minutes: the traversal per ray kind timed by the GPU itself
 # (camera, shadow and diffuse-bounce rays, at least 4 M rays each), whole
-# frames at 1 and 4 spp, the cold and warm first frame, and the LB solve.
+# frames at 1 and 4 spp, the cold and warm first frame, the LB solve, and
+# where a frame's time goes through the farm.
 # Prepared here with benchmarks/gpu/prepare.sh; run there in the repo's
 # root (the device tool: carry [".dev", ".gl"], command
 # `bash benchmarks/gpu/run.sh`). Writes each command's JSON, its log and
@@ -62,6 +63,10 @@ grep -o '"device": *"[^"]*"' "$DEST/probe.json" | head -1
 step trace-forest 280 bench trace --scale "$SCALE" --no-cpu --accel bvh,cwbvh,kd \
   --frames-accel bvh,cwbvh --kernel-rays "$KERNEL_RAYS"
 step lb-128 50 bench lb --grid 128 --backends gpu --repeat 3
+# Where one 0.05-forest frame's time goes through a coordinator and one
+# warm worker (docs/farm-overhead.md).
+"$BIN" scene forest --scale 0.05 -o "$DEST/forest-0.05.json" > /dev/null 2>> "$DEST/all.log"
+step farm-0.05 60 bench farm "$DEST/forest-0.05.json" --repeat 5
 # The figures the issues' tables quote, in one file.
 python3 - "$DEST" <<'PY' || echo "summary: python3 missing or a step failed"
 import json, pathlib, sys
@@ -69,7 +74,7 @@ d = pathlib.Path(sys.argv[1])
 def load(n):
     try: return json.loads((d / f"{n}.json").read_text())
     except Exception: return None
-t, lb = load("trace-forest"), load("lb-128")
+t, lb, farm = load("trace-forest"), load("lb-128"), load("farm-0.05")
 out = {"gpu": (d / "gpu.txt").read_text().strip().splitlines()[-1] if (d / "gpu.txt").exists() else None}
 if t:
     out["adapter"] = t["adapter"]["name"]
@@ -79,6 +84,8 @@ if t:
     out["first_frame"] = t.get("first_frame")
     ff = t.get("first_frame") or {}
     out["auto_chose"] = ((ff.get("cold") or {}).get("backend") or {}).get("why")
+if farm:
+    out["farm_0.05_median_ms"] = farm.get("median")
 if lb:
     out["lb_128"] = [{k: r.get(k) for k in ("device", "mlups", "step_mlups")} for r in lb.get("results", [])]
 (d / "summary.json").write_text(json.dumps(out, indent=1))
