@@ -233,7 +233,7 @@ fn trace_benchmark_times_each_ray_kind_on_the_gpu() {
         "--height",
         "16",
         "--accel",
-        "bvh",
+        "bvh,cwbvh",
         "--no-cpu",
         "--no-frames",
         "--no-first-frame",
@@ -241,12 +241,42 @@ fn trace_benchmark_times_each_ray_kind_on_the_gpu() {
         "2000",
     ]);
     let v: Value = serde_json::from_str(&out).unwrap();
-    let t = &v["traversal"][0];
-    assert!(t["bounce_rays"].as_u64().unwrap() > 0, "{t:#}");
-    for kind in ["camera", "shadow", "bounce"] {
-        let k = &t["kernel"][kind];
-        assert!(k["rays"].as_u64().unwrap() >= 2000, "{kind}: {k:#}");
-        assert!(k["mrays_per_second"].as_f64().unwrap() > 0.0, "{kind}: {k:#}");
-        assert!(k["rays"].as_u64().unwrap().is_multiple_of(k["batch"].as_u64().unwrap()), "{k:#}");
+    let backends: Vec<&str> =
+        v["traversal"].as_array().unwrap().iter().map(|t| t["accel"].as_str().unwrap()).collect();
+    assert_eq!(backends, ["bvh", "cwbvh"]);
+    for t in v["traversal"].as_array().unwrap() {
+        assert!(t["bounce_rays"].as_u64().unwrap() > 0, "{t:#}");
+        // Both walk the same scene: the same hits.
+        assert_eq!(t["gpu"]["hits"], v["traversal"][0]["gpu"]["hits"]);
+        for kind in ["camera", "shadow", "bounce"] {
+            let k = &t["kernel"][kind];
+            assert!(k["rays"].as_u64().unwrap() >= 2000, "{kind}: {k:#}");
+            assert!(k["mrays_per_second"].as_f64().unwrap() > 0.0, "{kind}: {k:#}");
+            assert!(
+                k["rays"].as_u64().unwrap().is_multiple_of(k["batch"].as_u64().unwrap()),
+                "{k:#}"
+            );
+        }
     }
+}
+
+/// `sylva bench farm`: one frame's time through a coordinator and a warm
+/// worker, accounted for stage by stage (the client's stages sum to the
+/// total; the worker's render is apart from the overhead).
+#[test]
+fn farm_benchmark_accounts_for_a_frames_time() {
+    let scene = format!("{}/../../examples/tree.json", env!("CARGO_MANIFEST_DIR"));
+    let out = ok(&["bench", "farm", &scene, "--repeat", "2", "--width", "64", "--height", "32"]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["runs"].as_array().unwrap().len(), 2);
+    for r in v["runs"].as_array().unwrap() {
+        let f = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} in {r:#}"));
+        assert_eq!(f("strips"), 1.0, "one worker renders the frame as one strip: {r:#}");
+        assert!(f("render_ms") > 0.0 && f("total_ms") > f("render_ms"), "{r:#}");
+        assert!((f("overhead_ms") - (f("total_ms") - f("render_ms"))).abs() < 1e-6);
+        for k in ["submit_ms", "store_ms", "tone_map_and_png_ms", "fetch_ms", "strip_transfer_ms"] {
+            assert!(f(k) >= 0.0, "{k} in {r:#}");
+        }
+    }
+    assert!(v["median"]["total_ms"].as_f64().unwrap() > 0.0);
 }

@@ -120,6 +120,14 @@ async fn three_clients_at_once_get_the_single_process_image() {
     }
     let jobs = c.list_jobs(pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
     assert_eq!(jobs.len(), 3);
+    // A watcher that comes after a job's end hears its figures at once,
+    // as one there at the end did (a fast frame ended before `submit`
+    // watched it, and its figures were lost).
+    let mut late = c.watch_job(pb::JobId { id: jobs[0].id.clone() }).await.unwrap().into_inner();
+    let first = tokio_stream::StreamExt::next(&mut late).await.unwrap().unwrap();
+    let figures: serde_json::Value = serde_json::from_str(&first.stats_json).unwrap();
+    assert!(figures["strips"].as_array().is_some_and(|s| !s.is_empty()), "{figures}");
+    assert!(figures["phases"]["farm_ms"].as_f64().unwrap() > 0.0, "{figures}");
     assert!(
         jobs.iter().all(|j| sylva_coordinator::job_state::wire_name(j.state) == "done"
             && j.strips_done == j.strips_total

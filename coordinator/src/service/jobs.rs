@@ -117,6 +117,7 @@ impl CoordinatorService {
             live: LiveFrame::default(),
             stage: String::new(),
             reserved,
+            stats_json: String::new(),
         };
         // Written before the client hears of it: an acknowledged job
         // survives a crash.
@@ -136,10 +137,10 @@ impl CoordinatorService {
         let token = caller(&self.state.access, &request)?.token_id;
         let id = request.into_inner().id;
         let id = job_id(&id)?.to_string();
-        let (mut rx, current, stage) = {
+        let (mut rx, current, stage, stats_json) = {
             let jobs = lock(&self.state.jobs);
             let j = jobs.get(&id).ok_or_else(|| Status::not_found(format!("no job {id}")))?;
-            (j.events.subscribe(), j.summary.clone(), j.stage.clone())
+            (j.events.subscribe(), j.summary.clone(), j.stage.clone(), j.stats_json.clone())
         };
         let (tx, out) = tokio::sync::mpsc::channel(64);
         let state = self.state.clone();
@@ -151,6 +152,9 @@ impl CoordinatorService {
                 strips_total: current.strips_total,
                 message: current.error.clone(),
                 stage,
+                // A job that ended before its watcher came: its figures
+                // now, as the end event carried them.
+                stats_json,
                 ..Default::default()
             };
             if tx.send(Ok(first)).await.is_err() || wire_ended(current.state) {
@@ -504,6 +508,7 @@ pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Jo
             live: LiveFrame::default(),
             stage: String::new(),
             reserved: row.result_bytes,
+            stats_json: row.stats_json.clone(),
         };
         if Some(state) != row.state || job.summary.error != row.error {
             store.set_state(&job.row()).await?;

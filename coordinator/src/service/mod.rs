@@ -155,6 +155,9 @@ struct Job {
     stage: String,
     /// Bytes its results may take on disk (its estimate until it is done).
     reserved: u64,
+    /// Its figures once done: a watcher that comes after the end hears
+    /// them in its first event.
+    stats_json: String,
 }
 
 impl Job {
@@ -185,7 +188,7 @@ impl Job {
             strips_total: s.strips_total,
             retries: s.retries,
             error: s.error.clone(),
-            stats_json: String::new(),
+            stats_json: self.stats_json.clone(),
             submitted_ms: s.submitted_unix_ms,
             started_ms: s.started_unix_ms,
             finished_ms: s.finished_unix_ms,

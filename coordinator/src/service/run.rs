@@ -152,6 +152,7 @@ impl State {
         let json = serde_json::to_string(&stats).unwrap_or_default();
         if let Some(j) = lock(&self.jobs).get_mut(id) {
             j.reserved = bytes;
+            j.stats_json = json.clone();
         }
         if let Err(e) = self.store.set_stats(id, &json, bytes).await {
             tracing::warn!(%id, "figures not written yet: {e:#}");

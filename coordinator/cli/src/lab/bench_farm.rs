@@ -26,7 +26,8 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn stages(pack_ms: f64, job: &sylva_coordinator::client::FinishedJob) -> anyhow::Result<Value> {
     let s = &job.stats;
     let f = |v: &Value| v.as_f64().context("a figure missing from the job's stats");
-    let strips = s["strips"].as_array().context("the job's stats have no strips")?;
+    let strips =
+        s["strips"].as_array().with_context(|| format!("the job's stats have no strips: {s}"))?;
     // One worker takes the strips one after another: the sums are its
     // render and the calls' time.
     let sum = |k: &str| -> anyhow::Result<f64> { strips.iter().map(|x| f(&x[k])).sum() };
