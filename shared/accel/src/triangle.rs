@@ -16,8 +16,8 @@ pub struct TriangleRecord {
     pub triangle: u32,
     /// Second vertex minus the first.
     pub e1: [f32; 3],
-    /// Its opacity micromap ([`crate::coverage::opacity_maps`]): which
-    /// parts of it are opaque, holes, or need the alpha texel.
+    /// [`crate::coverage::OPAQUE`], or the index of its opacity micromap
+    /// ([`crate::coverage::OpacityMaps`]): where it is opaque, a hole, or needs the alpha texel.
     pub opacity: u32,
     /// Third vertex minus the first.
     pub e2: [f32; 3],
