@@ -145,7 +145,7 @@ async fn a_worker_killed_mid_frame_loses_nothing() {
     let addrs: Vec<String> = workers.lock().unwrap().iter().map(|w| w.addr.clone()).collect();
     let victim = addrs[1].clone();
     // Many narrow strips, so plenty are still queued when the kill comes.
-    let plan = Dynamic { share: 8.0, min_width: 2 }.plan(96, 3, &[]);
+    let plan = Dynamic { share: 8.0, min_width: 2, ..Default::default() }.plan(96, 3, &[]);
     assert!(plan.len() > 12);
     let killed = Arc::new(Mutex::new(false));
     let (w2, k2) = (workers.clone(), killed.clone());
