@@ -594,10 +594,7 @@ pub async fn run(
             service.clone().into_server(),
             auth,
         ))
-        .serve_with_incoming_shutdown(
-            tokio_stream::wrappers::TcpListenerStream::new(listener),
-            shutdown,
-        )
+        .serve_with_incoming_shutdown(sylva_proto::tls::incoming(listener), shutdown)
         .await;
     service.clean_up().await;
     served?;

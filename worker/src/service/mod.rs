@@ -314,10 +314,7 @@ pub async fn run(
             service.into_server(),
             auth,
         ))
-        .serve_with_incoming_shutdown(
-            tokio_stream::wrappers::TcpListenerStream::new(listener),
-            shutdown,
-        )
+        .serve_with_incoming_shutdown(sylva_proto::tls::incoming(listener), shutdown)
         .await;
     if !keep && cache_dir.exists() {
         match std::fs::remove_dir_all(&cache_dir) {
