@@ -309,7 +309,7 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     b.wait_for(
         &format!(
             "(() => {{ const c = document.querySelector('tr[data-worker=\"{}\"]').children[2]; \
-             return /^(rq|bvh|kd)/.test(c.textContent) && c.title.startsWith('auto:'); }})()",
+             return /^(rq|bvh|cwbvh|kd)/.test(c.textContent) && c.title.startsWith('auto:'); }})()",
             w.addr
         ),
         "the worker's traversal",

@@ -229,8 +229,11 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
             "384",
             "--height",
             "96",
+            // Long enough a frame that strips are still to come a moment
+            // after the second is counted (8 spp ended within that
+            // moment once replies stopped waiting on delayed acks).
             "--spp",
-            "8",
+            "64",
             "--schedule",
             "dynamic",
         ]

@@ -397,16 +397,17 @@ async fn workers_choose_their_traversal_and_share_what_ray_queries_need() {
     };
     assert!(a.prepare(ask(with(pb::Accel::Auto), true)).await.unwrap().into_inner().held);
     let s = a.status(pb::StatusRequest {}).await.unwrap().into_inner();
+    // The two compute walks are measured everywhere, ray queries where the
+    // device has them (lavapipe does); the fastest is kept.
+    assert!(s.backend_why.starts_with("auto:") && s.backend_why.contains("cwbvh "), "{s:?}");
     if !s.ray_queries {
-        // Lavapipe offers them; a GPU without them has nothing to choose.
         assert!(!s.adapter.contains("llvmpipe"), "{s:?}");
-        assert!(s.backend_why.contains("offers no ray queries"), "{s:?}");
         return;
     }
-    // Both measured, the faster kept (on lavapipe, the BVH by far).
-    assert!(s.backend_why.starts_with("auto:") && s.backend_why.contains("rq "), "{s:?}");
+    assert!(s.backend_why.contains("rq "), "{s:?}");
     if s.adapter.contains("llvmpipe") {
-        assert_eq!(s.backend, "bvh", "{s:?}");
+        // Ray queries are some 100 times slower there; the two walks are close.
+        assert!(s.backend == "bvh" || s.backend == "cwbvh", "{s:?}");
     }
     // The LB light is what there is to share; each device builds its own
     // structures as its first strip is prepared.

@@ -71,7 +71,7 @@ impl BackendChoice {
 pub fn candidates(ctx: &GpuContext, asked: Backend) -> anyhow::Result<Vec<Backend>> {
     Ok(match asked.resolved() {
         Some(Backend::Rq) if !ctx.has_ray_queries() => anyhow::bail!(
-            "--accel rq: {} offers no ray queries (wgpu's EXPERIMENTAL_RAY_QUERY); use auto, bvh or kd",
+            "--accel rq: {} offers no ray queries (wgpu's EXPERIMENTAL_RAY_QUERY); use auto, bvh, cwbvh or kd",
             ctx.adapter_name()
         ),
         Some(b) => vec![b],

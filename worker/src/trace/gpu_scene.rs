@@ -366,7 +366,7 @@ impl GpuScene {
     ) -> anyhow::Result<Self> {
         anyhow::ensure!(
             ctx.has_ray_queries(),
-            "{} offers no ray queries: choose --accel bvh or kd (or auto)",
+            "{} offers no ray queries: choose --accel bvh, cwbvh or kd (or auto)",
             ctx.adapter_name()
         );
         anyhow::ensure!(coverage.len() == scene.models.len(), "one coverage list per model");
