@@ -230,10 +230,10 @@ async fn a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill() {
             "--height",
             "96",
             // Long enough a frame that strips are still to come a moment
-            // after the second is counted (8 spp ended within that
-            // moment once replies stopped waiting on delayed acks).
+            // after the second is counted (8 and 64 spp could end within
+            // that moment once replies stopped waiting on delayed acks).
             "--spp",
-            "64",
+            "512",
             "--schedule",
             "dynamic",
         ]
