@@ -10,13 +10,13 @@
 // The CPU reference is shared/accel/src: the same node layouts, the same
 // traversal order, the same arithmetic.
 
-// 0: BVH, 1: kd-tree, 2: ray queries (Backend in gpu_scene.rs). Set when
-// the pipeline is built.
+// 0: BVH, 1: kd-tree, 2: ray queries, 3: the compressed wide BVH
+// (accel_kind in gpu_scene.rs). Set when the pipeline is built.
 override ACCEL_KIND: u32 = 0u;
 
-// MIN_DIRECTION, BVH_STACK, BVH_LEAF, BVH_EMPTY, COVERAGE_MIXED,
-// SHORT_STACK, KD_LEAF, NO_TEXTURE and NO_HIT come before this file,
-// generated from their Rust twins (worker/src/trace/shaders.rs).
+// The constants (MIN_DIRECTION, BVH_*, MICRO_*, OPACITY_OPAQUE, CW_*,
+// TRACE_LANES, SHORT_STACK, KD_LEAF, NO_TEXTURE, NO_HIT) come before this
+// file, generated from their Rust twins (worker/src/trace/shaders.rs).
 
 struct Material {
     base_color: vec4<f32>,
@@ -75,12 +75,14 @@ struct Model {
     pad2: u32,
 }
 
-// Wide BVH nodes take four entries (the grid's origin and exponents, the
-// four children's references, their boxes in 8-bit grid cells and their
-// leaf counts: shared/accel/src/bvh/mod.rs) and each model's triangle
-// records three (first vertex + triangle, edge 1 + coverage, edge 2 +
-// material), after its nodes; kd nodes take one (split, axis, first,
-// count). References are entry indices. The top level's root is entry 0.
+// Four-wide BVH nodes take four entries (the grid's origin and exponents,
+// the four children's references, their boxes in 8-bit grid cells and
+// their leaf counts: shared/accel/src/bvh/mod.rs), eight-wide ones five
+// (shared/accel/src/cwbvh.rs); each model's triangle records take three
+// (first vertex + triangle, edge 1 + opacity word, edge 2 + material),
+// after its nodes, and its opacity micromaps four each, before them; kd
+// nodes take one (split, axis, first, count). References are entry
+// indices. The top level's root is entry 0.
 @group(0) @binding(0) var<storage, read> nodes: array<vec4<u32>>;
 // Leaf contents: instance indices (top level) and global triangle indices.
 @group(0) @binding(1) var<storage, read> prims: array<u32>;

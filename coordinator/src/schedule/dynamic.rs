@@ -54,8 +54,9 @@ impl Scheduler for Dynamic {
                 taken += cost[end as usize];
                 end += 1;
             }
-            // Do not leave a sliver narrower than the minimum behind.
-            if width - end < self.min_width {
+            // Do not leave a sliver narrower than the minimum behind, nor
+            // a last strip cheaper than the floor.
+            if width - end < self.min_width || (end < width && remaining - taken < floor) {
                 end = width;
                 taken = remaining;
             }

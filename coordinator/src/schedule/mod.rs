@@ -83,6 +83,8 @@ mod tests {
         let d = Dynamic::default();
         let short = vec![0.1; 896]; // 89.6 ms
         assert_eq!(d.plan(896, 1, &short), vec![(0, 896)]);
+        // No cheap strip left at the end either.
+        assert_eq!(d.plan(150, 1, &[1.0; 150]), vec![(0, 150)]);
         assert_eq!(d.plan(896, 2, &short), vec![(0, 448), (448, 896)]);
         let long = vec![10.0; 896]; // 8.96 s
         let p = d.plan(896, 1, &long);

@@ -535,6 +535,9 @@ impl State {
                 state: j.summary.state,
                 strips_done: j.summary.strips_done,
                 strips_total: j.summary.strips_total,
+                // Empty until the job is done: any event of a done job,
+                // a lagging watcher's too, carries its figures.
+                stats_json: j.stats_json.clone(),
                 ..Default::default()
             },
             None => pb::JobEvent { id: id.to_string(), ..Default::default() },

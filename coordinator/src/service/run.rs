@@ -105,7 +105,7 @@ impl State {
         let mut phases = stats::JobPhases::default();
         let ((run, farm_ms), kept) =
             tokio::join!(farm, self.keep_frames(id, finished, started, &tx, &mut phases.store_ms));
-        phases.farm_ms = farm_ms;
+        (phases.farm_ms, phases.stored_ms) = (farm_ms, started.elapsed().as_secs_f64() * 1e3);
         drop(bundle);
         let run = match run {
             Ok(r) => r,

@@ -37,14 +37,16 @@ pub struct JobStats {
 /// tables them against the client's and the workers' times).
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct JobPhases {
-    /// From the job's start until the farm handed over its last frame:
-    /// the scene's upload, the strips rendered and sent back, the frames
-    /// assembled.
+    /// From the farm's start (the bundle read and the strips planned)
+    /// until it handed over its last frame: the scene's upload, the strips
+    /// rendered and sent back, the frames assembled.
     pub farm_ms: f64,
-    /// Encoding, hashing and writing the frames' EXRs and recording them
-    /// (beside the farm, as frames come; what the farm waits on it is in
-    /// `farm_ms` too).
+    /// Encoding, hashing and writing the frames' EXRs and recording them,
+    /// summed: beside the farm for a sequence's earlier frames, after it
+    /// for the last (a single frame's all after it).
     pub store_ms: f64,
+    /// From the farm's start until the last frame was stored.
+    pub stored_ms: f64,
     /// After the farm: the frames tone mapped and their PNGs written.
     pub tone_map_ms: f64,
 }

@@ -13,7 +13,7 @@
 //!
 //! It is derived from the four-wide [`Bvh`] (the structure workers build,
 //! cache and share): each node opens its largest inner children into
-//! grandchildren while eight slots and 31 records allow. The walk here is
+//! grandchildren while eight slots and 32 records allow. The walk here is
 //! the reference `shaders/trace/cwbvh.wgsl` is tested against, in the same
 //! visiting order, so ties resolve alike.
 
@@ -40,9 +40,9 @@ pub const LIST: u32 = 1 << 31;
 pub const VISIT: u32 = 1 << 30;
 /// Entries (16 bytes) of one node in the GPU's node buffer.
 pub const NODE_ENTRIES: u32 = (size_of::<CwbvhNode>() / 16) as u32;
-/// Tallest tree the walk's stack can hold (both levels together, with the
-/// entry an instance's entry pushes); the GPU's workgroup stack has this
-/// many entries per lane.
+/// Most stack entries the walk may need (both levels together:
+/// [`CwbvhScene::stack_need`]); the GPU's workgroup stack has this many
+/// entries per lane.
 pub const MAX_STACK: usize = 32;
 
 /// One node (80 bytes): a grid over the node, eight children's boxes in
@@ -216,7 +216,8 @@ pub struct Cwbvh {
     /// Per record of this tree, the source BVH's primitive slot it is:
     /// node `n`'s leaves hold records `n.record_base ..` of it.
     pub order: Vec<u32>,
-    /// Height in nodes: a walk of this tree pushes fewer stack entries.
+    /// Height in nodes: a walk of this tree pushes at most this many stack
+    /// entries.
     pub height: usize,
 }
 
@@ -534,13 +535,13 @@ impl CwbvhScene {
         Ok(Self { top, parts, models, records, opacity, to_model: accel.to_model.clone() })
     }
 
-    /// Stack entries the walk of both levels can need: each tree's height,
-    /// and the two an instance's entry pushes.
+    /// Stack entries the walk of both levels can need: each tree's height
+    /// (a bound on its pushes), one for an instance's entry, and one spare.
     pub fn stack_need(&self) -> usize {
         self.top.height + 2 + self.models.iter().map(|m| m.height).max().unwrap_or(0)
     }
 
-    /// Bytes of all nodes, records and parts.
+    /// Bytes of all nodes, records, parts and opacity micromaps.
     pub fn bytes(&self) -> usize {
         size_of_val(self.top.nodes.as_slice())
             + size_of_val(self.parts.as_slice())

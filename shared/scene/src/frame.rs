@@ -51,8 +51,9 @@ pub enum AccelKind {
 #[serde(rename_all = "lowercase")]
 pub enum Backend {
     // The order is the variants' number in postcard, which the prepared-data
-    // cache on disk and between workers stores: `auto` comes last, so a
-    // choice kept before it existed still reads as the backend it named.
+    // cache on disk and between workers stores: new variants go last (auto,
+    // then cwbvh), so a choice kept before them still reads as the backend
+    // it named.
     /// Ray queries: the device's own structures, in hardware where it has
     /// them (refused where the adapter has none).
     Rq,
@@ -60,9 +61,9 @@ pub enum Backend {
     Bvh,
     /// Sylva's kd-tree, walked by a compute kernel (the paper's).
     Kd,
-    /// Each worker chooses for its adapter: ray queries where it has them
-    /// and a short measurement at preparation finds them faster, else the
-    /// BVH.
+    /// Each worker chooses for its adapter by a short measurement at
+    /// preparation: the BVH, the compressed wide BVH, or ray queries where
+    /// it has them.
     #[default]
     Auto,
     /// Sylva's eight-wide compressed BVH (derived from the four-wide one),

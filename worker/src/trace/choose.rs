@@ -102,36 +102,51 @@ pub fn choose(
         .collect();
     let mut shadow: Option<Vec<GpuRay>> = None;
     let mut casters = Vec::new();
-    for g in &uploads {
-        let closest = RayCaster::new(ctx, g)?;
-        let blocked = RayCaster::shadow(ctx, g)?;
-        // The first structure's hits give every structure's shadow rays.
-        if shadow.is_none() {
-            let hits = closest.cast(ctx, g, &primary)?;
-            let towards = scene.sun.towards;
-            shadow = Some(
-                primary
-                    .iter()
-                    .zip(&hits)
-                    .filter(|(_, h)| h.triangle != super::raycast::NO_HIT)
-                    .map(|(r, h)| {
-                        let o = glam::Vec3::from(r.origin) + glam::Vec3::from(r.dir) * h.t;
-                        GpuRay {
-                            origin: o.to_array(),
-                            t_min: 1e-3,
-                            dir: towards.to_array(),
-                            t_max: f32::MAX,
-                        }
-                    })
-                    .collect(),
-            );
+    let mut kept = Vec::new();
+    for (i, g) in uploads.into_iter().enumerate() {
+        let ready = (|| -> anyhow::Result<(RayCaster, RayCaster)> {
+            let closest = RayCaster::new(ctx, &g)?;
+            let blocked = RayCaster::shadow(ctx, &g)?;
+            // The first structure's hits give every structure's shadow rays.
+            if shadow.is_none() {
+                let hits = closest.cast(ctx, &g, &primary)?;
+                let towards = scene.sun.towards;
+                shadow = Some(
+                    primary
+                        .iter()
+                        .zip(&hits)
+                        .filter(|(_, h)| h.triangle != super::raycast::NO_HIT)
+                        .map(|(r, h)| {
+                            let o = glam::Vec3::from(r.origin) + glam::Vec3::from(r.dir) * h.t;
+                            GpuRay {
+                                origin: o.to_array(),
+                                t_min: 1e-3,
+                                dir: towards.to_array(),
+                                t_max: f32::MAX,
+                            }
+                        })
+                        .collect(),
+                );
+            }
+            // The first dispatches compile the kernels.
+            closest.cast(ctx, &g, &primary[..64])?;
+            let s = shadow.as_deref().expect("made above");
+            blocked.cast(ctx, &g, &s[..s.len().min(64)])?;
+            Ok((closest, blocked))
+        })();
+        match ready {
+            Ok(c) => {
+                casters.push(c);
+                kept.push(g);
+            }
+            // A candidate whose kernels this device refuses (the wide
+            // BVH's stack needs 16 KB of workgroup memory) is left out;
+            // the first, the BVH, runs everywhere.
+            Err(e) if i > 0 => tracing::warn!("auto: leaving {} out: {e:#}", g.backend.name()),
+            Err(e) => return Err(e),
         }
-        // The first dispatches compile the kernels.
-        closest.cast(ctx, g, &primary[..64])?;
-        let s = shadow.as_deref().expect("made above");
-        blocked.cast(ctx, g, &s[..s.len().min(64)])?;
-        casters.push((closest, blocked));
     }
+    let uploads = kept;
     let shadow = shadow.expect("one candidate at least");
     // A machine's noise only ever slows a batch down, so each backend's
     // best speed so far is a bound it surely reaches. A backend leaves the

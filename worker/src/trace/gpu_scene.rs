@@ -677,10 +677,6 @@ fn push_ground(f: &mut Flat, light: &SceneLight) -> anyhow::Result<([f32; 4], [u
     Ok(place)
 }
 
-/// One model into the flat buffers: its walked structure if any (records
-/// placed after the triangles before it), vertices, triangles, materials,
-/// textures, LB grid and Boulanger envelope. Returns its first triangle,
-/// its structure's root and where its records start (zeros without one).
 /// What rays walk in a model, as [`push_model`] flattens it.
 #[derive(Clone, Copy)]
 enum ModelTree<'a> {
@@ -692,6 +688,11 @@ enum ModelTree<'a> {
     Cwbvh(&'a CwbvhScene),
 }
 
+/// One model into the flat buffers: with a BVH, its opacity micromaps and
+/// then its structure and records (placed after the triangles before
+/// it); its vertices, triangles, materials, textures, LB grid and
+/// Boulanger envelope. Returns its first triangle, its structure's root
+/// and where its records start (zeros without one).
 fn push_model(
     f: &mut Flat,
     m: usize,
