@@ -55,8 +55,10 @@ impl Scheduler for Dynamic {
                 end += 1;
             }
             // Do not leave a sliver narrower than the minimum behind, nor
-            // a last strip cheaper than the floor.
-            if width - end < self.min_width || (end < width && remaining - taken < floor) {
+            // a last strip cheaper than the floor (by more than rounding:
+            // a frame split evenly leaves exactly the floor).
+            let tail = remaining - taken;
+            if width - end < self.min_width || (end < width && tail < floor * (1.0 - 1e-6)) {
                 end = width;
                 taken = remaining;
             }
