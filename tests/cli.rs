@@ -269,9 +269,12 @@ fn farm_benchmark_accounts_for_a_frames_time() {
     let out = ok(&["bench", "farm", &scene, "--repeat", "2", "--width", "64", "--height", "32"]);
     let v: Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["runs"].as_array().unwrap().len(), 2);
-    for r in v["runs"].as_array().unwrap() {
+    let runs = v["runs"].as_array().unwrap();
+    // Its cost measured, a short frame goes to the one worker whole.
+    let last = runs.last().unwrap();
+    assert_eq!(last["strips"], 1, "one worker renders a measured short frame as one strip: {v:#}");
+    for r in runs {
         let f = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} in {r:#}"));
-        assert_eq!(f("strips"), 1.0, "one worker renders the frame as one strip: {r:#}");
         assert!(f("render_ms") > 0.0 && f("total_ms") > f("render_ms"), "{r:#}");
         assert!((f("overhead_ms") - (f("total_ms") - f("render_ms"))).abs() < 1e-6);
         for k in ["submit_ms", "store_ms", "tone_map_and_png_ms", "fetch_ms", "strip_transfer_ms"] {
