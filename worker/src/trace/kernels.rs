@@ -179,10 +179,7 @@ impl Kernels {
                 layout: Some(&self.pipeline_layout),
                 module: &self.module,
                 entry_point: Some("render_guides"),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &self.constants,
-                    ..Default::default()
-                },
+                compilation_options: super::shaders::tracer_options(&self.constants),
                 cache: ctx.pipeline_cache(),
             }))
         })?;
@@ -207,10 +204,7 @@ fn render_pipeline(
         layout: Some(layout),
         module,
         entry_point: Some("render_strip"),
-        compilation_options: wgpu::PipelineCompilationOptions {
-            constants: &c,
-            ..Default::default()
-        },
+        compilation_options: super::shaders::tracer_options(&c),
         cache: ctx.pipeline_cache(),
     })
 }

@@ -106,13 +106,10 @@ impl RayCaster {
             layout: Some(&pl),
             module: &module,
             entry_point: Some("cast_rays"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[
-                    ("ACCEL_KIND", scene.accel_kind() as f64),
-                    ("ANY_HIT", any_hit as u8 as f64),
-                ],
-                ..Default::default()
-            },
+            compilation_options: super::shaders::tracer_options(&[
+                ("ACCEL_KIND", scene.accel_kind() as f64),
+                ("ANY_HIT", any_hit as u8 as f64),
+            ]),
             cache: ctx.pipeline_cache(),
         });
         Self { pipeline, layout }

@@ -54,6 +54,14 @@ pub fn shared_constants() -> String {
         + "\n"
 }
 
+/// How every tracing kernel is compiled: with `constants` (its overrides),
+/// and without zeroing workgroup memory first (WGSL's default), which
+/// for the compressed wide BVH's stack would write 16 KB a workgroup each
+/// dispatch: the walk writes every stack entry before it reads it.
+pub fn tracer_options<'a>(constants: &'a [(&'a str, f64)]) -> wgpu::PipelineCompilationOptions<'a> {
+    wgpu::PipelineCompilationOptions { constants, zero_initialize_workgroup_memory: false }
+}
+
 /// The full module for an entry-point file's source, tracing with
 /// `backend` (the kd-tree and the BVH share one module, chosen between by
 /// the `ACCEL_KIND` override; ray queries need a module of their own,

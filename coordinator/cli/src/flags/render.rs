@@ -23,10 +23,10 @@ pub struct FrameArgs {
     #[arg(long, default_value_t = 1)]
     pub spp: u32,
     /// How rays traverse the scene: ray queries (`rq`, the device's own
-    /// structures, traced in hardware where it has them), Sylva's BVH or
-    /// kd-tree walked by a compute kernel, or `auto`: each worker measures
-    /// ray queries against the BVH where its adapter has them, and says
-    /// what it chose.
+    /// structures, traced in hardware where it has them), Sylva's BVH,
+    /// compressed wide BVH or kd-tree walked by a compute kernel, or
+    /// `auto`: each worker measures the BVH, the compressed wide BVH and
+    /// (where its adapter has them) ray queries, and says what it chose.
     #[arg(long, value_enum, default_value = "auto")]
     pub accel: sylva_scene::frame::Backend,
     /// Lighting method; default the scene's. `auto` (`render` in this
