@@ -63,6 +63,19 @@ fn step(@builtin(global_invocation_id) gid: vec3<u32>) {
 {{STORE}}
 }
 
+// The starting state (both copies, one dispatch each): boundary nodes hold
+// the light that enters, interior nodes nothing. Written here rather than
+// uploaded, so a solve sends 2 × 19 floats, not 2 × 19 per node.
+@compute @workgroup_size(WORKGROUP)
+fn init(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let idx = gid.x + gid.y * ROW;
+    if idx >= NODES {
+        return;
+    }
+    let edge = is_boundary(idx);
+{{INIT}}
+}
+
 var<workgroup> wg_partial: array<f32, WORKGROUP>;
 
 // Writes each node's incoming field sum_m f_m(r - c_m) (what arrives

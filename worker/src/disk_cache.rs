@@ -21,7 +21,7 @@ use sylva_accel::{AccelKind, SceneAccel};
 use sylva_scene::Scene;
 
 /// The layout's version: entries of another are misses (their names differ).
-const FORMAT: u32 = 1;
+const FORMAT: u32 = 2;
 /// An entry file's extension.
 const EXT: &str = "prepared";
 

@@ -45,6 +45,9 @@ pub struct GpuContext {
     /// Compiled kernels kept on disk, once a folder is given
     /// ([`GpuContext::keep_kernels_in`]).
     kept: std::sync::Arc<std::sync::OnceLock<KeptKernels>>,
+    /// The LB solver's kernels and grids kept on this device across solves
+    /// (channels, suns, frames).
+    pub(crate) lb: std::sync::Arc<std::sync::Mutex<crate::lb::DeviceLb>>,
 }
 
 /// The most bytes of kept kernels read back: a bound on what a file may
@@ -106,7 +109,14 @@ impl GpuContext {
             .await
             .with_context(|| format!("cannot open a device on {}", adapter.get_info().name))?;
         device.on_uncaptured_error(std::sync::Arc::new(|e| tracing::error!("wgpu: {e}")));
-        let ctx = Self { adapter, device, queue, limits, kept: Default::default() };
+        let ctx = Self {
+            adapter,
+            device,
+            queue,
+            limits,
+            kept: Default::default(),
+            lb: Default::default(),
+        };
         tracing::info!(adapter = %ctx.adapter_name(), "GPU opened");
         Ok(ctx)
     }

@@ -60,6 +60,8 @@ pub struct Reuse {
     pub coverage: Option<Arc<Vec<Vec<Coverage>>>>,
     /// LB light solved before for this scene, lighting and sun.
     pub lb: Option<Arc<SceneLb>>,
+    /// The scene's LB media (any sun), voxelized before.
+    pub lb_media: Option<Arc<lighting::lb::LbMedia>>,
     /// Where on disk to look for what is missing before building or
     /// solving it.
     pub disk: Option<DiskSource>,
@@ -190,7 +192,8 @@ pub fn prepare_reusing(
     let lb_now = needs.lb && reuse.lb.is_none();
     let (built, lb) = std::thread::scope(|s| {
         let builder = s.spawn(structures);
-        let lb = lb_now.then(|| lighting::lb::prepare(ctx, scene, &mut phases, progress));
+        let lb = lb_now
+            .then(|| lighting::lb::prepare(ctx, scene, &mut reuse.lb_media, &mut phases, progress));
         (builder.join(), lb)
     });
     let (accel, coverage, built_phases) =

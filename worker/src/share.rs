@@ -16,7 +16,7 @@ use sylva_accel::{Accel, AccelKind, SceneAccel};
 use sylva_scene::Scene;
 
 /// The layout's version: data of another version is refused, not misread.
-const FORMAT: u32 = 2;
+const FORMAT: u32 = 3;
 
 /// What goes over the wire, borrowed for encoding.
 #[derive(Serialize)]

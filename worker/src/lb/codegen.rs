@@ -4,7 +4,7 @@
 use std::fmt::Write;
 use sylva_light::lb::collision::{PAIRS, PairedOmega};
 use sylva_light::lb::lattice::{DIRECTIONS, Q};
-use sylva_light::lb::{Collision, GridDims, GroundReflection};
+use sylva_light::lb::{Boundary, Collision, GridDims, GroundReflection};
 
 /// The kernel template.
 const TEMPLATE: &str = include_str!("../../../shaders/lb/step.wgsl");
@@ -58,8 +58,8 @@ impl StateLayout {
         }
         let dirs_per_buffer = ((limit / per_dir) as usize).min(Q);
         let buffers = Q.div_ceil(dirs_per_buffer);
-        // Two state copies, density, class, node totals, group sums.
-        let need = 2 * buffers as u32 + 4;
+        // Two state copies, density, class, node totals, group sums, light in.
+        let need = 2 * buffers as u32 + 5;
         if need > limits.max_storage_buffers_per_shader_stage {
             return Err(LayoutError::TooManyBindings {
                 dims,
@@ -94,19 +94,27 @@ impl StateLayout {
     }
 
     /// Binding numbers: state copies `0..B` (read) and `B..2B` (written),
-    /// then density, class, node totals, group sums.
+    /// then density, class, node totals, group sums, and the light that
+    /// enters ([`light_in`]).
     pub fn binding_density(&self) -> u32 {
         2 * self.buffers as u32
     }
 }
 
+/// The light that enters a lattice, as the kernels read it (binding
+/// `binding_density() + 4`): per direction the boundary density, then per
+/// direction the reflecting ground's emission per unit irradiance (zeros
+/// without a ground). The sun lives here rather than in the generated
+/// code, so a new sun compiles nothing.
+pub fn light_in(boundary: &Boundary) -> [f32; 2 * Q] {
+    let emit = boundary.ground.map_or([0.0; Q], |g| g.emit());
+    std::array::from_fn(|i| if i < Q { boundary.values[i] } else { emit[i - Q] })
+}
+
 /// The WGSL for one channel's collision matrices on `layout`, with the
-/// bottom face reflecting as `ground` says.
-pub fn step_shader(
-    layout: &StateLayout,
-    collision: &Collision,
-    ground: Option<&GroundReflection>,
-) -> String {
+/// bottom face reflecting when `ground` (its emission is read from
+/// [`light_in`]).
+pub fn step_shader(layout: &StateLayout, collision: &Collision, ground: bool) -> String {
     let d = layout.dims;
     let b = layout.buffers;
     let mut bindings = String::new();
@@ -143,23 +151,27 @@ pub fn step_shader(
         base + 3
     )
     .unwrap();
+    writeln!(bindings, "@group(0) @binding({}) var<storage, read> light_in: array<f32>;", base + 4)
+        .unwrap();
 
     let mut gather = String::new();
     let mut store = String::new();
     let mut declare = String::new();
     let mut sum = Vec::new();
     let mut incoming = Vec::new();
+    let mut init = String::new();
     for (m, &c) in DIRECTIONS.iter().enumerate() {
         let (buf, at) = layout.location(m);
         let off = d.offset(c);
         let shift = pull_shift(off);
         writeln!(gather, "    let f{m} = src{buf}[{at}u + idx{shift}];").unwrap();
         writeln!(store, "    dst{buf}[{at}u + idx] = o{m};").unwrap();
+        writeln!(init, "    dst{buf}[{at}u + idx] = select(0.0, light_in[{m}u], edge);").unwrap();
         writeln!(declare, "    var o{m}: f32;").unwrap();
         sum.push(format!("src{buf}[{at}u + idx]"));
         incoming.push(format!("src{buf}[{at}u + idx{shift}]"));
     }
-    let ground = ground.map_or(String::new(), |g| ground_code(layout, g));
+    let ground = if ground { ground_code(layout) } else { String::new() };
     TEMPLATE
         .replace("{{NX}}", &d.nx.to_string())
         .replace("{{NY}}", &d.ny.to_string())
@@ -173,6 +185,7 @@ pub fn step_shader(
         .replace("{{COLLIDE_MEDIUM}}", &collide(&collision.medium))
         .replace("{{COLLIDE_BROWN}}", &collide(&collision.brown))
         .replace("{{STORE}}", store.trim_end())
+        .replace("{{INIT}}", init.trim_end())
         .replace("{{GROUND}}", &ground)
         .replace("{{SUM}}", &sum.join(" + "))
         .replace("{{INCOMING}}", &incoming.join(" + "))
@@ -189,10 +202,11 @@ fn pull_shift(off: isize) -> String {
 
 /// The reflecting ground for nodes of the bottom face off the other faces:
 /// `e = Σ collect_m f_m(r − c_m)` over downward directions, in direction
-/// order as the CPU reference sums, then `emit_m × e` upward.
-fn ground_code(layout: &StateLayout, ground: &GroundReflection) -> String {
+/// order as the CPU reference sums, then `emit_m × e` upward where
+/// `emit_m` is not zero (as the CPU reference skips it).
+fn ground_code(layout: &StateLayout) -> String {
     let d = layout.dims;
-    let (collect, emit) = (GroundReflection::collect(), ground.emit());
+    let collect = GroundReflection::collect();
     let mut terms = Vec::new();
     let mut stores = String::new();
     for (m, &c) in DIRECTIONS.iter().enumerate() {
@@ -204,9 +218,13 @@ fn ground_code(layout: &StateLayout, ground: &GroundReflection) -> String {
                 pull_shift(d.offset(c))
             ));
         }
-        if emit[m] != 0.0 {
-            writeln!(stores, "            dst{buf}[{at}u + idx] = {} * e;", literal(emit[m]))
-                .unwrap();
+        if DIRECTIONS[m][1] > 0 {
+            let w = Q + m;
+            writeln!(
+                stores,
+                "            if light_in[{w}u] != 0.0 {{ dst{buf}[{at}u + idx] = light_in[{w}u] * e; }}"
+            )
+            .unwrap();
         }
     }
     format!(
@@ -302,12 +320,8 @@ mod tests {
         let coll = Collision::new(&ChannelParams { sigma_a: 0.109, sigma_s: 0.891, g: -0.12 });
         for (n, binding) in [(8usize, 128u64 << 20), (128, 128 << 20), (64, 2 << 20)] {
             let layout = StateLayout::new(GridDims::cube(n), &limits(binding)).unwrap();
-            validate(&step_shader(&layout, &coll, None));
-            validate(&step_shader(
-                &layout,
-                &coll,
-                Some(&GroundReflection { albedo: 0.3, gain: 1.4 }),
-            ));
+            validate(&step_shader(&layout, &coll, false));
+            validate(&step_shader(&layout, &coll, true));
         }
     }
 

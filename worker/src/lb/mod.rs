@@ -6,8 +6,10 @@ pub mod codegen;
 mod gpu_solver;
 
 pub use codegen::StateLayout;
-pub use gpu_solver::GpuSolver;
+pub(crate) use gpu_solver::DeviceLb;
+pub use gpu_solver::{GpuSolver, KeptCounts};
 
+use crate::gpu::GpuContext;
 use sylva_light::lb::{CpuSolver, LightingSolver};
 
 /// Which machine solves the LB light.
@@ -18,6 +20,37 @@ pub enum Backend {
     Cpu,
     /// The wgpu solver.
     Gpu,
+}
+
+impl Backend {
+    /// Where a scene's LB light is solved beside tracing on `ctx`: on the
+    /// GPU, unless the adapter is itself the CPU (lavapipe). There the
+    /// rayon solver does the same steps natively, about 10× faster than
+    /// the WGSL kernel run through a software Vulkan (`sylva bench lb
+    /// --medium plant`: 33 against 3.1 MLUPS at 64³ on 2 cores; docs/lb.md).
+    pub fn for_adapter(ctx: &GpuContext) -> Self {
+        match ctx.adapter.get_info().device_type {
+            wgpu::DeviceType::Cpu => Backend::Cpu,
+            _ => Backend::Gpu,
+        }
+    }
+
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Cpu => "cpu",
+            Backend::Gpu => "gpu",
+        }
+    }
+}
+
+/// The solver a scene's LB light is solved with on `ctx`
+/// ([`Backend::for_adapter`]).
+pub fn scene_solver(ctx: &GpuContext) -> Box<dyn LightingSolver + Send> {
+    match Backend::for_adapter(ctx) {
+        Backend::Cpu => Box::new(CpuSolver),
+        Backend::Gpu => Box::new(GpuSolver::new(ctx.clone())),
+    }
 }
 
 /// A solver for `backend`: the CPU reference, or the wgpu solver on this

@@ -4,7 +4,6 @@
 //! path-traces the same density.
 
 use crate::gpu::GpuContext;
-use crate::lb::GpuSolver;
 use sylva_light::lb::LbParams;
 use sylva_light::lb::{SolveOptions, Sun, solve};
 use sylva_scene::Scene;
@@ -14,14 +13,14 @@ use sylva_scene::format::Preset;
 pub fn solve_clouds(ctx: &GpuContext, scene: &Scene) -> anyhow::Result<Vec<CloudGrid>> {
     let sun = Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)?;
     let params = LbParams::from_preset(Preset::Cloud);
-    let mut solver = GpuSolver::new(ctx.clone());
+    let mut solver = crate::lb::scene_solver(ctx);
     scene
         .clouds
         .iter()
         .map(|c| {
             let medium = sylva_light::shapes::cloud(c.grid, c.seed);
             let s = solve(
-                &mut solver,
+                solver.as_mut(),
                 &medium,
                 &params,
                 &sun,

@@ -116,6 +116,7 @@ impl State {
         lock(&self.imported).remove(hash);
         lock(&self.prepared).retain(|k, _| k.0 != hash);
         lock(&self.accels).retain(|k, _| k.0 != hash);
+        lock(&self.media).remove(hash);
         lock(&self.lbs).retain(|k, _| k.0 != hash);
         lock(&self.choices).remove(hash);
         let _ = std::fs::remove_dir_all(self.config.cache_dir.join(hash));
@@ -156,6 +157,9 @@ impl State {
         let mut add = |h: &str, b: u64| *held.entry(h.to_string()).or_insert(0) += b;
         for ((h, _), a) in lock(&self.accels).iter() {
             add(h, a.bytes() as u64);
+        }
+        for (h, m) in lock(&self.media).iter() {
+            add(h, m.bytes());
         }
         for ((h, _), l) in lock(&self.lbs).iter() {
             add(h, l.value.bytes());
@@ -221,6 +225,7 @@ impl State {
                 .structure()
                 .and_then(|k| lock(&self.accels).get(&(hash.to_string(), k)).cloned()),
             coverage: None,
+            lb_media: lock(&self.media).get(hash).cloned(),
             lb: if needs.lb {
                 lock(&self.lbs).get_mut(&lb_key).map(|l| {
                     l.stamp = self.tick();
@@ -269,6 +274,9 @@ impl State {
         }
         if let (Some(a), false) = (reuse.accel, built_before) {
             lock(&self.accels).insert((hash.to_string(), a.kind), a);
+        }
+        if let Some(m) = reuse.lb_media.take() {
+            lock(&self.media).insert(hash.to_string(), m);
         }
         if let (Some(lb), false) = (reuse.lb, solved_before) {
             self.keep_lb(lb_key, lb);

@@ -141,6 +141,8 @@ struct State {
     prepared: Mutex<HashMap<PreparedKey, Used<Arc<PreparedScene>>>>,
     /// Acceleration structures by (hash, structure): kept across views.
     accels: Mutex<HashMap<(String, AccelKind), Arc<sylva_accel::SceneAccel>>>,
+    /// Each scene's LB media, voxelized once for every sun (by bundle hash).
+    media: Mutex<HashMap<String, Arc<crate::lighting::lb::LbMedia>>>,
     /// LB light by (hash, sun), least recently used dropped first.
     lbs: Mutex<HashMap<LbKey, Used<Arc<SceneLb>>>>,
     /// Use counter for the caches' recency.
@@ -191,6 +193,7 @@ impl WorkerService {
                 bundles: Mutex::new(HashMap::new()),
                 prepared: Mutex::new(HashMap::new()),
                 accels: Mutex::new(HashMap::new()),
+                media: Mutex::new(HashMap::new()),
                 lbs: Mutex::new(HashMap::new()),
                 clock: AtomicU64::new(0),
                 lb_solves: AtomicU64::new(0),

@@ -134,3 +134,34 @@ fn vacuum_over_a_reflecting_ground_is_the_open_field() {
         }
     }
 }
+
+#[test]
+fn a_new_sun_on_a_kept_grid_compiles_and_uploads_nothing_and_solves_as_a_fresh_device() {
+    let dims = GridDims { nx: 18, ny: 14, nz: 16 };
+    let medium = random_medium(dims, 9);
+    let params = LbParams::from_preset(Preset::Leaf);
+    let opts = SolveOptions::default();
+    let mut kept = gpu();
+    let before = kept.made();
+    for b in over_ground().boundaries() {
+        kept.solve_channel(&medium, &params.channels[0], &b, &opts, &|_, _| {}).unwrap();
+    }
+    let first = kept.made();
+    assert_eq!(first.uploaded - before.uploaded, 1, "one medium, uploaded once");
+    assert_eq!(first.compiled - before.compiled, 1, "one collision, one ground: compiled once");
+    // A new sun, every channel's own collision.
+    let low = sylva_light::lb::Illumination {
+        sun: Sun::from_elevation_azimuth(12.0, 200.0, 1.0).unwrap(),
+        ..over_ground()
+    };
+    let mut fresh = gpu();
+    for (c, b) in low.boundaries().iter().enumerate() {
+        let again = kept.solve_channel(&medium, &params.channels[c], b, &opts, &|_, _| {}).unwrap();
+        let new = fresh.solve_channel(&medium, &params.channels[c], b, &opts, &|_, _| {}).unwrap();
+        assert_eq!(again.report.steps, new.report.steps, "channel {c}");
+        assert!(again.total == new.total, "channel {c}: a kept grid solves as a fresh one");
+    }
+    let second = kept.made();
+    assert_eq!(second.uploaded, first.uploaded, "the medium stays on the device");
+    assert_eq!(second.compiled - first.compiled, 2, "green and blue's collisions; no sun compiled");
+}

@@ -482,7 +482,8 @@ fn at_a_low_sun_the_ground_under_the_stand_meets_the_open_ground_without_a_step(
     let scene = Scene::build(parse(text, "low-sun.json").unwrap(), &dir, "low-sun.json").unwrap();
     let ctx = ctx();
     let mut phases = sylva_light::lb::solver::PhaseTimer::default();
-    let lb = sylva_worker::lighting::lb::prepare(&ctx, &scene, &mut phases, &|_| {}).unwrap();
+    let lb =
+        sylva_worker::lighting::lb::prepare(&ctx, &scene, &mut None, &mut phases, &|_| {}).unwrap();
     let g = lb.ground.expect("the forest grid lights the ground");
     let open = [0, 1, 2]
         .map(|c| std::f32::consts::PI * (0.2 * [0.75, 0.82, 0.9][c] + 0.8 * [0.25, 0.45, 0.85][c]));

@@ -4,7 +4,6 @@
 
 use super::solve_model;
 use crate::gpu::GpuContext;
-use crate::lb::GpuSolver;
 use serde::Serialize;
 use sylva_light::lb::LbGrid;
 use sylva_scene::Scene;
@@ -39,7 +38,7 @@ pub fn choose_lb_grids(
         candidates.len() >= 2 && candidates.windows(2).all(|w| w[0] < w[1]),
         "auto grid candidates must be at least two, ascending"
     );
-    let mut solver = GpuSolver::new(ctx.clone());
+    let mut solver = crate::lb::scene_solver(ctx);
     let mut out = Vec::new();
     for m in &scene.models {
         let t = std::time::Instant::now();
@@ -53,12 +52,12 @@ pub fn choose_lb_grids(
             pts.iter().map(|&p| g.sample(p).iter().sum::<f32>()).collect()
         };
         progress(&format!("choosing the LB grid of {} ({}³)", m.name, candidates[0]));
-        let mut coarse = light_at(&solve_model(&mut solver, scene, m, candidates[0])?.0);
+        let mut coarse = light_at(&solve_model(solver.as_mut(), scene, m, candidates[0])?.0);
         let mut compared = Vec::new();
         let mut chosen = None;
         for w in candidates.windows(2) {
             progress(&format!("choosing the LB grid of {} ({}³)", m.name, w[1]));
-            let fine = light_at(&solve_model(&mut solver, scene, m, w[1])?.0);
+            let fine = light_at(&solve_model(solver.as_mut(), scene, m, w[1])?.0);
             let num: f64 = coarse.iter().zip(&fine).map(|(a, b)| ((a - b) as f64).powi(2)).sum();
             let den: f64 = fine.iter().map(|b| (*b as f64).powi(2)).sum();
             let diff = if den > 0.0 { (num / den).sqrt() } else { 0.0 };

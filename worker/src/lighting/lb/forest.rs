@@ -7,7 +7,6 @@
 
 use super::sun_of;
 use crate::gpu::GpuContext;
-use crate::lb::GpuSolver;
 use sylva_accel::Aabb;
 use sylva_accel::two_level::model_bounds;
 use sylva_light::lb::coarse::{
@@ -15,7 +14,8 @@ use sylva_light::lb::coarse::{
     forest_medium,
 };
 use sylva_light::lb::{
-    GridDims, Illumination, IndirectSolution, LbGrid, LbParams, SolveOptions, solve, solve_indirect,
+    GridDims, Illumination, IndirectSolution, LbGrid, LbParams, LightingSolver, SolveOptions,
+    solve, solve_indirect,
 };
 use sylva_light::voxel::medium_from_leaf_area;
 use sylva_scene::format::Preset;
@@ -60,9 +60,9 @@ pub fn paper(
     let grid = WorldGrid::around(all, spec.grid);
     let medium = forest_medium(&grid, &occupants);
     let sun = sun_of(scene)?;
-    let mut solver = GpuSolver::new(ctx.clone());
+    let mut solver = crate::lb::scene_solver(ctx);
     let sol = solve(
-        &mut solver,
+        solver.as_mut(),
         &medium,
         &LbParams::from_preset(Preset::Leaf),
         &sun,
@@ -111,9 +111,9 @@ pub fn grounded(
     let (area, leaves) = forest_leaf_area(scene, areas, &grid);
     let medium = medium_from_leaf_area(&area, d, grid.cell);
     let light = Illumination::of_scene(scene);
-    let mut solver = GpuSolver::new(ctx.clone());
+    let mut solver = crate::lb::scene_solver(ctx);
     let sol = solve_indirect(
-        &mut solver,
+        solver.as_mut(),
         &medium,
         &leaves.params(),
         &light,
@@ -142,7 +142,7 @@ pub fn grounded(
             // lets through, each node's read-out over the same read-out of
             // an empty lattice under the same sky (docs/lighting.md, "The
             // forest grid, the ground and the trunks under the stand").
-            let open = open_floor(&mut solver, &leaves.params(), &light, grid.cell)?;
+            let open = open_floor(solver.as_mut(), &leaves.params(), &light, grid.cell)?;
             let exact = light.sky_irradiance_horizontal();
             let middle = GridDims { nx: OPEN, ny: OPEN, nz: OPEN }.index(OPEN / 2, 1, OPEN / 2);
             let scale: [f32; 3] = std::array::from_fn(|c| {
@@ -193,7 +193,7 @@ const OPEN: usize = 8;
 /// An empty lattice of the forest grid's cell under the same sun, sky and
 /// reflecting ground: the open field as the lattice holds it.
 fn open_floor(
-    solver: &mut GpuSolver,
+    solver: &mut dyn LightingSolver,
     params: &LbParams,
     light: &Illumination,
     cell: f32,

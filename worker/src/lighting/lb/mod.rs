@@ -12,14 +12,13 @@ pub mod forest;
 
 use super::method::{Kernel, Method, Needs};
 use crate::gpu::GpuContext;
-use crate::lb::GpuSolver;
 use forest::GroundLight;
 use serde::Serialize;
 use sylva_light::lb::coarse::{ForestLight, ModelArea};
 use sylva_light::lb::solver::PhaseTimer;
 use sylva_light::lb::{
-    GridDims, Illumination, LbGrid, LbParams, MediumGrid, NodeClass, SolveOptions, Sun, solve,
-    solve_indirect,
+    GridDims, Illumination, LbGrid, LbParams, LightingSolver, MediumGrid, NodeClass, SolveOptions,
+    Sun, solve, solve_indirect,
 };
 use sylva_light::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
 use sylva_proto::pb;
@@ -81,6 +80,9 @@ pub struct ModelLight {
     pub reflecting_floor: bool,
     /// Where the LB model is not to be trusted for this medium, and why.
     pub warnings: Vec<String>,
+    /// What solved it: "cpu (N threads)" where the adapter is the CPU
+    /// itself, else the GPU adapter ([`crate::lb::Backend::for_adapter`]).
+    pub solver: String,
 }
 
 /// A model's LB medium, ready to solve.
@@ -174,7 +176,7 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
 /// tracer does not add (scattered sun, sky) in physical units; the paper
 /// model keeps the total density of a unit sun.
 fn solve_medium(
-    solver: &mut GpuSolver,
+    solver: &mut dyn LightingSolver,
     scene: &Scene,
     m: &SceneModel,
     mm: &ModelMedium,
@@ -240,6 +242,7 @@ fn solve_medium(
         uncollided_steps,
         reflecting_floor: scene.file.lb_model == LbModel::Grounded && mm.on_ground,
         warnings,
+        solver: solver.name(),
     };
     Ok((
         LbGrid { dims: mm.medium.dims, frame: mm.frame, rgb, occupancy: mm.medium.occupancy() },
@@ -249,7 +252,7 @@ fn solve_medium(
 
 /// Builds and solves one model's grid of about `n³` nodes.
 pub(crate) fn solve_model(
-    solver: &mut GpuSolver,
+    solver: &mut dyn LightingSolver,
     scene: &Scene,
     m: &SceneModel,
     n: usize,
@@ -272,31 +275,78 @@ pub struct SceneLb {
     pub forest: ForestLight,
 }
 
-/// Voxelizes and solves every model, then the forest grid; times each
-/// phase ("voxelize", "lb", "forest lb") into `phases`.
-pub fn prepare(
-    ctx: &GpuContext,
-    scene: &Scene,
-    phases: &mut PhaseTimer,
-    progress: &dyn Fn(&str),
-) -> anyhow::Result<SceneLb> {
-    progress("voxelizing models");
-    // Each model's medium on its own: voxelized in parallel.
-    let media = phases.time("voxelize", || {
+/// Every model's LB medium, which the sun does not change: a sequence's
+/// new sun solves the light again on these, not voxelizes again.
+pub struct LbMedia {
+    /// The grid size each model was voxelized at (they are kept for these).
+    grids: Vec<usize>,
+    /// Per model, its medium.
+    media: Vec<ModelMedium>,
+    /// Per model, its leaf area on its grid (grounded), for the forest grid.
+    areas: Vec<Option<ModelArea>>,
+}
+
+impl LbMedia {
+    /// Voxelizes every model of `scene` at its LB grid, in parallel.
+    pub fn of(scene: &Scene) -> anyhow::Result<Self> {
         use rayon::prelude::*;
-        scene
+        let media = scene
             .models
             .par_iter()
             .map(|m| medium_of(scene, m, m.lb.grid))
-            .collect::<anyhow::Result<Vec<_>>>()
-    })?;
-    let mut solver = GpuSolver::new(ctx.clone());
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let areas = media
+            .iter()
+            .map(|mm| {
+                let area = mm.area.clone()?;
+                Some(ModelArea { frame: mm.frame, dims: mm.medium.dims, area })
+            })
+            .collect();
+        Ok(Self { grids: scene.models.iter().map(|m| m.lb.grid).collect(), media, areas })
+    }
+
+    /// Whether these media are `scene`'s (its models' grids unchanged).
+    pub fn fits(&self, scene: &Scene) -> bool {
+        self.grids.iter().copied().eq(scene.models.iter().map(|m| m.lb.grid))
+    }
+
+    /// Bytes held, for caches' budgets.
+    pub fn bytes(&self) -> u64 {
+        let per_node = |mm: &ModelMedium| {
+            let leaf = mm.area.as_ref().map_or(0, |a| 3 * a.density.len());
+            mm.medium.density.len() + mm.medium.class.len() / 4 + leaf
+        };
+        (self.media.iter().map(per_node).sum::<usize>() * 4) as u64
+    }
+}
+
+/// Voxelizes every model (unless `media` holds them already) and solves
+/// it, then the forest grid; times each phase ("voxelize", "lb", "forest
+/// lb") into `phases` and leaves the media in `media` for the next sun.
+pub fn prepare(
+    ctx: &GpuContext,
+    scene: &Scene,
+    media: &mut Option<std::sync::Arc<LbMedia>>,
+    phases: &mut PhaseTimer,
+    progress: &dyn Fn(&str),
+) -> anyhow::Result<SceneLb> {
+    let kept = media.clone().filter(|m| m.fits(scene));
+    let media = match kept {
+        Some(m) => m,
+        None => {
+            progress("voxelizing models");
+            let m = std::sync::Arc::new(phases.time("voxelize", || LbMedia::of(scene))?);
+            *media = Some(m.clone());
+            m
+        }
+    };
+    let mut solver = crate::lb::scene_solver(ctx);
     let mut grids = Vec::new();
     let mut light = Vec::new();
     phases.time("lb", || -> anyhow::Result<()> {
-        for (m, mm) in scene.models.iter().zip(&media) {
+        for (m, mm) in scene.models.iter().zip(&media.media) {
             progress(&format!("LB light of {} ({})", m.name, mm.medium.dims));
-            let (grid, report) = solve_medium(&mut solver, scene, m, mm, m.lb.grid)?;
+            let (grid, report) = solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid)?;
             for w in &report.warnings {
                 tracing::warn!(model = %m.name, "LB: {w}");
             }
@@ -305,17 +355,13 @@ pub fn prepare(
         }
         Ok(())
     })?;
-    let areas: Vec<Option<ModelArea>> = media
-        .into_iter()
-        .map(|mm| mm.area.map(|area| ModelArea { frame: mm.frame, dims: mm.medium.dims, area }))
-        .collect();
     let mut scales = vec![1.0f32; scene.instances.len()];
     progress("LB light of the whole forest");
     let (forest, ground) =
         phases.time("forest lb", || -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
             match scene.file.lb_model {
                 LbModel::Paper => Ok((forest::paper(ctx, scene, &grids, &mut scales)?, None)),
-                LbModel::Grounded => forest::grounded(ctx, scene, &areas, &mut scales),
+                LbModel::Grounded => forest::grounded(ctx, scene, &media.areas, &mut scales),
             }
         })?;
     Ok(SceneLb { grids, scales, ground, light, forest })
