@@ -71,6 +71,9 @@ pub struct Reuse {
     /// before (measured here or taken with another worker's data); after
     /// an `auto` preparation, the choice it made or took.
     pub choice: Option<crate::share::SharedChoice>,
+    /// The scene prepared before under another sun (or view), whose
+    /// buffers a new light can share ([`GpuScene::relit`]).
+    pub previous: Option<Arc<PreparedScene>>,
     /// Whether the last preparation built the structures itself.
     pub built: bool,
     /// Whether the last preparation solved the LB light itself.
@@ -244,6 +247,20 @@ pub fn prepare_reusing(
             Backend::Cwbvh => "upload cwbvh",
             _ => "upload",
         };
+        // Under a new sun only the light goes up, beside the buffers
+        // uploaded before (the structures are the same: one candidate, the
+        // backend the scene was prepared with, nothing built since).
+        let before = reuse
+            .previous
+            .as_ref()
+            .map(|p| p.renderer.scene())
+            .filter(|s| candidates.len() == 1 && s.backend == b && !reuse.built);
+        if let Some(s) = before
+            && let Some(g) = phases.time("relight", || s.relit(ctx, &light))?
+        {
+            uploads.push(g);
+            continue;
+        }
         match phases.time(name, || GpuScene::upload(ctx, scene, structure(b), &light)) {
             Ok(g) => uploads.push(g),
             // `auto` runs without a candidate the scene does not fit (the

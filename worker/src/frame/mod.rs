@@ -128,7 +128,9 @@ impl Preparer for Fresh {
         if let Some(d) = &mut self.reuse.disk {
             d.sun = sun;
         }
-        let p = prepare_reusing(tracer, scene, accel, lighting, &mut self.reuse, progress)?;
+        let p =
+            Arc::new(prepare_reusing(tracer, scene, accel, lighting, &mut self.reuse, progress)?);
+        self.reuse.previous = Some(p.clone());
         let found = self.reuse.found;
         if found.accel || found.lb {
             tracing::info!(
@@ -137,7 +139,7 @@ impl Preparer for Fresh {
                 "prepared data read from the disk cache"
             );
         }
-        Ok(Arc::new(p))
+        Ok(p)
     }
 }
 

@@ -27,7 +27,8 @@ impl Backend {
     /// GPU, unless the adapter is itself the CPU (lavapipe). There the
     /// rayon solver does the same steps natively, about 10× faster than
     /// the WGSL kernel run through a software Vulkan (`sylva bench lb
-    /// --medium plant`: 33 against 3.1 MLUPS at 64³ on 2 cores; docs/lb.md).
+    /// --medium plant` at 64³ on 2 cores, Mesa 25: 39.7 against 6.9 MLUPS
+    /// stepping; docs/lighting.md, "Where the LB is solved").
     pub fn for_adapter(ctx: &GpuContext) -> Self {
         match ctx.adapter.get_info().device_type {
             wgpu::DeviceType::Cpu => Backend::Cpu,

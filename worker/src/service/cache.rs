@@ -237,6 +237,13 @@ impl State {
             // `auto` is measured once per scene and adapter: by this worker,
             // or by the one whose prepared data it took.
             choice: lock(&self.choices).get(hash).cloned(),
+            // The newest preparation of this scene under another sun: a
+            // new sun's light goes up beside its buffers.
+            previous: lock(&self.prepared)
+                .iter()
+                .filter(|(k, _)| (&k.0, k.1, k.2) == (&key.0, key.1, key.2))
+                .max_by_key(|(_, u)| u.stamp)
+                .map(|(_, u)| u.value.clone()),
             // What memory lacks, the disk may hold from before a restart.
             disk: self.config.disk_cache.clone().map(|cache| crate::prepare::DiskSource {
                 cache,

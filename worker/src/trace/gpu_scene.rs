@@ -220,7 +220,24 @@ pub struct GpuScene {
     /// Where the ground's light lies in the LB buffer: `(origin x, origin z,
     /// cell, 0)` and `(nx, nz, offset, 1)`; all zero when there is none.
     pub ground: ([f32; 4], [u32; 4]),
+    /// What a new sun's light needs to go up without the rest
+    /// ([`GpuScene::relit`]); none with ray queries.
+    relight: Option<Relight>,
 }
+
+/// A walked scene's buffers (group 0's, in binding order) and the parts
+/// of its flat arrays the light is written into.
+struct Relight {
+    buffers: Vec<wgpu::Buffer>,
+    instances: Vec<GpuInstance>,
+    models: Vec<GpuModel>,
+    lb_len: usize,
+    envelopes: bool,
+}
+
+/// Group 0's bindings that hold light: instances (their LB scale), LB
+/// grids, clouds and the clouds' data.
+const LIGHT_BINDINGS: [usize; 4] = [8, 10, 11, 12];
 
 /// The flat arrays before upload.
 #[derive(Default)]
@@ -548,6 +565,8 @@ impl GpuScene {
             f.rq_triangles.push(0);
         }
         let rq = backend == Backend::Rq;
+        let light_parts = (!rq)
+            .then(|| (f.instances.clone(), f.models.clone(), f.lb.len(), f.envelope.len() > 1));
         let mut bytes = 0u64;
         let mut buffer = |label: &str, contents: &[u8], usage: wgpu::BufferUsages| {
             bytes += contents.len() as u64;
@@ -614,6 +633,13 @@ impl GpuScene {
             layout: &layout,
             entries: &bg_entries,
         });
+        let relight = light_parts.map(|(instances, models, lb_len, envelopes)| Relight {
+            buffers: buffers.clone(),
+            instances,
+            models,
+            lb_len,
+            envelopes,
+        });
         Ok(Self {
             layout,
             bind_group,
@@ -622,7 +648,106 @@ impl GpuScene {
             backend,
             rq: rq_structures,
             ground: ([0.0; 4], [0; 4]),
+            relight,
         })
+    }
+
+    /// This scene under new light (a new sun's LB grids, instance scales,
+    /// ground and clouds), sharing every other buffer with it: a sun
+    /// sweep sends the device its light, not its structures again. `None`
+    /// where the light does not fit this scene's places (other grids,
+    /// envelopes, ray queries): upload the scene whole.
+    pub fn relit(&self, ctx: &GpuContext, light: &SceneLight) -> anyhow::Result<Option<Self>> {
+        let Some(r) = &self.relight else { return Ok(None) };
+        if r.envelopes || light.envelopes.iter().any(Option::is_some) {
+            return Ok(None);
+        }
+        let mut f = Flat::default();
+        for (m, gm) in r.models.iter().enumerate() {
+            match light.models.get(m).and_then(Option::as_ref) {
+                Some(g) => {
+                    let d = g.dims;
+                    let same = gm.has_lb == 1
+                        && gm.lb_offset as usize == f.lb.len()
+                        && gm.lb_dims == [d.nx as u32, d.ny as u32, d.nz as u32]
+                        && gm.lb_origin == g.frame.origin
+                        && gm.lb_cell == g.frame.cell
+                        && g.rgb.len() == 3 * d.len();
+                    if !same {
+                        return Ok(None);
+                    }
+                    f.lb.extend_from_slice(&g.rgb);
+                }
+                None if gm.has_lb == 0 => {}
+                None => return Ok(None),
+            }
+        }
+        let ground = push_ground(&mut f, light)?;
+        if f.lb.len().max(1) != r.lb_len {
+            return Ok(None);
+        }
+        if f.lb.is_empty() {
+            f.lb.push(0.0);
+        }
+        push_clouds(&mut f, &light.clouds)?;
+        if f.clouds.is_empty() {
+            f.clouds.push(GpuCloud::zeroed());
+        }
+        if f.cloud_data.is_empty() {
+            f.cloud_data.push(0.0);
+        }
+        let mut instances = r.instances.clone();
+        for (i, inst) in instances.iter_mut().enumerate() {
+            inst.lb_scale = light.instance_scales.get(i).copied().unwrap_or(1.0);
+        }
+        let contents: [&[u8]; 4] = [
+            bytemuck::cast_slice(&instances),
+            bytemuck::cast_slice(&f.lb),
+            bytemuck::cast_slice(&f.clouds),
+            bytemuck::cast_slice(&f.cloud_data),
+        ];
+        let mut buffers = r.buffers.clone();
+        for (b, bytes) in LIGHT_BINDINGS.into_iter().zip(contents) {
+            anyhow::ensure!(
+                bytes.len() as u64 <= ctx.limits.max_storage_buffer_binding_size,
+                "the scene's light needs {} bytes, more than this GPU's storage-binding limit",
+                bytes.len()
+            );
+            buffers[b] = ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("scene light"),
+                contents: bytes,
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+        }
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("scene"),
+            layout: &self.layout,
+            entries: &entries,
+        });
+        Ok(Some(Self {
+            layout: self.layout.clone(),
+            bind_group,
+            triangle_offsets: self.triangle_offsets.clone(),
+            bytes: self.bytes,
+            backend: self.backend,
+            rq: None,
+            ground,
+            relight: Some(Relight {
+                buffers,
+                instances,
+                models: r.models.clone(),
+                lb_len: r.lb_len,
+                envelopes: false,
+            }),
+        }))
     }
 
     /// Group 0's layout for a scene traced by `backend`: 14 storage buffers

@@ -216,6 +216,11 @@ impl StripRenderer {
         Ok(Self::build(gpu_scene, scene, kernels))
     }
 
+    /// The uploaded scene it traces.
+    pub fn scene(&self) -> &GpuScene {
+        &self.scene
+    }
+
     fn build(gpu_scene: GpuScene, scene: &Scene, kernels: Arc<Kernels>) -> Self {
         let mut base = FrameUniform {
             sun_radiance: scene.sun.radiance,

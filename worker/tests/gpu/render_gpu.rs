@@ -255,3 +255,49 @@ fn a_cloud_dims_what_lies_behind_it_and_glows_where_lit() {
     // Corners miss the cloud and are untouched.
     assert_eq!(clear.pixels[0], cloudy.pixels[0]);
 }
+
+/// A sun sweep's next sun sends the device its light alone (no
+/// voxelizing, no upload of the structures) and renders the frame that
+/// a whole preparation under that sun renders, to the bit.
+#[test]
+fn a_new_sun_relights_the_uploaded_scene_and_renders_what_a_whole_upload_renders() {
+    use sylva_scene::sequence::View;
+    use sylva_worker::frame::{Fresh, Preparer};
+    let ctx = ctx();
+    let scene = small_forest();
+    let sun = |s: [f32; 3]| View { camera: None, sun_towards: Some(s) };
+    let (first, next) = (sun([0.3, 0.8, 0.2]), sun([-0.5, 0.5, 0.6]));
+    let mut sweep = Fresh::default();
+    let (bvh, lb) = (Backend::Bvh, LightingMode::Lb);
+    let a = sweep.prepared(&ctx, &scene, bvh, lb, &first, &|_| {}).unwrap();
+    let relit = sweep.prepared(&ctx, &scene, bvh, lb, &next, &|_| {}).unwrap();
+    let names = |p: &sylva_worker::prepare::PreparedScene| {
+        p.phases.0.iter().map(|p| p.name).collect::<Vec<_>>()
+    };
+    assert!(names(&a).contains(&"voxelize") && names(&a).contains(&"upload"), "{:?}", names(&a));
+    let n = names(&relit);
+    assert!(n.contains(&"relight") && n.contains(&"lb"), "{n:?}");
+    assert!(!n.contains(&"upload") && !n.contains(&"voxelize") && !n.contains(&"build"), "{n:?}");
+    let whole = Fresh::default().prepared(&ctx, &scene, bvh, lb, &next, &|_| {}).unwrap();
+    assert!(names(&whole).contains(&"upload"));
+    let f = RenderSettings {
+        width: 64,
+        height: 40,
+        spp: 2,
+        seed: 5,
+        lighting: lb,
+        ambient: [0.0; 3],
+        lb_strength: 0.35,
+        view: next.clone(),
+        gather_bounces: 1,
+        gather_filter: 0,
+        passes: Default::default(),
+    };
+    let (x, y) = (
+        relit.renderer.render_strip(&ctx, &f, 0, 64).unwrap(),
+        whole.renderer.render_strip(&ctx, &f, 0, 64).unwrap(),
+    );
+    assert!(x.pixels == y.pixels, "the relit frame differs from the whole upload's");
+    let before = a.renderer.render_strip(&ctx, &f, 0, 64).unwrap();
+    assert!(before.pixels != x.pixels, "the new sun's light changed nothing");
+}
