@@ -25,7 +25,7 @@ pub enum Backend {
 impl Backend {
     /// Where a scene's LB light is solved beside tracing on `ctx`: on the
     /// GPU, unless the adapter is itself the CPU (lavapipe). There the
-    /// rayon solver does the same steps natively, about 10× faster than
+    /// rayon solver does the same steps natively, about 6× faster than
     /// the WGSL kernel run through a software Vulkan (`sylva bench lb
     /// --medium plant` at 64³ on 2 cores, Mesa 25: 39.7 against 6.9 MLUPS
     /// stepping; docs/lighting.md, "Where the LB is solved").
