@@ -2,8 +2,8 @@
 # One device run that measures what issues 38-40 ask of an NVIDIA GPU, in
 # at most 8 minutes: the traversal per ray kind timed by the GPU itself
 # (camera, shadow and diffuse-bounce rays, at least 4 M rays each), whole
-# frames at 1 and 4 spp, the cold and warm first frame, the LB solve, and
-# where a frame's time goes through the farm.
+# frames at 1 and 4 spp, the cold and warm first frame, the LB solve,
+# where a frame's time goes through the farm, and a sun sweep.
 # Prepared here with benchmarks/gpu/prepare.sh; run there in the repo's
 # root (the device tool: carry [".dev", ".gl"], command
 # `bash benchmarks/gpu/run.sh`). Writes each command's JSON, its log and
@@ -67,6 +67,13 @@ step lb-128 50 bench lb --grid 128 --backends gpu --repeat 3
 # warm worker (docs/farm-overhead.md).
 "$BIN" scene forest --scale 0.05 -o "$DEST/forest-0.05.json" > /dev/null 2>> "$DEST/all.log"
 step farm-0.05 60 bench farm "$DEST/forest-0.05.json" --repeat 5
+# A 24-frame sun sweep of the 0.05 forest in one process (issue 39): the
+# first frame pays for the scene, each other for its sun's light (LB
+# solved on the device on kept grids and kernels, light uploaded beside
+# the kept structures) and its trace; per frame in the JSON's `frames`.
+step sweep-0.05 45 render "$DEST/forest-0.05.json" -o "$DEST/sweep/day.png" --frames 24 \
+  --sun-from 15,90 --sun-to 60,200 --local-workers 0 --width 320 --height 160 --spp 1 \
+  --lighting lb --json
 # The figures the issues' tables quote, in one file.
 python3 - "$DEST" <<'PY' || echo "summary: python3 missing or a step failed"
 import json, pathlib, sys
@@ -74,7 +81,7 @@ d = pathlib.Path(sys.argv[1])
 def load(n):
     try: return json.loads((d / f"{n}.json").read_text())
     except Exception: return None
-t, lb, farm = load("trace-forest"), load("lb-128"), load("farm-0.05")
+t, lb, farm, sweep = load("trace-forest"), load("lb-128"), load("farm-0.05"), load("sweep-0.05")
 out = {"gpu": (d / "gpu.txt").read_text().strip().splitlines()[-1] if (d / "gpu.txt").exists() else None}
 if t:
     out["adapter"] = t["adapter"]["name"]
@@ -86,6 +93,16 @@ if t:
     out["auto_chose"] = ((ff.get("cold") or {}).get("backend") or {}).get("why")
 if farm:
     out["farm_0.05_median_ms"] = farm.get("median")
+if sweep:
+    fr = sweep.get("frames") or []
+    rest = fr[1:]
+    out["sweep_0.05"] = {
+        "frames": len(fr),
+        "total_ms": next((p["ms"] for p in sweep.get("phases_ms", []) if p["phase"] == "sequence"), None),
+        "first_frame_ms": (fr[0]["prepare_ms"] + fr[0]["trace_ms"]) if fr else None,
+        "next_frames_mean_ms": sum(f["prepare_ms"] + f["trace_ms"] for f in rest) / len(rest) if rest else None,
+        "trace_mean_ms": sum(f["trace_ms"] for f in fr) / len(fr) if fr else None,
+    }
 if lb:
     out["lb_128"] = [{k: r.get(k) for k in ("device", "mlups", "step_mlups")} for r in lb.get("results", [])]
 (d / "summary.json").write_text(json.dumps(out, indent=1))

@@ -151,6 +151,9 @@ fn render_sequence_here(
     let want_exr = a.exr || !a.frame.passes.is_empty();
     let (mut exposure, mut lighting) = (None, request.lighting_or(scene.lighting));
     let (mut prepare_ms, mut trace_ms, mut rays) = (0.0, 0.0, 0u64);
+    // Each frame's cost in the order rendered: the first pays for the
+    // scene, the others for their sun's light and their trace.
+    let mut per_frame = Vec::with_capacity(n);
     let t_all = Instant::now();
     let order = std::iter::once(n / 2).chain((0..n).filter(|&i| i != n / 2));
     for i in order {
@@ -163,11 +166,19 @@ fn render_sequence_here(
             &mut fresh,
             &say,
         )?;
-        prepare_ms += ms(t);
+        let frame_prepare_ms = ms(t);
+        prepare_ms += frame_prepare_ms;
         lighting = frame.settings.lighting;
         let t = Instant::now();
         let rendered = InProcess::new(&frame).render(&plan, &|_| bar.inc(1))?;
-        trace_ms += ms(t);
+        let frame_trace_ms = ms(t);
+        trace_ms += frame_trace_ms;
+        per_frame.push(json!({
+            "frame": i,
+            "prepare_ms": frame_prepare_ms,
+            "trace_ms": frame_trace_ms,
+            "phases_ms": frame.prepared.phases,
+        }));
         rays += rendered.rays.primary + rendered.rays.shadow;
         // The farm keeps one exposure for a sequence, its middle frame's.
         let e = exposure.get_or_insert_with(|| reinhard(&rendered.image, 0.18).1);
@@ -212,6 +223,7 @@ fn render_sequence_here(
             "tone_map": exposure,
             "rays": { "primary_and_shadow": rays, "mrays_per_second": rays as f64 / (trace_ms / 1e3) / 1e6 },
             "frame_ms": sequence_ms / n as f64,
+            "frames": per_frame,
         }),
     );
     let how = format!(
