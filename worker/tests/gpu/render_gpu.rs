@@ -288,7 +288,7 @@ fn a_new_sun_relights_the_uploaded_scene_and_renders_what_a_whole_upload_renders
         lighting: lb,
         ambient: [0.0; 3],
         lb_strength: 0.35,
-        view: next.clone(),
+        view: next,
         gather_bounces: 1,
         gather_filter: 0,
         passes: Default::default(),
