@@ -25,7 +25,8 @@ pub struct PreparedScene {
     /// phases overlap the lighting's.
     pub phases: PhaseTimer,
     /// Bytes of the acceleration structures rays traverse (the device's,
-    /// with ray queries, where its allocator reports them).
+    /// with ray queries where its allocator reports them, and the
+    /// eight-wide tree's as uploaded).
     pub accel_bytes: usize,
     /// The backend rays take, and why.
     pub backend: crate::trace::BackendChoice,
@@ -296,6 +297,8 @@ pub fn prepare_reusing(
     }
     let accel_bytes = match gpu_scene.backend {
         Backend::Rq => gpu_scene.rq.as_ref().and_then(|r| r.bytes).unwrap_or(0) as usize,
+        // The eight-wide tree exists on the device only (derived at upload).
+        Backend::Cwbvh => gpu_scene.structure_bytes as usize,
         _ => reuse.accel.as_ref().map_or(0, |a| a.bytes()),
     };
     if let Some(Ok(ms)) = compiler.map(|c| c.join()) {

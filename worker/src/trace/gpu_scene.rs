@@ -223,6 +223,9 @@ pub struct GpuScene {
     /// What a new sun's light needs to go up without the rest
     /// ([`GpuScene::relit`]); none with ray queries.
     relight: Option<Relight>,
+    /// Bytes of what rays walk on the device: both levels' nodes and
+    /// records, and the kd-tree's primitive lists (0 with ray queries).
+    pub structure_bytes: u64,
 }
 
 /// A walked scene's buffers (group 0's, in binding order) and the parts
@@ -565,6 +568,7 @@ impl GpuScene {
             f.rq_triangles.push(0);
         }
         let rq = backend == Backend::Rq;
+        let structure_bytes = if rq { 0 } else { (f.nodes.len() * 16 + f.prims.len() * 4) as u64 };
         let light_parts = (!rq)
             .then(|| (f.instances.clone(), f.models.clone(), f.lb.len(), f.envelope.len() > 1));
         let mut bytes = 0u64;
@@ -649,6 +653,7 @@ impl GpuScene {
             rq: rq_structures,
             ground: ([0.0; 4], [0; 4]),
             relight,
+            structure_bytes,
         })
     }
 
@@ -740,6 +745,7 @@ impl GpuScene {
             backend: self.backend,
             rq: None,
             ground,
+            structure_bytes: self.structure_bytes,
             relight: Some(Relight {
                 buffers,
                 instances,
