@@ -298,6 +298,20 @@ impl GpuContext {
     }
 }
 
+/// A compute kernel's storage-buffer binding, read-only or not.
+pub fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
 /// What reports say about the GPU.
 #[derive(Clone, Debug, Serialize)]
 pub struct AdapterSummary {

@@ -111,16 +111,7 @@ struct Grid {
 impl DeviceLb {
     fn layouts(&mut self, ctx: &GpuContext, layout: &StateLayout) -> Arc<Layouts> {
         let made = self.layouts.entry(layout.buffers).or_insert_with(|| {
-            let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage { read_only },
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            };
+            let storage = crate::gpu::storage_entry;
             let b = layout.buffers as u32;
             let base = layout.binding_density();
             let mut entries: Vec<_> = (0..b).map(|i| storage(i, true)).collect();

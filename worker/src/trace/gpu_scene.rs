@@ -761,16 +761,7 @@ impl GpuScene {
     /// order's triangles (15). Alike layouts are one to wgpu, so kernels
     /// can be built from this before any scene is uploaded.
     pub fn layout_for(device: &wgpu::Device, backend: Backend) -> wgpu::BindGroupLayout {
-        let storage = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only: true },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
+        let storage = |binding| crate::gpu::storage_entry(binding, true);
         let mut entries: Vec<wgpu::BindGroupLayoutEntry> = (0..14).map(storage).collect();
         if backend == Backend::Rq {
             entries.push(wgpu::BindGroupLayoutEntry {

@@ -82,16 +82,7 @@ impl RayCaster {
     fn build(ctx: &GpuContext, scene: &GpuScene, any_hit: bool) -> Self {
         let device = &ctx.device;
         let module = ctx.trusted_module("rays", tracer_source(SOURCE, scene.backend));
-        let entry = |binding, read_only| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
+        let entry = crate::gpu::storage_entry;
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("rays"),
             entries: &[entry(0, true), entry(1, false)],
