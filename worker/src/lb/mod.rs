@@ -35,14 +35,6 @@ impl Backend {
             _ => Backend::Gpu,
         }
     }
-
-    /// Its name in reports.
-    pub fn name(self) -> &'static str {
-        match self {
-            Backend::Cpu => "cpu",
-            Backend::Gpu => "gpu",
-        }
-    }
 }
 
 /// The solver a scene's LB light is solved with on `ctx`

@@ -358,6 +358,39 @@ impl Flat {
     }
 }
 
+impl Flat {
+    /// wgpu refuses empty bindings: gives every array at least one element.
+    fn pad(&mut self) {
+        if self.textures.is_empty() {
+            self.textures.push(GpuTexture::zeroed());
+        }
+        if self.texels.is_empty() {
+            self.texels.push(0);
+        }
+        if self.prims.is_empty() {
+            self.prims.push(0);
+        }
+        if self.lb.is_empty() {
+            self.lb.push(0.0);
+        }
+        if self.clouds.is_empty() {
+            self.clouds.push(GpuCloud::zeroed());
+        }
+        if self.cloud_data.is_empty() {
+            self.cloud_data.push(0.0);
+        }
+        if self.envelope.is_empty() {
+            self.envelope.push(0.0);
+        }
+        if self.rq_indices.is_empty() {
+            self.rq_indices.extend([0; 3]);
+        }
+        if self.rq_triangles.is_empty() {
+            self.rq_triangles.push(0);
+        }
+    }
+}
+
 impl GpuScene {
     /// Uploads `scene` with what its rays traverse and its solved light.
     pub fn upload(
@@ -539,34 +572,7 @@ impl GpuScene {
         instances: &[(glam::Affine3A, u32)],
     ) -> anyhow::Result<Self> {
         let device = &ctx.device;
-        // wgpu refuses empty bindings: give every array at least one element.
-        if f.textures.is_empty() {
-            f.textures.push(GpuTexture::zeroed());
-        }
-        if f.texels.is_empty() {
-            f.texels.push(0);
-        }
-        if f.prims.is_empty() {
-            f.prims.push(0);
-        }
-        if f.lb.is_empty() {
-            f.lb.push(0.0);
-        }
-        if f.clouds.is_empty() {
-            f.clouds.push(GpuCloud::zeroed());
-        }
-        if f.cloud_data.is_empty() {
-            f.cloud_data.push(0.0);
-        }
-        if f.envelope.is_empty() {
-            f.envelope.push(0.0);
-        }
-        if f.rq_indices.is_empty() {
-            f.rq_indices.extend([0; 3]);
-        }
-        if f.rq_triangles.is_empty() {
-            f.rq_triangles.push(0);
-        }
+        f.pad();
         let rq = backend == Backend::Rq;
         let structure_bytes = if rq { 0 } else { (f.nodes.len() * 16 + f.prims.len() * 4) as u64 };
         let light_parts = (!rq)
@@ -688,18 +694,10 @@ impl GpuScene {
             }
         }
         let ground = push_ground(&mut f, light)?;
-        if f.lb.len().max(1) != r.lb_len {
-            return Ok(None);
-        }
-        if f.lb.is_empty() {
-            f.lb.push(0.0);
-        }
         push_clouds(&mut f, &light.clouds)?;
-        if f.clouds.is_empty() {
-            f.clouds.push(GpuCloud::zeroed());
-        }
-        if f.cloud_data.is_empty() {
-            f.cloud_data.push(0.0);
+        f.pad();
+        if f.lb.len() != r.lb_len {
+            return Ok(None);
         }
         let mut instances = r.instances.clone();
         for (i, inst) in instances.iter_mut().enumerate() {

@@ -189,7 +189,7 @@ pub struct ModelArea {
 /// under the stand.) `areas` is indexed by model.
 pub fn forest_leaf_area(
     scene: &Scene,
-    areas: &[Option<ModelArea>],
+    areas: &[Option<&ModelArea>],
     grid: &WorldGrid,
 ) -> (Vec<f32>, LeafScattering) {
     let d = grid.dims;
@@ -197,7 +197,7 @@ pub fn forest_leaf_area(
     let (mut reflect, mut transmit, mut weight) = ([0.0f64; 3], [0.0f64; 3], 0.0f64);
     let last = Vec3::new((d.nx - 2) as f32, (d.ny - 2) as f32, (d.nz - 2) as f32);
     for inst in &scene.instances {
-        let Some(m) = areas.get(inst.model as usize).and_then(|a| a.as_ref()) else { continue };
+        let Some(m) = areas.get(inst.model as usize).copied().flatten() else { continue };
         let a = &m.area;
         let scale2 = inst.to_world.matrix3.determinant().abs().powf(2.0 / 3.0) as f64;
         let world_area = a.total_area * scale2;

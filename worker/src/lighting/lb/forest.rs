@@ -92,7 +92,7 @@ pub fn paper(
 pub fn grounded(
     ctx: &GpuContext,
     scene: &Scene,
-    areas: &[Option<ModelArea>],
+    areas: &[Option<&ModelArea>],
     scales: &mut [f32],
 ) -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
     let spec = scene.file.forest_grid;
@@ -244,7 +244,7 @@ mod tests {
                 .unwrap();
         let m = &scene.models[0];
         let mm = medium_of(&scene, m, 32).unwrap();
-        let area = ModelArea { frame: mm.frame, dims: mm.medium.dims, area: mm.area.unwrap() };
+        let area = mm.area.unwrap();
         // The model's own effective area (what its cells stop, spread
         // evenly) and its area-weighted mean height, in model space.
         let md = area.dims;
@@ -270,7 +270,7 @@ mod tests {
             .iter()
             .map(|i| sylva_accel::two_level::model_bounds(&m.model).transformed(&i.to_world));
         let grid = WorldGrid::around(boxes.fold(Aabb::EMPTY, |b, o| b.union(o)), 16);
-        let (cells, _) = forest_leaf_area(&scene, &[Some(area)], &grid);
+        let (cells, _) = forest_leaf_area(&scene, &[Some(&area)], &grid);
         // All of it arrives: the first instance's area plus 1.5² the second's.
         let total: f64 = cells.iter().map(|&a| a as f64).sum();
         let want = 1.0 + 1.5 * 1.5;

@@ -20,7 +20,7 @@ use sylva_light::lb::{
     GridDims, Illumination, LbGrid, LbParams, LightingSolver, MediumGrid, NodeClass, SolveOptions,
     Sun, solve, solve_indirect,
 };
-use sylva_light::voxel::{GridFrame, LeafArea, leaf_area_in, medium_from_density, voxelize_in};
+use sylva_light::voxel::{GridFrame, leaf_area_in, medium_from_density, voxelize_in};
 use sylva_proto::pb;
 use sylva_scene::model::Model;
 use sylva_scene::{LbModel, LightingMode, Scene, SceneModel};
@@ -90,8 +90,9 @@ struct ModelMedium {
     frame: GridFrame,
     medium: MediumGrid,
     params: LbParams,
-    /// The grounded model's leaf area (none for the paper's).
-    area: Option<LeafArea>,
+    /// The grounded model's leaf area on its grid (none for the paper's),
+    /// which the forest grid also gathers.
+    area: Option<ModelArea>,
     /// Whether every instance stands on the scene's ground (the grid's
     /// lower face within a cell of it), so the lattice's floor reflects.
     on_ground: bool,
@@ -147,7 +148,7 @@ fn medium_of(scene: &Scene, m: &SceneModel, n: usize) -> anyhow::Result<ModelMed
                 frame,
                 medium,
                 params: area.scattering.params(),
-                area: Some(area),
+                area: Some(ModelArea { frame, dims, area }),
                 on_ground,
             })
         }
@@ -195,7 +196,7 @@ fn solve_medium(
             let s = solve_indirect(solver, &mm.medium, &mm.params, &light, &opts, &|_| {})?;
             let r = &s.reports;
             let mut rgb = s.indirect.concat();
-            if let Some(area) = &mm.area {
+            if let Some(ModelArea { area, .. }) = &mm.area {
                 // The light a node's own leaves receive, not the node's mean.
                 let n = area.readout.len();
                 rgb.iter_mut().enumerate().for_each(|(i, v)| *v *= area.readout[i % n]);
@@ -233,9 +234,9 @@ fn solve_medium(
         preset: if mm.area.is_some() { "leaf optics" } else { m.lb.preset.name() }.to_string(),
         albedo: std::array::from_fn(|c| p[c].sigma_s / p[c].sigma_t()),
         g: std::array::from_fn(|c| p[c].g),
-        leaf_area: mm.area.as_ref().map(|a| a.total_area),
-        alpha_cut: mm.area.as_ref().map(|a| a.cut_fraction),
-        clumping_sub: mm.area.as_ref().map(|a| a.clumping_sub),
+        leaf_area: mm.area.as_ref().map(|a| a.area.total_area),
+        alpha_cut: mm.area.as_ref().map(|a| a.area.cut_fraction),
+        clumping_sub: mm.area.as_ref().map(|a| a.area.clumping_sub),
         occupancy: mm.medium.occupancy(),
         steps,
         converged,
@@ -282,8 +283,6 @@ pub struct LbMedia {
     grids: Vec<usize>,
     /// Per model, its medium.
     media: Vec<ModelMedium>,
-    /// Per model, its leaf area on its grid (grounded), for the forest grid.
-    areas: Vec<Option<ModelArea>>,
 }
 
 impl LbMedia {
@@ -295,14 +294,7 @@ impl LbMedia {
             .par_iter()
             .map(|m| medium_of(scene, m, m.lb.grid))
             .collect::<anyhow::Result<Vec<_>>>()?;
-        let areas = media
-            .iter()
-            .map(|mm| {
-                let area = mm.area.clone()?;
-                Some(ModelArea { frame: mm.frame, dims: mm.medium.dims, area })
-            })
-            .collect();
-        Ok(Self { grids: scene.models.iter().map(|m| m.lb.grid).collect(), media, areas })
+        Ok(Self { grids: scene.models.iter().map(|m| m.lb.grid).collect(), media })
     }
 
     /// Whether these media are `scene`'s (its models' grids unchanged).
@@ -313,7 +305,7 @@ impl LbMedia {
     /// Bytes held, for caches' budgets.
     pub fn bytes(&self) -> u64 {
         let per_node = |mm: &ModelMedium| {
-            let leaf = mm.area.as_ref().map_or(0, |a| 3 * a.density.len());
+            let leaf = mm.area.as_ref().map_or(0, |a| 3 * a.area.density.len());
             mm.medium.density.len() + mm.medium.class.len() / 4 + leaf
         };
         (self.media.iter().map(per_node).sum::<usize>() * 4) as u64
@@ -361,7 +353,10 @@ pub fn prepare(
         phases.time("forest lb", || -> anyhow::Result<(ForestLight, Option<GroundLight>)> {
             match scene.file.lb_model {
                 LbModel::Paper => Ok((forest::paper(ctx, scene, &grids, &mut scales)?, None)),
-                LbModel::Grounded => forest::grounded(ctx, scene, &media.areas, &mut scales),
+                LbModel::Grounded => {
+                    let areas: Vec<_> = media.media.iter().map(|mm| mm.area.as_ref()).collect();
+                    forest::grounded(ctx, scene, &areas, &mut scales)
+                }
             }
         })?;
     Ok(SceneLb { grids, scales, ground, light, forest })
