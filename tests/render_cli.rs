@@ -598,3 +598,48 @@ fn compiled_kernels_are_kept_checked_and_read_back() {
     assert_eq!(&again[..64], blake3::hash(&again[64..]).to_hex().as_bytes());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Boulanger's envelopes are kept beside the prepared data (issue 39):
+/// the second process reads them instead of casting every leaf's rays
+/// again, and renders the same image.
+#[test]
+fn boulanger_envelopes_are_kept_and_read_back() {
+    let dir = scratch("kept-envelopes");
+    let cache = dir.join("cache");
+    let scene = small_forest(&dir);
+    let env = [
+        ("SYLVA_PREPARED_CACHE_MIB", "64"),
+        ("SYLVA_PREPARED_CACHE_DIR", cache.to_str().unwrap()),
+        ("RUST_LOG", "sylva_worker=info"),
+    ];
+    let render = |name: &str| {
+        let out = dir.join(format!("{name}.png"));
+        let o = common::sylva(
+            &["render", scene.to_str().unwrap(), "--local-workers", "0", "--width", "48"]
+                .into_iter()
+                .chain(["--height", "24", "--lighting", "boulanger", "-o", out.to_str().unwrap()])
+                .collect::<Vec<_>>(),
+            &env,
+        );
+        let said = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(o.status.success(), "{said}");
+        let stats: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join(format!("{name}.stats.json"))).unwrap())
+                .unwrap();
+        let phases: Vec<String> = stats["phases_ms"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["phase"].as_str().unwrap().to_string())
+            .collect();
+        (std::fs::read(out).unwrap(), said, phases, stats["boulanger"].clone())
+    };
+    let (first, _, phases, report) = render("first");
+    assert!(phases.iter().any(|p| p == "boulanger precompute"), "{phases:?}");
+    let (second, said, phases, again) = render("second");
+    assert!(!phases.iter().any(|p| p == "boulanger precompute"), "{phases:?}");
+    assert!(said.contains("envelopes=true"), "{said}");
+    assert_eq!(again, report, "the same envelopes are reported");
+    assert_eq!(second, first);
+    let _ = std::fs::remove_dir_all(&dir);
+}

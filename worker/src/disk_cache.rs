@@ -18,6 +18,7 @@ use crate::lighting::lb::SceneLb;
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 use sylva_accel::{AccelKind, SceneAccel};
+use sylva_light::boulanger::LeafEnvelope;
 use sylva_scene::Scene;
 
 /// The layout's version: entries of another are misses (their names differ).
@@ -39,6 +40,24 @@ pub struct Found {
     pub accel: bool,
     /// The LB light came from disk.
     pub lb: bool,
+    /// Boulanger's envelopes came from disk.
+    pub envelopes: bool,
+}
+
+impl Found {
+    /// Logs what came from disk, if anything did; whether anything did.
+    pub fn logged(&self) -> bool {
+        let any = self.accel || self.lb || self.envelopes;
+        if any {
+            tracing::info!(
+                structures = self.accel,
+                lb = self.lb,
+                envelopes = self.envelopes,
+                "prepared data read from the disk cache"
+            );
+        }
+        any
+    }
 }
 
 impl DiskCache {
@@ -71,17 +90,26 @@ impl DiskCache {
         &self.dir
     }
 
-    /// Fills what `reuse` lacks of a scene's structures (for `kind`) and
-    /// LB light (when `lb_for` names the sun it is for) from disk.
+    /// Fills what `reuse` lacks of a scene's structures (for `kind`), LB
+    /// light (when `lb_for` names the sun it is for) and Boulanger's
+    /// envelopes (when `envelopes`) from disk.
     pub fn fill(
         &self,
         bundle: &str,
         scene: &Scene,
         kind: Option<AccelKind>,
         lb_for: Option<Option<[u32; 3]>>,
+        envelopes: bool,
         reuse: &mut crate::prepare::Reuse,
     ) -> Found {
         let mut found = Found::default();
+        if envelopes
+            && reuse.envelopes.is_none()
+            && let Some(e) = self.envelopes(bundle, scene)
+        {
+            reuse.envelopes = Some(std::sync::Arc::new(crate::lighting::boulanger::of(scene, e)));
+            found.envelopes = true;
+        }
         if let (Some(kind), None) = (kind, &reuse.accel)
             && let Some(bytes) = self.read(&accel_key(bundle, kind))
         {
@@ -118,6 +146,36 @@ impl DiskCache {
         if let Some((name, lb)) = lb {
             self.write(&name.0, crate::share::export(None, Some(lb), None));
         }
+        self.bound();
+    }
+
+    /// Boulanger's envelopes of a scene's models, if they were kept: each
+    /// checked against its model before it is used.
+    fn envelopes(&self, bundle: &str, scene: &Scene) -> Option<Vec<LeafEnvelope>> {
+        let key = envelopes_key(bundle);
+        let (hash, body) = self.read(&key)?;
+        let read = (blake3::hash(&body).to_hex().as_str() == hash)
+            .then(|| postcard::from_bytes::<Vec<LeafEnvelope>>(&body).ok())
+            .flatten()
+            .ok_or_else(|| "not envelopes".to_string())
+            .and_then(|e| {
+                if e.len() != scene.models.len() {
+                    return Err(format!("{} envelopes for {} models", e.len(), scene.models.len()));
+                }
+                for (m, e) in scene.models.iter().zip(&e) {
+                    e.check(m.model.triangle_count())?;
+                }
+                Ok(e)
+            });
+        read.map_err(|why| self.discard(&key, Some(why))).ok()
+    }
+
+    /// Keeps Boulanger's envelopes of a scene's models (one a model).
+    pub fn keep_envelopes(&self, bundle: &str, envelopes: &[&LeafEnvelope]) {
+        let exported = postcard::to_stdvec(envelopes).map_err(anyhow::Error::from).map(|bytes| {
+            crate::share::Exported { hash: blake3::hash(&bytes).to_hex().to_string(), bytes }
+        });
+        self.write(&envelopes_key(bundle), exported);
         self.bound();
     }
 
@@ -283,6 +341,14 @@ fn accel_key(bundle: &str, kind: AccelKind) -> String {
     h.finalize().to_hex().to_string()
 }
 
+/// The name of a scene's Boulanger envelopes: they depend on its models
+/// alone, which its bundle's hash names.
+fn envelopes_key(bundle: &str) -> String {
+    let mut h = blake3::Hasher::new();
+    h.update(format!("sylva envelopes {FORMAT} {} {bundle}", env!("CARGO_PKG_VERSION")).as_bytes());
+    h.finalize().to_hex().to_string()
+}
+
 /// The name of `auto`'s choice for a scene on an adapter.
 fn choice_key(bundle: &str, adapter: &str) -> String {
     let mut h = blake3::Hasher::new();
@@ -374,6 +440,52 @@ mod tests {
     /// damaged bytes, a folder or a link in its place are refused and
     /// cleared, and the next write takes the place without leaving its
     /// temporary file behind.
+    #[test]
+    fn kept_envelopes_read_back_only_for_the_models_they_fit() {
+        let dir = std::env::temp_dir().join(format!("sylva-disk-cache-env-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let c = DiskCache::open(&dir, 1 << 30).unwrap();
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/tree.json");
+        let scene = Scene::load(path.as_ref()).unwrap();
+        let made: Vec<LeafEnvelope> = scene
+            .models
+            .iter()
+            .enumerate()
+            .map(|(i, m)| LeafEnvelope {
+                s_max: vec![[0.25 + i as f32; 8]; m.model.triangle_count()],
+                tau: 1.5,
+                leaf_density: 3.0,
+                leaf_area: 0.5,
+                leaves: m.model.triangle_count() / 2,
+                leaf_albedo: [0.1, 0.3, 0.05],
+                precompute_ms: 12.0,
+            })
+            .collect();
+        assert!(!made.is_empty(), "the example has models");
+        let bundle = "b".repeat(64);
+        assert!(c.envelopes(&bundle, &scene).is_none(), "nothing kept yet");
+        c.keep_envelopes(&bundle, &made.iter().collect::<Vec<_>>());
+        let back = c.envelopes(&bundle, &scene).expect("kept");
+        assert_eq!(back.len(), made.len());
+        for (a, b) in back.iter().zip(&made) {
+            assert_eq!((&a.s_max, a.tau, a.leaves), (&b.s_max, b.tau, b.leaves));
+        }
+        // Another bundle's name finds nothing.
+        assert!(c.envelopes(&"c".repeat(64), &scene).is_none());
+        // Envelopes that do not fit the models (a triangle short, a
+        // distance not finite) are refused and removed, not used.
+        let mut short = made.clone();
+        short[0].s_max.pop();
+        c.keep_envelopes(&bundle, &short.iter().collect::<Vec<_>>());
+        assert!(c.envelopes(&bundle, &scene).is_none());
+        assert!(!c.path(&envelopes_key(&bundle)).exists());
+        let mut nan = made.clone();
+        nan[0].s_max[0][3] = f32::NAN;
+        c.keep_envelopes(&bundle, &nan.iter().collect::<Vec<_>>());
+        assert!(c.envelopes(&bundle, &scene).is_none());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     #[test]
     fn a_damaged_or_foreign_entry_is_refused_and_replaced() {
         let dir = std::env::temp_dir().join(format!("sylva-disk-cache-bad-{}", std::process::id()));

@@ -63,6 +63,9 @@ pub struct Reuse {
     pub lb: Option<Arc<SceneLb>>,
     /// The scene's LB media (any sun), voxelized before.
     pub lb_media: Option<Arc<lighting::lb::LbMedia>>,
+    /// Boulanger's envelopes (any sun or view), found before, with their
+    /// report.
+    pub envelopes: Option<Arc<lighting::boulanger::Envelopes>>,
     /// Where on disk to look for what is missing before building or
     /// solving it.
     pub disk: Option<DiskSource>,
@@ -79,6 +82,8 @@ pub struct Reuse {
     pub built: bool,
     /// Whether the last preparation solved the LB light itself.
     pub solved: bool,
+    /// Whether the last preparation computed Boulanger's envelopes itself.
+    pub enveloped: bool,
 }
 
 impl Reuse {
@@ -89,11 +94,19 @@ impl Reuse {
         let d = self.disk.clone()?;
         let accel = self.accel.clone().filter(|_| self.built);
         let lb = self.lb.clone().filter(|_| self.solved);
-        if accel.is_none() && lb.is_none() {
+        let envelopes = self.envelopes.clone().filter(|_| self.enveloped);
+        if accel.is_none() && lb.is_none() && envelopes.is_none() {
             return None;
         }
         let name = crate::disk_cache::LbName::of(&d.bundle, scene, d.sun);
-        Some(move || d.cache.keep(&d.bundle, accel.as_deref(), lb.as_deref().map(|l| (&name, l))))
+        Some(move || {
+            d.cache.keep(&d.bundle, accel.as_deref(), lb.as_deref().map(|l| (&name, l)));
+            if let Some(e) = envelopes {
+                // Every model has one: `boulanger::prepare` makes them all.
+                let kept: Vec<_> = e.0.iter().flatten().map(|e| e.as_ref()).collect();
+                d.cache.keep_envelopes(&d.bundle, &kept);
+            }
+        })
     }
 }
 
@@ -163,7 +176,9 @@ pub fn prepare_reusing(
     });
     if let Some(d) = reuse.disk.clone() {
         let lb_for = needs.lb.then_some(d.sun);
-        reuse.found = d.cache.fill(&d.bundle, scene, resolved.structure(), lb_for, reuse);
+        let envelopes = needs.envelopes;
+        reuse.found =
+            d.cache.fill(&d.bundle, scene, resolved.structure(), lb_for, envelopes, reuse);
     }
     let had_accel = reuse.accel.clone();
     // The structures are built on another thread while this one solves the
@@ -194,10 +209,19 @@ pub fn prepare_reusing(
     };
     progress("building acceleration structures");
     let lb_now = needs.lb && reuse.lb.is_none();
+    let envelopes_now = needs.envelopes && reuse.envelopes.is_none();
     let (built, lb) = std::thread::scope(|s| {
         let builder = s.spawn(structures);
         let lb = lb_now
             .then(|| lighting::lb::prepare(ctx, scene, &mut reuse.lb_media, &mut phases, progress));
+        // Boulanger's envelopes walk each model's own tree, not the
+        // scene's: they too need nothing the builder makes.
+        if envelopes_now {
+            progress("Boulanger envelope distances");
+            let e = phases.time("boulanger precompute", || lighting::boulanger::prepare(scene));
+            reuse.envelopes = Some(Arc::new(e));
+        }
+        reuse.enveloped = envelopes_now;
         (builder.join(), lb)
     });
     let (accel, coverage, built_phases) =
@@ -225,9 +249,8 @@ pub fn prepare_reusing(
         (reports, forest) = (lb.light.clone(), Some(lb.forest.clone()));
     }
     if needs.envelopes {
-        progress("Boulanger envelope distances");
-        (light.envelopes, boulanger) =
-            phases.time("boulanger precompute", || lighting::boulanger::prepare(scene));
+        let e = reuse.envelopes.as_deref().expect("found above");
+        (light.envelopes, boulanger) = (e.0.clone(), e.1.clone());
     }
     if needs.clouds && !scene.clouds.is_empty() {
         progress("LB light of the clouds");

@@ -113,6 +113,37 @@ impl Accel {
         }
     }
 
+    /// Whether any primitive is hit along `ray` in `(t_min, t_max)`, as
+    /// [`Accel::closest`] would find one, but ending at the first hit
+    /// found instead of the closest: occlusion, not shading. `hit` is
+    /// called as for [`Accel::closest`].
+    pub fn any_hit(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        hit: &mut dyn FnMut(u32, f32) -> Option<f32>,
+    ) -> bool {
+        match self {
+            Accel::Bvh(b) => b.any_hit(ray, t_min, t_max, hit),
+            // A kd-tree visits its cells in order along the ray: after the
+            // first hit, its own cell ends the walk; primitives met before
+            // that are passed over untested.
+            Accel::Kd(k) => {
+                let mut found = false;
+                k.closest(ray, t_min, t_max, &mut |p, limit| {
+                    if found {
+                        return None;
+                    }
+                    let t = hit(p, limit).filter(|&t| t > t_min && t < limit)?;
+                    found = true;
+                    Some(t)
+                });
+                found
+            }
+        }
+    }
+
     /// Checks a structure built elsewhere over `primitives` primitives
     /// before any walk ([`Bvh::check`], [`KdTree::check`]).
     pub fn check(&self, primitives: usize) -> crate::Result<()> {
@@ -170,9 +201,18 @@ mod tests {
     }
 
     fn brute(tris: &[[Vec3; 3]], ray: &Ray) -> Option<(u32, f32)> {
+        brute_where(tris, ray, |_| true)
+    }
+
+    /// The closest hit among the primitives `keep` admits.
+    fn brute_where(
+        tris: &[[Vec3; 3]],
+        ray: &Ray,
+        keep: impl Fn(u32) -> bool,
+    ) -> Option<(u32, f32)> {
         let mut best = None;
         let mut closest = f32::INFINITY;
-        for (i, t) in tris.iter().enumerate() {
+        for (i, t) in tris.iter().enumerate().filter(|(i, _)| keep(*i as u32)) {
             if let Some((d, _, _)) = intersect(ray, t[0], t[1], t[2], 0.0, closest) {
                 closest = d;
                 best = Some((i as u32, d));
@@ -242,6 +282,21 @@ mod tests {
             });
             assert_same_hit(got, want, tris, r, kind);
             hits += got.is_some() as usize;
+            // Occlusion: any hit at all, and none once every primitive
+            // hit is refused by the caller (as a leaf refuses its own card).
+            let test = |p: u32, limit: f32| {
+                let t = &tris[p as usize];
+                intersect(r, t[0], t[1], t[2], 0.0, limit).map(|h| h.0)
+            };
+            assert_eq!(
+                accel.any_hit(r, 0.0, f32::INFINITY, &mut |p, l| test(p, l)),
+                want.is_some()
+            );
+            let odd = brute_where(tris, r, |p| p % 2 == 1).is_some();
+            let got = accel.any_hit(r, 0.0, f32::INFINITY, &mut |p, l| {
+                if p % 2 == 1 { test(p, l) } else { None }
+            });
+            assert_eq!(got, odd, "{kind:?} ray {r:?}");
         }
         assert!(hits > rays.len() / 20, "too few hits ({hits}) to mean anything");
     }

@@ -131,14 +131,7 @@ impl Preparer for Fresh {
         let p =
             Arc::new(prepare_reusing(tracer, scene, accel, lighting, &mut self.reuse, progress)?);
         self.reuse.previous = Some(p.clone());
-        let found = self.reuse.found;
-        if found.accel || found.lb {
-            tracing::info!(
-                structures = found.accel,
-                lb = found.lb,
-                "prepared data read from the disk cache"
-            );
-        }
+        self.reuse.found.logged();
         Ok(p)
     }
 }
@@ -261,6 +254,7 @@ impl Frame {
             let t = Instant::now();
             pieces.push(self.strip(at, end)?);
             let secs = t.elapsed().as_secs_f64().max(1e-4);
+            tracing::debug!(x0 = at, x1 = end, ms = secs * 1e3, "rendered a piece of the strip");
             let measured = (end - at) as f64 / secs;
             *rate = Some(measured);
             cols = ((measured * PIECE_SECONDS) as u32).clamp(least, 4 * (end - at));

@@ -40,12 +40,21 @@ pub struct ModelEnvelope {
 }
 
 /// Each model's envelope (for upload) and its report.
-pub fn prepare(scene: &Scene) -> (Vec<Option<Arc<LeafEnvelope>>>, Vec<ModelEnvelope>) {
+pub type Envelopes = (Vec<Option<Arc<LeafEnvelope>>>, Vec<ModelEnvelope>);
+
+/// Each model's envelope and its report.
+pub fn prepare(scene: &Scene) -> Envelopes {
+    of(scene, scene.models.iter().map(|m| sylva_light::boulanger::precompute(&m.model)).collect())
+}
+
+/// `scene`'s envelopes (one a model, as [`prepare`] makes them) with
+/// their report; `ms` is the time each took to compute when it was.
+pub fn of(scene: &Scene, envelopes: Vec<LeafEnvelope>) -> Envelopes {
     scene
         .models
         .iter()
-        .map(|m| {
-            let e = sylva_light::boulanger::precompute(&m.model);
+        .zip(envelopes)
+        .map(|(m, e)| {
             let report = ModelEnvelope {
                 model: m.name.clone(),
                 leaves: e.leaves,

@@ -260,14 +260,8 @@ impl State {
         if let Some(c) = reuse.choice.take() {
             lock(&self.choices).insert(hash.to_string(), c);
         }
-        let from_disk = reuse.found;
-        if from_disk.accel || from_disk.lb {
+        if reuse.found.logged() {
             self.disk_hits.fetch_add(1, Ordering::Relaxed);
-            tracing::info!(
-                structures = from_disk.accel,
-                lb = from_disk.lb,
-                "prepared data read from the disk cache"
-            );
         }
         let p = Arc::new(p);
         tracing::info!(backend = p.backend.backend.name(), "{}", p.backend.why);

@@ -297,6 +297,25 @@ impl Bvh {
         best
     }
 
+    /// Whether any primitive is hit in `(t_min, t_max)` (see
+    /// [`crate::Accel::any_hit`]): the walk ends at the first one.
+    pub fn any_hit(
+        &self,
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+        hit: &mut dyn FnMut(u32, f32) -> Option<f32>,
+    ) -> bool {
+        let mut found = false;
+        self.walk(ray, t_min, t_max, |first, count, limit| {
+            let prims = &self.prims[first as usize..(first + count) as usize];
+            found = prims.iter().any(|&p| hit(p, limit).is_some_and(|t| t > t_min && t < limit));
+            // No box is entered before −∞: every entry left is passed over.
+            found.then_some(f32::NEG_INFINITY)
+        });
+        found
+    }
+
     /// Up to `max` entries that together hold every primitive, each with
     /// its box: the root's children, then the largest inner entry opened
     /// into its children while the count allows. `(reference, leaf count,

@@ -9,6 +9,7 @@ use sylva_accel::coverage::triangle_coverage;
 use sylva_accel::triangle::intersect;
 use sylva_accel::two_level::{triangle_bounds, uv_at};
 use sylva_accel::{Accel, AccelKind, Ray};
+use sylva_scene::color::srgb8_to_linear;
 use sylva_scene::model::{Model, Surface};
 
 /// Grid cells on the longest side of the leaf-centre bounds, at most.
@@ -19,7 +20,7 @@ const MIN_LEAVES_PER_CELL: f32 = 8.0;
 const RAYS: usize = 4;
 
 /// Per-leaf envelope distances and the per-model medium constants.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct LeafEnvelope {
     /// s_max(P, ω_j) per model triangle (both triangles of a card get the
     /// card's values), leaves and wood alike.
@@ -37,6 +38,30 @@ pub struct LeafEnvelope {
     pub leaf_albedo: [f32; 3],
     /// Wall time of [`precompute`], milliseconds.
     pub precompute_ms: f64,
+}
+
+impl LeafEnvelope {
+    /// Checks an envelope read back (from a cache) against the model of
+    /// `triangles` triangles it claims to be of, before any of it is used:
+    /// one entry a triangle, every distance and constant finite and not
+    /// negative.
+    pub fn check(&self, triangles: usize) -> Result<(), String> {
+        if self.s_max.len() != triangles {
+            return Err(format!(
+                "{} envelope distances for a model of {triangles} triangles",
+                self.s_max.len()
+            ));
+        }
+        let fine = |v: f32| v.is_finite() && v >= 0.0;
+        let constants = [self.tau, self.leaf_density, self.leaf_area];
+        if !(self.s_max.iter().flatten().all(|&v| fine(v))
+            && constants.iter().chain(&self.leaf_albedo).all(|&v| fine(v))
+            && self.leaves <= triangles)
+        {
+            return Err("an envelope distance or constant out of range".into());
+        }
+        Ok(())
+    }
 }
 
 /// One leaf: one triangle or two sharing an edge.
@@ -144,20 +169,18 @@ fn optical_depths(i: usize, card: &Card, model: &Model, accel: &Accel, t_min: f3
 
 /// Whether anything of `model` but the card itself (alpha-cut texels passed) lies along `ray`.
 fn blocked(model: &Model, accel: &Accel, card: &Card, ray: &Ray, t_min: f32) -> bool {
-    accel
-        .closest(ray, t_min, f32::INFINITY, &mut |tri, limit| {
-            let t = tri as usize;
-            if card.tris[..card.n_tris].contains(&t) {
-                return None;
-            }
-            let [a, b, c] = model.triangle(t);
-            let (d, u, v) = intersect(ray, a, b, c, t_min, limit)?;
-            if model.is_transparent(t, uv_at(model, tri, u, v)) {
-                return None;
-            }
-            Some(d)
-        })
-        .is_some()
+    accel.any_hit(ray, t_min, f32::INFINITY, &mut |tri, limit| {
+        let t = tri as usize;
+        if card.tris[..card.n_tris].contains(&t) {
+            return None;
+        }
+        let [a, b, c] = model.triangle(t);
+        let (d, u, v) = intersect(ray, a, b, c, t_min, limit)?;
+        if model.is_transparent(t, uv_at(model, tri, u, v)) {
+            return None;
+        }
+        Some(d)
+    })
 }
 
 /// Computes the leaf envelope of `model` (see the module doc), in parallel.
@@ -208,10 +231,6 @@ pub fn precompute(model: &Model) -> LeafEnvelope {
 /// material's base colour times the mean of its texture's opaque texels
 /// (those its alpha test keeps), as the renderer reads them.
 fn mean_leaf_albedo(model: &Model, cards: &[Card]) -> [f32; 3] {
-    let srgb = |c: u8| {
-        let c = c as f32 / 255.0;
-        if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
-    };
     let per_material: Vec<[f32; 3]> = model
         .materials
         .iter()
@@ -224,7 +243,7 @@ fn mean_leaf_albedo(model: &Model, cards: &[Card]) -> [f32; 3] {
             let (mut sum, mut n) = ([0.0f64; 3], 0usize);
             for px in tex.rgba.chunks_exact(4).filter(|px| px[3] as f32 / 255.0 >= cut) {
                 for c in 0..3 {
-                    sum[c] += srgb(px[c]) as f64;
+                    sum[c] += srgb8_to_linear(px[c]) as f64;
                 }
                 n += 1;
             }
