@@ -43,23 +43,28 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     let mut c = coordinator(&addr, None).await;
     wait_for_workers(&mut c, 1).await;
 
-    // A job submitted and followed by `sylva submit`, as alice.
+    // A job submitted and followed by `sylva submit`, as alice, with the
+    // coordinator named as the other farm commands take it (the
+    // environment) and a name of her own.
     let png = dir.join("first.png");
-    let said = ok_as_alice(&[
-        "submit",
-        scene.to_str().unwrap(),
-        "--coordinator",
-        &addr,
-        "-o",
-        png.to_str().unwrap(),
-        "--width",
-        "64",
-        "--height",
-        "32",
-    ]);
+    let args = ["submit", scene.to_str().unwrap(), "-o", png.to_str().unwrap(), "--name", "shot 1"];
+    let out = sylva(
+        &[&args[..], &["--width", "64", "--height", "32"]].concat(),
+        &[("SYLVA_USER", "alice"), ("SYLVA_COORDINATOR", &addr)],
+    );
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(said.contains(" done in ") && said.contains("first.png"), "{said}");
     let first = said.split_whitespace().next().unwrap().to_string();
+    // Its stats beside the image, as `render` writes them.
+    let stats: Value =
+        serde_json::from_slice(&std::fs::read(dir.join("first.stats.json")).unwrap()).unwrap();
+    assert_eq!(stats["job"], first.as_str(), "{stats}");
+    assert!(stats["total_ms"].as_f64().unwrap() > 0.0, "{stats}");
+    assert!(stats["farm"].is_object(), "{stats}");
     let listed = jobs(&addr);
     let j = job(&listed, &first);
+    assert_eq!(j["name"], "shot 1", "{j}");
     assert_eq!(j["state"], "done", "{j}");
     assert_eq!(j["submitter"], "alice@127.0.0.1", "{j}");
     assert!(
@@ -175,6 +180,11 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("is done: its priority orders nothing"), "{err}");
     assert_eq!(job(&jobs(&addr), &q2)["priority"], 0);
+    // Nor is a finished job cancelled: a user is told, with a failing code.
+    let out = sylva(&["cancel", &q2, "--coordinator", &addr], &[("SYLVA_USER", "alice")]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("is done: nothing to cancel"), "{err}");
+    assert_eq!(job(&jobs(&addr), &q2)["state"], "done");
     assert!(
         job(&listed, &q1)["started_unix_ms"].is_null(),
         "a job cancelled in the queue never started"

@@ -643,3 +643,28 @@ fn boulanger_envelopes_are_kept_and_read_back() {
     assert_eq!(second, first);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `-o NAME.exr` gets the user an OpenEXR (issue 41): before, it failed
+/// with "cannot write PNG … Rgb8". The PNG and the stats sit beside it.
+#[test]
+fn an_exr_name_writes_the_exr() {
+    let dir = scratch("exr-name");
+    let scene = common::small_scene(&dir);
+    let out = dir.join("shot.exr");
+    ok(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--local-workers",
+        "0",
+        "--width",
+        "32",
+        "--height",
+        "16",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let exr = std::fs::read(&out).unwrap();
+    assert_eq!(&exr[..4], &[0x76, 0x2f, 0x31, 0x01], "OpenEXR's magic number");
+    assert!(dir.join("shot.png").exists() && dir.join("shot.stats.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}

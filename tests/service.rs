@@ -60,10 +60,19 @@ async fn three_clients_at_once_get_the_single_process_image() {
     let metrics =
         std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().to_string();
     let coord = spawn(&["coordinator", "--listen", "127.0.0.1:0", "--metrics", &metrics], &[]);
-    let _workers: Vec<Proc> = (0..3)
-        .map(|_| spawn(&["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr], &[]))
+    // One listens on every interface, as the README's worker line does:
+    // it must advertise an address the coordinator can dial, not 0.0.0.0.
+    let _workers: Vec<Proc> = ["127.0.0.1:0", "127.0.0.1:0", "0.0.0.0:0"]
+        .iter()
+        .map(|l| spawn(&["worker", "--listen", l, "--coordinator", &coord.addr], &[]))
         .collect();
     let mut c = wait_for_workers(&coord.addr, 3).await;
+    let listed = c.list_workers(pb::ListWorkersRequest {}).await.unwrap().into_inner().workers;
+    assert!(
+        listed.iter().all(|w| !w.addr.starts_with("0.0.0.0")),
+        "{:?}",
+        listed.iter().map(|w| &w.addr).collect::<Vec<_>>()
+    );
     let reference = dir.join("reference.png");
     let size = ["--width", "80", "--height", "40", "--spp", "2"];
     let out = sylva(
@@ -486,4 +495,16 @@ async fn tls_on_both_services_with_a_token() {
     let (other_ca, _, _) = certificates(&dir.join("other"));
     let untrusted = submit(&["--tls-ca", other_ca.to_str().unwrap()], &token);
     assert!(!untrusted.status.success());
+}
+
+/// A worker listening on every interface whose coordinator no route
+/// reaches refuses to start, naming `--advertise`, rather than register
+/// an address nobody can dial (issue 41).
+#[test]
+fn a_worker_on_every_interface_without_a_route_asks_for_advertise() {
+    let out =
+        sylva(&["worker", "--listen", "0.0.0.0:0", "--coordinator", "nowhere.invalid:50150"], &[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--advertise HOST:"), "{err}");
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("listening"), "it never started");
 }

@@ -107,11 +107,13 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
     })
 }
 
-pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
+pub fn run_submit(mut a: SubmitArgs) -> anyhow::Result<()> {
+    crate::flags::render::exr_named(&mut a.out, &mut a.exr);
     anyhow::ensure!(
         !a.frame.auto(),
         "--lighting auto runs its pilot on this machine's GPU: `sylva render --local-workers 0 --lighting auto …`"
     );
+    let started = std::time::Instant::now();
     let token = a.auth.load()?;
     let tls = a.tls.load()?;
     let bundle = sylva_scene::bundle::pack(&a.scene)?;
@@ -131,33 +133,44 @@ pub fn run_submit(a: SubmitArgs) -> anyhow::Result<()> {
         &views,
         a.schedule,
         a.priority,
-        &a.scene.display().to_string(),
+        &a.name.clone().unwrap_or_else(|| a.scene.display().to_string()),
     );
     let rt = tokio::runtime::Runtime::new()?;
     // Passes live in the EXR: asking for them asks for it.
     let exr = a.exr || !frame.passes.is_empty();
     let done =
         rt.block_on(submit_and_follow(&a.coordinator, token, tls.as_ref(), spec, &bundle, exr))?;
-    if !views.is_empty() {
-        let written =
-            sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
-        println!(
-            "{} done: wrote {} frames, {} and {}",
-            done.id,
-            views.len(),
-            written[written.len() - 2].display(),
-            written[written.len() - 1].display()
-        );
-        return Ok(());
-    }
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
     }
-    std::fs::write(&a.out, &done.pngs[0])
-        .with_context(|| format!("{}: cannot write", a.out.display()))?;
-    if let Some(exr) = done.exrs.as_ref().map(|e| &e[0]) {
-        std::fs::write(a.out.with_extension("exr"), exr)?;
-    }
-    println!("{} done: wrote {}", done.id, a.out.display());
+    let wrote = if !views.is_empty() {
+        let written =
+            sylva_coordinator::sequence::write_all(&a.out, &done.pngs, done.exrs.as_deref())?;
+        format!(
+            "{} frames, {} and {}",
+            views.len(),
+            written[written.len() - 2].display(),
+            written[written.len() - 1].display()
+        )
+    } else {
+        std::fs::write(&a.out, &done.pngs[0])
+            .with_context(|| format!("{}: cannot write", a.out.display()))?;
+        if let Some(exr) = done.exrs.as_ref().map(|e| &e[0]) {
+            std::fs::write(a.out.with_extension("exr"), exr)?;
+        }
+        a.out.display().to_string()
+    };
+    // The farm's stats and the client's own times, as `render` writes its.
+    let total_ms = started.elapsed().as_secs_f64() * 1e3;
+    let stats = serde_json::json!({
+        "job": done.id,
+        "total_ms": total_ms,
+        "client_ms": done.times,
+        "farm": done.stats,
+    });
+    let stats_file = crate::render::stats_path(&a.out);
+    std::fs::write(&stats_file, serde_json::to_vec_pretty(&stats)?)
+        .with_context(|| format!("{}: cannot write", stats_file.display()))?;
+    println!("{} done in {:.2} s: wrote {wrote}", done.id, total_ms / 1e3);
     Ok(())
 }

@@ -260,6 +260,10 @@ pub fn run_cancel(a: CancelArgs) -> anyhow::Result<()> {
     let mut failed = Vec::new();
     for (id, r) in a.ids.iter().zip(results) {
         match r {
+            // A job that had ended before is not cancelled: say so.
+            Ok(s) if s.state != pb::JobState::Cancelled as i32 => {
+                failed.push(format!("{id} is {}: nothing to cancel", wire_name(s.state)))
+            }
             Ok(s) => rows.push(JobRow::of(s, now)),
             Err(e) => failed.push(format!("{id}: {e}")),
         }

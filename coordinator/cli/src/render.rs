@@ -29,7 +29,8 @@ use sylva_scene::{FileAccess, SceneLimits};
 /// Columns per strip, for the progress bar.
 const STRIP: u32 = 64;
 
-pub fn run(a: RenderArgs) -> anyhow::Result<()> {
+pub fn run(mut a: RenderArgs) -> anyhow::Result<()> {
+    crate::flags::render::exr_named(&mut a.out, &mut a.exr);
     let request = a.frame.settings();
     request.check()?;
     let goal = a.goal()?;

@@ -16,6 +16,11 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
             .await
             .with_context(|| format!("cannot listen on {}", a.listen))?;
         let addr = listener.local_addr()?;
+        // Before anything starts: a worker nobody can dial does not register.
+        let me = match &a.coordinator {
+            Some(coord) => Some(advertised(addr, coord, a.advertise.clone())?),
+            None => None,
+        };
         let ctx = GpuContext::new()?;
         let token = a.auth.load()?;
         let tls = a.tls.load()?;
@@ -47,8 +52,8 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         tracing::info!(%addr, adapter = %ctx.adapter_name(), "worker ready");
         println!("sylva worker listening on {addr}");
         std::io::stdout().flush()?;
-        if let Some(coord) = a.coordinator.clone() {
-            let me = a.advertise.clone().unwrap_or_else(|| addr.to_string());
+        if let (Some(coord), Some(me)) = (a.coordinator.clone(), me) {
+            tracing::info!(advertise = %me, "the coordinator will reach this worker at this address");
             let token = config.token.clone();
             tokio::spawn(sylva_coordinator::registration::register_loop(
                 coord,
@@ -61,4 +66,46 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         }
         service::run(listener, ctx, config, sylva_coordinator::shutdown::signal()).await
     })
+}
+
+/// The address the coordinator is told to dial: `--advertise` when given,
+/// else the bound one, unless that is unspecified (`0.0.0.0`, `::`), which
+/// no other machine can dial: then the address of the interface this
+/// machine would reach the coordinator through, with the bound port. A
+/// worker that cannot find one refuses to start rather than register an
+/// address nobody can reach.
+fn advertised(
+    bound: std::net::SocketAddr,
+    coordinator: &str,
+    advertise: Option<String>,
+) -> anyhow::Result<String> {
+    use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
+    if let Some(a) = advertise {
+        return Ok(a);
+    }
+    if !bound.ip().is_unspecified() {
+        return Ok(bound.to_string());
+    }
+    let host = coordinator.split_once("://").map_or(coordinator, |(_, rest)| rest);
+    let host = host.trim_end_matches('/');
+    let route = || -> std::io::Result<SocketAddr> {
+        let to = host.to_socket_addrs()?.next().ok_or(std::io::ErrorKind::NotFound)?;
+        // A datagram socket "connected" sends nothing: the kernel only
+        // picks the route, and with it this end's address.
+        let socket = UdpSocket::bind(if to.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" })?;
+        socket.connect(to)?;
+        socket.local_addr()
+    };
+    match route() {
+        Ok(local) if !local.ip().is_unspecified() => {
+            Ok(SocketAddr::new(local.ip(), bound.port()).to_string())
+        }
+        other => anyhow::bail!(
+            "listening on {bound}, which the coordinator cannot dial, and no address of this \
+             machine routes to {host}{}: give the address the coordinator should use with \
+             --advertise HOST:{}",
+            other.err().map(|e| format!(" ({e})")).unwrap_or_default(),
+            bound.port()
+        ),
+    }
 }

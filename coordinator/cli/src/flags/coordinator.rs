@@ -75,9 +75,13 @@ pub struct SubmitArgs {
     /// Scene file.
     pub scene: PathBuf,
     /// The coordinator, `host:port`.
-    #[arg(long)]
+    #[arg(long, env = "SYLVA_COORDINATOR")]
     pub coordinator: String,
-    /// Output PNG (an EXR beside it with --exr).
+    /// The job's name in `sylva jobs` and on the dashboard (default: the scene file).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Output PNG (an EXR beside it with --exr, or when NAME.exr is given); the stats go beside
+    /// it as NAME.stats.json.
     #[arg(short, long, default_value = "sylva-out/render.png")]
     pub out: PathBuf,
     #[command(flatten)]

@@ -174,7 +174,8 @@ impl FrameArgs {
 pub struct RenderArgs {
     /// Scene file (JSON); see `sylva scene forest` and docs/scene-format.md.
     pub scene: PathBuf,
-    /// Output PNG; stats go beside it as NAME.stats.json.
+    /// Output PNG; stats go beside it as NAME.stats.json. NAME.exr asks for
+    /// the OpenEXR (as --exr does), written beside the PNG.
     #[arg(short, long, default_value = "sylva-out/render.png")]
     pub out: PathBuf,
     #[command(flatten)]
@@ -258,5 +259,15 @@ impl RenderArgs {
             }
             (true, Some(_), Some(_)) => bail!("--time-budget and --max-error: one or the other"),
         }
+    }
+}
+
+/// `-o NAME.exr` as a user means it: the EXR, with the PNG and the stats
+/// beside it as for any other name. Resolved once, before anything reads
+/// `out` or `exr`.
+pub fn exr_named(out: &mut PathBuf, exr: &mut bool) {
+    if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr")) {
+        *exr = true;
+        out.set_extension("png");
     }
 }

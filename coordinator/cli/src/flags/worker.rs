@@ -24,7 +24,8 @@ pub struct WorkerArgs {
     /// Register with this coordinator (`host:port`) and re-register every few seconds.
     #[arg(long)]
     pub coordinator: Option<String>,
-    /// The address the coordinator should use for this worker (default: the bound one).
+    /// The address the coordinator should use for this worker (default: the bound one; for
+    /// `0.0.0.0` or `::`, this machine's address on the route to the coordinator).
     #[arg(long)]
     pub advertise: Option<String>,
     #[command(flatten)]
