@@ -540,6 +540,26 @@ fn compare_lists_every_method_with_its_time_and_error() {
     assert_eq!(compare("32", &["--reuse-reference"])["reference"]["reused"], false);
 }
 
+/// A 48 × 24 render of `scene` in this process as `dir/NAME.png`, with
+/// `flags` and `env`; it must succeed. The PNG's bytes and the log.
+fn small_render(
+    dir: &Path,
+    scene: &Path,
+    name: &str,
+    flags: &[&str],
+    env: &[(&str, &str)],
+) -> (Vec<u8>, String) {
+    let out = dir.join(format!("{name}.png"));
+    let args = ["render", scene.to_str().unwrap(), "--local-workers", "0", "--width", "48"];
+    let o = common::sylva(
+        &[&args[..], &["--height", "24", "-o", out.to_str().unwrap()], flags].concat(),
+        env,
+    );
+    let said = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{said}");
+    (std::fs::read(out).unwrap(), said)
+}
+
 /// Compiled kernels are kept beside the prepared data (issue 39): the
 /// first process leaves a file named by the adapter and driver, holding
 /// the hash of its data; the next reads it; a file changed on disk is
@@ -557,19 +577,7 @@ fn compiled_kernels_are_kept_checked_and_read_back() {
         ("SYLVA_PREPARED_CACHE_DIR", cache.to_str().unwrap()),
         ("RUST_LOG", "sylva_worker::gpu=info"),
     ];
-    let render = |name: &str| {
-        let out = dir.join(format!("{name}.png"));
-        let o = common::sylva(
-            &["render", scene.to_str().unwrap(), "--local-workers", "0", "--width", "48"]
-                .into_iter()
-                .chain(["--height", "24", "-o", out.to_str().unwrap()])
-                .collect::<Vec<_>>(),
-            &env,
-        );
-        let said = String::from_utf8_lossy(&o.stderr).to_string();
-        assert!(o.status.success(), "{said}");
-        (std::fs::read(out).unwrap(), said)
-    };
+    let render = |name: &str| small_render(&dir, &scene, name, &[], &env);
     let kept = || -> Vec<PathBuf> {
         std::fs::read_dir(&cache)
             .unwrap()
@@ -613,16 +621,7 @@ fn boulanger_envelopes_are_kept_and_read_back() {
         ("RUST_LOG", "sylva_worker=info"),
     ];
     let render = |name: &str| {
-        let out = dir.join(format!("{name}.png"));
-        let o = common::sylva(
-            &["render", scene.to_str().unwrap(), "--local-workers", "0", "--width", "48"]
-                .into_iter()
-                .chain(["--height", "24", "--lighting", "boulanger", "-o", out.to_str().unwrap()])
-                .collect::<Vec<_>>(),
-            &env,
-        );
-        let said = String::from_utf8_lossy(&o.stderr).to_string();
-        assert!(o.status.success(), "{said}");
+        let (png, said) = small_render(&dir, &scene, name, &["--lighting", "boulanger"], &env);
         let stats: serde_json::Value =
             serde_json::from_slice(&std::fs::read(dir.join(format!("{name}.stats.json"))).unwrap())
                 .unwrap();
@@ -632,7 +631,7 @@ fn boulanger_envelopes_are_kept_and_read_back() {
             .iter()
             .map(|p| p["phase"].as_str().unwrap().to_string())
             .collect();
-        (std::fs::read(out).unwrap(), said, phases, stats["boulanger"].clone())
+        (png, said, phases, stats["boulanger"].clone())
     };
     let (first, _, phases, report) = render("first");
     assert!(phases.iter().any(|p| p == "boulanger precompute"), "{phases:?}");

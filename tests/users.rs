@@ -97,7 +97,16 @@ async fn users_act_within_their_roles_and_every_change_is_audited() {
 
     // A worker token reaches the worker-facing call only; a submitter's
     // cannot register workers.
-    assert_eq!(submit(&mut w, &scene, "").await.unwrap_err().code(), Code::PermissionDenied);
+    let refused = submit(&mut w, &scene, "").await.unwrap_err();
+    assert_eq!(refused.code(), Code::PermissionDenied);
+    // The refusal names the role that may, and how to get a token of it.
+    assert!(
+        refused.message().starts_with("a worker token cannot")
+            && refused.message().contains("that takes a token of the role")
+            && refused.message().contains("sylva token add"),
+        "{}",
+        refused.message()
+    );
     let e = w.list_jobs(pb::ListJobsRequest {}).await.unwrap_err();
     assert_eq!(e.code(), Code::PermissionDenied);
     let e = a

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import os
+import socket
+import threading
 import unicodedata
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -262,6 +264,59 @@ def _has_sequence(scene_path: Path) -> bool:
     return isinstance(scene, dict) and scene.get("sequence") is not None
 
 
+def _host_port(address: str) -> tuple[str, int]:
+    """`address` as ``(host, port)``; a URL or an address without a port is
+    refused at once, with the form it takes."""
+    if "://" in address:
+        raise ValueError(
+            f"{address!r}: give the coordinator as host:port, without a scheme "
+            f"(e.g. {address.split('://', 1)[1].rstrip('/')!r})"
+        )
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(
+            f"{address!r}: give the coordinator as host:port (its gRPC port, "
+            "50150 unless it was started with another)"
+        )
+    return host.strip("[]"), int(port)
+
+
+def _connect(channel: grpc.Channel, timeout: float) -> str | None:
+    """Waits until `channel` is connected (None), or it fails to connect
+    ("failed": a refused connection, or a peer that does not speak gRPC,
+    is known at once), or `timeout` seconds pass (a sentence saying so)."""
+    done = threading.Event()
+    state: list[grpc.ChannelConnectivity] = []
+
+    def heard(s: grpc.ChannelConnectivity) -> None:
+        if s in (grpc.ChannelConnectivity.READY, grpc.ChannelConnectivity.TRANSIENT_FAILURE):
+            state.append(s)
+            done.set()
+
+    channel.subscribe(heard, try_to_connect=True)
+    try:
+        if not done.wait(timeout):
+            return f"no answer within {timeout:g} s"
+    finally:
+        channel.unsubscribe(heard)
+    return None if state[0] == grpc.ChannelConnectivity.READY else "failed"
+
+
+def _why_not_grpc(host: str, port: int) -> str:
+    """Why a gRPC connection to `host:port` failed, in a user's words."""
+    try:
+        with socket.create_connection((host, port), timeout=2):
+            pass
+    except ConnectionRefusedError:
+        return "connection refused (is the coordinator running, and is this its gRPC port?)"
+    except OSError as e:
+        return str(e.strerror or e)
+    return (
+        "something answers there, but not the coordinator's gRPC (the dashboard's HTTP "
+        "port? a TLS port without tls_ca?)"
+    )
+
+
 class Client:
     """A connection to the coordinator at `address` (``host:port``).
 
@@ -270,7 +325,9 @@ class Client:
     CA certificate (PEM) to connect over TLS and check the coordinator
     against; `tls_domain`: the name to check in its certificate (default:
     the host dialled). The connection is made at once, within
-    `connect_timeout` seconds (None: lazily, at the first call).
+    `connect_timeout` seconds (None: lazily, at the first call); a refused
+    connection, or a port that does not speak gRPC, fails at once, and an
+    address that is not ``host:port`` (a URL) raises ValueError.
 
     Every failed call raises `SylvaError` with its gRPC code and the
     coordinator's message. Use as a context manager, or `close()`.
@@ -287,6 +344,7 @@ class Client:
         connect_timeout: float | None = 10.0,
     ) -> None:
         self.address = address
+        host, port = _host_port(address)
         token = load_token(token, token_file)
         # gRPC sends only printable ASCII in a text header; refuse others
         # here rather than let the call fail obscurely.
@@ -311,12 +369,14 @@ class Client:
             self._channel = grpc.insecure_channel(address, options=options)
         self._stub = _cgrpc.CoordinatorStub(self._channel)
         if connect_timeout is not None:
-            try:
-                grpc.channel_ready_future(self._channel).result(timeout=connect_timeout)
-            except grpc.FutureTimeoutError:
+            why = _connect(self._channel, connect_timeout)
+            if why is not None:
                 self._channel.close()
+                if why == "failed":
+                    why = _why_not_grpc(host, port)
                 raise SylvaError(
-                    f"cannot reach the coordinator at {address}", grpc.StatusCode.UNAVAILABLE
+                    f"cannot reach the coordinator at {address}: {why}",
+                    grpc.StatusCode.UNAVAILABLE,
                 ) from None
 
     def close(self) -> None:

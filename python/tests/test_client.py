@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import io
 import shutil
+import socket
 import struct
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -167,7 +169,15 @@ def test_queued_and_running_jobs_are_cancelled(farm: Farm, tmp_path: Path) -> No
         assert err.value.message == "no job j-no-such-job"
 
 
-REFUSED = "this coordinator needs a valid bearer token (authorization: Bearer …)"
+REFUSED = (
+    "this coordinator refused the bearer token: it is not one of this farm's, or it was "
+    "revoked (check --token-file or SYLVA_TOKEN; an operator makes one with "
+    "`sylva token add NAME --role ROLE`)"
+)
+MISSING = (
+    "this coordinator needs a bearer token and the call brought none: give it with "
+    "--token-file FILE or SYLVA_TOKEN (the Python client: token= or token_file=)"
+)
 
 
 def test_a_wrong_or_missing_token_is_refused(
@@ -175,14 +185,15 @@ def test_a_wrong_or_missing_token_is_refused(
 ) -> None:
     monkeypatch.delenv("SYLVA_TOKEN", raising=False)
     scene = small_scene(tmp_path / "scene")
-    for token in ("not-the-token", None):
+    for token, said in (("not-the-token", REFUSED), (None, MISSING)):
         with Client(farm.addr, token=token) as c:
             with pytest.raises(SylvaError) as e:
                 c.jobs()
-            # The code and the words `sylva` prints for them.
+            # The code and the words `sylva` prints for them: which way the
+            # token failed, and the fix.
             assert e.value.code == grpc.StatusCode.UNAUTHENTICATED
-            assert e.value.message == REFUSED
-            assert str(e.value) == f"Unauthenticated: {REFUSED}"
+            assert e.value.message == said
+            assert str(e.value) == f"Unauthenticated: {said}"
             with pytest.raises(SylvaError) as e:
                 c.submit(scene, Frame(width=16, height=16))
             assert e.value.code == grpc.StatusCode.UNAUTHENTICATED
@@ -229,11 +240,46 @@ def test_bad_frames_and_scenes_are_refused_with_their_reasons(farm: Farm, tmp_pa
         assert "lightning" in e.value.message
 
 
-def test_an_unreachable_coordinator_is_a_clear_error() -> None:
+def test_an_unreachable_coordinator_is_a_clear_error_at_once() -> None:
+    # A refused port fails at once, not after the connect timeout.
+    t = time.monotonic()
     with pytest.raises(SylvaError) as e:
-        Client("127.0.0.1:1", token="t", connect_timeout=0.5)
+        Client("127.0.0.1:1", token="t", connect_timeout=30)
+    assert time.monotonic() - t < 10
     assert e.value.code == grpc.StatusCode.UNAVAILABLE
-    assert str(e.value) == "Unavailable: cannot reach the coordinator at 127.0.0.1:1"
+    assert str(e.value).startswith(
+        "Unavailable: cannot reach the coordinator at 127.0.0.1:1: connection refused"
+    ), e.value
+    # A URL, or no port: the form an address takes.
+    for bad in ["http://127.0.0.1:50150", "127.0.0.1", "localhost:http"]:
+        with pytest.raises(ValueError, match="host:port"):
+            Client(bad, token="t")
+
+
+def test_a_port_that_is_not_grpc_is_named_at_once(tmp_path: Path) -> None:
+    # A plain TCP server that answers nothing gRPC understands, as the
+    # dashboard's HTTP port does.
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def serve() -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+            conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        t = time.monotonic()
+        with pytest.raises(SylvaError) as e:
+            Client(f"127.0.0.1:{port}", token="t", connect_timeout=30)
+        assert time.monotonic() - t < 10
+        assert "not the coordinator's gRPC" in str(e.value), e.value
+    finally:
+        server.close()
 
 
 def openssl(*args: str, cwd: Path) -> None:

@@ -329,11 +329,8 @@ impl CoordinatorService {
     ) -> impl FnMut(Request<()>) -> Result<Request<()>, Status> + Clone + use<> {
         let access = self.state.access.clone();
         move |mut req: Request<()>| {
-            let caller = access.caller(sylva_proto::auth::bearer_of(&req)).ok_or_else(|| {
-                Status::unauthenticated(
-                    "this coordinator needs a valid bearer token (authorization: Bearer …)",
-                )
-            })?;
+            let caller = access.caller(sylva_proto::auth::bearer_of(&req));
+            let caller = caller.ok_or_else(|| token_refused(&req))?;
             req.extensions_mut().insert(caller);
             Ok(req)
         }
@@ -421,9 +418,24 @@ fn caller<T>(access: &Access, req: &Request<T>) -> Result<Caller, Status> {
     if let Some(c) = req.extensions().get::<Caller>() {
         return Ok(c.clone());
     }
-    access
-        .caller(sylva_proto::auth::bearer_of(req))
-        .ok_or_else(|| Status::unauthenticated("this coordinator needs a valid bearer token"))
+    access.caller(sylva_proto::auth::bearer_of(req)).ok_or_else(|| token_refused(req))
+}
+
+/// A call's token found wanting, in words that say which way and the fix:
+/// none brought, or one this farm does not hold (wrong or revoked alike:
+/// which of the two is not told).
+fn token_refused<T>(req: &Request<T>) -> Status {
+    Status::unauthenticated(match sylva_proto::auth::bearer_of(req) {
+        None => {
+            "this coordinator needs a bearer token and the call brought none: give it with \
+             --token-file FILE or SYLVA_TOKEN (the Python client: token= or token_file=)"
+        }
+        Some(_) => {
+            "this coordinator refused the bearer token: it is not one of this farm's, or it \
+             was revoked (check --token-file or SYLVA_TOKEN; an operator makes one with \
+             `sylva token add NAME --role ROLE`)"
+        }
+    })
 }
 
 /// PERMISSION_DENIED unless `caller` has one of `roles`.
@@ -431,7 +443,13 @@ fn allow(caller: &Caller, roles: &[Role], what: &str) -> Result<(), Status> {
     if roles.contains(&caller.role) {
         return Ok(());
     }
-    Err(Status::permission_denied(format!("a {} token cannot {what}", caller.role.name())))
+    let may: Vec<&str> = roles.iter().map(|r| r.name()).collect();
+    Err(Status::permission_denied(format!(
+        "a {} token cannot {what}: that takes a token of the role {} (an operator makes one \
+         with `sylva token add NAME --role ROLE`)",
+        caller.role.name(),
+        may.join(" or ")
+    )))
 }
 
 impl State {
