@@ -508,3 +508,22 @@ fn a_worker_on_every_interface_without_a_route_asks_for_advertise() {
     assert!(!out.status.success() && err.contains("--advertise HOST:"), "{err}");
     assert!(!String::from_utf8_lossy(&out.stdout).contains("listening"), "it never started");
 }
+
+/// A coordinator open beyond this machine says what a user must know: a
+/// token over plain gRPC or HTTP can be read on the way, and the
+/// dashboard's address is one another machine can open, not `0.0.0.0`.
+#[test]
+fn a_coordinator_on_every_interface_warns_of_clear_text_tokens() {
+    let dir = std::env::temp_dir().join(format!("sylva-service-open-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = dir.join("coordinator.log");
+    let args = ["coordinator", "--listen", "0.0.0.0:0", "--http", "0.0.0.0:0", "--token", "t"];
+    let c = common::spawn_logging(&args, &[], Some(&log));
+    drop(c);
+    let said = std::fs::read_to_string(&log).unwrap();
+    assert!(said.contains("without TLS: bearer tokens cross the network readable"), "{said}");
+    assert!(said.contains("the dashboard serves beyond this machine over plain HTTP"), "{said}");
+    let url = said.lines().find(|l| l.contains("dashboard on")).unwrap_or_default();
+    assert!(url.contains("http://") && !url.contains("0.0.0.0"), "{url}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -78,6 +78,7 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
             worker_tls: a.worker_tls.load()?,
             ..Default::default()
         };
+        let serves_tls = config.tls.is_some();
         // The dashboard serves beside the API, until the same signal.
         let shutdown = Shutdown::new(sylva_coordinator::shutdown::signal());
         let mut dashboard = None;
@@ -91,7 +92,23 @@ pub fn run_coordinator(a: CoordinatorArgs) -> anyhow::Result<()> {
                 eprintln!("sylva coordinator metrics on http://{m}/metrics");
             }
             if let Some(h) = http_addr {
-                eprintln!("sylva coordinator dashboard on http://{h}/");
+                eprintln!("sylva coordinator dashboard on {}", dashboard_url(h));
+            }
+            // Tokens sent in the clear beyond this machine can be read on
+            // the way: say so where that is the case.
+            if service.needs_token() && !addr.ip().is_loopback() && !serves_tls {
+                tracing::warn!(
+                    %addr,
+                    "listening beyond this machine without TLS: bearer tokens cross the network \
+                     readable (give --tls-cert and --tls-key)"
+                );
+            }
+            if let Some(h) = http_addr.filter(|h| service.needs_token() && !h.ip().is_loopback()) {
+                tracing::warn!(
+                    addr = %h,
+                    "the dashboard serves beyond this machine over plain HTTP: its bearer tokens \
+                     cross the network readable (put it behind a TLS proxy, or on 127.0.0.1)"
+                );
             }
             println!("sylva coordinator listening on {addr}");
             let _ = std::io::stdout().flush();
@@ -173,4 +190,18 @@ pub fn run_submit(mut a: SubmitArgs) -> anyhow::Result<()> {
         .with_context(|| format!("{}: cannot write", stats_file.display()))?;
     println!("{} done in {:.2} s: wrote {wrote}", done.id, total_ms / 1e3);
     Ok(())
+}
+
+/// The dashboard's address as a browser on another machine would open it:
+/// an unspecified bind (`0.0.0.0`, `::`) is this machine's host name.
+fn dashboard_url(bound: std::net::SocketAddr) -> String {
+    if !bound.ip().is_unspecified() {
+        return format!("http://{bound}/");
+    }
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "localhost".into());
+    format!("http://{host}:{}/ (every interface)", bound.port())
 }
