@@ -667,3 +667,32 @@ fn an_exr_name_writes_the_exr() {
     assert!(dir.join("shot.png").exists() && dir.join("shot.stats.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A sequence solves the LB again for each sun; a finding about a model
+/// (an optically thin crown, a small grid) is logged once, not once per
+/// frame (issue 41, point 3). The stats still carry every frame's.
+#[test]
+fn a_sequence_logs_each_lb_warning_once() {
+    let dir = scratch("warn-once");
+    let scene = small_forest(&dir);
+    let out = dir.join("seq.png");
+    let o = common::sylva(
+        &["render", scene.to_str().unwrap(), "--local-workers", "0", "--width", "48"]
+            .into_iter()
+            .chain(["--height", "24", "-o", out.to_str().unwrap(), "--lighting", "lb"])
+            .chain(["--frames", "3", "--sun-from", "30,90", "--sun-to", "50,130"])
+            .collect::<Vec<_>>(),
+        &[],
+    );
+    let said = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{said}");
+    let warned: Vec<&str> =
+        said.lines().filter(|l| l.contains("WARN") && l.contains("LB: ")).collect();
+    assert!(!warned.is_empty(), "the small forest's crowns are thin: {said}");
+    let mut seen = std::collections::HashSet::new();
+    for l in &warned {
+        let model = l.split("model=").nth(1).unwrap_or_default();
+        let kind = l.split("LB: ").nth(1).and_then(|w| w.split(':').next()).unwrap_or_default();
+        assert!(seen.insert((model, kind)), "said twice: {l}\n{said}");
+    }
+}

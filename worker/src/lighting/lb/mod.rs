@@ -340,7 +340,7 @@ pub fn prepare(
             progress(&format!("LB light of {} ({})", m.name, mm.medium.dims));
             let (grid, report) = solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid)?;
             for w in &report.warnings {
-                tracing::warn!(model = %m.name, "LB: {w}");
+                warn_once(&m.name, w);
             }
             light.push(report);
             grids.push(Some(grid));
@@ -374,4 +374,30 @@ impl SceneLb {
 /// The scene's sun as the paper model's boundary takes it (unit strength).
 pub(crate) fn sun_of(scene: &Scene) -> anyhow::Result<Sun> {
     Ok(Sun::towards(scene.sun.towards.as_dvec3().to_array(), 1.0)?)
+}
+
+/// Logs an LB warning about `model` at warn level the first time this
+/// process meets its kind for that model (the text before its first
+/// colon: "thin", "small-grid", …), at debug level after: a sequence
+/// solves every model again for each sun, and the same finding repeated
+/// per model per frame buried everything else. The stats carry every
+/// frame's warnings whole.
+fn warn_once(model: &str, warning: &str) {
+    use std::collections::HashSet;
+    use std::sync::{LazyLock, Mutex};
+    static SAID: LazyLock<Mutex<HashSet<(String, String)>>> = LazyLock::new(Default::default);
+    let kind = warning.split(':').next().unwrap_or(warning).to_string();
+    let first = {
+        let mut said = sylva_proto::sync::lock(&SAID);
+        // A bound for a worker that meets scenes without end.
+        if said.len() >= 4096 {
+            said.clear();
+        }
+        said.insert((model.to_string(), kind))
+    };
+    if first {
+        tracing::warn!(model, "LB: {warning}");
+    } else {
+        tracing::debug!(model, "LB: {warning}");
+    }
 }
