@@ -222,6 +222,41 @@ fn lb_benchmark_prints_both_backends_as_json() {
 /// `--kernel-rays` rays: the camera rays, shadow rays and diffuse bounces
 /// of the same frame, apart from uploads and read-backs.
 #[test]
+fn trace_benchmark_leaves_ray_query_frames_out_on_a_cpu_adapter() {
+    // `sylva bench trace` as a user first types it renders no ray-query
+    // frame on lavapipe (minutes each), and says so (issue 41, point 4).
+    let out = ok(&[
+        "bench",
+        "trace",
+        "--scale",
+        "0.01",
+        "--triangle-scale",
+        "0.01",
+        "--width",
+        "16",
+        "--height",
+        "8",
+        "--accel",
+        "bvh,rq",
+        "--no-cpu",
+        "--no-first-frame",
+        "--kernel-rays",
+        "1000",
+    ]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    let framed: Vec<&str> =
+        v["frames"].as_array().unwrap().iter().map(|f| f["accel"].as_str().unwrap()).collect();
+    if v["adapter"]["device_type"] == "Cpu" {
+        assert!(!framed.contains(&"rq") && framed.contains(&"bvh"), "{framed:?}");
+        if v["adapter"]["ray_queries"] == true {
+            assert!(v["frames_left_out"].as_str().unwrap().starts_with("rq:"), "{v:#}");
+        }
+    } else {
+        assert!(v["frames_left_out"].is_null(), "{v:#}");
+    }
+}
+
+#[test]
 fn trace_benchmark_times_each_ray_kind_on_the_gpu() {
     let out = ok(&[
         "bench",

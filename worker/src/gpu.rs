@@ -204,6 +204,12 @@ impl GpuContext {
         self.device.features().contains(wgpu::Features::EXPERIMENTAL_RAY_QUERY)
     }
 
+    /// Whether the adapter is the CPU itself (lavapipe, llvmpipe): work a
+    /// GPU does in milliseconds may take it minutes.
+    pub fn is_cpu(&self) -> bool {
+        self.adapter.get_info().device_type == wgpu::DeviceType::Cpu
+    }
+
     /// The adapter's name and driver, as reports print it.
     pub fn adapter_name(&self) -> String {
         let i = self.adapter.get_info();

@@ -30,10 +30,7 @@ impl Backend {
     /// --medium plant` at 64³ on 2 cores, Mesa 25: 39.7 against 6.9 MLUPS
     /// stepping; docs/lighting.md, "Where the LB is solved").
     pub fn for_adapter(ctx: &GpuContext) -> Self {
-        match ctx.adapter.get_info().device_type {
-            wgpu::DeviceType::Cpu => Backend::Cpu,
-            _ => Backend::Gpu,
-        }
+        if ctx.is_cpu() { Backend::Cpu } else { Backend::Gpu }
     }
 }
 

@@ -73,7 +73,8 @@ pub struct TraceBenchArgs {
     #[arg(long)]
     pub no_frames: bool,
     /// Backends whose whole frames are rendered (default: those of
-    /// `--accel`); ray queries on lavapipe take minutes a frame.
+    /// `--accel`, less `rq` on a CPU adapter such as lavapipe, where a
+    /// ray-query frame takes minutes; the output's `frames_left_out` says so).
     #[arg(long, value_delimiter = ',')]
     pub frames_accel: Option<Vec<sylva_scene::frame::Backend>>,
     /// Skip the time to the first frame (two `sylva render` processes, cold

@@ -309,10 +309,21 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
             a.kernel_rays,
         )?);
     }
-    let frame_backends = match &a.frames_accel {
-        Some(f) => measurable(&ctx, f),
-        None => backends.clone(),
+    // Ray-query frames on a CPU adapter take minutes each: by default
+    // they are left out there, and the output says so.
+    let (frame_backends, frames_left_out) = match &a.frames_accel {
+        Some(f) => (measurable(&ctx, f), None),
+        None if ctx.is_cpu() && backends.contains(&sylva_scene::frame::Backend::Rq) => (
+            backends.iter().copied().filter(|b| *b != sylva_scene::frame::Backend::Rq).collect(),
+            Some(
+                "rq: ray-query frames take minutes each on a CPU adapter (--frames-accel rq to render them)",
+            ),
+        ),
+        None => (backends.clone(), None),
     };
+    if let Some(why) = frames_left_out {
+        tracing::info!("frames left out: {why}");
+    }
     let frames =
         if a.no_frames { Vec::new() } else { bench_frames(&ctx, &scene, &a, &frame_backends)? };
     let first_frame =
@@ -328,6 +339,7 @@ fn bench_trace(a: TraceBenchArgs) -> anyhow::Result<()> {
         "traversal": traversal,
         "cpu_flat_opaque": cpu_flat_opaque,
         "frames": frames,
+        "frames_left_out": frames_left_out,
         "first_frame": first_frame,
         "figures": {
             "traversal": "closest hits of one primary ray per pixel, the same rays for every structure and machine; GPU time includes upload of the rays and read-back of the hits",
