@@ -51,6 +51,15 @@ async fn users_act_within_their_roles_and_every_change_is_audited() {
     // second token under alice's name as an admin would act on her jobs.
     let said = common::fails(&["token", "add", "alice", "--role", "admin", "--state-dir", st]);
     assert!(said.contains("already has a submitter token"), "{said}");
+    // A second token of the same role is made, but the operator is told
+    // the first still works (issue 41, point 7).
+    let again =
+        common::sylva(&["token", "add", "bob", "--role", "submitter", "--state-dir", st], &[]);
+    let said = String::from_utf8_lossy(&again.stderr);
+    assert!(again.status.success(), "{said}");
+    assert!(said.contains("bob also holds 1 live token") && said.contains("still works"), "{said}");
+    let bob2 = String::from_utf8_lossy(&again.stdout).trim().to_string();
+    assert!(bob2.starts_with("sylva_") && bob2 != bob);
     // The farm was open; with users it takes their tokens only.
     let mut anon = coordinator(&coord.addr, None).await;
     until_refused(&mut anon).await;

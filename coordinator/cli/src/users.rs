@@ -40,6 +40,15 @@ pub fn run_token(c: TokenCommand) -> anyhow::Result<()> {
                 );
                 let role = Role::from_name(&a.role).expect("clap checked the role");
                 let store = Store::open(&a.state.url()?).await?;
+                // A second live token for a user is allowed (a new machine,
+                // a rotation), but never unannounced: the old one still works.
+                let live: Vec<String> = store
+                    .tokens()
+                    .await?
+                    .into_iter()
+                    .filter(|t| t.user == a.user && t.revoked_ms == 0)
+                    .map(|t| t.id)
+                    .collect();
                 let issued = access::issue(&a.user, role);
                 store.add_token(&issued.row).await?;
                 store
@@ -55,6 +64,17 @@ pub fn run_token(c: TokenCommand) -> anyhow::Result<()> {
                     "token {} for {} ({}): shown this once; the farm keeps only its hash",
                     issued.row.id, a.user, a.role
                 );
+                if !live.is_empty() {
+                    eprintln!(
+                        "{} also holds {} live token{} ({}), which still work{}: `sylva token \
+                         revoke ID` ends one",
+                        a.user,
+                        live.len(),
+                        if live.len() == 1 { "" } else { "s" },
+                        live.join(", "),
+                        if live.len() == 1 { "s" } else { "" },
+                    );
+                }
                 println!("{}", issued.token);
             }
             TokenCommand::List(a) => {
