@@ -181,6 +181,8 @@ async fn users_act_within_their_roles_and_every_change_is_audited() {
         ("alice", "submit"),
         ("root", "cancel"),
         ("operator", "token revoke"),
+        // Refusals are audited too (issue 41, point 7).
+        ("render-01", "refused: submit jobs"),
     ] {
         assert!(seen.contains(&(who.into(), what.into())), "{who} {what} in {seen:?}");
     }

@@ -3,7 +3,7 @@
 //! Flamenco's `api_impl` is split. Each call first checks its caller's
 //! role ([`crate::access`]); ownership is the resource's to check.
 
-use super::{CoordinatorService, EventStream, Role, allow, caller};
+use super::{CoordinatorService, EventStream, Role};
 use sylva_proto::pb;
 use sylva_proto::pb::coordinator_server::Coordinator;
 use tonic::{Request, Response, Status, Streaming};
@@ -15,11 +15,7 @@ impl Coordinator for CoordinatorService {
         request: Request<Streaming<pb::SubmitChunk>>,
     ) -> Result<Response<pb::JobId>, Status> {
         {
-            allow(
-                &caller(&self.state.access, &request)?,
-                &[Role::Admin, Role::Submitter],
-                "submit jobs",
-            )?;
+            self.allowed(&request, &[Role::Admin, Role::Submitter], "submit jobs").await?;
             self.submit(request).await
         }
     }
@@ -31,11 +27,7 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::JobId>,
     ) -> Result<Response<Self::WatchJobStream>, Status> {
         {
-            allow(
-                &caller(&self.state.access, &request)?,
-                &[Role::Admin, Role::Submitter],
-                "watch jobs",
-            )?;
+            self.allowed(&request, &[Role::Admin, Role::Submitter], "watch jobs").await?;
             self.watch(request).await
         }
     }
@@ -45,11 +37,7 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::FetchRequest>,
     ) -> Result<Response<pb::FetchReply>, Status> {
         {
-            allow(
-                &caller(&self.state.access, &request)?,
-                &[Role::Admin, Role::Submitter],
-                "fetch results",
-            )?;
+            self.allowed(&request, &[Role::Admin, Role::Submitter], "fetch results").await?;
             self.fetch(request).await
         }
     }
@@ -59,11 +47,7 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::JobId>,
     ) -> Result<Response<pb::JobSummary>, Status> {
         {
-            allow(
-                &caller(&self.state.access, &request)?,
-                &[Role::Admin, Role::Submitter],
-                "cancel jobs",
-            )?;
+            self.allowed(&request, &[Role::Admin, Role::Submitter], "cancel jobs").await?;
             self.cancel(request).await
         }
     }
@@ -73,11 +57,7 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::ListJobsRequest>,
     ) -> Result<Response<pb::JobList>, Status> {
         {
-            allow(
-                &caller(&self.state.access, &request)?,
-                &[Role::Admin, Role::Submitter],
-                "list jobs",
-            )?;
+            self.allowed(&request, &[Role::Admin, Role::Submitter], "list jobs").await?;
             self.jobs(request).await
         }
     }
@@ -87,11 +67,7 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::SetPriorityRequest>,
     ) -> Result<Response<pb::JobSummary>, Status> {
         {
-            allow(
-                &caller(&self.state.access, &request)?,
-                &[Role::Admin, Role::Submitter],
-                "change priorities",
-            )?;
+            self.allowed(&request, &[Role::Admin, Role::Submitter], "change priorities").await?;
             self.reprioritise(request).await
         }
     }
@@ -101,11 +77,7 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::ListWorkersRequest>,
     ) -> Result<Response<pb::WorkerList>, Status> {
         {
-            allow(
-                &caller(&self.state.access, &request)?,
-                &[Role::Admin, Role::Submitter],
-                "list workers",
-            )?;
+            self.allowed(&request, &[Role::Admin, Role::Submitter], "list workers").await?;
             self.workers(request).await
         }
     }
@@ -115,11 +87,7 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::RegisterWorkerRequest>,
     ) -> Result<Response<pb::RegisterWorkerReply>, Status> {
         {
-            allow(
-                &caller(&self.state.access, &request)?,
-                &[Role::Admin, Role::Worker],
-                "register workers",
-            )?;
+            self.allowed(&request, &[Role::Admin, Role::Worker], "register workers").await?;
             self.register(request).await
         }
     }

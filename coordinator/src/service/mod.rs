@@ -224,6 +224,9 @@ struct State {
     access: Arc<Access>,
     /// Writes the database has not taken yet, written again until it does.
     owed: Mutex<owed::Owed>,
+    /// When each (user, action) refusal was last audited: one row a minute
+    /// each, so a token's holder cannot flood the log by being refused.
+    refusals: Mutex<std::collections::HashMap<(String, String), std::time::Instant>>,
 }
 
 /// The `sylva.v1.Coordinator` service.
@@ -295,6 +298,7 @@ impl CoordinatorService {
                 _lock: lock,
                 access,
                 owed: Default::default(),
+                refusals: Default::default(),
             }),
         };
         if let Some(l) = metrics_listener {
@@ -436,6 +440,39 @@ fn token_refused<T>(req: &Request<T>) -> Status {
              `sylva token add NAME --role ROLE`)"
         }
     })
+}
+
+impl CoordinatorService {
+    /// The caller of `request`, if their role is one of `roles`; else
+    /// PERMISSION_DENIED, and the refusal goes to the audit log (at most
+    /// once a minute for the same user and action).
+    async fn allowed<T>(
+        &self,
+        request: &Request<T>,
+        roles: &[Role],
+        what: &str,
+    ) -> Result<Caller, Status> {
+        let c = caller(&self.state.access, request)?;
+        if let Err(refused) = allow(&c, roles, what) {
+            let key = (c.user.clone(), what.to_string());
+            let due = {
+                let mut last = lock(&self.state.refusals);
+                let now = std::time::Instant::now();
+                last.retain(|_, t| now.duration_since(*t) < std::time::Duration::from_secs(60));
+                let due = !last.contains_key(&key);
+                if due {
+                    last.insert(key, now);
+                }
+                due
+            };
+            if due {
+                let detail = format!("a {} token", c.role.name());
+                self.state.audit(&c.user, &format!("refused: {what}"), "", &detail).await;
+            }
+            return Err(refused);
+        }
+        Ok(c)
+    }
 }
 
 /// PERMISSION_DENIED unless `caller` has one of `roles`.
