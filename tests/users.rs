@@ -76,6 +76,25 @@ async fn users_act_within_their_roles_and_every_change_is_audited() {
         &[("SYLVA_TOKEN", &wtok)],
     );
     common::wait_for_workers(&mut r, 1).await;
+    // A worker started with a submitter's token can never register: it
+    // stops and says why, rather than retry for ever (issue 41, point 7).
+    let log = dir.join("bad-worker.log");
+    let mut bad = common::spawn_logging(
+        &["worker", "--listen", "127.0.0.1:0", "--coordinator", &coord.addr],
+        &[("SYLVA_TOKEN", &alice)],
+        Some(&log),
+    );
+    let mut ended = None;
+    for _ in 0..300 {
+        ended = bad.child.try_wait().unwrap();
+        if ended.is_some() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let said = std::fs::read_to_string(&log).unwrap();
+    assert!(ended.is_some_and(|s| !s.success()), "it exits, failing: {said}");
+    assert!(said.contains("start the worker with a worker token"), "{said}");
 
     // The submitter shown is the token's user, whatever the client claims.
     let scene = bundle::pack(&small_scene(&dir)).unwrap();

@@ -10,6 +10,11 @@ use tonic::transport::ClientTlsConfig;
 /// Time between registrations.
 pub const PERIOD: Duration = Duration::from_secs(5);
 
+/// What the coordinator's role check calls a worker's registration: a
+/// token refused it ("a submitter token cannot register workers: …") will
+/// never register, however often it tries.
+pub const REGISTER: &str = "register workers";
+
 /// Why a registration failed; the loop logs again only when the reason
 /// changes.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -59,7 +64,8 @@ pub async fn register_once(
 
 /// Registers forever, logging each change between success and failure,
 /// and keeps the coordinator's key in `session` (the worker takes calls
-/// made with it).
+/// made with it). Returns only when the coordinator refuses the token's
+/// role: retrying cannot help, and the worker should stop and say why.
 pub async fn register_loop(
     coordinator: String,
     me: String,
@@ -67,7 +73,7 @@ pub async fn register_loop(
     tls: Option<ClientTlsConfig>,
     session: std::sync::Arc<std::sync::RwLock<Option<String>>>,
     claims: sylva_proto::auth::Claims,
-) {
+) -> RegistrationError {
     let mut last: Option<Result<(), RegistrationError>> = None;
     loop {
         let held = sylva_proto::sync::read(&session).clone();
@@ -77,6 +83,11 @@ pub async fn register_loop(
             Ok(key) => {
                 *sylva_proto::sync::write(&session) = Some(key).filter(|k| !k.is_empty());
                 Ok(())
+            }
+            Err(e @ RegistrationError::Refused { code: tonic::Code::PermissionDenied, .. })
+                if e.to_string().contains(&format!("token cannot {REGISTER}")) =>
+            {
+                return e;
             }
             Err(e) => Err(e),
         };

@@ -52,19 +52,32 @@ pub fn run(a: WorkerArgs) -> anyhow::Result<()> {
         tracing::info!(%addr, adapter = %ctx.adapter_name(), "worker ready");
         println!("sylva worker listening on {addr}");
         std::io::stdout().flush()?;
-        if let (Some(coord), Some(me)) = (a.coordinator.clone(), me) {
-            tracing::info!(advertise = %me, "the coordinator will reach this worker at this address");
-            let token = config.token.clone();
-            tokio::spawn(sylva_coordinator::registration::register_loop(
-                coord,
-                me,
-                token,
-                coordinator_tls,
-                config.session.clone(),
-                config.claims.clone(),
-            ));
+        let registration = match (a.coordinator.clone(), me) {
+            (Some(coord), Some(me)) => {
+                tracing::info!(advertise = %me, "the coordinator will reach this worker at this address");
+                let token = config.token.clone();
+                Some(tokio::spawn(sylva_coordinator::registration::register_loop(
+                    coord,
+                    me,
+                    token,
+                    coordinator_tls,
+                    config.session.clone(),
+                    config.claims.clone(),
+                )))
+            }
+            _ => None,
+        };
+        let serve = service::run(listener, ctx, config, sylva_coordinator::shutdown::signal());
+        let Some(registration) = registration else { return serve.await };
+        // A worker whose token may not register stops, saying why, rather
+        // than retry for ever.
+        tokio::select! {
+            served = serve => served,
+            refused = registration => Err(match refused {
+                Ok(e) => anyhow::anyhow!("{e}: start the worker with a worker token"),
+                Err(e) => anyhow::anyhow!("the registration task failed: {e}"),
+            }),
         }
-        service::run(listener, ctx, config, sylva_coordinator::shutdown::signal()).await
     })
 }
 

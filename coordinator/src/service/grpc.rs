@@ -87,7 +87,8 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::RegisterWorkerRequest>,
     ) -> Result<Response<pb::RegisterWorkerReply>, Status> {
         {
-            self.allowed(&request, &[Role::Admin, Role::Worker], "register workers").await?;
+            self.allowed(&request, &[Role::Admin, Role::Worker], crate::registration::REGISTER)
+                .await?;
             self.register(request).await
         }
     }
