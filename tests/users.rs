@@ -207,3 +207,46 @@ async fn users_act_within_their_roles_and_every_change_is_audited() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A job sent with the farm's own token is listed and audited under the
+/// same name: its holder `admin`, and the name and address it came with
+/// (issue 41, point 7: the list said an address, the audit `admin`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_farm_token_job_is_listed_and_audited_under_one_name() {
+    let dir = scratch("farm-token-audit");
+    let state = dir.join("state");
+    let st = state.to_str().unwrap();
+    let w = spawn(&["worker", "--listen", "127.0.0.1:0"], &[("SYLVA_TOKEN", "farm")]);
+    let coord = spawn(
+        &["coordinator", "--listen", "127.0.0.1:0", "--state-dir", st, "--token", "farm"]
+            .into_iter()
+            .chain(["--workers", &w.addr])
+            .collect::<Vec<_>>(),
+        &[],
+    );
+    let scene = small_scene(&dir);
+    let png = dir.join("x.png");
+    let out = sylva(
+        &["submit", scene.to_str().unwrap(), "--coordinator", &coord.addr, "-o"]
+            .into_iter()
+            .chain([png.to_str().unwrap(), "--width", "32", "--height", "16"])
+            .collect::<Vec<_>>(),
+        &[("SYLVA_TOKEN", "farm"), ("SYLVA_USER", "alice")],
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let id = String::from_utf8_lossy(&out.stdout).split_whitespace().next().unwrap().to_string();
+    let jobs = sylva(&["jobs", "--coordinator", &coord.addr, "--json"], &[("SYLVA_TOKEN", "farm")]);
+    let listed: serde_json::Value = serde_json::from_slice(&jobs.stdout).unwrap();
+    let job = listed.as_array().unwrap().iter().find(|j| j["id"] == id.as_str()).unwrap();
+    assert_eq!(job["submitter"], "alice@127.0.0.1", "{job}");
+    let audit: serde_json::Value =
+        serde_json::from_str(&ok(&["audit", "--json", "--state-dir", st])).unwrap();
+    let row = audit
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["action"] == "submit" && r["target"] == id.as_str())
+        .unwrap_or_else(|| panic!("{audit}"));
+    assert_eq!(row["actor"], "admin (alice@127.0.0.1)", "{row}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

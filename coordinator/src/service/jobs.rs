@@ -52,6 +52,13 @@ impl CoordinatorService {
         } else {
             format!("{}@{from}", spec.submitter)
         };
+        // The audit names whom the job list shows: with the farm's own
+        // token, its holder "admin" and the name and address it came with.
+        let actor = match (who.token_id.is_empty(), who.user.is_empty()) {
+            (false, _) => who.user.clone(),
+            (true, true) => submitter.clone(),
+            (true, false) => format!("{} ({submitter})", who.user),
+        };
         let hash = first.hash.to_ascii_lowercase();
         if hash.len() != 64 || !hash.bytes().all(|b| b.is_ascii_hexdigit()) {
             return Err(Status::invalid_argument(format!(
@@ -124,7 +131,7 @@ impl CoordinatorService {
         self.state.store.insert_job(&job.row()).await.map_err(internal_error)?;
         let detail = format!("{} frame(s), {}", job.summary.frames, job.summary.name);
         lock(&self.state.jobs).insert(id.clone(), job);
-        self.state.audit(&who.user, "submit", &id, &detail).await;
+        self.state.audit(&actor, "submit", &id, &detail).await;
         self.state.wake.notify_one();
         tracing::info!(%id, "job queued");
         Ok(Response::new(pb::JobId { id }))
