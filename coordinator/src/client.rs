@@ -140,7 +140,9 @@ pub async fn submit_and_follow(
     progress.finish();
     let end = end.context("the coordinator closed the job's event stream early")?;
     if JobState::from_wire(end.state) != Some(JobState::Done) {
-        bail!("job {id} {}: {}", wire_name(end.state), end.message);
+        // A cancel carries no reason: no empty one is printed after a colon.
+        let why = if end.message.is_empty() { String::new() } else { format!(": {}", end.message) };
+        bail!("job {id} {}{why}", wire_name(end.state));
     }
     times.wait_ms = ms(t);
     let t = std::time::Instant::now();

@@ -45,4 +45,5 @@ class JobFailedError(SylvaError):
 
     def __init__(self, event: JobEvent) -> None:
         self.event = event
-        super().__init__(f"job {event.id} {event.state.value}: {event.message}")
+        why = f": {event.message}" if event.message else ""
+        super().__init__(f"job {event.id} {event.state.value}{why}")
