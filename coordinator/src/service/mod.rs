@@ -227,6 +227,9 @@ struct State {
     /// When each (user, action) refusal was last audited: one row a minute
     /// each, so a token's holder cannot flood the log by being refused.
     refusals: Mutex<std::collections::HashMap<(String, String), std::time::Instant>>,
+    /// The scheduler, heartbeat and owed-writes loops: stopped before the
+    /// database closes, so none writes to a closed one.
+    background: Mutex<Vec<tokio::task::AbortHandle>>,
 }
 
 /// The `sylva.v1.Coordinator` service.
@@ -299,6 +302,7 @@ impl CoordinatorService {
                 access,
                 owed: Default::default(),
                 refusals: Default::default(),
+                background: Default::default(),
             }),
         };
         if let Some(l) = metrics_listener {
@@ -343,11 +347,13 @@ impl CoordinatorService {
     /// Starts the scheduler loop and the worker heartbeats.
     pub fn spawn_background(&self) {
         let s = self.state.clone();
-        tokio::spawn(async move { s.schedule_loop().await });
+        let schedule = tokio::spawn(async move { s.schedule_loop().await });
         let s = self.state.clone();
-        tokio::spawn(async move { s.heartbeat_loop().await });
+        let heartbeat = tokio::spawn(async move { s.heartbeat_loop().await });
         let s = self.state.clone();
-        tokio::spawn(async move { s.owed_loop().await });
+        let owed = tokio::spawn(async move { s.owed_loop().await });
+        lock(&self.state.background)
+            .extend([schedule, heartbeat, owed].iter().map(tokio::task::JoinHandle::abort_handle));
     }
 
     /// The tonic server wrapper. Messages are bounded by what the API
@@ -362,6 +368,19 @@ impl CoordinatorService {
     /// Closes the database; removes the state folder of an ephemeral
     /// coordinator (a durable one keeps it for the next start).
     pub async fn clean_up(&self) {
+        // Nothing may write once the database is closed (before, the
+        // loops and running jobs logged "cannot be written" at every
+        // shutdown): the loops and the jobs' runs stop first. A durable
+        // coordinator's running jobs resume at its next start.
+        for t in lock(&self.state.background).drain(..) {
+            t.abort();
+        }
+        for j in lock(&self.state.jobs).values_mut() {
+            if let Some(t) = j.task.take() {
+                t.abort();
+            }
+        }
+        tokio::task::yield_now().await;
         self.state.store.close().await;
         let dir = &self.state.config.state_dir;
         let gone = if self.state.config.ephemeral { dir.clone() } else { dir.join("check") };
