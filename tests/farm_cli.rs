@@ -141,6 +141,20 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     for q in [&q1, &q2, &q3] {
         assert_eq!(job(&listed, q)["state"], "queued", "{listed:?}");
     }
+    // A running job says what the farm is doing for it (issue 41, point
+    // 2); a done one says nothing more, and estimates nothing.
+    let mut stage = String::new();
+    for _ in 0..200 {
+        stage = job(&jobs(&addr), &long)["stage"].as_str().unwrap_or_default().to_string();
+        if !stage.is_empty() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(!stage.is_empty(), "{:?}", job(&jobs(&addr), &long));
+    let done = job(&listed, &first);
+    assert!(done["stage"] == "" && done["eta_s"].is_null(), "{done}");
+    assert!(ok_as_alice(&["jobs", "--coordinator", &addr]).contains("STAGE"));
     // The last is raised above the others; the first is cancelled while it waits.
     let raised: Value = serde_json::from_str(&ok_as_alice(&[
         "priority",

@@ -29,6 +29,10 @@ struct JobRow {
     /// Seconds queued, then running (up to now while it runs).
     queued_s: Option<f64>,
     running_s: Option<f64>,
+    /// What the farm is doing for it now (empty once ended).
+    stage: String,
+    /// Seconds left, estimated from the strips returned since the first.
+    eta_s: Option<f64>,
     error: Option<String>,
 }
 
@@ -54,6 +58,8 @@ impl JobRow {
             submitted_unix_ms: sub,
             started_unix_ms: start,
             finished_unix_ms: end,
+            stage: j.stage,
+            eta_s: (j.eta_ms > 0).then(|| j.eta_ms as f64 / 1e3),
             error: Some(j.error).filter(|e| !e.is_empty()),
         }
     }
@@ -110,6 +116,8 @@ fn job_table(rows: &[JobRow]) -> String {
                 j.retries.to_string(),
                 seconds(j.queued_s),
                 seconds(j.running_s),
+                seconds(j.eta_s),
+                j.stage.clone(),
                 j.submitter.clone(),
                 j.name.clone(),
                 j.error.clone().unwrap_or_default(),
@@ -126,6 +134,8 @@ fn job_table(rows: &[JobRow]) -> String {
             "RETRIES",
             "QUEUED",
             "RUNNING",
+            "LEFT",
+            "STAGE",
             "SUBMITTER",
             "NAME",
             "ERROR",

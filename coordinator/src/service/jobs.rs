@@ -123,6 +123,7 @@ impl CoordinatorService {
             finished: None,
             live: LiveFrame::default(),
             stage: String::new(),
+            first_strip: None,
             reserved,
             stats_json: String::new(),
         };
@@ -495,6 +496,8 @@ pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Jo
             strips_total: row.strips_total,
             retries: row.retries,
             error,
+            // Live figures, not kept: a resumed job says its stage anew.
+            ..Default::default()
         };
         let finished = state.ended().then(|| {
             let ago = Duration::from_millis(now.saturating_sub(row.finished_ms));
@@ -514,6 +517,7 @@ pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Jo
             finished,
             live: LiveFrame::default(),
             stage: String::new(),
+            first_strip: None,
             reserved: row.result_bytes,
             stats_json: row.stats_json.clone(),
         };

@@ -153,6 +153,9 @@ struct Job {
     /// What the farm last said it is doing (a watcher that joins late
     /// hears it first).
     stage: String,
+    /// When its first strip came back, and the strips done then: the
+    /// rate of the rest, for the estimate of time left.
+    first_strip: Option<(Instant, u32)>,
     /// Bytes its results may take on disk (its estimate until it is done).
     reserved: u64,
     /// Its figures once done: a watcher that comes after the end hears
@@ -166,7 +169,29 @@ impl Job {
     fn set_state(&mut self, to: JobState) -> Result<(), Transition> {
         self.state = self.state.to(to)?;
         self.summary.state = self.state.to_wire();
+        if self.state.ended() {
+            self.summary.stage.clear();
+            self.summary.eta_ms = 0;
+        }
         Ok(())
+    }
+
+    /// The time left, from the strips returned since the first (the
+    /// preparation before it, often most of a first frame, is not a rate
+    /// the rest will keep).
+    fn estimate(&mut self) {
+        let (done, total) = (self.summary.strips_done, self.summary.strips_total);
+        let Some((t0, done0)) = self.first_strip else {
+            self.first_strip = Some((Instant::now(), done));
+            return;
+        };
+        let since = (done.saturating_sub(done0)) as f64;
+        if since > 0.0 && total > done {
+            let per_strip = t0.elapsed().as_secs_f64() * 1e3 / since;
+            self.summary.eta_ms = (per_strip * (total - done) as f64) as u64;
+        } else {
+            self.summary.eta_ms = 0;
+        }
     }
 
     /// The job as the database keeps it.

@@ -422,6 +422,7 @@ impl State {
                 if let Some(j) = jobs.get_mut(jid) {
                     j.summary.strips_done += 1;
                     ev.strips_done = j.summary.strips_done;
+                    j.estimate();
                     j.live.frame = j.live.frame.max(frame);
                     j.live.paint(strip, &preview);
                     j.live.strips.push(LiveStrip {
@@ -474,6 +475,7 @@ impl State {
             FarmEvent::Stage(s) => {
                 if let Some(j) = lock(&self.jobs).get_mut(jid) {
                     j.stage.clone_from(&s);
+                    j.summary.stage.clone_from(&s);
                 }
                 ev.stage = s;
             }
