@@ -145,6 +145,11 @@ class JobSummary:
     finished_unix_ms: int | None
     #: Why it failed, if it did.
     error: str | None
+    #: What the farm is doing for it now ("" once it ended), and the
+    #: seconds left, estimated from the strips returned since the first
+    #: (None before there is an estimate), as `sylva jobs` shows them.
+    stage: str = ""
+    eta_s: float | None = None
 
     @classmethod
     def from_proto(cls, j: _cpb.JobSummary) -> JobSummary:
@@ -164,6 +169,8 @@ class JobSummary:
             started_unix_ms=j.started_unix_ms or None,
             finished_unix_ms=j.finished_unix_ms or None,
             error=j.error or None,
+            stage=j.stage,
+            eta_s=j.eta_ms / 1e3 if j.eta_ms else None,
         )
 
 

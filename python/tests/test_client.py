@@ -84,6 +84,8 @@ def test_a_job_is_submitted_watched_fetched_and_listed(
         assert j.submitter == "alice@127.0.0.1", j
         assert j.strips_done == j.strips_total == last.strips_total
         assert j.frames == 1 and j.error is None
+        # Ended: no stage, no estimate.
+        assert j.stage == "" and j.eta_s is None, j
         assert j.submitted_unix_ms <= (j.started_unix_ms or 0) <= (j.finished_unix_ms or 0)
         # The worker did the strips and holds the scene.
         (w,) = c.workers()
@@ -149,6 +151,8 @@ def test_queued_and_running_jobs_are_cancelled(farm: Farm, tmp_path: Path) -> No
         queued = c.submit(scene, Frame(width=32, height=24), name="queued", priority=-1)
         until("the long job to run", lambda: c.job(long).state == JobState.RUNNING)
         assert c.job(queued).state == JobState.QUEUED
+        # A running job says what the farm is doing for it.
+        until("the long job's stage", lambda: c.job(long).stage != "")
 
         s = c.cancel(queued)
         assert s.id == queued and s.state == JobState.CANCELLED and s.started_unix_ms is None
