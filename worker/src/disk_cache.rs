@@ -137,14 +137,24 @@ impl DiskCache {
     }
 
     /// Writes what a preparation built or solved (`accel`; `lb`, under the
-    /// name [`LbName::of`] gave it), then holds the folder under its bound.
-    /// Failures are logged: the cache only ever saves work.
-    pub fn keep(&self, bundle: &str, accel: Option<&SceneAccel>, lb: Option<(&LbName, &SceneLb)>) {
+    /// name [`LbName::of`] gave it; Boulanger's `envelopes`, one a model),
+    /// then holds the folder under its bound. Failures are logged: the
+    /// cache only ever saves work.
+    pub fn keep(
+        &self,
+        bundle: &str,
+        accel: Option<&SceneAccel>,
+        lb: Option<(&LbName, &SceneLb)>,
+        envelopes: Option<&[&LeafEnvelope]>,
+    ) {
         if let Some(a) = accel {
             self.write(&accel_key(bundle, a.kind), crate::share::export(Some(a), None, None));
         }
         if let Some((name, lb)) = lb {
             self.write(&name.0, crate::share::export(None, Some(lb), None));
+        }
+        if let Some(e) = envelopes {
+            self.write_postcard(&envelopes_key(bundle), &e);
         }
         self.bound();
     }
@@ -152,54 +162,51 @@ impl DiskCache {
     /// Boulanger's envelopes of a scene's models, if they were kept: each
     /// checked against its model before it is used.
     fn envelopes(&self, bundle: &str, scene: &Scene) -> Option<Vec<LeafEnvelope>> {
-        let key = envelopes_key(bundle);
-        let (hash, body) = self.read(&key)?;
-        let read = (blake3::hash(&body).to_hex().as_str() == hash)
-            .then(|| postcard::from_bytes::<Vec<LeafEnvelope>>(&body).ok())
-            .flatten()
-            .ok_or_else(|| "not envelopes".to_string())
-            .and_then(|e| {
-                if e.len() != scene.models.len() {
-                    return Err(format!("{} envelopes for {} models", e.len(), scene.models.len()));
-                }
-                for (m, e) in scene.models.iter().zip(&e) {
-                    e.check(m.model.triangle_count())?;
-                }
-                Ok(e)
-            });
-        read.map_err(|why| self.discard(&key, Some(why))).ok()
-    }
-
-    /// Keeps Boulanger's envelopes of a scene's models (one a model).
-    pub fn keep_envelopes(&self, bundle: &str, envelopes: &[&LeafEnvelope]) {
-        let exported = postcard::to_stdvec(envelopes).map_err(anyhow::Error::from).map(|bytes| {
-            crate::share::Exported { hash: blake3::hash(&bytes).to_hex().to_string(), bytes }
-        });
-        self.write(&envelopes_key(bundle), exported);
-        self.bound();
+        self.read_postcard(&envelopes_key(bundle), "envelopes", |e: &Vec<LeafEnvelope>| {
+            if e.len() != scene.models.len() {
+                return Err(format!("{} envelopes for {} models", e.len(), scene.models.len()));
+            }
+            scene.models.iter().zip(e).try_for_each(|(m, e)| e.check(m.model.triangle_count()))
+        })
     }
 
     /// `--accel auto`'s choice for a scene on this adapter, if one was
     /// kept: a restart need not build both backends and measure again.
     pub fn choice(&self, bundle: &str, adapter: &str) -> Option<crate::share::SharedChoice> {
-        let key = choice_key(bundle, adapter);
-        let (hash, body) = self.read(&key)?;
-        let checked = (blake3::hash(&body).to_hex().as_str() == hash)
-            .then(|| postcard::from_bytes::<crate::share::SharedChoice>(&body).ok())
-            .flatten()
-            .filter(|c| c.adapter == adapter && c.why.len() <= 1024);
-        if checked.is_none() {
-            self.discard(&key, Some("not a choice made on this adapter".into()));
-        }
-        checked
+        let what = "a choice made on this adapter";
+        self.read_postcard(&choice_key(bundle, adapter), what, |c: &crate::share::SharedChoice| {
+            (c.adapter == adapter && c.why.len() <= 1024)
+                .then_some(())
+                .ok_or_else(|| format!("not {what}"))
+        })
     }
 
     /// Keeps `auto`'s choice for a scene (on the adapter it names).
     pub fn keep_choice(&self, bundle: &str, choice: &crate::share::SharedChoice) {
-        let exported = postcard::to_stdvec(choice).map_err(anyhow::Error::from).map(|bytes| {
+        self.write_postcard(&choice_key(bundle, &choice.adapter), choice);
+    }
+
+    /// An entry [`DiskCache::write_postcard`] wrote, decoded as `what` and
+    /// passed by `check` before it is used (its bytes were checked against
+    /// their hash as [`DiskCache::read`] read them); one that fails either
+    /// is removed, saying why.
+    fn read_postcard<T: serde::de::DeserializeOwned>(
+        &self,
+        key: &str,
+        what: &str,
+        check: impl FnOnce(&T) -> Result<(), String>,
+    ) -> Option<T> {
+        let (_, body) = self.read(key)?;
+        let decoded = postcard::from_bytes::<T>(&body).map_err(|_| format!("not {what}"));
+        decoded.and_then(|v| check(&v).map(|()| v)).map_err(|why| self.discard(key, Some(why))).ok()
+    }
+
+    /// Writes `value` as postcard under `key`, with the hash of its bytes.
+    fn write_postcard<T: serde::Serialize + ?Sized>(&self, key: &str, value: &T) {
+        let exported = postcard::to_stdvec(value).map_err(anyhow::Error::from).map(|bytes| {
             crate::share::Exported { hash: blake3::hash(&bytes).to_hex().to_string(), bytes }
         });
-        self.write(&choice_key(bundle, &choice.adapter), exported);
+        self.write(key, exported);
     }
 
     fn path(&self, key: &str) -> PathBuf {
@@ -464,7 +471,7 @@ mod tests {
         assert!(!made.is_empty(), "the example has models");
         let bundle = "b".repeat(64);
         assert!(c.envelopes(&bundle, &scene).is_none(), "nothing kept yet");
-        c.keep_envelopes(&bundle, &made.iter().collect::<Vec<_>>());
+        c.keep(&bundle, None, None, Some(&made.iter().collect::<Vec<_>>()));
         let back = c.envelopes(&bundle, &scene).expect("kept");
         assert_eq!(back.len(), made.len());
         for (a, b) in back.iter().zip(&made) {
@@ -476,12 +483,12 @@ mod tests {
         // distance not finite) are refused and removed, not used.
         let mut short = made.clone();
         short[0].s_max.pop();
-        c.keep_envelopes(&bundle, &short.iter().collect::<Vec<_>>());
+        c.keep(&bundle, None, None, Some(&short.iter().collect::<Vec<_>>()));
         assert!(c.envelopes(&bundle, &scene).is_none());
         assert!(!c.path(&envelopes_key(&bundle)).exists());
         let mut nan = made.clone();
         nan[0].s_max[0][3] = f32::NAN;
-        c.keep_envelopes(&bundle, &nan.iter().collect::<Vec<_>>());
+        c.keep(&bundle, None, None, Some(&nan.iter().collect::<Vec<_>>()));
         assert!(c.envelopes(&bundle, &scene).is_none());
         let _ = std::fs::remove_dir_all(&dir);
     }

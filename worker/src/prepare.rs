@@ -100,12 +100,11 @@ impl Reuse {
         }
         let name = crate::disk_cache::LbName::of(&d.bundle, scene, d.sun);
         Some(move || {
-            d.cache.keep(&d.bundle, accel.as_deref(), lb.as_deref().map(|l| (&name, l)));
-            if let Some(e) = envelopes {
-                // Every model has one: `boulanger::prepare` makes them all.
-                let kept: Vec<_> = e.0.iter().flatten().map(|e| e.as_ref()).collect();
-                d.cache.keep_envelopes(&d.bundle, &kept);
-            }
+            // Every model has one: `boulanger::prepare` makes them all.
+            let kept: Option<Vec<_>> =
+                envelopes.as_ref().map(|e| e.0.iter().flatten().map(|e| e.as_ref()).collect());
+            let lb = lb.as_deref().map(|l| (&name, l));
+            d.cache.keep(&d.bundle, accel.as_deref(), lb, kept.as_deref());
         })
     }
 }

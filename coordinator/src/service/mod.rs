@@ -254,7 +254,7 @@ struct State {
     refusals: Mutex<std::collections::HashMap<(String, String), std::time::Instant>>,
     /// The scheduler, heartbeat and owed-writes loops: stopped before the
     /// database closes, so none writes to a closed one.
-    background: Mutex<Vec<tokio::task::AbortHandle>>,
+    background: Mutex<Vec<tokio::task::JoinHandle<()>>>,
 }
 
 /// The `sylva.v1.Coordinator` service.
@@ -377,8 +377,7 @@ impl CoordinatorService {
         let heartbeat = tokio::spawn(async move { s.heartbeat_loop().await });
         let s = self.state.clone();
         let owed = tokio::spawn(async move { s.owed_loop().await });
-        lock(&self.state.background)
-            .extend([schedule, heartbeat, owed].iter().map(tokio::task::JoinHandle::abort_handle));
+        lock(&self.state.background).extend([schedule, heartbeat, owed]);
     }
 
     /// The tonic server wrapper. Messages are bounded by what the API
@@ -397,7 +396,8 @@ impl CoordinatorService {
         // loops and running jobs logged "cannot be written" at every
         // shutdown): the loops and the jobs' runs stop first. A durable
         // coordinator's running jobs resume at its next start.
-        for t in lock(&self.state.background).drain(..) {
+        let loops: Vec<_> = lock(&self.state.background).drain(..).collect();
+        for t in &loops {
             t.abort();
         }
         for j in lock(&self.state.jobs).values_mut() {
@@ -405,7 +405,11 @@ impl CoordinatorService {
                 t.abort();
             }
         }
-        tokio::task::yield_now().await;
+        // Ended, not just told to end: a loop in the middle of a poll
+        // would otherwise reach the closed pool.
+        for t in loops {
+            let _ = t.await;
+        }
         self.state.store.close().await;
         let dir = &self.state.config.state_dir;
         let gone = if self.state.config.ephemeral { dir.clone() } else { dir.join("check") };

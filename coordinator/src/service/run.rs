@@ -63,6 +63,8 @@ impl State {
         if let Some(j) = lock(&self.jobs).get_mut(id) {
             j.summary.strips_total = plans.iter().map(Vec::len).sum::<usize>() as u32;
             j.summary.strips_done = 0;
+            // A run's estimate starts from its own first strip.
+            j.first_strip = None;
             j.summary.frames_done = kept as u32;
             j.live = LiveFrame {
                 width: frame.width,
