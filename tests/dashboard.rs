@@ -332,6 +332,33 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     .await;
     let covered = b.eval("[...document.querySelectorAll('#columns rect')].reduce((a, r) => a + Number(r.getAttribute('width')), 0)").await;
     assert_eq!(covered.as_f64(), Some(320.0), "the strips cover the frame once");
+    // Its results download from its row: the PNG is the one `submit`
+    // wrote, the EXR an OpenEXR file, each named for the job.
+    let fetched = |format: &str| {
+        format!(
+            "(async () => {{ const a = document.querySelector('tr[data-job=\"{first}\"] a[data-download=\"{first}:{format}:0\"]'); \
+             const r = await fetch(a.href); \
+             return [r.status, r.headers.get('content-disposition'), Array.from(new Uint8Array(await r.arrayBuffer()))]; }})()"
+        )
+    };
+    let png = b.eval(&fetched("png")).await;
+    assert_eq!(png[0], 200, "{}", png[1]);
+    assert_eq!(png[1], format!("attachment; filename=\"{first}-0000.png\""));
+    let bytes: Vec<u8> = serde_json::from_value(png[2].clone()).unwrap();
+    assert!(bytes == std::fs::read(&out).unwrap(), "the page's PNG is the one submit wrote");
+    let exr = b.eval(&fetched("exr")).await;
+    let bytes: Vec<u8> = serde_json::from_value(exr[2].clone()).unwrap();
+    assert!(exr[0] == 200 && bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]), "{}", exr[1]);
+    assert_eq!(
+        b.eval(&format!(
+            "document.querySelectorAll('#downloads a[data-download^=\"{first}:\"]').length"
+        ))
+        .await,
+        2,
+        "the frame's own links"
+    );
+    // Without the token nothing downloads.
+    assert_eq!(get(&http, &format!("/api/jobs/{first}/result/png"), "").await.0, 401);
 
     // A long job, and a cancel from the page while it runs: long enough that
     // its last strips are still to come after the page has raised it (64 spp
@@ -357,6 +384,15 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
     )
     .await;
     b.eval(&format!("document.querySelector('tr[data-job=\"{long}\"]').click(), true")).await;
+    // Its row says what the farm is doing for it.
+    b.wait_for(
+        &format!(
+            "(document.querySelector('tr[data-job=\"{long}\"] .stage') || {{}}).textContent > ''"
+        ),
+        "the long job's stage",
+        Duration::from_secs(60),
+    )
+    .await;
     // Its preview fills in strip by strip.
     b.wait_for(
         &format!("document.querySelector('tr[data-job=\"{long}\"] progress').value >= 2 && document.querySelectorAll('#columns rect').length >= 2"),
@@ -422,6 +458,36 @@ async fn the_page_follows_a_job_to_its_end_and_cancels_another() {
         b.eval("document.querySelector('#message').textContent").await,
         "",
         "no error shown"
+    );
+    // Requeued from the page: a new job with the same settings runs, and
+    // the cancelled one stays as it ended.
+    b.eval(&format!("document.querySelector('button[data-requeue=\"{long}\"]').click(), true"))
+        .await;
+    b.wait_for(
+        &format!("[...document.querySelectorAll('#jobs tbody tr')].some(r => r.dataset.job !== '{first}' && r.dataset.job !== '{long}')"),
+        "the requeued job",
+        Duration::from_secs(30),
+    )
+    .await;
+    let listed = c.list_jobs(sylva_proto::pb::ListJobsRequest {}).await.unwrap().into_inner().jobs;
+    let again = listed.iter().find(|j| j.id != first && j.id != long).unwrap();
+    let old = listed.iter().find(|j| j.id == long).unwrap();
+    assert!(!sylva_coordinator::job_state::wire_ended(again.state), "{again:?}");
+    assert_eq!((&again.name, &again.submitter), (&old.name, &old.submitter));
+    assert_eq!(old.state, sylva_proto::pb::JobState::Cancelled as i32);
+    c.cancel_job(sylva_proto::pb::JobId { id: again.id.clone() }).await.unwrap();
+    // At 1,280 px the page fits the window: no table pushes it wider.
+    assert_eq!(b.eval("window.innerWidth").await, 1280);
+    let widths = b
+        .eval("[document.documentElement.scrollWidth, document.querySelector('#jobs').scrollWidth, document.querySelector('#jobs').parentElement.clientWidth]")
+        .await;
+    let w: Vec<u64> = serde_json::from_value(widths).unwrap();
+    assert!(
+        w[0] <= 1280 && w[1] <= w[2],
+        "page {} px, jobs table {} px in {} px",
+        w[0],
+        w[1],
+        w[2]
     );
 
     let png =

@@ -1,5 +1,5 @@
 //! The farm tools as a user runs them (`sylva jobs`, `workers`, `cancel`,
-//! `priority`, `fetch`): real processes against a real coordinator and
+//! `requeue`, `priority`, `fetch`): real processes against a real coordinator and
 //! worker over loopback gRPC.
 
 use crate::common;
@@ -49,19 +49,28 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     let png = dir.join("first.png");
     let args = ["submit", scene.to_str().unwrap(), "-o", png.to_str().unwrap(), "--name", "shot 1"];
     let out = sylva(
-        &[&args[..], &["--width", "64", "--height", "32"]].concat(),
+        &[&args[..], &["--width", "64", "--height", "32", "--lighting", "lb"]].concat(),
         &[("SYLVA_USER", "alice"), ("SYLVA_COORDINATOR", &addr)],
     );
     let said = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let told = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{told}");
+    // What the worker's LB found about the scene reaches her, once each
+    // (issue 41, point 3), as a `render` in one process logs it.
+    let warned: Vec<&str> = told.lines().filter(|l| l.starts_with("warning: ")).collect();
+    assert!(warned.iter().any(|l| l.contains(": LB: ")), "{told}");
+    let unique: std::collections::HashSet<&&str> = warned.iter().collect();
+    assert_eq!(unique.len(), warned.len(), "{told}");
     assert!(said.contains(" done in ") && said.contains("first.png"), "{said}");
     let first = said.split_whitespace().next().unwrap().to_string();
-    // Its stats beside the image, as `render` writes them.
+    // Its stats beside the image, as `render` writes them, with the warnings.
     let stats: Value =
         serde_json::from_slice(&std::fs::read(dir.join("first.stats.json")).unwrap()).unwrap();
     assert_eq!(stats["job"], first.as_str(), "{stats}");
     assert!(stats["total_ms"].as_f64().unwrap() > 0.0, "{stats}");
     assert!(stats["farm"].is_object(), "{stats}");
+    let kept = stats["farm"]["warnings"].as_array().map_or(0, Vec::len);
+    assert_eq!(kept, warned.len(), "{stats}");
     let listed = jobs(&addr);
     let j = job(&listed, &first);
     assert_eq!(j["name"], "shot 1", "{j}");
@@ -154,7 +163,7 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     assert!(!stage.is_empty(), "{:?}", job(&jobs(&addr), &long));
     let done = job(&listed, &first);
     assert!(done["stage"] == "" && done["eta_s"].is_null(), "{done}");
-    assert!(ok_as_alice(&["jobs", "--coordinator", &addr]).contains("STAGE"));
+    assert!(ok_as_alice(&["jobs", "--coordinator", &addr, "--wide"]).contains("STAGE"));
     // The last is raised above the others; the first is cancelled while it waits.
     let raised: Value = serde_json::from_str(&ok_as_alice(&[
         "priority",
@@ -223,6 +232,28 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
         table.starts_with("ID ") && table.contains(&long) && table.contains("alice@127.0.0.1"),
         "{table}"
     );
+    // The listing keeps to 80 columns; --wide has every column, however wide.
+    assert!(table.lines().all(|l| l.chars().count() <= 80), "{table}");
+    assert!(ok_as_alice(&["jobs", "--coordinator", &addr, "--wide"]).contains("RETRIES"));
+    // A cancelled job runs again as a new job, to its end; the old one
+    // stays cancelled, and a done job is not requeued.
+    let again: Value =
+        serde_json::from_str(&ok_as_alice(&["requeue", &q1, "--coordinator", &addr, "--json"]))
+            .unwrap();
+    let again = again[0]["requeued_as"].as_str().unwrap().to_string();
+    assert_ne!(again, q1);
+    for _ in 0..600 {
+        if job(&jobs(&addr), &again)["state"] == "done" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let listed = jobs(&addr);
+    assert_eq!(job(&listed, &again)["state"], "done", "{listed:?}");
+    assert_eq!(job(&listed, &q1)["state"], "cancelled");
+    let out = sylva(&["requeue", &q2, "--coordinator", &addr], &[("SYLVA_USER", "alice")]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("only a failed or cancelled job"), "{err}");
     let out = sylva(&["cancel", "job-nope", "--coordinator", &addr], &[]);
     assert!(!out.status.success());
     assert!(

@@ -64,6 +64,7 @@ async fn passes_come_back_from_the_farm_as_the_renderer_writes_them_and_sequence
     );
     for name in [
         "ViewLayer.Combined.R",
+        "ViewLayer.Combined.A",
         "ViewLayer.Direct.G",
         "ViewLayer.Indirect.B",
         "ViewLayer.Env.R",
@@ -75,6 +76,8 @@ async fn passes_come_back_from_the_farm_as_the_renderer_writes_them_and_sequence
     ] {
         assert!(got.channel(name).is_some(), "no {name}");
     }
+    // Combined carries alpha as Cycles writes it: 1 on an opaque film.
+    assert!(got.channel("ViewLayer.Combined.A").unwrap().iter().all(|&a| a == 1.0));
 
     // This process's renderer writes the same file, layer for layer.
     let here = dir.join("here.png");

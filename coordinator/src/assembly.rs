@@ -42,6 +42,9 @@ pub enum StripError {
     UnaskedPasses { x0: u32, x1: u32 },
 }
 
+/// Warnings a frame keeps at most (a worker's reply is bounded too).
+pub const MAX_WARNINGS: usize = 16;
+
 /// A strip's pixels, decoded and checked.
 #[derive(Clone, Debug)]
 pub struct StripPixels {
@@ -55,6 +58,8 @@ pub struct StripPixels {
     pub rays: RayCounts,
     /// The frame's passes beside the image, when it asks for any.
     pub passes: Option<PassImage>,
+    /// What the worker's lighting found about the scene (checked, clipped).
+    pub warnings: Vec<String>,
 }
 
 impl StripPixels {
@@ -110,6 +115,8 @@ pub struct Assembly {
     pub rays: RayCounts,
     /// The passes beside the image, when the frame asks for any.
     pub passes: Option<PassImage>,
+    /// The strips' warnings, each once, in the order first heard.
+    pub warnings: Vec<String>,
     /// Columns filled so far.
     filled: Vec<bool>,
 }
@@ -122,6 +129,7 @@ impl Assembly {
             coverage: vec![0.0; (width * height) as usize],
             rays: RayCounts::default(),
             passes: (!passes.is_empty()).then(|| PassImage::new(width, height, passes)),
+            warnings: Vec::new(),
             filled: vec![false; width as usize],
         }
     }
@@ -151,6 +159,11 @@ impl Assembly {
             self.coverage[at..at + w as usize].copy_from_slice(&s.coverage[row..row + w as usize]);
         }
         self.rays.add(&s.rays);
+        for w in &s.warnings {
+            if !self.warnings.contains(w) && self.warnings.len() < MAX_WARNINGS {
+                self.warnings.push(w.clone());
+            }
+        }
         self.filled[x0 as usize..x1 as usize].fill(true);
         Ok(())
     }
@@ -194,6 +207,7 @@ mod tests {
             coverage: vec![1.0; n],
             rays: RayCounts { primary: n as u64, ..RayCounts::default() },
             passes: None,
+            warnings: Vec::new(),
         }
     }
 
@@ -221,6 +235,7 @@ mod tests {
                 rgb: vec![],
                 coverage: vec![],
                 rays: RayCounts::default(),
+                warnings: Vec::new(),
                 passes: None,
             })
             .is_err(),

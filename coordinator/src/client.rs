@@ -167,9 +167,26 @@ pub async fn submit_and_follow(
     Ok(FinishedJob { id, pngs, exrs, stats, times })
 }
 
-/// What a person sees of a job while it runs: on a terminal, a bar whose
-/// message names the stage (queued; the workers preparing the scene:
-/// structures, voxels, LB light, upload; tracing); elsewhere (a log, a
+/// The warnings a finished job's figures carry (a frame's, or every
+/// frame's of a sequence), each once, in the order first found.
+pub fn warnings_of(stats: &serde_json::Value) -> Vec<String> {
+    let frames =
+        stats["sequence"]["per_frame"].as_array().map_or(vec![stats], |f| f.iter().collect());
+    let mut out: Vec<String> = Vec::new();
+    for w in frames.iter().filter_map(|f| f["warnings"].as_array()).flatten() {
+        if let Some(w) = w.as_str().map(printable)
+            && !out.contains(&w)
+        {
+            out.push(w);
+        }
+    }
+    out
+}
+
+/// What a person sees of a job while it runs: on a terminal, a bar of the
+/// strips whose message names the stage (queued; the workers preparing the
+/// scene: structures, voxels, LB light, upload; tracing) and, once strips
+/// return, the time left, cut to the terminal's width; elsewhere (a log, a
 /// pipe), one line per stage and per quarter of the strips.
 struct JobProgress {
     id: String,
@@ -182,14 +199,16 @@ struct JobProgress {
 impl JobProgress {
     fn new(id: &str, views: usize) -> Self {
         let bar = ProgressBar::new_spinner();
-        let unit = if views > 1 { format!("strips of {views} frames") } else { "strips".into() };
+        let unit = if views > 1 { format!(" ({views} frames)") } else { String::new() };
+        // The stage last and cut (`wide_msg`): the line never wraps.
         bar.set_style(
             ProgressStyle::with_template(&format!(
-                "{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit} {{elapsed}}"
+                "{{prefix}} [{{bar:20}}] {{pos}}/{{len}}{unit} {{elapsed}} {{wide_msg}}"
             ))
             .expect("valid template")
             .progress_chars("=> "),
         );
+        bar.set_prefix(printable(id));
         bar.enable_steady_tick(Duration::from_millis(200));
         Self { id: printable(id), bar, stage: String::new(), farm_stage: String::new(), quarter: 0 }
     }
@@ -214,8 +233,11 @@ impl JobProgress {
             self.bar.set_position(ev.strips_done as u64);
         }
         let hidden = self.bar.is_hidden();
+        let left = if ev.eta_ms > 0 { format!(", {} left", eta(ev.eta_ms)) } else { "".into() };
+        if !hidden {
+            self.bar.set_message(format!("{stage}{left}"));
+        }
         if stage != self.stage {
-            self.bar.set_message(format!("{} {stage}", self.id));
             if hidden {
                 eprintln!("{}: {stage}", self.id);
             }
@@ -223,7 +245,7 @@ impl JobProgress {
         }
         let quarter = (4 * u64::from(ev.strips_done) / u64::from(ev.strips_total.max(1))) as u32;
         if hidden && quarter > self.quarter && ev.strips_done < ev.strips_total {
-            eprintln!("{}: {}/{} strips", self.id, ev.strips_done, ev.strips_total);
+            eprintln!("{}: {}/{} strips{left}", self.id, ev.strips_done, ev.strips_total);
         }
         self.quarter = self.quarter.max(quarter);
     }
@@ -231,6 +253,12 @@ impl JobProgress {
     fn finish(&self) {
         self.bar.finish_and_clear();
     }
+}
+
+/// A time left as a person reads it: `~12 s`, `~3 min`.
+fn eta(ms: u64) -> String {
+    let s = ms.div_ceil(1000);
+    if s < 120 { format!("~{s} s") } else { format!("~{} min", s.div_ceil(60)) }
 }
 
 /// `s` from the wire as it may reach a terminal: control characters (escape

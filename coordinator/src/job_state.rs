@@ -62,6 +62,12 @@ impl JobState {
         matches!(self, JobState::Done | JobState::Failed | JobState::Cancelled)
     }
 
+    /// Whether a job that ended so may be run again as a new job
+    /// (failed or cancelled; a done job has its result).
+    pub fn requeueable(self) -> bool {
+        matches!(self, JobState::Failed | JobState::Cancelled)
+    }
+
     /// The state after a change to `to`, if the machine allows it.
     pub fn to(self, to: JobState) -> Result<JobState, Transition> {
         use JobState::*;

@@ -573,6 +573,15 @@ class Client:
             raise SylvaError.from_rpc(e) from None
         return JobSummary.from_proto(reply)
 
+    def requeue(self, job: str | JobSummary | JobEvent) -> str:
+        """Runs a failed or cancelled job again as a new job (the same scene
+        and settings); the new job's id. The old job stays as it ended."""
+        try:
+            reply = self._stub.RequeueJob(_cpb.JobId(id=_job_id(job)), metadata=self._metadata)
+        except grpc.RpcError as e:
+            raise SylvaError.from_rpc(e) from None
+        return str(reply.id)
+
     def set_priority(self, job: str | JobSummary | JobEvent, priority: int) -> JobSummary:
         """Sets a job's priority (a queued job moves in the queue)."""
         try:

@@ -172,6 +172,14 @@ def test_queued_and_running_jobs_are_cancelled(farm: Farm, tmp_path: Path) -> No
             c.cancel("j-no-such-job")
         assert err.value.code == grpc.StatusCode.NOT_FOUND, err.value
         assert err.value.message == "no job j-no-such-job"
+        # A cancelled job runs again as a new one, to its end; a done job is not requeued.
+        again = c.requeue(queued)
+        assert again != queued
+        assert c.wait(again).state == JobState.DONE
+        assert c.job(queued).state == JobState.CANCELLED
+        with pytest.raises(SylvaError) as err:
+            c.requeue(again)
+        assert err.value.code == grpc.StatusCode.FAILED_PRECONDITION, err.value
 
 
 REFUSED = (

@@ -188,6 +188,11 @@ pub fn run_submit(mut a: SubmitArgs) -> anyhow::Result<()> {
     let stats_file = crate::render::stats_path(&a.out);
     std::fs::write(&stats_file, serde_json::to_vec_pretty(&stats)?)
         .with_context(|| format!("{}: cannot write", stats_file.display()))?;
+    // What the workers' lighting found reaches the one who asked (the
+    // workers' logs are not theirs to read).
+    for w in sylva_coordinator::client::warnings_of(&done.stats) {
+        eprintln!("warning: {w}");
+    }
     println!("{} done in {:.2} s: wrote {wrote}", done.id, total_ms / 1e3);
     Ok(())
 }

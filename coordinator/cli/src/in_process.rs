@@ -35,6 +35,7 @@ impl StripExecutor for InProcess<'_> {
                 coverage: s.coverage,
                 rays: s.rays,
                 passes: s.passes,
+                warnings: self.frame.warnings(),
             };
             frame.add(&px).map_err(|e| {
                 anyhow::anyhow!("the renderer returned a strip that does not fit: {e}")
@@ -53,6 +54,7 @@ impl StripExecutor for InProcess<'_> {
             upload_ms: 0.0,
             prepared: None,
             passes: frame.passes,
+            warnings: frame.warnings,
         })
     }
 }

@@ -1,5 +1,5 @@
 //! The farm from the command line, beside `submit`: `jobs`, `workers`,
-//! `cancel`, `priority` and `fetch` (as OpenCue's `cueman` and Flamenco's
+//! `cancel`, `requeue`, `priority` and `fetch` (as OpenCue's `cueman` and Flamenco's
 //! CLI offer). Tables for people, `--json` for scripts.
 
 use crate::flags::jobs::*;
@@ -103,7 +103,11 @@ fn seconds(s: Option<f64>) -> String {
     s.map(|s| format!("{s:.1}s")).unwrap_or_else(|| "-".into())
 }
 
-fn job_table(rows: &[JobRow]) -> String {
+/// The width a listing keeps to unless asked for all of it (`--wide`).
+const COLUMNS: usize = 80;
+
+/// Every column of every job, as wide as they come (`sylva jobs --wide`).
+fn wide_job_table(rows: &[JobRow]) -> String {
     let cells: Vec<Vec<String>> = rows
         .iter()
         .map(|j| {
@@ -144,6 +148,55 @@ fn job_table(rows: &[JobRow]) -> String {
     )
 }
 
+/// The jobs in [`COLUMNS`] columns: one line each (strips done, and
+/// frames for a sequence; the time in its state: queued, then running;
+/// the time left), and under a running job its stage, under a failed or
+/// cancelled one its error, indented. A line too long is cut (`…`).
+fn job_table(rows: &[JobRow]) -> String {
+    let cells: Vec<Vec<String>> = rows
+        .iter()
+        .map(|j| {
+            let frames = if j.frames > 1 {
+                format!(" f{}/{}", j.frames_done, j.frames)
+            } else {
+                String::new()
+            };
+            vec![
+                j.id.clone(),
+                j.state.clone(),
+                j.priority.to_string(),
+                format!("{}/{}{frames}", j.strips_done, j.strips_total),
+                seconds(j.running_s.or(j.queued_s)),
+                seconds(j.eta_s),
+                j.submitter.clone(),
+                j.name.clone(),
+            ]
+        })
+        .collect();
+    let header = ["ID", "STATE", "PRIO", "DONE", "TIME", "LEFT", "SUBMITTER", "NAME"];
+    let lines = table(&header, &cells);
+    let mut lines = lines.lines().map(|l| fit(l, COLUMNS));
+    let mut out = lines.next().unwrap_or_default() + "\n";
+    for (j, line) in rows.iter().zip(lines) {
+        out += &line;
+        out.push('\n');
+        let note = j.error.as_deref().unwrap_or(&j.stage);
+        if !note.is_empty() {
+            out += &fit(&format!("  {}", escaped(note)), COLUMNS);
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// `line` cut to `width` characters, an ellipsis marking the cut.
+fn fit(line: &str, width: usize) -> String {
+    match line.char_indices().nth(width.saturating_sub(1)) {
+        Some((i, _)) if line.chars().count() > width => format!("{}…", &line[..i]),
+        _ => line.to_string(),
+    }
+}
+
 /// Runs `sylva jobs`.
 pub fn run_jobs(a: JobsArgs) -> anyhow::Result<()> {
     let reply = a.at.call(async |mut c| {
@@ -162,6 +215,8 @@ pub fn run_jobs(a: JobsArgs) -> anyhow::Result<()> {
     rows.sort_by_key(|j| j.submitted_unix_ms);
     if a.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else if a.wide {
+        print!("{}", wide_job_table(&rows));
     } else {
         print!("{}", job_table(&rows));
     }
@@ -289,6 +344,39 @@ pub fn run_cancel(a: CancelArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Runs `sylva requeue`: each job's new id, or why it was not requeued.
+pub fn run_requeue(a: RequeueArgs) -> anyhow::Result<()> {
+    let results = a.at.call(async |mut c| {
+        let mut out = Vec::new();
+        for id in &a.ids {
+            let r = c.requeue_job(pb::JobId { id: id.clone() }).await;
+            out.push(r.map(|r| r.into_inner().id).map_err(status_error));
+        }
+        Ok(out)
+    })?;
+    let mut rows = Vec::new();
+    let mut failed = Vec::new();
+    for (id, r) in a.ids.iter().zip(results) {
+        match r {
+            Ok(new) => rows.push(serde_json::json!({ "id": id, "requeued_as": new })),
+            Err(e) => failed.push(format!("{id}: {e}")),
+        }
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        for r in &rows {
+            println!(
+                "{} requeued as {}",
+                r["id"].as_str().unwrap_or(""),
+                r["requeued_as"].as_str().unwrap_or("")
+            );
+        }
+    }
+    anyhow::ensure!(failed.is_empty(), "{}", failed.join("; "));
+    Ok(())
+}
+
 /// Runs `sylva priority`.
 pub fn run_priority(a: PriorityArgs) -> anyhow::Result<()> {
     let s = a.at.call(async |mut c| {
@@ -393,6 +481,45 @@ mod tests {
         assert_eq!(t.lines().count(), 2, "{t}");
         assert!(t.contains("ok\\u{1b}]0;T\\u{7}\\u{1b}[2J\\u{d}\\u{a}job-2"), "{t}");
         assert_eq!(escaped("exe.\u{202e}gpj"), "exe.\\u{202e}gpj");
+    }
+
+    #[test]
+    fn the_listing_keeps_to_80_columns_and_says_each_jobs_stage_or_error() {
+        let long = "a name much longer than any column could hold, and then some more";
+        let running = pb::JobSummary {
+            id: "job-3fa2c1-12".into(),
+            state: pb::JobState::Running as i32,
+            name: long.into(),
+            submitter: "alice@192.168.100.200".into(),
+            strips_done: 40,
+            strips_total: 120,
+            frames: 24,
+            frames_done: 7,
+            submitted_unix_ms: 1_000,
+            started_unix_ms: 2_000,
+            eta_ms: 12_500,
+            stage: format!("127.0.0.1:50151 preparing the scene: {long}"),
+            ..Default::default()
+        };
+        let failed = pb::JobSummary {
+            id: "job-3fa2c1-13".into(),
+            state: pb::JobState::Failed as i32,
+            error: format!("no worker could render strip 3: {long}"),
+            ..Default::default()
+        };
+        let rows = [JobRow::of(running, 10_000), JobRow::of(failed, 10_000)];
+        let t = job_table(&rows);
+        for line in t.lines() {
+            assert!(line.chars().count() <= COLUMNS, "{} chars: {line}", line.chars().count());
+        }
+        let lines: Vec<&str> = t.lines().collect();
+        assert_eq!(lines.len(), 5, "{t}");
+        assert!(lines[1].contains("40/120 f7/24") && lines[1].contains("8.0s"), "{t}");
+        assert!(lines[1].contains("12.5s") && lines[1].ends_with('…'), "{t}");
+        assert!(lines[2].starts_with("  127.0.0.1:50151 preparing"), "{t}");
+        assert!(lines[4].starts_with("  no worker could render strip 3"), "{t}");
+        // --wide keeps every word.
+        assert!(wide_job_table(&rows).contains(long));
     }
 
     #[test]

@@ -37,6 +37,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Jobs(a) => jobs::run_jobs(a),
         Command::Workers(a) => jobs::run_workers(a),
         Command::Cancel(a) => jobs::run_cancel(a),
+        Command::Requeue(a) => jobs::run_requeue(a),
         Command::Priority(a) => jobs::run_priority(a),
         Command::Fetch(a) => jobs::run_fetch(a),
         Command::Token(c) => users::run_token(c),

@@ -39,6 +39,22 @@ async function act(path, body) {
     body: body ? JSON.stringify(body) : '',
   });
   $('#message').textContent = r.ok ? '' : path + ': ' + (await r.text());
+  return r.ok ? r.json() : null;
+}
+
+function left(ms) {
+  const s = Math.ceil(ms / 1000);
+  return s < 120 ? '~' + s + ' s left' : '~' + Math.ceil(s / 60) + ' min left';
+}
+
+// A link that downloads a finished job's frame (the cookie carries the token).
+function download(id, format, frame, label) {
+  const a = text('a', label);
+  a.href = '/api/jobs/' + id + '/result/' + format + '?frame=' + frame;
+  a.setAttribute('download', '');
+  a.dataset.download = id + ':' + format + ':' + frame;
+  a.onclick = (e) => e.stopPropagation();
+  return a;
 }
 
 function renderJobs(snap) {
@@ -49,7 +65,9 @@ function renderJobs(snap) {
     const tr = document.createElement('tr');
     tr.dataset.job = j.id;
     if (j.id === selected) tr.className = 'selected';
-    tr.append(text('td', j.id), text('td', j.name), text('td', j.state, 'state state-' + j.state));
+    const name = text('td', j.name, 'name');
+    name.title = j.name;
+    tr.append(text('td', j.id), name, text('td', j.state, 'state state-' + j.state));
     const prio = document.createElement('td');
     prio.append(text('span', j.priority + ' ', 'priority'));
     if (!j.ended) {
@@ -67,18 +85,35 @@ function renderJobs(snap) {
     bar.value = j.strips_done;
     const frames = j.frames > 1 ? ' · frames ' + j.frames_done + '/' + j.frames : '';
     progress.append(bar, text('span', ' ' + j.strips_done + '/' + j.strips_total + frames + (j.retries ? ' (' + j.retries + ' retried)' : '')));
+    // What the farm is doing for it, and the time left once strips return.
+    if (j.stage || j.eta_ms) {
+      progress.append(text('div', [j.stage, j.eta_ms ? left(j.eta_ms) : ''].filter(Boolean).join(' · '), 'stage'));
+    }
     const now = snap.now_unix_ms;
     const queuedEnd = j.started_unix_ms || j.finished_unix_ms || now;
-    tr.append(prio, progress,
-      text('td', seconds(j.submitted_unix_ms, queuedEnd)),
-      text('td', j.started_unix_ms ? seconds(j.started_unix_ms, j.finished_unix_ms || now) : '–'),
-      text('td', j.submitter), text('td', j.error, 'reason'));
+    // Queued, then running: the time in each, as far as it got.
+    const time = 'queued ' + seconds(j.submitted_unix_ms, queuedEnd) +
+      (j.started_unix_ms ? ' · ran ' + seconds(j.started_unix_ms, j.finished_unix_ms || now) : '');
+    tr.append(prio, progress, text('td', time), text('td', j.submitter), text('td', j.error, 'reason'));
     const actions = document.createElement('td');
     if (!j.ended) {
       const b = text('button', 'cancel');
       b.dataset.cancel = j.id;
       b.onclick = (e) => { e.stopPropagation(); act('/api/jobs/' + j.id + '/cancel'); };
       actions.append(b);
+    }
+    if (j.requeueable) {
+      const b = text('button', 'requeue');
+      b.dataset.requeue = j.id;
+      b.onclick = async (e) => {
+        e.stopPropagation();
+        const r = await act('/api/jobs/' + j.id + '/requeue');
+        if (r) { selected = r.id; lastStrips = -1; }
+      };
+      actions.append(b);
+    }
+    if (j.state === 'done' && j.frames <= 1) {
+      actions.append(download(j.id, 'png', 0, 'PNG'), download(j.id, 'exr', 0, 'EXR'));
     }
     tr.append(actions);
     tr.onclick = () => { selected = j.id; lastStrips = -1; renderJobs(snap); refreshFrame(j); };
@@ -129,6 +164,15 @@ async function refreshFrame(job) {
   lastState = job.state;
   $('#frame').hidden = false;
   $('#frame-id').textContent = job.id + ' (' + job.state + ')';
+  // A finished job's frames to download, each as PNG and EXR.
+  const links = [];
+  if (job.state === 'done') {
+    for (let f = 0; f < Math.max(1, job.frames); f++) {
+      if (job.frames > 1) links.push(document.createTextNode('frame ' + f + ': '));
+      links.push(download(job.id, 'png', f, 'PNG'), download(job.id, 'exr', f, 'EXR'));
+    }
+  }
+  $('#downloads').replaceChildren(...links);
   if (job.state === 'queued') return;
   const r = await fetch('/api/jobs/' + job.id + '/live');
   if (!r.ok) return;

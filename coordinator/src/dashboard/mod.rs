@@ -1,13 +1,14 @@
 //! The farm's web page (`sylva coordinator --http ADDR`): jobs, workers and
 //! the frame being rendered, live. Plain HTML, CSS and JavaScript compiled
 //! into the binary (`index.html`, `app.js`, `style.css` beside this file),
-//! a JSON API over the same gRPC service methods the command line calls,
-//! and server-sent events that push a snapshot twice a second.
+//! a JSON API over the same gRPC service methods the command line calls
+//! (list, cancel, requeue, priority, results to download), and server-sent
+//! events that push a snapshot twice a second.
 //!
 //! Access: where the coordinator has a token, reading needs it too (as
 //! `Authorization: Bearer …` or the `sylva_token` cookie the page sets, since
 //! an `EventSource` or an `<img>` cannot send headers); changing anything
-//! (cancel, priority) needs the header, which another site's form cannot
+//! (cancel, requeue, priority) needs the header, which another site's form cannot
 //! send, so a page elsewhere cannot act with the cookie. Without a token the
 //! page serves this machine only: the command line binds it to loopback,
 //! and a request whose `Host` is not a loopback name (DNS rebinding) or
@@ -17,7 +18,7 @@ use crate::access::Caller;
 use crate::job_state::{wire_ended, wire_name};
 use crate::service::CoordinatorService;
 use axum::Router;
-use axum::extract::{Path, State};
+use axum::extract::{Path, RawQuery, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::sse::{Event, Sse};
 use axum::response::{IntoResponse, Response};
@@ -76,7 +77,9 @@ pub fn router(service: CoordinatorService) -> Router {
         .route("/api/events", get(events))
         .route("/api/jobs/{id}/live", get(live))
         .route("/api/jobs/{id}/preview.png", get(preview))
+        .route("/api/jobs/{id}/result/{format}", get(download))
         .route("/api/jobs/{id}/cancel", post(cancel))
+        .route("/api/jobs/{id}/requeue", post(requeue))
         .route("/api/jobs/{id}/priority", post(priority))
         .layer(axum::middleware::from_fn_with_state(service.clone(), guard))
         .with_state(service)
@@ -237,6 +240,7 @@ async fn snapshot(service: &CoordinatorService, caller: &Caller) -> Value {
             "frames": j.frames, "frames_done": j.frames_done,
             "submitter": j.submitter, "error": j.error, "ended": wire_ended(j.state),
             "submitted_unix_ms": j.submitted_unix_ms, "started_unix_ms": j.started_unix_ms, "finished_unix_ms": j.finished_unix_ms,
+            "stage": j.stage, "eta_ms": j.eta_ms, "requeueable": crate::job_state::JobState::from_wire(j.state).is_some_and(|s| s.requeueable()),
         })).collect::<Vec<_>>(),
         "workers": workers.iter().map(|w| json!({
             "addr": w.addr, "adapter": w.adapter, "alive": w.alive, "busy_strips": w.busy_strips,
@@ -391,6 +395,47 @@ async fn preview(
         .into_response()
 }
 
+/// A finished job's image as a file to keep: `format` is `png` or `exr`,
+/// `?frame=N` picks a sequence's frame (the first by default).
+async fn download(
+    State(service): State<CoordinatorService>,
+    headers: HeaderMap,
+    Path((id, format)): Path<(String, String)>,
+    RawQuery(query): RawQuery,
+) -> Response {
+    let caller = match viewer(&service, &headers) {
+        Ok(c) => c,
+        Err(r) => return *r,
+    };
+    let (kind, ext) = match format.as_str() {
+        "png" => ("image/png", "png"),
+        "exr" => ("image/x-exr", "exr"),
+        _ => return (StatusCode::NOT_FOUND, "results are png or exr").into_response(),
+    };
+    let frame = query.as_deref().unwrap_or("").split('&').find_map(|kv| kv.strip_prefix("frame="));
+    let Ok(frame) = frame.map_or(Ok(0), str::parse::<u32>) else {
+        return (StatusCode::BAD_REQUEST, "?frame= takes a frame number from 0").into_response();
+    };
+    let request = pb::FetchRequest { id: id.clone(), format: ext.into(), frame };
+    match service.fetch_result(by(&caller, request)).await {
+        // The id is one the coordinator knows (the fetch found it): a
+        // plain name, safe in a header.
+        Ok(r) => (
+            [
+                (header::CONTENT_TYPE, kind.to_string()),
+                (
+                    header::CONTENT_DISPOSITION,
+                    format!("attachment; filename=\"{id}-{frame:04}.{ext}\""),
+                ),
+                (header::CACHE_CONTROL, "no-store".to_string()),
+            ],
+            r.into_inner().data,
+        )
+            .into_response(),
+        Err(s) => status_response(s),
+    }
+}
+
 /// Whether a request that changes the farm says it is JSON. A form on
 /// another site can post only text/plain or a form encoding without the
 /// browser asking this server first (a CORS preflight it never answers),
@@ -423,6 +468,23 @@ async fn cancel(
     match service.cancel_job(by(&caller, pb::JobId { id })).await {
         Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "state": wire_name(r.get_ref().state) }))
             .into_response(),
+        Err(s) => status_response(s),
+    }
+}
+
+async fn requeue(
+    State(service): State<CoordinatorService>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+) -> Response {
+    if !json_write(&headers) {
+        return not_json();
+    }
+    let Some(caller) = service.caller_of(token(&headers, false).as_deref()) else {
+        return refused();
+    };
+    match service.requeue_job(by(&caller, pb::JobId { id: id.clone() })).await {
+        Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "requeued": id })).into_response(),
         Err(s) => status_response(s),
     }
 }

@@ -32,6 +32,8 @@ pub struct RenderedFrame {
     pub prepared: Option<crate::farm::PreparedShare>,
     /// The passes beside the image, when the frame asks for any.
     pub passes: Option<sylva_scene::passes::PassImage>,
+    /// What the workers' lighting found about the scene, each once.
+    pub warnings: Vec<String>,
 }
 
 /// Renders the strips of a plan and assembles them into a frame.

@@ -65,6 +65,7 @@ impl OpenFrame {
             upload_ms,
             prepared,
             passes: self.assembly.passes,
+            warnings: self.assembly.warnings,
         }
     }
 }

@@ -6,6 +6,9 @@ use sylva_proto::pb;
 use sylva_scene::film::RayCounts;
 use sylva_scene::passes::{PassImage, PassSet};
 
+/// Characters of a worker's warning kept (an LB finding is about 400).
+const MAX_WARNING_CHARS: usize = 600;
+
 /// Why a worker's reply is refused: the worker's failure.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum BadReply {
@@ -83,7 +86,15 @@ pub fn decode_reply(
                 .map_err(|e| BadReply::Passes(e.to_string()))?,
         )
     };
-    let px = StripPixels { strip, rgb, coverage, rays, passes };
+    // Words from a worker, bounded and made printable before they reach
+    // a stats file, a terminal or the page.
+    let warnings = r
+        .warnings
+        .iter()
+        .take(crate::assembly::MAX_WARNINGS)
+        .map(|w| sylva_scene::sandbox::printable(w, MAX_WARNING_CHARS))
+        .collect();
+    let px = StripPixels { strip, rgb, coverage, rays, passes, warnings };
     px.check(height)?;
     Ok(px)
 }

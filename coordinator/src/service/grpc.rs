@@ -72,6 +72,16 @@ impl Coordinator for CoordinatorService {
         }
     }
 
+    async fn requeue_job(
+        &self,
+        request: Request<pb::JobId>,
+    ) -> Result<Response<pb::JobId>, Status> {
+        {
+            self.allowed(&request, &[Role::Admin, Role::Submitter], "requeue jobs").await?;
+            self.requeue(request).await
+        }
+    }
+
     async fn list_workers(
         &self,
         request: Request<pb::ListWorkersRequest>,

@@ -1,5 +1,5 @@
 //! Jobs as clients see them: submit (checked completely before it is
-//! queued), watch, fetch the result, cancel, list and re-prioritise.
+//! queued), watch, fetch the result, cancel, requeue, list and re-prioritise.
 
 use super::live::LiveFrame;
 use super::{
@@ -99,42 +99,67 @@ impl CoordinatorService {
         .await
         .map_err(|_| Status::internal("the scene check failed unexpectedly"))?;
         checked?;
-        let summary = pb::JobSummary {
-            id: id.clone(),
-            state: JobState::Queued.to_wire(),
-            name: spec.name.clone(),
-            priority: spec.priority,
-            submitter,
-            submitted_unix_ms: unix_ms(),
-            frames: views.len().max(1) as u32,
-            ..Default::default()
-        };
-        let job = Job {
-            seq,
-            state: JobState::Queued,
-            spec,
-            frame,
-            views,
-            schedule,
-            bundle_hash: hash,
-            summary,
-            events: broadcast::channel(256).0,
-            task: None,
-            finished: None,
-            live: LiveFrame::default(),
-            stage: String::new(),
-            first_strip: None,
-            reserved,
-            stats_json: String::new(),
-        };
-        // Written before the client hears of it: an acknowledged job
-        // survives a crash.
-        self.state.store.insert_job(&job.row()).await.map_err(internal_error)?;
+        let job = Job::queued(seq, id, spec, (frame, schedule, views), hash, submitter, reserved);
         let detail = format!("{} frame(s), {}", job.summary.frames, job.summary.name);
+        let id = self.enqueue(job, &actor, "submit", &detail).await?;
+        Ok(Response::new(pb::JobId { id }))
+    }
+
+    /// Writes a new job, then lists it, audits it and wakes the queue: an
+    /// acknowledged job survives a crash, since the client hears of it
+    /// only after the write.
+    async fn enqueue(
+        &self,
+        job: Job,
+        actor: &str,
+        action: &str,
+        detail: &str,
+    ) -> Result<String, Status> {
+        let id = job.summary.id.clone();
+        self.state.store.insert_job(&job.row()).await.map_err(internal_error)?;
         lock(&self.state.jobs).insert(id.clone(), job);
-        self.state.audit(&actor, "submit", &id, &detail).await;
+        self.state.audit(actor, action, &id, detail).await;
         self.state.wake.notify_one();
-        tracing::info!(%id, "job queued");
+        tracing::info!(%id, "job queued ({action})");
+        Ok(id)
+    }
+
+    /// Runs a failed or cancelled job again as a new job, with the scene
+    /// bundle it kept and the same settings, priority and submitter; the
+    /// old job stays as it ended, for its record.
+    pub(super) async fn requeue(
+        &self,
+        request: Request<pb::JobId>,
+    ) -> Result<Response<pb::JobId>, Status> {
+        let who = caller(&self.state.access, &request)?;
+        let old = job_id(&request.into_inner().id)?.to_string();
+        let (spec, hash, submitter) = {
+            let jobs = lock(&self.state.jobs);
+            let j = jobs.get(&old).ok_or_else(|| Status::not_found(format!("no job {old}")))?;
+            owner(&who, &old, &j.summary.submitter)?;
+            if !j.state.requeueable() {
+                return Err(Status::failed_precondition(format!(
+                    "job {old} is {}: only a failed or cancelled job is requeued",
+                    j.state
+                )));
+            }
+            (j.spec.clone(), j.bundle_hash.clone(), j.summary.submitter.clone())
+        };
+        let problem = self.state.store_problem();
+        if !problem.is_empty() {
+            return Err(Status::unavailable(problem));
+        }
+        let (frame, schedule, views) = checked_spec(&spec)?;
+        if !self.state.bundle_path(&hash).is_file() {
+            return Err(Status::failed_precondition(format!(
+                "job {old}'s scene is no longer kept here: submit it again"
+            )));
+        }
+        let reserved = self.state.room_for(&frame, views.len().max(1)).await?;
+        let seq = self.state.store.next_seq().await.map_err(internal_error)?;
+        let id = format!("job-{}-{seq}", self.state.prefix);
+        let job = Job::queued(seq, id, spec, (frame, schedule, views), hash, submitter, reserved);
+        let id = self.enqueue(job, &who.user, "requeue", &format!("runs {old} again")).await?;
         Ok(Response::new(pb::JobId { id }))
     }
 

@@ -14,7 +14,7 @@
 //! checked before use (see [`crate::farm`]).
 //!
 //! By resource, as Flamenco's API is split: [`jobs`] (submit, watch,
-//! fetch, cancel, list, priority), [`workers`] (registration, heartbeats,
+//! fetch, cancel, requeue, list, priority), [`workers`] (registration, heartbeats,
 //! listing), the `queue` that starts jobs, one job's `run` on the farm
 //! and its [`stats`], and the [`live`] view the dashboard reads; `grpc`
 //! hands each call of the API to its resource. A job's states and their
@@ -143,7 +143,8 @@ struct Job {
     views: Vec<View>,
     schedule: ScheduleKind,
     /// Its scene bundle's hash: the bundle is a file of the state folder
-    /// while the job is queued or running.
+    /// while the job is queued or running, and after it failed or was
+    /// cancelled (to be requeued) until it is forgotten.
     bundle_hash: String,
     summary: pb::JobSummary,
     events: broadcast::Sender<pb::JobEvent>,
@@ -164,6 +165,48 @@ struct Job {
 }
 
 impl Job {
+    /// A job just taken, waiting for a slot: `id` and `seq` from the
+    /// store's counter, its spec already checked into `frame`, its
+    /// schedule and views.
+    fn queued(
+        seq: u64,
+        id: String,
+        spec: pb::JobSpec,
+        (frame, schedule, views): (FrameSettings, ScheduleKind, Vec<View>),
+        bundle_hash: String,
+        submitter: String,
+        reserved: u64,
+    ) -> Job {
+        let summary = pb::JobSummary {
+            id,
+            state: JobState::Queued.to_wire(),
+            name: spec.name.clone(),
+            priority: spec.priority,
+            submitter,
+            submitted_unix_ms: unix_ms(),
+            frames: views.len().max(1) as u32,
+            ..Default::default()
+        };
+        Job {
+            seq,
+            state: JobState::Queued,
+            spec,
+            frame,
+            views,
+            schedule,
+            bundle_hash,
+            summary,
+            events: broadcast::channel(256).0,
+            task: None,
+            finished: None,
+            live: LiveFrame::default(),
+            stage: String::new(),
+            first_strip: None,
+            reserved,
+            stats_json: String::new(),
+        }
+    }
+
     /// Moves the job to `to`, if its state machine allows it; the summary
     /// clients see follows.
     fn set_state(&mut self, to: JobState) -> Result<(), Transition> {
@@ -593,7 +636,7 @@ impl State {
     }
 
     /// Writes an ended job's state and lets its bundle go when no job
-    /// waiting or running needs it.
+    /// may run it any more.
     async fn ended(&self, id: &str) {
         let Some((row, hash)) = lock(&self.jobs).get(id).map(|j| (j.row(), j.bundle_hash.clone()))
         else {
@@ -603,9 +646,17 @@ impl State {
             tracing::warn!(%id, "the job's end is not written yet: {e:#}");
             self.owe_row(id);
         }
-        let needed = lock(&self.jobs).values().any(|j| !j.state.ended() && j.bundle_hash == hash);
+        self.release_bundle(&hash);
+    }
+
+    /// Deletes a scene bundle that no job listed may run: none waiting or
+    /// running, and none failed or cancelled (which may be requeued).
+    fn release_bundle(&self, hash: &str) {
+        let needed = lock(&self.jobs)
+            .values()
+            .any(|j| j.bundle_hash == hash && (!j.state.ended() || j.state.requeueable()));
         if !needed {
-            let _ = std::fs::remove_file(self.bundle_path(&hash));
+            let _ = std::fs::remove_file(self.bundle_path(hash));
         }
     }
 
@@ -641,6 +692,7 @@ impl State {
                 // Empty until the job is done: any event of a done job,
                 // a lagging watcher's too, carries its figures.
                 stats_json: j.stats_json.clone(),
+                eta_ms: j.summary.eta_ms,
                 ..Default::default()
             },
             None => pb::JobEvent { id: id.to_string(), ..Default::default() },

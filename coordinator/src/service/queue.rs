@@ -121,8 +121,11 @@ impl State {
                 tracing::warn!(%id, "not forgotten yet: {e:#}");
                 continue;
             }
-            lock(&self.jobs).remove(&id);
+            let gone = lock(&self.jobs).remove(&id);
             let _ = std::fs::remove_dir_all(crate::results::job_dir(&self.config.state_dir, &id));
+            if let Some(j) = gone {
+                self.release_bundle(&j.bundle_hash);
+            }
         }
     }
 }

@@ -425,6 +425,7 @@ impl State {
                     j.summary.strips_done += 1;
                     ev.strips_done = j.summary.strips_done;
                     j.estimate();
+                    ev.eta_ms = j.summary.eta_ms;
                     j.live.frame = j.live.frame.max(frame);
                     j.live.paint(strip, &preview);
                     j.live.strips.push(LiveStrip {

@@ -62,6 +62,9 @@ pub struct FrameStats {
     pub coverage: f64,
     /// What the tone mapper measured.
     pub tone_map: ToneMapStats,
+    /// What the workers' lighting found about the scene that its user
+    /// should hear ("model: finding"), each once.
+    pub warnings: Vec<String>,
 }
 
 /// One strip's times.
@@ -124,6 +127,6 @@ impl FrameStats {
         };
         let coverage =
             f.coverage.iter().map(|&c| c as f64).sum::<f64>() / f.coverage.len().max(1) as f64;
-        FrameStats { strips, rays, coverage, tone_map: *tone }
+        FrameStats { strips, rays, coverage, tone_map: *tone, warnings: f.warnings.clone() }
     }
 }

@@ -359,8 +359,9 @@ pub fn exr_channel(p: Pass, c: &str) -> String {
 }
 
 /// A frame and its passes as one multi-layer OpenEXR (32-bit floats,
-/// lossless ZIP): beauty as `ViewLayer.Combined.RGB`, each pass as its own
-/// layer.
+/// lossless ZIP): beauty as `ViewLayer.Combined.RGBA`, each pass as its own
+/// layer. Combined's alpha is 1: the film is opaque (the sky is in the
+/// image), as Cycles writes Combined without a transparent film.
 pub fn encode_layers(beauty: &HdrImage, passes: &PassImage) -> Result<Vec<u8>> {
     use exr::prelude::*;
     let n = beauty.pixels.len();
@@ -375,6 +376,8 @@ pub fn encode_layers(beauty: &HdrImage, passes: &PassImage) -> Result<Vec<u8>> {
         let v = beauty.pixels.iter().map(|p| p[c]).collect();
         list.push(AnyChannel::new(exr_channel(Pass::Beauty, name).as_str(), FlatSamples::F32(v)));
     }
+    let opaque = FlatSamples::F32(vec![1.0; n]);
+    list.push(AnyChannel::new(exr_channel(Pass::Beauty, "A").as_str(), opaque));
     for (p, plane) in passes.set.extra().zip(&passes.planes) {
         let k = p.channels().len();
         for (c, name) in p.channels().iter().enumerate() {

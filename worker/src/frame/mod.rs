@@ -222,6 +222,17 @@ impl Frame {
         self.prepared.renderer.render_strip(&self.tracer, &self.settings, x0, x1)
     }
 
+    /// What the lighting found about this frame's scene that a user
+    /// should hear (an LB medium too thin to pay, a grazing sun), as
+    /// `model: LB: finding` (as the log says it), once each.
+    pub fn warnings(&self) -> Vec<String> {
+        self.prepared
+            .light
+            .iter()
+            .flat_map(|l| l.warnings.iter().map(move |w| format!("{}: LB: {w}", l.model)))
+            .collect()
+    }
+
     /// Columns `[x0, x1)` as [`Frame::strip`] renders them, in pieces of
     /// columns that each take about [`PIECE_SECONDS`], asking `stop`
     /// before each: a strip whose caller went away ends within a piece

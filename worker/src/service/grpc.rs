@@ -146,11 +146,11 @@ impl Worker for WorkerService {
                 rates.insert(key, r);
             }
             let strip = strip?;
-            anyhow::Ok((strip, prepare_ms, t.elapsed().as_secs_f64() * 1e3))
+            anyhow::Ok((strip, prepare_ms, t.elapsed().as_secs_f64() * 1e3, frame.warnings()))
         })
         .await;
         guard.1 = true;
-        let (strip, prepare_ms, render_ms) = result
+        let (strip, prepare_ms, render_ms, warnings) = result
             .map_err(|e| Status::internal(format!("the strip's render panicked: {e}")))?
             .map_err(|e| {
                 if e.is::<Cancelled>() {
@@ -173,6 +173,7 @@ impl Worker for WorkerService {
             render_ms,
             prepare_ms,
             passes_f32: strip.passes.map(|p| p.to_bytes()).unwrap_or_default(),
+            warnings,
         }))
     }
 

@@ -44,6 +44,8 @@ pub(crate) enum Command {
     Workers(super::jobs::WorkersArgs),
     /// Cancel queued or running jobs.
     Cancel(super::jobs::CancelArgs),
+    /// Run failed or cancelled jobs again, each as a new job.
+    Requeue(super::jobs::RequeueArgs),
     /// Set a job's priority (higher runs first).
     Priority(super::jobs::PriorityArgs),
     /// Fetch a finished job's image.

@@ -1,4 +1,4 @@
-//! `sylva jobs`, `workers`, `cancel`, `priority` and `fetch`. Flags only (clap), and their
+//! `sylva jobs`, `workers`, `cancel`, `requeue`, `priority` and `fetch`. Flags only (clap), and their
 //! conversion to settings.
 
 use crate::flags::security::{ConnectTlsArgs, TokenArgs};
@@ -39,6 +39,10 @@ pub struct JobsArgs {
     /// Only jobs in this state (queued, running, done, failed, cancelled).
     #[arg(long, value_parser = job_state)]
     pub state: Option<JobState>,
+    /// Every column (submitter, retries, times queued and running, stage,
+    /// error) on one line per job, however wide; the default keeps to 80.
+    #[arg(long)]
+    pub wide: bool,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -58,6 +62,19 @@ pub struct WorkersArgs {
 #[derive(Args, Debug)]
 pub struct CancelArgs {
     /// Job ids.
+    #[arg(required = true)]
+    pub ids: Vec<String>,
+    #[command(flatten)]
+    pub at: CoordinatorArg,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `sylva requeue`: runs failed or cancelled jobs again, each as a new job.
+#[derive(Args, Debug)]
+pub struct RequeueArgs {
+    /// Ids of failed or cancelled jobs.
     #[arg(required = true)]
     pub ids: Vec<String>,
     #[command(flatten)]
