@@ -20,14 +20,16 @@ as "$bin/pg_ctl" -D "$dir/data" -l "$dir/server.log" -w \
     -o "-k $dir -p $port -c listen_addresses=127.0.0.1" start
 trap 'as "$bin/pg_ctl" -D "$dir/data" -m fast stop >/dev/null; rm -rf "$dir"' EXIT
 as "$bin/postgres" --version
-cargo build --tests --locked -p sylva
+# The workspace's build, as scripts/test.sh made it: `-p sylva` alone
+# unifies features differently and rebuilt dependencies (2.5 min).
+cargo build --tests --locked --workspace
 for t in a_coordinator_killed_mid_sequence_resumes_it_and_every_frame_is_the_same \
          a_frame_cut_into_strips_keeps_the_strips_done_before_a_kill; do
     db="sylva_$(date +%s%N)"
     as "$bin/psql" -h 127.0.0.1 -p "$port" -U sylva -d postgres -qc "CREATE DATABASE $db"
     echo "== $t on postgres://sylva@127.0.0.1:$port/$db"
     SYLVA_TEST_DATABASE_URL="postgres://sylva@127.0.0.1:$port/$db" \
-        cargo test --locked -p sylva --test tests "durable::$t" -- --exact --nocapture 2>&1 \
+        cargo test --locked --workspace --test tests "durable::$t" -- --exact --nocapture 2>&1 \
         | grep -v ' WARN ' || exit 1
     echo "-- what the database holds after it:"
     as "$bin/psql" -h 127.0.0.1 -p "$port" -U sylva -d "$db" -c \

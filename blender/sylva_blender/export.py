@@ -4,10 +4,12 @@ the small scene file beside it that imports it (``{"import": "scene.glb"}``)."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 import bpy
+from mathutils import Vector
 
 from . import glb
 
@@ -82,3 +84,62 @@ def export_scene(
     scene_path.write_text(json.dumps(file, indent=2) + "\n")
     return {"scene": scene_path, "glb": glb_path, "fixes": fixes, "lacking": lacking,
             "summary": glb.summary(glb_path)}
+
+
+def _to_gltf(v: Any) -> list[float]:
+    """A vector of Blender's world (Z up) in the exported file's (Y up),
+    as the glTF exporter turns it (``export_yup``): (x, z, −y)."""
+    return [float(v[0]), float(v[2]), -float(v[1])]
+
+
+def camera_view(scene: bpy.types.Scene) -> dict[str, Any]:
+    """The scene's camera now, as Sylva's importer reads the exported one:
+    its position, a point ahead (its local −Z), its up (local +Y) and the
+    vertical field of view the glTF exporter writes for this render size
+    and sensor fit."""
+    cam = scene.camera
+    m = cam.matrix_world
+    rot = m.to_3x3().normalized()
+    eye = m.translation
+    ahead = eye + rot @ Vector((0.0, 0.0, -10.0))
+    up = rot @ Vector((0.0, 1.0, 0.0))
+    r = scene.render
+    width = r.pixel_aspect_x * r.resolution_x
+    height = r.pixel_aspect_y * r.resolution_y
+    aspect = width / height
+    angle = cam.data.angle
+    fit = cam.data.sensor_fit
+    # The exporter's rule: the sensor's angle spans the wider side unless
+    # the fit says otherwise.
+    if (width >= height and fit != "VERTICAL") or (width < height and fit == "HORIZONTAL"):
+        fov_y = 2.0 * math.atan(math.tan(angle * 0.5) / aspect)
+    else:
+        fov_y = angle
+    return {"position": _to_gltf(eye), "look_at": _to_gltf(ahead), "up": _to_gltf(up),
+            "fov_y_deg": math.degrees(fov_y)}
+
+
+def sun_towards(scene: bpy.types.Scene) -> list[float] | None:
+    """A vector towards the scene's first rendered sun lamp now (a sun
+    shines along its local −Z), as the importer reads the exported light;
+    None without one (the scene file's sun stays)."""
+    for o in scene.objects:
+        if o.type == "LIGHT" and o.data.type == "SUN" and not o.hide_render:
+            return _to_gltf(o.matrix_world.to_3x3().normalized() @ Vector((0.0, 0.0, 1.0)))
+    return None
+
+
+def frame_views(scene: bpy.types.Scene) -> tuple[list[int], list[dict[str, Any]]]:
+    """The scene's frame range (start to end by its step) and, per frame,
+    the camera and the sun as they are animated there: the views of one
+    sequence job. The frame the scene was on is restored."""
+    now = scene.frame_current
+    frames = list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
+    views = []
+    try:
+        for f in frames:
+            scene.frame_set(f)
+            views.append({"camera": camera_view(scene), "sun_towards": sun_towards(scene)})
+    finally:
+        scene.frame_set(now)
+    return frames, views

@@ -28,6 +28,11 @@ class Settings:
     passes: list[str] | str = field(default_factory=list)
     name: str = "blender"
     tls_ca: str | None = None
+    #: A sequence: Blender's frame numbers, and per frame its view
+    #: ({"camera": {...}, "sun_towards": [...] or None}, export.frame_views).
+    #: Empty: one frame, the scene's own view.
+    frames: list[int] = field(default_factory=list)
+    views: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -42,6 +47,10 @@ class Progress:
     exr: str = ""
     png: str = ""
     stats: dict[str, Any] | None = None
+    #: A sequence's frames as fetched: Blender's frame numbers, their EXRs
+    #: (`exr` and `png` are the first frame's).
+    frames: list[int] = field(default_factory=list)
+    exrs: list[str] = field(default_factory=list)
 
 
 def run(
@@ -65,7 +74,12 @@ def run(
         with client_mod.Client(settings.address, token=settings.token, tls_ca=settings.tls_ca) as farm:
             last = Progress("uploading the scene")
             report(last)
-            job = farm.submit(scene_path, frame, name=settings.name)
+            views = [
+                client_mod.View(camera=client_mod.Camera(**v["camera"]),
+                                sun_towards=v.get("sun_towards"))
+                for v in settings.views
+            ]
+            job = farm.submit(scene_path, frame, name=settings.name, views=views or None)
             last = Progress("queued", job=job)
             report(last)
             final = None
@@ -79,7 +93,8 @@ def run(
                 frac = ev.strips_done / total if ev.strips_total else 0.0
                 words = ev.stage or ev.state.value
                 if ev.strips_total:
-                    words = f"{words} ({ev.strips_done}/{ev.strips_total} strips)"
+                    words = f"{words} ({ev.strips_done}/{ev.strips_total} strips"
+                    words += f" of {len(views)} frames)" if views else ")"
                 last = Progress(words, fraction=frac, job=job)
                 report(last)
                 if ev.ended:
@@ -90,13 +105,27 @@ def run(
                 last = Progress("failed", job=job, done=True, error=f"job {job}: {why}")
                 report(last)
                 return last
-            last = Progress("fetching the image", fraction=1.0, job=job)
-            report(last)
             out_dir.mkdir(parents=True, exist_ok=True)
-            exr = farm.fetch(job, out_dir / f"sylva-{job}.exr")
-            png = farm.fetch(job, out_dir / f"sylva-{job}.png")
-            last = Progress("done", fraction=1.0, job=job, done=True, exr=str(exr), png=str(png),
-                            stats=final.stats)
+            if not views:
+                last = Progress("fetching the image", fraction=1.0, job=job)
+                report(last)
+                exr = farm.fetch(job, out_dir / f"sylva-{job}.exr")
+                png = farm.fetch(job, out_dir / f"sylva-{job}.png")
+                last = Progress("done", fraction=1.0, job=job, done=True, exr=str(exr),
+                                png=str(png), stats=final.stats)
+                report(last)
+                return last
+            # A sequence: every frame, numbered as Blender numbers it, so
+            # that the files load as an image sequence.
+            exrs, pngs = [], []
+            for k, number in enumerate(settings.frames):
+                last = Progress(f"fetching frame {number}", fraction=1.0, job=job)
+                report(last)
+                base = out_dir / f"sylva-{job}-{number:04d}"
+                exrs.append(str(farm.fetch(job, base.with_suffix(".exr"), frame=k)))
+                pngs.append(str(farm.fetch(job, base.with_suffix(".png"), frame=k)))
+            last = Progress("done", fraction=1.0, job=job, done=True, exr=exrs[0], png=pngs[0],
+                            stats=final.stats, frames=list(settings.frames), exrs=exrs)
             report(last)
             return last
     except Exception as e:  # noqa: BLE001 (every error becomes a report)

@@ -33,7 +33,10 @@ def frame_settings(context: bpy.types.Context) -> job.Settings:
     if not address:
         raise RuntimeError("no farm address: set it in the Sylva panel or the add-on's preferences")
     passes: list[str] | str = "all" if s.all_passes else sorted(s.passes)
+    frames, views = export.frame_views(scene) if s.animation else ([], [])
     return job.Settings(
+        frames=frames,
+        views=views,
         address=address.strip(),
         token=token,
         tls_ca=tls_ca,
@@ -49,24 +52,38 @@ def frame_settings(context: bpy.types.Context) -> job.Settings:
 
 
 def show_image(context: bpy.types.Context, img: bpy.types.Image) -> bool:
-    """Shows `img` in every Image Editor of the open windows; whether there
-    was one."""
+    """Shows `img` in every Image Editor of the open windows (a sequence
+    following the scene's frame); whether there was one."""
     shown = False
     wm = context.window_manager
     for window in wm.windows if wm else []:
         for area in window.screen.areas:
             if area.type == "IMAGE_EDITOR":
                 area.spaces.active.image = img
+                follow(area.spaces.active.image_user, img, context.scene)
                 area.tag_redraw()
                 shown = True
     return shown
 
 
+def follow(user: bpy.types.ImageUser, img: bpy.types.Image, scene: bpy.types.Scene) -> None:
+    """Sets an image user of a sequence whose files are numbered by frame
+    to show, on scene frame F, the file numbered F."""
+    if img.source != "SEQUENCE":
+        return
+    user.frame_start, user.frame_offset = 1, 0
+    user.frame_duration = max(1, scene.frame_end)
+    user.use_auto_refresh = True
+
+
 def load_result(context: bpy.types.Context, p: job.Progress) -> bpy.types.Image:
     """Loads the fetched EXR (its passes as the layers of a multi-layer
-    image) and shows it."""
+    image) and shows it; a sequence's frames as one image sequence, each
+    file numbered by its frame, so the timeline plays them."""
     img = bpy.data.images.load(p.exr, check_existing=False)
     img.name = f"Sylva {p.job}"
+    if p.frames:
+        img.source = "SEQUENCE"
     # Asking for its size reads the file, which settles the image's type
     # (MULTILAYER where it has passes; such an image's own size reads 0 × 0:
     # its pixels are per pass, read through an image user).
@@ -77,6 +94,7 @@ def load_result(context: bpy.types.Context, p: job.Progress) -> bpy.types.Image:
             area = context.window_manager.windows[-1].screen.areas[0]
             area.type = "IMAGE_EDITOR"
             area.spaces.active.image = img
+            follow(area.spaces.active.image_user, img, context.scene)
         except Exception:  # noqa: BLE001 (the image is loaded all the same)
             pass
     return img
@@ -146,6 +164,7 @@ class SYLVA_OT_render(bpy.types.Operator):
                         f"{', '.join(lacking)}: instances may be lost or copied")
         st.scene_file = str(exported["scene"])
         st.image = st.exr = st.job = ""
+        st.frames = 0
         st.running = True
         if bpy.app.background or self.synchronous:
             def say(p: job.Progress) -> None:
@@ -205,7 +224,9 @@ class SYLVA_OT_render(bpy.types.Operator):
             self.report({"ERROR"}, f"Sylva: cannot load {p.exr}: {e}")
             return {"CANCELLED"}
         st.image, st.exr, st.stage, st.progress = img.name, p.exr, "done", 1.0
-        self.report({"INFO"}, f"Sylva: job {p.job} done; image \"{img.name}\" ({p.exr})")
+        st.frames = len(p.frames)
+        what = f"{len(p.frames)} frames from {p.exr}" if p.frames else p.exr
+        self.report({"INFO"}, f"Sylva: job {p.job} done; image \"{img.name}\" ({what})")
         return {"FINISHED"}
 
 

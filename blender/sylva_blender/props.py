@@ -111,6 +111,15 @@ class SylvaSceneSettings(bpy.types.PropertyGroup):
     passes: EnumProperty(  # type: ignore[valid-type]
         name="Passes", items=PASSES, options={"ENUM_FLAG"}, default=set()
     )
+    animation: BoolProperty(  # type: ignore[valid-type]
+        name="Frame range",
+        description=(
+            "Render the scene's frame range (Start to End by Step) as one sequence job, the "
+            "camera and the sun as animated on each frame; the rest of the scene as it is on "
+            "the current frame. The frames load back as an image sequence"
+        ),
+        default=False,
+    )
     keep_export: BoolProperty(  # type: ignore[valid-type]
         name="Keep export",
         description="Keep the exported scene (in the output folder) rather than a temporary one",
@@ -135,6 +144,8 @@ class SylvaStatus(bpy.types.PropertyGroup):
     )
     image: StringProperty(default="")  # type: ignore[valid-type]
     exr: StringProperty(default="")  # type: ignore[valid-type]
+    #: Frames of the last job (0: one frame, not a sequence).
+    frames: IntProperty(default=0)  # type: ignore[valid-type]
     scene_file: StringProperty(default="")  # type: ignore[valid-type]
 
 

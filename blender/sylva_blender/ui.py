@@ -46,6 +46,10 @@ class SYLVA_PT_render(bpy.types.Panel):
         sub = col.column()
         sub.enabled = not s.all_passes
         sub.prop(s, "passes")
+        col.prop(s, "animation")
+        if s.animation:
+            step = f" by {scene.frame_step}" if scene.frame_step > 1 else ""
+            col.label(text=f"Frames {scene.frame_start}–{scene.frame_end}{step}", icon="RENDER_ANIMATION")
         col.prop(s, "output_dir")
         col.prop(s, "keep_export")
 
@@ -67,7 +71,8 @@ class SYLVA_PT_render(bpy.types.Panel):
             if st.job:
                 box.label(text=f"Job {st.job}")
             if st.image:
-                box.label(text=f"Image: {st.image}", icon="IMAGE_DATA")
+                seq = f" ({st.frames} frames)" if st.frames else ""
+                box.label(text=f"Image: {st.image}{seq}", icon="IMAGE_DATA")
 
 
 CLASSES = (SYLVA_PT_render,)

@@ -136,3 +136,64 @@ def test_wrong_token_is_a_report(rendered: dict, farm: dict) -> None:
     assert "Sylva: " in str(e.value) and "Unauthenticated" in str(e.value)
     assert "Traceback" not in str(e.value)
     assert not bpy.context.window_manager.sylva_status.running
+
+
+def test_a_frame_range_renders_as_one_sequence_job(rendered: dict, addon, sylva: Path,
+                                                   tmp_path: Path) -> None:
+    """With "Frame range" on, the scene's range is one sequence job: the
+    camera and the sun as animated on each frame, the frames fetched as
+    files numbered by frame and loaded back as one image sequence. Each
+    frame's view is the camera Sylva's importer reads from an export made
+    on that frame."""
+    scene = bpy.context.scene
+    cam = rendered["objects"]["camera"]
+    sun = rendered["objects"]["sun"]
+    start_loc, start_rot = tuple(cam.location), tuple(sun.rotation_euler)
+    scene.frame_start, scene.frame_end, scene.frame_step = 1, 3, 1
+    scene.frame_set(1)
+    cam.keyframe_insert("location", frame=1)
+    sun.keyframe_insert("rotation_euler", frame=1)
+    cam.location.x += 6.0
+    sun.rotation_euler.x += 0.4
+    cam.keyframe_insert("location", frame=3)
+    sun.keyframe_insert("rotation_euler", frame=3)
+    scene.frame_set(2)
+    s = scene.sylva_farm
+    s.animation = True
+    try:
+        assert bpy.ops.sylva.render() == {"FINISHED"}
+        st = bpy.context.window_manager.sylva_status
+        assert st.frames == 3 and st.stage == "done", st.stage
+        assert scene.frame_current == 2, "the frame the scene was on is restored"
+        first = Path(st.exr)
+        files = [first.with_name(first.name.replace("-0001.", f"-{n:04d}.")) for n in (1, 2, 3)]
+        assert first.name.endswith("-0001.exr") and all(f.is_file() for f in files), files
+        img = bpy.data.images[st.image]
+        assert img.source == "SEQUENCE" and Path(bpy.path.abspath(img.filepath)) == first
+        # The camera moved: the frames differ.
+        beauty = [channels(f)["ViewLayer.Combined.R"] for f in files]
+        assert not np.array_equal(beauty[0], beauty[2])
+
+        # Frame 3's view is what Sylva reads from an export made on frame 3.
+        scene.frame_set(3)
+        view = addon.export.camera_view(scene)
+        towards = addon.export.sun_towards(scene)
+        made = addon.export.export_scene(bpy.context, tmp_path / "f3")
+        imported = tmp_path / "f3" / "imported.json"
+        r = subprocess.run([str(sylva), "scene", "import", str(made["glb"]), "-o", str(imported)],
+                           env=child_env(), capture_output=True, text=True, timeout=120,
+                           check=False)
+        assert r.returncode == 0, r.stderr
+        read = json.loads(imported.read_text())
+        for k in ("position", "look_at", "up"):
+            np.testing.assert_allclose(view[k], read["camera"][k], atol=1e-3, err_msg=k)
+        assert abs(view["fov_y_deg"] - read["camera"]["fov_y_deg"]) < 1e-3
+        d = np.array(read["sun"]["direction"], dtype=float)
+        np.testing.assert_allclose(np.array(towards) / np.linalg.norm(towards),
+                                   d / np.linalg.norm(d), atol=1e-4)
+    finally:
+        s.animation = False
+        cam.animation_data_clear()
+        sun.animation_data_clear()
+        cam.location, sun.rotation_euler = start_loc, start_rot
+        scene.frame_set(1)

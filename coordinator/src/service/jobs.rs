@@ -313,6 +313,7 @@ impl CoordinatorService {
             return Ok(Response::new(summary));
         }
         if wire_ended(summary.state) {
+            tracing::info!(%id, user = %who.user, "job cancelled");
             self.state.ended(id).await;
             self.state.audit(&who.user, "cancel", id, "").await;
         }

@@ -7,6 +7,7 @@ use crate::job_state::JobState;
 use std::sync::Arc;
 use std::time::Instant;
 use sylva_proto::sync::lock;
+use sylva_scene::sandbox::printable;
 use tokio::sync::broadcast;
 
 impl State {
@@ -36,6 +37,9 @@ impl State {
                     Some(j.row())
                 })
             };
+            if row.is_some() {
+                tracing::info!(id = %next, "job started");
+            }
             if let Some(row) = row
                 && let Err(e) = self.store.set_state(&row).await
             {
@@ -78,6 +82,10 @@ impl State {
             if let Err(e) = j.set_state(state) {
                 tracing::debug!(%id, "not ended again: {e}");
                 return;
+            }
+            match &error {
+                Some(e) => tracing::warn!(%id, "job {state}: {}", printable(e, 300)),
+                None => tracing::info!(%id, "job {state}"),
             }
             if let Some(e) = error {
                 j.summary.error = e;

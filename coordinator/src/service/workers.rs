@@ -148,6 +148,9 @@ impl State {
                 if let Some(w) = lock(&self.workers).get_mut(&a) {
                     match status {
                         Some(s) => {
+                            if !w.info.alive {
+                                tracing::info!(addr = %a, "worker answers again");
+                            }
                             w.info.alive = true;
                             w.seen = Instant::now();
                             // A worker's reply is bounded before it is kept and listed.
@@ -160,7 +163,13 @@ impl State {
                             w.info.backend = clip(&s.backend);
                             w.info.backend_why = clip(&s.backend_why);
                         }
-                        None => w.info.alive = false,
+                        None => {
+                            // Said once, when it stops answering, not every poll.
+                            if w.info.alive {
+                                tracing::warn!(addr = %a, "worker does not answer its status poll");
+                            }
+                            w.info.alive = false;
+                        }
                     }
                 }
             }
