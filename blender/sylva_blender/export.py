@@ -18,7 +18,8 @@ from . import glb
 #: meshes as EXT_mesh_gpu_instancing (``export_gpu_instances``), the
 #: camera and the sun, modifiers applied, what renders only, custom
 #: properties as extras (the ground marker), Blender's sun strength as
-#: the light's intensity unconverted (Sylva's sun ``intensity``).
+#: the light's intensity unconverted (Sylva's sun ``intensity``), the
+#: current frame's pose.
 OPTIONS: dict[str, Any] = {
     "export_format": "GLB",
     "export_gpu_instances": True,
@@ -32,6 +33,9 @@ OPTIONS: dict[str, Any] = {
     "use_renderable": True,
     "use_selection": False,
     "export_animations": False,
+    # The scene as it is on the current frame (the exporter's default is
+    # frame 0's pose: an animated camera would render from the wrong place).
+    "export_current_frame": True,
     "export_import_convert_lighting_mode": "RAW",
     "convert_lighting_mode": "RAW",  # its name in Blender 3.4
     "export_materials": "EXPORT",
