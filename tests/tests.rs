@@ -9,6 +9,7 @@ mod cancel;
 mod cli;
 mod cluster;
 mod dashboard;
+mod denoise;
 mod durable;
 mod farm_cli;
 mod hostile;

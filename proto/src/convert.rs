@@ -121,6 +121,7 @@ impl TryFrom<&pb::FrameSettings> for FrameSettings {
             },
             gather_filter: f.gather_filter.unwrap_or(sylva_scene::frame::DEFAULT_GATHER_FILTER),
             passes: passes_from_wire(&f.passes)?,
+            denoise: f.denoise,
         };
         frame.check().map_err(|e| Status::invalid_argument(e.to_string()))?;
         Ok(frame)
@@ -142,6 +143,7 @@ impl From<&FrameSettings> for pb::FrameSettings {
             gather_bounces: f.gather_bounces,
             gather_filter: Some(f.gather_filter),
             passes: passes_to_wire(f.passes),
+            denoise: f.denoise,
         }
     }
 }

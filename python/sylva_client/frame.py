@@ -186,6 +186,10 @@ class Frame:
     gather_filter: int = DEFAULT_GATHER_FILTER
     #: Render passes beside the beauty image.
     passes: str | Sequence[str] = field(default_factory=list)
+    #: Denoise the frame (Open Image Denoise on the coordinator), guided by
+    #: the albedo and normal passes, which it adds; the EXR keeps the noisy
+    #: image as its "Noisy Image" layer.
+    denoise: bool = False
 
     def check(self) -> None:
         """Raises ValueError, with the CLI's words, for a frame the farm
@@ -241,6 +245,9 @@ class Frame:
             gather_filter=self.gather_filter,
         )
         passes = pass_set(self.passes)
+        if self.denoise:
+            passes = pass_set([*passes, "albedo", "normal"])
+            f.denoise = True
         if passes:
             # An older proto without passes cannot ask for them.
             if "passes" not in _wpb.FrameSettings.DESCRIPTOR.fields_by_name:

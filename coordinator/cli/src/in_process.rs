@@ -55,6 +55,7 @@ impl StripExecutor for InProcess<'_> {
             prepared: None,
             passes: frame.passes,
             warnings: frame.warnings,
+            noisy: None,
         })
     }
 }

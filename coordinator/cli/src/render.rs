@@ -171,9 +171,13 @@ fn render_sequence_here(
         prepare_ms += frame_prepare_ms;
         lighting = frame.settings.lighting;
         let t = Instant::now();
-        let rendered = InProcess::new(&frame).render(&plan, &|_| bar.inc(1))?;
+        let mut rendered = InProcess::new(&frame).render(&plan, &|_| bar.inc(1))?;
         let frame_trace_ms = ms(t);
         trace_ms += frame_trace_ms;
+        // Each frame whole, before its tone map, as the farm does it.
+        if request.denoise {
+            rendered.denoise()?;
+        }
         per_frame.push(json!({
             "frame": i,
             "prepare_ms": frame_prepare_ms,
@@ -186,10 +190,7 @@ fn render_sequence_here(
         let ldr = reinhard_like(&rendered.image, e);
         pngs[i] = encode_png(rendered.image.width, rendered.image.height, &ldr)?;
         if want_exr {
-            exrs[i] = match &rendered.passes {
-                Some(p) => sylva_scene::passes::encode_layers(&rendered.image, p)?,
-                None => sylva_coordinator::results::encode_exr(&rendered.image)?,
-            };
+            exrs[i] = rendered.exr()?;
         }
     }
     if let Some(keep) = fresh.reuse.keeper(scene) {
@@ -347,14 +348,22 @@ fn render_strips_here(
     );
     progress::stage(&bar, &format!("tracing {} strips", plan.len()));
     let t = Instant::now();
-    let rendered = InProcess::new(&frame).render(&plan, &|_| bar.inc(1))?;
+    let mut rendered = InProcess::new(&frame).render(&plan, &|_| bar.inc(1))?;
     let sylva_scene::film::RayCounts { primary, shadow, transparent } = rendered.rays;
-    let (image, coverage, passes) = (rendered.image, rendered.coverage, rendered.passes);
     let trace_ms = ms(t);
     phases.push(("trace", trace_ms));
     bar.finish_and_clear();
-
-    let (tone, exr) = write_image(a, &image, passes.as_ref(), &mut phases)?;
+    if request.denoise {
+        phases.push(("denoise", rendered.denoise()?));
+    }
+    let coverage = &rendered.coverage;
+    let (tone, exr) = write_image(
+        a,
+        &rendered.image,
+        rendered.passes.as_ref(),
+        rendered.noisy.as_ref(),
+        &mut phases,
+    )?;
     if let Some(keep) = keep {
         keep();
     }
@@ -445,7 +454,16 @@ fn render_reference_here(
     })?;
     phases.push(("trace", ms(t)));
     bar.finish_and_clear();
-    let (tone, exr) = write_image(a, &r.image, r.passes.as_ref(), &mut phases)?;
+    let mut r = r;
+    let noisy = if a.frame.denoise {
+        let t = Instant::now();
+        let noisy = sylva_coordinator::executor::denoise(&mut r.image, r.passes.as_ref())?;
+        phases.push(("denoise", ms(t)));
+        Some(noisy)
+    } else {
+        None
+    };
+    let (tone, exr) = write_image(a, &r.image, r.passes.as_ref(), noisy.as_ref(), &mut phases)?;
     // Beside the reference, what `local` shows along its own samples:
     // the difference is its indirect light, without edge aliasing.
     let local_exr = match &exr {
@@ -489,6 +507,7 @@ fn write_image(
     a: &RenderArgs,
     frame: &HdrImage,
     passes: Option<&sylva_scene::passes::PassImage>,
+    noisy: Option<&HdrImage>,
     phases: &mut Vec<(&'static str, f64)>,
 ) -> anyhow::Result<(sylva_scene::film::ToneMapStats, Option<PathBuf>)> {
     let t = Instant::now();
@@ -499,7 +518,7 @@ fn write_image(
     let p = a.out.with_extension("exr");
     let exr = match passes {
         Some(passes) => {
-            let bytes = sylva_scene::passes::encode_layers(frame, passes)?;
+            let bytes = sylva_scene::passes::encode_layers(frame, passes, noisy)?;
             std::fs::write(&p, bytes).with_context(|| format!("{}: cannot write", p.display()))?;
             Some(p)
         }

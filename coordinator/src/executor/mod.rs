@@ -34,6 +34,54 @@ pub struct RenderedFrame {
     pub passes: Option<sylva_scene::passes::PassImage>,
     /// What the workers' lighting found about the scene, each once.
     pub warnings: Vec<String>,
+    /// The image before [`RenderedFrame::denoise`], when it was denoised.
+    pub noisy: Option<HdrImage>,
+}
+
+/// Denoises `image` in place, guided by the albedo and normal of
+/// `passes`; the noisy image it was.
+pub fn denoise(
+    image: &mut HdrImage,
+    passes: Option<&sylva_scene::passes::PassImage>,
+) -> anyhow::Result<HdrImage> {
+    use sylva_scene::passes::Pass;
+    let guide = |p: Pass| {
+        passes
+            .and_then(|s| s.plane(p))
+            .ok_or_else(|| anyhow::anyhow!("denoise: the frame has no {p} pass, one of its guides"))
+    };
+    let (albedo, normal) = (guide(Pass::Albedo)?, guide(Pass::Normal)?);
+    let (width, height) = (image.width, image.height);
+    let noisy = sylva_denoise::Noisy {
+        width,
+        height,
+        color: &image.pixels,
+        albedo: Some(albedo),
+        normal: Some(normal),
+    };
+    let clean = sylva_denoise::denoise(&noisy)?;
+    let pixels = std::mem::replace(&mut image.pixels, clean);
+    Ok(HdrImage { width, height, pixels })
+}
+
+impl RenderedFrame {
+    /// Denoises the whole assembled frame (no seams where strips meet),
+    /// guided by its albedo and normal passes, and keeps the noisy image
+    /// beside it for the EXR (docs/denoising.md). Its time, ms.
+    pub fn denoise(&mut self) -> anyhow::Result<f64> {
+        let t = std::time::Instant::now();
+        self.noisy = Some(denoise(&mut self.image, self.passes.as_ref())?);
+        Ok(t.elapsed().as_secs_f64() * 1e3)
+    }
+
+    /// The frame as the OpenEXR results are kept in: one multi-layer file
+    /// with its passes and, denoised, the noisy image; else plain RGB.
+    pub fn exr(&self) -> anyhow::Result<Vec<u8>> {
+        Ok(match &self.passes {
+            Some(p) => sylva_scene::passes::encode_layers(&self.image, p, self.noisy.as_ref())?,
+            None => crate::results::encode_exr(&self.image)?,
+        })
+    }
 }
 
 /// Renders the strips of a plan and assembles them into a frame.

@@ -66,6 +66,7 @@ impl OpenFrame {
             prepared,
             passes: self.assembly.passes,
             warnings: self.assembly.warnings,
+            noisy: None,
         }
     }
 }

@@ -227,6 +227,7 @@ impl State {
     ) -> anyhow::Result<Option<Vec<crate::schedule::StripTime>>> {
         use prost::Message;
         let dir = crate::results::job_dir(&self.config.state_dir, id);
+        let denoise = lock(&self.jobs).get(id).is_some_and(|j| j.frame.denoise);
         let mut stored = std::collections::HashSet::new();
         let mut first = None;
         let mut in_run = 0u32;
@@ -262,11 +263,12 @@ impl State {
                     let name = format!("{frame:05}.exr");
                     let path = dir.join(&name);
                     let bytes = tokio::task::spawn_blocking(move || {
-                        // With passes, one multi-layer file holds them all.
-                        let exr = match &rendered.passes {
-                            Some(p) => sylva_scene::passes::encode_layers(&rendered.image, p)?,
-                            None => crate::results::encode_exr(&rendered.image)?,
-                        };
+                        let mut rendered = rendered;
+                        // The whole frame, here where it is assembled.
+                        if denoise {
+                            rendered.denoise()?;
+                        }
+                        let exr = rendered.exr()?;
                         crate::results::write_whole(&path, &exr)?;
                         anyhow::Ok((exr.len() as u64, crate::results::hash(&exr)))
                     })

@@ -156,6 +156,11 @@ pub struct FrameSettings {
     /// Render passes beside the beauty image (docs/passes.md).
     #[serde(default)]
     pub passes: crate::passes::PassSet,
+    /// Denoise the assembled frame (Open Image Denoise, guided by the
+    /// albedo and normal passes, which it needs); the EXR keeps the noisy
+    /// image beside it (docs/denoising.md).
+    #[serde(default)]
+    pub denoise: bool,
 }
 
 impl Default for FrameSettings {
@@ -173,6 +178,7 @@ impl Default for FrameSettings {
             gather_bounces: DEFAULT_GATHER_BOUNCES,
             gather_filter: DEFAULT_GATHER_FILTER,
             passes: crate::passes::PassSet::NONE,
+            denoise: false,
         }
     }
 }
@@ -214,6 +220,12 @@ impl FrameSettings {
             && !a.iter().all(|v| v.is_finite() && *v >= 0.0)
         {
             return bad(format!("ambient {a:?}: three finite values ≥ 0"));
+        }
+        if self.denoise
+            && !(self.passes.contains(crate::passes::Pass::Albedo)
+                && self.passes.contains(crate::passes::Pass::Normal))
+        {
+            return bad("denoise: its guides, the albedo and normal passes, must be rendered too (passes albedo,normal)".into());
         }
         self.view.check().map_err(|e| FrameError(e.to_string()))
     }

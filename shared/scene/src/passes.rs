@@ -105,7 +105,7 @@ impl Pass {
         }
     }
 
-    fn bit(self) -> u16 {
+    const fn bit(self) -> u16 {
         1 << self as u16
     }
 }
@@ -121,6 +121,9 @@ impl fmt::Display for Pass {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(transparent)]
 pub struct PassSet(u16);
+
+/// The passes a denoised frame needs: the denoiser's guides.
+pub const DENOISE_GUIDES: PassSet = PassSet(Pass::Albedo.bit() | Pass::Normal.bit());
 
 impl PassSet {
     /// No passes: the beauty image alone.
@@ -166,6 +169,11 @@ impl PassSet {
             }
         }
         Ok(Self::of(out))
+    }
+
+    /// This set and `other`'s passes.
+    pub fn with(self, other: PassSet) -> Self {
+        PassSet(self.0 | other.0)
     }
 
     /// Whether there is any pass beside beauty.
@@ -351,6 +359,9 @@ impl PassImage {
     }
 }
 
+/// The layer of a denoised frame's noisy image, as Cycles names it.
+pub const NOISY_LAYER: &str = "Noisy Image";
+
 /// The channel name of pass `p`'s channel `c` in the multi-layer EXR:
 /// `ViewLayer.Combined.R`, as Blender writes and reads it (Nuke shows the
 /// layer as `ViewLayer_Combined`).
@@ -360,9 +371,14 @@ pub fn exr_channel(p: Pass, c: &str) -> String {
 
 /// A frame and its passes as one multi-layer OpenEXR (32-bit floats,
 /// lossless ZIP): beauty as `ViewLayer.Combined.RGBA`, each pass as its own
-/// layer. Combined's alpha is 1: the film is opaque (the sky is in the
-/// image), as Cycles writes Combined without a transparent film.
-pub fn encode_layers(beauty: &HdrImage, passes: &PassImage) -> Result<Vec<u8>> {
+/// layer, and a denoised frame's noisy image as `ViewLayer.Noisy Image`
+/// (Cycles' name). Combined's alpha is 1: the film is opaque (the sky is in
+/// the image), as Cycles writes Combined without a transparent film.
+pub fn encode_layers(
+    beauty: &HdrImage,
+    passes: &PassImage,
+    noisy: Option<&HdrImage>,
+) -> Result<Vec<u8>> {
     use exr::prelude::*;
     let n = beauty.pixels.len();
     if passes.width != beauty.width || passes.height != beauty.height {
@@ -378,6 +394,16 @@ pub fn encode_layers(beauty: &HdrImage, passes: &PassImage) -> Result<Vec<u8>> {
     }
     let opaque = FlatSamples::F32(vec![1.0; n]);
     list.push(AnyChannel::new(exr_channel(Pass::Beauty, "A").as_str(), opaque));
+    if let Some(noisy) = noisy {
+        if noisy.pixels.len() != n {
+            return Err(crate::Error::Invalid("the noisy image is not the frame's size".into()));
+        }
+        for (c, name) in ["R", "G", "B"].iter().enumerate() {
+            let v = noisy.pixels.iter().map(|p| p[c]).collect();
+            let channel = format!("{VIEW_LAYER}.{NOISY_LAYER}.{name}");
+            list.push(AnyChannel::new(channel.as_str(), FlatSamples::F32(v)));
+        }
+    }
     for (p, plane) in passes.set.extra().zip(&passes.planes) {
         let k = p.channels().len();
         for (c, name) in p.channels().iter().enumerate() {
@@ -541,7 +567,7 @@ mod tests {
 
         let mut beauty = HdrImage::new(5, 2);
         beauty.pixels[7] = [1.0, 2.0, 3.5];
-        let exr = encode_layers(&beauty, &frame).unwrap();
+        let exr = encode_layers(&beauty, &frame, None).unwrap();
         let read = ExrLayers::read(&exr).unwrap();
         assert_eq!(read.beauty().unwrap(), beauty);
         assert_eq!(read.pass_set(), set);

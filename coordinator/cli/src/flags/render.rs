@@ -55,6 +55,11 @@ pub struct FrameArgs {
     /// species, sky, separated by commas, or `all` (docs/passes.md).
     #[arg(long, value_parser = sylva_scene::passes::PassSet::parse, default_value = "beauty")]
     pub passes: sylva_scene::passes::PassSet,
+    /// Denoise the frame with Open Image Denoise, guided by the albedo and
+    /// normal passes (rendered for it); the EXR keeps the noisy image as
+    /// its "Noisy Image" layer (docs/denoising.md).
+    #[arg(long)]
+    pub denoise: bool,
     /// Render a sequence of this many frames (with --sun-from/--sun-to, a
     /// --camera-path, or the scene's own `sequence`).
     #[arg(long)]
@@ -132,7 +137,12 @@ impl FrameArgs {
             view: Default::default(),
             gather_bounces: self.gather_bounces,
             gather_filter: self.gather_filter,
-            passes: self.passes,
+            passes: if self.denoise {
+                self.passes.with(sylva_scene::passes::DENOISE_GUIDES)
+            } else {
+                self.passes
+            },
+            denoise: self.denoise,
         }
     }
 
