@@ -20,6 +20,9 @@ pub(super) struct Candidate {
     /// The curve it belongs to on the time–error chart (its variants
     /// differ by rays, grid or filter).
     pub(super) family: String,
+    /// Denoised (Open Image Denoise, guided by albedo and normal, their
+    /// pass and the denoise timed with the frame).
+    pub(super) denoise: bool,
 }
 
 impl Candidate {
@@ -33,6 +36,7 @@ impl Candidate {
             gather_bounces: sylva_scene::frame::DEFAULT_GATHER_BOUNCES,
             gather_filter: 0,
             family: name.into(),
+            denoise: false,
         }
     }
 }
@@ -78,6 +82,25 @@ pub(super) fn methods_to_compare(
                     gather_bounces: bounces,
                     gather_filter: r,
                     family: family.clone(),
+                    ..Candidate::new(
+                        &format!("{family} {k} rays"),
+                        LightingMode::Gather,
+                        scene.clone(),
+                        0,
+                    )
+                });
+            }
+        }
+        // The unfiltered gather denoised instead: where the denoiser pays
+        // for its guides' pass and its own time (issue 40).
+        if bounces == 2 && sylva_denoise::available().is_ok() {
+            for &k in gather_rays {
+                let family = format!("gather {bounces}b + denoise");
+                methods.push(Candidate {
+                    spp: Some(k),
+                    gather_bounces: bounces,
+                    family: family.clone(),
+                    denoise: true,
                     ..Candidate::new(
                         &format!("{family} {k} rays"),
                         LightingMode::Gather,
@@ -189,15 +212,28 @@ pub(super) fn render_method(
     say(&format!("{name}: rendering"));
     // One untimed strip first: the pipeline's first dispatch compiles it.
     frame.with_settings(RenderSettings { width: 8, height: 8, spp: 1, ..settings }).strip(0, 8)?;
+    if c.denoise {
+        // The guides' kernel too, and the denoiser's library loaded.
+        let guides = sylva_scene::passes::DENOISE_GUIDES;
+        let warm = RenderSettings { width: 8, height: 8, spp: 1, passes: guides, ..settings };
+        frame.with_settings(warm).strip(0, 8)?;
+        sylva_denoise::available()?;
+    }
     let t = Instant::now();
-    let (image, own_local) = render_whole(&frame)?;
+    let (mut image, own_local) = render_whole(&frame)?;
+    if c.denoise {
+        denoise_whole(&frame, &mut image)?;
+    }
     let frame_ms = ms(t);
     // The same frame with other seeds (untimed): with `local`'s second
     // render (or its own, below), the spread of the two tells the method's
     // own sampling noise.
-    let (again, own_local_again) = render_whole(
-        &frame.with_settings(RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings }),
-    )?;
+    let other =
+        frame.with_settings(RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings });
+    let (mut again, own_local_again) = render_whole(&other)?;
+    if c.denoise {
+        denoise_whole(&other, &mut again)?;
+    }
     let file = out.dir.join(format!("{}.png", file_stem(name)));
     write_png(&file, f.width, f.height, &reinhard_like(&image, out.exposure))?;
     if out.hdr {
@@ -217,6 +253,7 @@ pub(super) fn render_method(
         "gather_filter": if settings.gather_filtered() { json!(settings.gather_filter) } else { serde_json::Value::Null },
         "gather_bounces": if sylva_worker::lighting::method(lighting).kernel == sylva_worker::lighting::Kernel::Reference { json!(settings.gather_bounces) } else { serde_json::Value::Null },
         "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
+        "denoised": c.denoise,
     });
     Ok(Rendered {
         report: MethodReport {
@@ -243,6 +280,19 @@ pub(super) fn render_method(
 /// kernels (the gathers), what `local` shows along the same camera samples.
 pub(super) fn render_whole(frame: &Frame) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
     crate::pilot::render_columns(frame, &frame.settings, &[(0, frame.settings.width)])
+}
+
+/// `image`, `frame` rendered whole, denoised in place: the guides (albedo,
+/// normal) rendered as the product renders them today, a pass of their
+/// own over the same camera samples, then Open Image Denoise.
+fn denoise_whole(frame: &Frame, image: &mut HdrImage) -> anyhow::Result<()> {
+    let s = frame.settings;
+    let guides =
+        frame.with_settings(RenderSettings { passes: sylva_scene::passes::DENOISE_GUIDES, ..s });
+    let strip = guides.strip(0, s.width)?;
+    let passes = strip.passes.ok_or_else(|| anyhow::anyhow!("the guide pass came back empty"))?;
+    sylva_coordinator::executor::denoise(image, Some(&passes))?;
+    Ok(())
 }
 
 /// A method's name as a file name: `lb 32³ + forest grid` → `lb-32-forest-grid`.
