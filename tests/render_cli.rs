@@ -440,6 +440,7 @@ fn compare_lists_every_method_with_its_time_and_error() {
             "gather 2b r0 2 rays",
             "gather 2b r2 2 rays",
             "gather 2b + denoise 2 rays",
+            "gather 2b + denoised indirect 2 rays",
             "gather-ambient 2b r3 2 rays",
             "lb auto",
             "reference"
@@ -461,7 +462,7 @@ fn compare_lists_every_method_with_its_time_and_error() {
     }
     assert!(v["reference"]["converged"].as_bool().unwrap(), "{}", v["reference"]);
     // The grid choice says what it chose and why.
-    let choice = &methods[14]["notes"]["grid_choice"][0];
+    let choice = &methods[15]["notes"]["grid_choice"][0];
     assert!(
         [8, 12].contains(&choice["grid"].as_u64().unwrap())
             && !choice["reason"].as_str().unwrap().is_empty(),
@@ -469,8 +470,9 @@ fn compare_lists_every_method_with_its_time_and_error() {
     );
     assert!(methods[6]["notes"]["boulanger"][0]["tau"].as_f64().unwrap() > 0.0);
     // The denoised gather is denoised, and says so (issue 40).
-    assert_eq!(methods[12]["notes"]["denoised"], true, "{}", methods[12]);
-    assert_eq!(methods[10]["notes"]["denoised"], false);
+    assert_eq!(methods[12]["notes"]["denoised"], "frame", "{}", methods[12]);
+    assert_eq!(methods[13]["notes"]["denoised"], "indirect", "{}", methods[13]);
+    assert!(methods[10]["notes"]["denoised"].is_null());
     // The paper model is there, and its non-physical strength is named.
     assert_eq!(methods[5]["notes"]["lb_model"], "paper");
     assert!(

@@ -307,7 +307,7 @@ pub fn run_workers(a: WorkersArgs) -> anyhow::Result<()> {
 }
 
 /// Runs `sylva cancel`: every id is tried; the command fails if any was not found.
-pub fn run_cancel(a: CancelArgs) -> anyhow::Result<()> {
+pub fn run_cancel(a: JobIdsArgs) -> anyhow::Result<()> {
     let results = a.at.call(async |mut c| {
         let mut out = Vec::new();
         for id in &a.ids {
@@ -345,7 +345,7 @@ pub fn run_cancel(a: CancelArgs) -> anyhow::Result<()> {
 }
 
 /// Runs `sylva requeue`: each job's new id, or why it was not requeued.
-pub fn run_requeue(a: RequeueArgs) -> anyhow::Result<()> {
+pub fn run_requeue(a: JobIdsArgs) -> anyhow::Result<()> {
     let results = a.at.call(async |mut c| {
         let mut out = Vec::new();
         for id in &a.ids {

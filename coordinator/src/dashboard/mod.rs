@@ -448,10 +448,14 @@ fn json_write(headers: &HeaderMap) -> bool {
         .is_some_and(|t| t.trim().eq_ignore_ascii_case("application/json"))
 }
 
-/// The answer to a write that is not JSON.
-fn not_json() -> Response {
-    (StatusCode::UNSUPPORTED_MEDIA_TYPE, "changes take Content-Type: application/json")
-        .into_response()
+/// The caller of a change: one that says it is JSON (else 415) and brings
+/// the token in its header, not the cookie (else 401).
+fn writer(service: &CoordinatorService, headers: &HeaderMap) -> Result<Caller, Box<Response>> {
+    if !json_write(headers) {
+        let why = "changes take Content-Type: application/json";
+        return Err(Box::new((StatusCode::UNSUPPORTED_MEDIA_TYPE, why).into_response()));
+    }
+    service.caller_of(token(headers, false).as_deref()).ok_or_else(|| Box::new(refused()))
 }
 
 async fn cancel(
@@ -459,11 +463,9 @@ async fn cancel(
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Response {
-    if !json_write(&headers) {
-        return not_json();
-    }
-    let Some(caller) = service.caller_of(token(&headers, false).as_deref()) else {
-        return refused();
+    let caller = match writer(&service, &headers) {
+        Ok(c) => c,
+        Err(r) => return *r,
     };
     match service.cancel_job(by(&caller, pb::JobId { id })).await {
         Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "state": wire_name(r.get_ref().state) }))
@@ -477,11 +479,9 @@ async fn requeue(
     headers: HeaderMap,
     Path(id): Path<String>,
 ) -> Response {
-    if !json_write(&headers) {
-        return not_json();
-    }
-    let Some(caller) = service.caller_of(token(&headers, false).as_deref()) else {
-        return refused();
+    let caller = match writer(&service, &headers) {
+        Ok(c) => c,
+        Err(r) => return *r,
     };
     match service.requeue_job(by(&caller, pb::JobId { id: id.clone() })).await {
         Ok(r) => axum::Json(json!({ "id": r.get_ref().id, "requeued": id })).into_response(),
@@ -495,11 +495,9 @@ async fn priority(
     Path(id): Path<String>,
     body: String,
 ) -> Response {
-    if !json_write(&headers) {
-        return not_json();
-    }
-    let Some(caller) = service.caller_of(token(&headers, false).as_deref()) else {
-        return refused();
+    let caller = match writer(&service, &headers) {
+        Ok(c) => c,
+        Err(r) => return *r,
     };
     let Some(p) = serde_json::from_str::<Value>(&body)
         .ok()

@@ -64,6 +64,33 @@ pub fn denoise(
     Ok(HdrImage { width, height, pixels })
 }
 
+/// Denoises the indirect light of `image` alone (the `indirect` pass of
+/// `passes`, which splits the image into direct + indirect + sky), guided
+/// by its albedo and normal; the direct light and the sky stay as traced.
+/// The noisy image it was.
+pub fn denoise_indirect(
+    image: &mut HdrImage,
+    passes: &sylva_scene::passes::PassImage,
+) -> anyhow::Result<HdrImage> {
+    use sylva_scene::passes::Pass;
+    let noisy = passes
+        .plane(Pass::Indirect)
+        .ok_or_else(|| anyhow::anyhow!("denoise: the frame has no indirect pass"))?;
+    let mut indirect = HdrImage {
+        width: image.width,
+        height: image.height,
+        pixels: noisy.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+    };
+    denoise(&mut indirect, Some(passes))?;
+    let before = image.clone();
+    for ((p, n), d) in image.pixels.iter_mut().zip(noisy.chunks_exact(3)).zip(&indirect.pixels) {
+        for c in 0..3 {
+            p[c] += d[c] - n[c];
+        }
+    }
+    Ok(before)
+}
+
 impl RenderedFrame {
     /// Denoises the whole assembled frame (no seams where strips meet),
     /// guided by its albedo and normal passes, and keeps the noisy image

@@ -43,9 +43,9 @@ pub(crate) enum Command {
     /// List a coordinator's workers.
     Workers(super::jobs::WorkersArgs),
     /// Cancel queued or running jobs.
-    Cancel(super::jobs::CancelArgs),
+    Cancel(super::jobs::JobIdsArgs),
     /// Run failed or cancelled jobs again, each as a new job.
-    Requeue(super::jobs::RequeueArgs),
+    Requeue(super::jobs::JobIdsArgs),
     /// Set a job's priority (higher runs first).
     Priority(super::jobs::PriorityArgs),
     /// Fetch a finished job's image.

@@ -58,23 +58,10 @@ pub struct WorkersArgs {
     pub json: bool,
 }
 
-/// `sylva cancel`: stops queued or running jobs.
+/// `sylva cancel` and `sylva requeue`: the jobs they act on.
 #[derive(Args, Debug)]
-pub struct CancelArgs {
+pub struct JobIdsArgs {
     /// Job ids.
-    #[arg(required = true)]
-    pub ids: Vec<String>,
-    #[command(flatten)]
-    pub at: CoordinatorArg,
-    /// Print JSON.
-    #[arg(long)]
-    pub json: bool,
-}
-
-/// `sylva requeue`: runs failed or cancelled jobs again, each as a new job.
-#[derive(Args, Debug)]
-pub struct RequeueArgs {
-    /// Ids of failed or cancelled jobs.
     #[arg(required = true)]
     pub ids: Vec<String>,
     #[command(flatten)]

@@ -21,8 +21,21 @@ pub(super) struct Candidate {
     /// differ by rays, grid or filter).
     pub(super) family: String,
     /// Denoised (Open Image Denoise, guided by albedo and normal, their
-    /// pass and the denoise timed with the frame).
-    pub(super) denoise: bool,
+    /// pass and the denoise timed with the frame), and what of it.
+    pub(super) denoise: Denoised,
+}
+
+/// What of a method's frame `compare` denoises.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Denoised {
+    /// Nothing: the frame as traced.
+    No,
+    /// The whole frame, as `--denoise` does it.
+    Frame,
+    /// Its indirect light alone (the light split's pass), the direct
+    /// light and the sky as traced: does the denoiser's bias come from
+    /// smoothing the direct light?
+    Indirect,
 }
 
 impl Candidate {
@@ -36,7 +49,7 @@ impl Candidate {
             gather_bounces: sylva_scene::frame::DEFAULT_GATHER_BOUNCES,
             gather_filter: 0,
             family: name.into(),
-            denoise: false,
+            denoise: Denoised::No,
         }
     }
 }
@@ -93,14 +106,18 @@ pub(super) fn methods_to_compare(
         }
         // The unfiltered gather denoised instead: where the denoiser pays
         // for its guides' pass and its own time (issue 40).
-        if bounces == 2 && sylva_denoise::available().is_ok() {
+        let denoised = [(Denoised::Frame, "denoise"), (Denoised::Indirect, "denoised indirect")];
+        for (what, words) in denoised {
+            if bounces != 2 || sylva_denoise::available().is_err() {
+                break;
+            }
             for &k in gather_rays {
-                let family = format!("gather {bounces}b + denoise");
+                let family = format!("gather {bounces}b + {words}");
                 methods.push(Candidate {
                     spp: Some(k),
                     gather_bounces: bounces,
                     family: family.clone(),
-                    denoise: true,
+                    denoise: what,
                     ..Candidate::new(
                         &format!("{family} {k} rays"),
                         LightingMode::Gather,
@@ -212,18 +229,16 @@ pub(super) fn render_method(
     say(&format!("{name}: rendering"));
     // One untimed strip first: the pipeline's first dispatch compiles it.
     frame.with_settings(RenderSettings { width: 8, height: 8, spp: 1, ..settings }).strip(0, 8)?;
-    if c.denoise {
+    if c.denoise != Denoised::No {
         // The guides' kernel too, and the denoiser's library loaded.
-        let guides = sylva_scene::passes::DENOISE_GUIDES;
+        let guides = guide_passes(c.denoise);
         let warm = RenderSettings { width: 8, height: 8, spp: 1, passes: guides, ..settings };
         frame.with_settings(warm).strip(0, 8)?;
         sylva_denoise::available()?;
     }
     let t = Instant::now();
     let (mut image, own_local) = render_whole(&frame)?;
-    if c.denoise {
-        denoise_whole(&frame, &mut image)?;
-    }
+    denoise_whole(&frame, &mut image, c.denoise)?;
     let frame_ms = ms(t);
     // The same frame with other seeds (untimed): with `local`'s second
     // render (or its own, below), the spread of the two tells the method's
@@ -231,9 +246,7 @@ pub(super) fn render_method(
     let other =
         frame.with_settings(RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings });
     let (mut again, own_local_again) = render_whole(&other)?;
-    if c.denoise {
-        denoise_whole(&other, &mut again)?;
-    }
+    denoise_whole(&other, &mut again, c.denoise)?;
     let file = out.dir.join(format!("{}.png", file_stem(name)));
     write_png(&file, f.width, f.height, &reinhard_like(&image, out.exposure))?;
     if out.hdr {
@@ -253,7 +266,11 @@ pub(super) fn render_method(
         "gather_filter": if settings.gather_filtered() { json!(settings.gather_filter) } else { serde_json::Value::Null },
         "gather_bounces": if sylva_worker::lighting::method(lighting).kernel == sylva_worker::lighting::Kernel::Reference { json!(settings.gather_bounces) } else { serde_json::Value::Null },
         "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
-        "denoised": c.denoise,
+        "denoised": match c.denoise {
+            Denoised::No => serde_json::Value::Null,
+            Denoised::Frame => json!("frame"),
+            Denoised::Indirect => json!("indirect"),
+        },
     });
     Ok(Rendered {
         report: MethodReport {
@@ -282,16 +299,34 @@ pub(super) fn render_whole(frame: &Frame) -> anyhow::Result<(HdrImage, Option<Hd
     crate::pilot::render_columns(frame, &frame.settings, &[(0, frame.settings.width)])
 }
 
-/// `image`, `frame` rendered whole, denoised in place: the guides (albedo,
-/// normal) rendered as the product renders them today, a pass of their
-/// own over the same camera samples, then Open Image Denoise.
-fn denoise_whole(frame: &Frame, image: &mut HdrImage) -> anyhow::Result<()> {
+/// The passes a denoise of `what` needs: the guides, and for the
+/// indirect light alone, the light split.
+fn guide_passes(what: Denoised) -> sylva_scene::passes::PassSet {
+    use sylva_scene::passes::{DENOISE_GUIDES, Pass, PassSet};
+    match what {
+        Denoised::Indirect => DENOISE_GUIDES.with(PassSet::of([Pass::Indirect])),
+        _ => DENOISE_GUIDES,
+    }
+}
+
+/// `image`, `frame` rendered whole, denoised in place as `what` says: the
+/// passes it needs rendered as the product renders them today, a pass of
+/// their own over the same camera samples, then Open Image Denoise.
+fn denoise_whole(frame: &Frame, image: &mut HdrImage, what: Denoised) -> anyhow::Result<()> {
+    if what == Denoised::No {
+        return Ok(());
+    }
     let s = frame.settings;
-    let guides =
-        frame.with_settings(RenderSettings { passes: sylva_scene::passes::DENOISE_GUIDES, ..s });
-    let strip = guides.strip(0, s.width)?;
+    let with_passes = frame.with_settings(RenderSettings { passes: guide_passes(what), ..s });
+    let strip = with_passes.strip(0, s.width)?;
     let passes = strip.passes.ok_or_else(|| anyhow::anyhow!("the guide pass came back empty"))?;
-    sylva_coordinator::executor::denoise(image, Some(&passes))?;
+    if what == Denoised::Indirect {
+        // The split adds up to this strip's own image: start from it.
+        image.pixels = strip.pixels;
+        sylva_coordinator::executor::denoise_indirect(image, &passes)?;
+    } else {
+        sylva_coordinator::executor::denoise(image, Some(&passes))?;
+    }
     Ok(())
 }
 
