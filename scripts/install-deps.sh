@@ -100,30 +100,7 @@ if ((tests)) && [ ! -f .tools/node_modules/gltf-validator/package.json ]; then
   npm install --silent --no-audit --no-fund --prefix .tools gltf-validator@2.0.0-dev.3.10 >&2
 fi
 
-# Intel Open Image Denoise 2.5 for `--denoise` (shared/denoise loads it at
-# run time): Debian has no package; PyPI's `pyoidn` wheel ships its shared
-# libraries. The wheel's digest is checked against the index's, and only
-# the library, its core, its CPU device and TBB are kept, in .tools/oidn/lib
-# (scripts/env.sh points SYLVA_OIDN_LIB there).
-oidn_version=2.5.1.0
+# Intel Open Image Denoise for `--denoise` (docs/denoising.md).
 if [ ! -f .tools/oidn/lib/libOpenImageDenoise.so.2 ] && command -v python3 >/dev/null 2>&1; then
-  echo "installing Open Image Denoise (pyoidn $oidn_version from PyPI)" >&2
-  python3 - "$oidn_version" <<'PY'
-import hashlib, io, json, os, sys, urllib.parse, urllib.request, zipfile
-version = sys.argv[1]
-index = "https://pypi.org/pypi/pyoidn/json"
-meta = json.load(urllib.request.urlopen(index))
-wheel = next(u for u in meta["releases"][version] if u["filename"].endswith("manylinux2014_x86_64.whl"))
-# (a mirror of the index may answer with addresses relative to it)
-data = urllib.request.urlopen(urllib.parse.urljoin(index, wheel["url"])).read()
-if hashlib.sha256(data).hexdigest() != wheel["digests"]["sha256"]:
-    sys.exit(f"{wheel['filename']}: its digest is not the index's")
-keep = ("libOpenImageDenoise.so", "libOpenImageDenoise_core.so", "libOpenImageDenoise_device_cpu.so", "libtbb.so")
-os.makedirs(".tools/oidn/lib", exist_ok=True)
-for name in zipfile.ZipFile(io.BytesIO(data)).namelist():
-    base = os.path.basename(name)
-    if name.startswith("pyoidn/oidn/lib/") and base.startswith(keep):
-        with open(os.path.join(".tools/oidn/lib", base), "wb") as f:
-            f.write(zipfile.ZipFile(io.BytesIO(data)).read(name))
-PY
+  bash scripts/fetch-oidn.sh .tools/oidn
 fi
