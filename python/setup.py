@@ -25,6 +25,7 @@ for installs without the package index.
 
 from __future__ import annotations
 
+import atexit
 import importlib.metadata
 import os
 import re
@@ -138,6 +139,7 @@ class BuildPy(build_py):
 # setuptools' scratch (build/, *.egg-info) outside the checkout: a build
 # leaves it as it was, and a read-only one builds.
 SCRATCH = Path(tempfile.mkdtemp(prefix="sylva-client-build-"))
+atexit.register(shutil.rmtree, SCRATCH, ignore_errors=True)
 
 setup(
     install_requires=requirements(),

@@ -100,6 +100,18 @@ async fn a_denoised_frame_is_nearer_the_converged_one_and_the_farm_gives_the_sam
     }
     assert_eq!(std::fs::read(&farm).unwrap(), std::fs::read(&here).unwrap(), "the PNGs");
 
+    // A coordinator that cannot denoise says so at submit, before any
+    // worker renders, and tells the client nothing of its own files.
+    let blind = spawn(
+        &["coordinator", "--listen", "127.0.0.1:0", "--workers", &w1.addr],
+        &[("SYLVA_OIDN_LIB", "/nonexistent/libOpenImageDenoise.so.2")],
+    );
+    let args = ["submit", scene, "--coordinator", &blind.addr, "-o", farm.to_str().unwrap()];
+    let out = sylva(&[&args[..], &frame, &["--spp", "1", "--denoise"]].concat(), &[]);
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && said.contains("cannot denoise"), "{said}");
+    assert!(!said.contains("/nonexistent"), "{said}");
+
     // Without the library: a clear error, and nothing written.
     let gone = dir.join("gone.png");
     let out = sylva(

@@ -251,6 +251,10 @@ async fn a_user_lists_reorders_cancels_and_fetches_jobs_from_the_command_line() 
     let listed = jobs(&addr);
     assert_eq!(job(&listed, &again)["state"], "done", "{listed:?}");
     assert_eq!(job(&listed, &q1)["state"], "cancelled");
+    // Once: a second requeue (a double click) makes no second job.
+    let out = sylva(&["requeue", &q1, "--coordinator", &addr], &[("SYLVA_USER", "alice")]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("requeued already"), "{err}");
     let out = sylva(&["requeue", &q2, "--coordinator", &addr], &[("SYLVA_USER", "alice")]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("only a failed or cancelled job"), "{err}");

@@ -201,6 +201,9 @@ fn status_response(s: tonic::Status) -> Response {
         tonic::Code::FailedPrecondition => StatusCode::CONFLICT,
         tonic::Code::PermissionDenied => StatusCode::FORBIDDEN,
         tonic::Code::Unauthenticated => StatusCode::UNAUTHORIZED,
+        tonic::Code::OutOfRange => StatusCode::NOT_FOUND,
+        tonic::Code::ResourceExhausted => StatusCode::INSUFFICIENT_STORAGE,
+        tonic::Code::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
         _ => StatusCode::INTERNAL_SERVER_ERROR,
     };
     (code, s.message().to_string()).into_response()

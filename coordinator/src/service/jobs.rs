@@ -35,6 +35,7 @@ impl CoordinatorService {
             .spec
             .ok_or_else(|| Status::invalid_argument("the first message must carry the job spec"))?;
         let (frame, schedule, views) = checked_spec(&spec)?;
+        can_denoise(&frame)?;
         // A job is acknowledged only once it is written: while the
         // database refuses writes, it is not taken at all.
         let problem = self.state.store_problem();
@@ -134,8 +135,8 @@ impl CoordinatorService {
         let who = caller(&self.state.access, &request)?;
         let old = job_id(&request.into_inner().id)?.to_string();
         let (spec, hash, submitter) = {
-            let jobs = lock(&self.state.jobs);
-            let j = jobs.get(&old).ok_or_else(|| Status::not_found(format!("no job {old}")))?;
+            let mut jobs = lock(&self.state.jobs);
+            let j = jobs.get_mut(&old).ok_or_else(|| Status::not_found(format!("no job {old}")))?;
             owner(&who, &old, &j.summary.submitter)?;
             if !j.state.requeueable() {
                 return Err(Status::failed_precondition(format!(
@@ -143,13 +144,43 @@ impl CoordinatorService {
                     j.state
                 )));
             }
+            if j.requeued {
+                return Err(Status::failed_precondition(format!("job {old} was requeued already")));
+            }
+            if !j.kept {
+                return Err(Status::failed_precondition(format!(
+                    "job {old}'s scene is no longer kept here (only a submitter's latest {} failed or cancelled jobs keep theirs): submit it again",
+                    super::KEPT_FOR_REQUEUE
+                )));
+            }
+            // Taken now, under the lock: a second call meanwhile is refused.
+            j.requeued = true;
             (j.spec.clone(), j.bundle_hash.clone(), j.summary.submitter.clone())
         };
+        let taken = self.requeue_as(&who, &old, spec, hash, submitter).await;
+        if taken.is_err()
+            && let Some(j) = lock(&self.state.jobs).get_mut(&old)
+        {
+            j.requeued = false;
+        }
+        Ok(Response::new(pb::JobId { id: taken? }))
+    }
+
+    /// The new job of a requeue of `old`: checked, written and queued.
+    async fn requeue_as(
+        &self,
+        who: &Caller,
+        old: &str,
+        spec: pb::JobSpec,
+        hash: String,
+        submitter: String,
+    ) -> Result<String, Status> {
         let problem = self.state.store_problem();
         if !problem.is_empty() {
             return Err(Status::unavailable(problem));
         }
         let (frame, schedule, views) = checked_spec(&spec)?;
+        can_denoise(&frame)?;
         if !self.state.bundle_path(&hash).is_file() {
             return Err(Status::failed_precondition(format!(
                 "job {old}'s scene is no longer kept here: submit it again"
@@ -159,8 +190,7 @@ impl CoordinatorService {
         let seq = self.state.store.next_seq().await.map_err(internal_error)?;
         let id = format!("job-{}-{seq}", self.state.prefix);
         let job = Job::queued(seq, id, spec, (frame, schedule, views), hash, submitter, reserved);
-        let id = self.enqueue(job, &who.user, "requeue", &format!("runs {old} again")).await?;
-        Ok(Response::new(pb::JobId { id }))
+        self.enqueue(job, &who.user, "requeue", &format!("runs {old} again")).await
     }
 
     pub(super) async fn watch(
@@ -546,6 +576,8 @@ pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Jo
             first_strip: None,
             reserved: row.result_bytes,
             stats_json: row.stats_json.clone(),
+            kept: true,
+            requeued: false,
         };
         if Some(state) != row.state || job.summary.error != row.error {
             store.set_state(&job.row()).await?;
@@ -553,6 +585,22 @@ pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Jo
         out.insert(row.id, job);
     }
     Ok(out)
+}
+
+/// FAILED_PRECONDITION where `frame` asks to be denoised and this
+/// coordinator, which denoises the frames it assembles, cannot: said before
+/// the workers render anything. Why it cannot (a path, the loader's words)
+/// is for the coordinator's log, not the client.
+fn can_denoise(frame: &FrameSettings) -> Result<(), Status> {
+    if !frame.denoise {
+        return Ok(());
+    }
+    sylva_denoise::available().map_err(|e| {
+        tracing::warn!("a job asks to be denoised: {e}");
+        Status::failed_precondition(
+            "this coordinator cannot denoise: Open Image Denoise is not installed where it runs (its operator: scripts/fetch-oidn.sh and SYLVA_OIDN_LIB)",
+        )
+    })
 }
 
 /// PERMISSION_DENIED unless `who` may act on job `id`, which `submitter`

@@ -162,7 +162,17 @@ struct Job {
     /// Its figures once done: a watcher that comes after the end hears
     /// them in its first event.
     stats_json: String,
+    /// Whether its bundle is kept for a requeue once it failed or was
+    /// cancelled (only a submitter's latest [`KEPT_FOR_REQUEUE`] are).
+    kept: bool,
+    /// Whether it was requeued already (once is enough: a second click
+    /// makes no second job).
+    requeued: bool,
 }
+
+/// Failed or cancelled jobs per submitter whose bundles are kept for a
+/// requeue: a submitter who submits and cancels in a loop fills no disk.
+pub const KEPT_FOR_REQUEUE: usize = 4;
 
 impl Job {
     /// A job just taken, waiting for a slot: `id` and `seq` from the
@@ -204,6 +214,8 @@ impl Job {
             first_strip: None,
             reserved,
             stats_json: String::new(),
+            kept: true,
+            requeued: false,
         }
     }
 
@@ -646,15 +658,40 @@ impl State {
             tracing::warn!(%id, "the job's end is not written yet: {e:#}");
             self.owe_row(id);
         }
-        self.release_bundle(&hash);
+        // A submitter's older failed or cancelled jobs give up their
+        // bundles for a requeue: only the latest few are kept.
+        let dropped: Vec<String> = {
+            let mut jobs = lock(&self.jobs);
+            let who = jobs.get(id).map(|j| j.summary.submitter.clone()).unwrap_or_default();
+            let mut kept: Vec<(Instant, String)> = jobs
+                .iter()
+                .filter(|(_, j)| j.state.requeueable() && j.kept && j.summary.submitter == who)
+                .map(|(k, j)| (j.finished.unwrap_or_else(Instant::now), k.clone()))
+                .collect();
+            kept.sort_by_key(|k| std::cmp::Reverse(k.0));
+            kept.iter()
+                .skip(KEPT_FOR_REQUEUE)
+                .filter_map(|(_, k)| {
+                    let j = jobs.get_mut(k)?;
+                    j.kept = false;
+                    Some(j.bundle_hash.clone())
+                })
+                .collect()
+        };
+        for h in dropped.iter().chain([&hash]) {
+            self.release_bundle(h);
+        }
     }
 
     /// Deletes a scene bundle that no job listed may run: none waiting or
-    /// running, and none failed or cancelled (which may be requeued).
+    /// running, and none failed or cancelled whose bundle is kept for a
+    /// requeue. Decided and deleted under the jobs' lock, so a job that
+    /// takes the bundle meanwhile is seen.
     fn release_bundle(&self, hash: &str) {
-        let needed = lock(&self.jobs)
-            .values()
-            .any(|j| j.bundle_hash == hash && (!j.state.ended() || j.state.requeueable()));
+        let jobs = lock(&self.jobs);
+        let needed = jobs.values().any(|j| {
+            j.bundle_hash == hash && (!j.state.ended() || (j.state.requeueable() && j.kept))
+        });
         if !needed {
             let _ = std::fs::remove_file(self.bundle_path(hash));
         }

@@ -304,6 +304,7 @@ impl State {
                                 strips_done: j.summary.strips_done,
                                 strips_total: j.summary.strips_total,
                                 frame: frame as u32,
+                                eta_ms: j.summary.eta_ms,
                                 ..Default::default()
                             }
                         })
