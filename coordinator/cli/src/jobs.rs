@@ -76,6 +76,7 @@ fn now_ms() -> u64 {
 /// in names (control, bidirectional formatting) written as `\u{…}`, since
 /// a worker's error text or an older coordinator's job name may hold them.
 use sylva_scene::sandbox::escaped;
+use unicode_width::{UnicodeWidthChar, UnicodeWidthStr};
 
 /// Left-aligned columns, two spaces apart, the header first; every cell
 /// [`escaped`].
@@ -83,14 +84,19 @@ pub(crate) fn table(header: &[&str], rows: &[Vec<String>]) -> String {
     let rows: Vec<Vec<String>> =
         rows.iter().map(|r| r.iter().map(|c| escaped(c)).collect()).collect();
     let rows = &rows;
-    let mut width: Vec<usize> = header.iter().map(|h| h.chars().count()).collect();
+    // Columns on a terminal: a CJK character or an emoji takes two.
+    let mut width: Vec<usize> = header.iter().map(|h| h.width()).collect();
     for r in rows {
         for (w, c) in width.iter_mut().zip(r) {
-            *w = (*w).max(c.chars().count());
+            *w = (*w).max(c.width());
         }
     }
     let line = |cells: Vec<String>| {
-        let mut s: String = cells.iter().zip(&width).map(|(c, w)| format!("{c:<w$}  ")).collect();
+        let mut s: String = cells
+            .iter()
+            .zip(&width)
+            .map(|(c, w)| format!("{c}{}  ", " ".repeat(w - c.width())))
+            .collect();
         s.truncate(s.trim_end().len());
         s + "\n"
     };
@@ -189,12 +195,22 @@ fn job_table(rows: &[JobRow]) -> String {
     out
 }
 
-/// `line` cut to `width` characters, an ellipsis marking the cut.
+/// `line` cut to `width` terminal columns, an ellipsis marking the cut.
 fn fit(line: &str, width: usize) -> String {
-    match line.char_indices().nth(width.saturating_sub(1)) {
-        Some((i, _)) if line.chars().count() > width => format!("{}…", &line[..i]),
-        _ => line.to_string(),
+    if line.width() <= width {
+        return line.to_string();
     }
+    let mut out = String::new();
+    let mut used = 0;
+    for c in line.chars() {
+        let w = c.width().unwrap_or(0);
+        if used + w > width.saturating_sub(1) {
+            break;
+        }
+        out.push(c);
+        used += w;
+    }
+    out + "…"
 }
 
 /// Runs `sylva jobs`.
@@ -510,7 +526,12 @@ mod tests {
         let rows = [JobRow::of(running, 10_000), JobRow::of(failed, 10_000)];
         let t = job_table(&rows);
         for line in t.lines() {
-            assert!(line.chars().count() <= COLUMNS, "{} chars: {line}", line.chars().count());
+            assert!(line.width() <= COLUMNS, "{} columns: {line}", line.width());
+        }
+        // A name in characters two columns wide each fits too.
+        let wide = pb::JobSummary { name: "森の光".repeat(20), ..Default::default() };
+        for line in job_table(&[JobRow::of(wide, 0)]).lines() {
+            assert!(line.width() <= COLUMNS, "{} columns: {line}", line.width());
         }
         let lines: Vec<&str> = t.lines().collect();
         assert_eq!(lines.len(), 5, "{t}");
