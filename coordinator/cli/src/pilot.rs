@@ -374,7 +374,19 @@ pub fn render_columns(
     f: &RenderSettings,
     columns: &[(u32, u32)],
 ) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
+    render_columns_with_passes(frame, f, columns).map(|(image, own, _)| (image, own))
+}
+
+/// [`render_columns`], and the passes `f` asks for, rendered with the
+/// image in the same strips.
+pub fn render_columns_with_passes(
+    frame: &Frame,
+    f: &RenderSettings,
+    columns: &[(u32, u32)],
+) -> anyhow::Result<(HdrImage, Option<HdrImage>, Option<sylva_scene::passes::PassImage>)> {
     let width: u32 = columns.iter().map(|(x0, x1)| x1 - x0).sum();
+    let mut passes = (!f.passes.is_empty())
+        .then(|| sylva_scene::passes::PassImage::new(width, f.height, f.passes));
     let blank = || HdrImage {
         width,
         height: f.height,
@@ -386,6 +398,9 @@ pub fn render_columns(
     for &(x0, x1) in columns {
         let s = frame.strip(x0, x1)?;
         per_sample = !s.first_light.is_empty();
+        if let (Some(all), Some(p)) = (passes.as_mut(), &s.passes) {
+            all.paste_strip(out, p)?;
+        }
         for (k, p) in s.pixels.iter().enumerate() {
             let i = (k as u32 / s.width * width + out + k as u32 % s.width) as usize;
             image.pixels[i] = *p;
@@ -395,7 +410,7 @@ pub fn render_columns(
         }
         out += x1 - x0;
     }
-    Ok((image, per_sample.then_some(own)))
+    Ok((image, per_sample.then_some(own), passes))
 }
 
 /// A sampled family's error against rays per pixel, fitted to its two

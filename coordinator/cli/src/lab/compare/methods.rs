@@ -220,6 +220,8 @@ pub(super) fn render_method(
         spp: f.spp,
         gather_bounces: f.gather_bounces,
         gather_filter: f.gather_filter,
+        // A denoised method renders what its denoise needs with its image.
+        passes: if c.denoise == Denoised::No { base.passes } else { guide_passes(c.denoise) },
         ..*base
     };
     let frame = Frame::compose(ctx, scene, &request, &mut Given(p.prepared.clone()), say)?;
@@ -230,23 +232,20 @@ pub(super) fn render_method(
     // One untimed strip first: the pipeline's first dispatch compiles it.
     frame.with_settings(RenderSettings { width: 8, height: 8, spp: 1, ..settings }).strip(0, 8)?;
     if c.denoise != Denoised::No {
-        // The guides' kernel too, and the denoiser's library loaded.
-        let guides = guide_passes(c.denoise);
-        let warm = RenderSettings { width: 8, height: 8, spp: 1, passes: guides, ..settings };
-        frame.with_settings(warm).strip(0, 8)?;
+        // The denoiser's library loaded, untimed too.
         sylva_denoise::available()?;
     }
     let t = Instant::now();
-    let (mut image, own_local) = render_whole(&frame)?;
-    denoise_whole(&frame, &mut image, c.denoise)?;
+    let (mut image, own_local, passes) = render_whole(&frame)?;
+    denoise_whole(&mut image, passes.as_ref(), c.denoise)?;
     let frame_ms = ms(t);
     // The same frame with other seeds (untimed): with `local`'s second
     // render (or its own, below), the spread of the two tells the method's
     // own sampling noise.
     let other =
         frame.with_settings(RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings });
-    let (mut again, own_local_again) = render_whole(&other)?;
-    denoise_whole(&other, &mut again, c.denoise)?;
+    let (mut again, own_local_again, passes) = render_whole(&other)?;
+    denoise_whole(&mut again, passes.as_ref(), c.denoise)?;
     let file = out.dir.join(format!("{}.png", file_stem(name)));
     write_png(&file, f.width, f.height, &reinhard_like(&image, out.exposure))?;
     if out.hdr {
@@ -295,8 +294,10 @@ pub(super) fn render_method(
 
 /// The whole frame as one strip: the image and, from the per-sample
 /// kernels (the gathers), what `local` shows along the same camera samples.
-pub(super) fn render_whole(frame: &Frame) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
-    crate::pilot::render_columns(frame, &frame.settings, &[(0, frame.settings.width)])
+pub(super) fn render_whole(
+    frame: &Frame,
+) -> anyhow::Result<(HdrImage, Option<HdrImage>, Option<sylva_scene::passes::PassImage>)> {
+    crate::pilot::render_columns_with_passes(frame, &frame.settings, &[(0, frame.settings.width)])
 }
 
 /// The passes a denoise of `what` needs: the guides, and for the
@@ -309,23 +310,22 @@ fn guide_passes(what: Denoised) -> sylva_scene::passes::PassSet {
     }
 }
 
-/// `image`, `frame` rendered whole, denoised in place as `what` says: the
-/// passes it needs rendered as the product renders them today, a pass of
-/// their own over the same camera samples, then Open Image Denoise.
-fn denoise_whole(frame: &Frame, image: &mut HdrImage, what: Denoised) -> anyhow::Result<()> {
-    if what == Denoised::No {
-        return Ok(());
-    }
-    let s = frame.settings;
-    let with_passes = frame.with_settings(RenderSettings { passes: guide_passes(what), ..s });
-    let strip = with_passes.strip(0, s.width)?;
-    let passes = strip.passes.ok_or_else(|| anyhow::anyhow!("the guide pass came back empty"))?;
-    if what == Denoised::Indirect {
-        // The split adds up to this strip's own image: start from it.
-        image.pixels = strip.pixels;
-        sylva_coordinator::executor::denoise_indirect(image, &passes)?;
-    } else {
-        sylva_coordinator::executor::denoise(image, Some(&passes))?;
+/// `image` denoised in place as `what` says, with `passes`, which the
+/// frame rendered beside it in the same strips (as the product does).
+fn denoise_whole(
+    image: &mut HdrImage,
+    passes: Option<&sylva_scene::passes::PassImage>,
+    what: Denoised,
+) -> anyhow::Result<()> {
+    match what {
+        Denoised::No => {}
+        Denoised::Frame => {
+            sylva_coordinator::executor::denoise(image, passes)?;
+        }
+        Denoised::Indirect => {
+            let p = passes.ok_or_else(|| anyhow::anyhow!("the frame has no light split"))?;
+            sylva_coordinator::executor::denoise_indirect(image, p)?;
+        }
     }
     Ok(())
 }
