@@ -56,7 +56,7 @@ async fn a_denoised_frame_is_nearer_the_converged_one_and_the_farm_gives_the_sam
     ok(&[&args[..], &frame, &["--spp", "2", "--denoise"]].concat());
     let converged = dir.join("converged.png");
     let args = ["render", scene, "--local-workers", "0", "-o", converged.to_str().unwrap()];
-    ok(&[&args[..], &frame, &["--spp", "64", "--exr"]].concat());
+    ok(&[&args[..], &frame, &["--spp", "64", "--exr", "--passes", "indirect"]].concat());
 
     let denoised = layers(&here.with_extension("exr"));
     let truth = layers(&converged.with_extension("exr")).beauty().unwrap();
@@ -99,6 +99,36 @@ async fn a_denoised_frame_is_nearer_the_converged_one_and_the_farm_gives_the_sam
         );
     }
     assert_eq!(std::fs::read(&farm).unwrap(), std::fs::read(&here).unwrap(), "the PNGs");
+
+    // The indirect light alone denoised (`--denoise=indirect`): its
+    // indirect light nearer the converged frame's, the direct light and
+    // the sky as traced, and the farm's frame the same to the bit.
+    let alone = dir.join("alone.png");
+    let args = ["render", scene, "--local-workers", "0", "-o", alone.to_str().unwrap()];
+    ok(&[&args[..], &frame, &["--spp", "2", "--denoise=indirect"]].concat());
+    let alone_layers = layers(&alone.with_extension("exr"));
+    let (noisy, clean) = (rgb(&alone_layers, NOISY_LAYER), rgb(&alone_layers, "Combined"));
+    let traced = rgb(&alone_layers, "Indirect");
+    // Combined = noisy − traced indirect + denoised indirect.
+    let smooth: Vec<f64> =
+        clean.iter().zip(&noisy).zip(&traced).map(|((c, n), t)| c - n + t).collect();
+    let truth = rgb(&layers(&converged.with_extension("exr")), "Indirect");
+    let (before, after) = (error(&traced, &truth), error(&smooth, &truth));
+    assert!(
+        after < 0.8 * before,
+        "indirect error against 64 rays a pixel: noisy {before:.4}, denoised {after:.4}"
+    );
+    let farm_alone = dir.join("farm-alone.png");
+    let args = ["submit", scene, "--coordinator", &coord.addr, "-o", farm_alone.to_str().unwrap()];
+    ok(&[&args[..], &frame, &["--spp", "2", "--denoise=indirect"]].concat());
+    let from_farm = layers(&farm_alone.with_extension("exr"));
+    for (name, values) in &alone_layers.channels {
+        let theirs = from_farm.channel(name).unwrap();
+        assert!(
+            values.iter().zip(theirs).all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{name} differs from the farm's"
+        );
+    }
 
     // A coordinator that cannot denoise says so at submit, before any
     // worker renders, and tells the client nothing of its own files.

@@ -442,6 +442,8 @@ fn compare_lists_every_method_with_its_time_and_error() {
             "gather 2b + denoise 2 rays",
             "gather 2b + denoised indirect 2 rays",
             "gather-ambient 2b r3 2 rays",
+            "path tracer + denoise 2 spp",
+            "path tracer + denoised indirect 2 spp",
             "lb auto",
             "reference"
         ]
@@ -462,7 +464,7 @@ fn compare_lists_every_method_with_its_time_and_error() {
     }
     assert!(v["reference"]["converged"].as_bool().unwrap(), "{}", v["reference"]);
     // The grid choice says what it chose and why.
-    let choice = &methods[15]["notes"]["grid_choice"][0];
+    let choice = &methods[17]["notes"]["grid_choice"][0];
     assert!(
         [8, 12].contains(&choice["grid"].as_u64().unwrap())
             && !choice["reason"].as_str().unwrap().is_empty(),

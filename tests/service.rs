@@ -312,7 +312,7 @@ async fn submit_raw(
             gather_bounces: 0,
             gather_filter: None,
             passes: vec![],
-            denoise: false,
+            denoise: 0,
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,

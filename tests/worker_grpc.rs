@@ -90,7 +90,7 @@ fn frame() -> pb::FrameSettings {
         gather_bounces: 0,
         gather_filter: None,
         passes: vec![],
-        denoise: false,
+        denoise: 0,
     }
 }
 

@@ -6,7 +6,7 @@
 use crate::pb;
 use sylva_scene::LightingMode;
 use sylva_scene::format::CameraSpec;
-use sylva_scene::frame::{Backend, FrameSettings, ScheduleKind};
+use sylva_scene::frame::{Backend, Denoise, FrameSettings, ScheduleKind};
 use sylva_scene::passes::{Pass, PassSet};
 use sylva_scene::sequence::View;
 use tonic::Status;
@@ -121,7 +121,17 @@ impl TryFrom<&pb::FrameSettings> for FrameSettings {
             },
             gather_filter: f.gather_filter.unwrap_or(sylva_scene::frame::DEFAULT_GATHER_FILTER),
             passes: passes_from_wire(&f.passes)?,
-            denoise: f.denoise,
+            denoise: match pb::Denoise::try_from(f.denoise) {
+                Ok(pb::Denoise::Off) => Denoise::Off,
+                Ok(pb::Denoise::Frame) => Denoise::Frame,
+                Ok(pb::Denoise::Indirect) => Denoise::Indirect,
+                Err(_) => {
+                    return Err(Status::invalid_argument(format!(
+                        "denoise {}: one of off, frame, indirect",
+                        f.denoise
+                    )));
+                }
+            },
         };
         frame.check().map_err(|e| Status::invalid_argument(e.to_string()))?;
         Ok(frame)
@@ -143,7 +153,12 @@ impl From<&FrameSettings> for pb::FrameSettings {
             gather_bounces: f.gather_bounces,
             gather_filter: Some(f.gather_filter),
             passes: passes_to_wire(f.passes),
-            denoise: f.denoise,
+            denoise: match f.denoise {
+                Denoise::Off => pb::Denoise::Off,
+                Denoise::Frame => pb::Denoise::Frame,
+                Denoise::Indirect => pb::Denoise::Indirect,
+            }
+            .into(),
         }
     }
 }

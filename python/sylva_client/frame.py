@@ -65,6 +65,15 @@ PASSES: tuple[str, ...] = (
     "sky",
 )
 
+#: What of a frame `denoise` may name, and the passes each reads (the
+#: CLI's `--denoise`): the guides, and for the indirect light alone the
+#: light split.
+DENOISE_PASSES: dict[str, tuple[str, ...]] = {
+    "off": (),
+    "frame": ("albedo", "normal"),
+    "indirect": ("albedo", "normal", "indirect"),
+}
+
 #: How a frame is cut into strips, by the names `--schedule` takes.
 SCHEDULES: dict[str, _cpb.Schedule] = {
     "dynamic": _cpb.SCHEDULE_DYNAMIC,
@@ -106,6 +115,16 @@ def pass_set(passes: str | Sequence[str] | None) -> list[str]:
     if wanted & {"direct", "indirect", "sky"}:
         wanted |= {"direct", "indirect", "sky"}
     return [p for p in PASSES if p in wanted]
+
+
+def _denoise(v: bool | str) -> str:
+    """The name `denoise` means: a bool (True: the whole frame) or one of
+    `DENOISE_PASSES`'s names."""
+    if isinstance(v, bool):
+        return "frame" if v else "off"
+    if not isinstance(v, str):
+        raise ValueError(f"denoise {v!r}: True, False or one of {', '.join(DENOISE_PASSES)}")
+    return _name(v, list(DENOISE_PASSES), "denoise")
 
 
 def _three(v: Sequence[float] | None, what: str) -> list[float] | None:
@@ -187,9 +206,11 @@ class Frame:
     #: Render passes beside the beauty image.
     passes: str | Sequence[str] = field(default_factory=list)
     #: Denoise the frame (Open Image Denoise on the coordinator), guided by
-    #: the albedo and normal passes, which it adds; the EXR keeps the noisy
-    #: image as its "Noisy Image" layer.
-    denoise: bool = False
+    #: the albedo and normal passes, which it adds: ``True`` or ``"frame"``
+    #: the whole frame, ``"indirect"`` its indirect light alone (and the
+    #: light split, which that reads). The EXR keeps the noisy image as its
+    #: "Noisy Image" layer.
+    denoise: bool | str = False
 
     def check(self) -> None:
         """Raises ValueError, with the CLI's words, for a frame the farm
@@ -227,6 +248,7 @@ class Frame:
             _name(self.lighting, list(LIGHTINGS), "lighting")
         _name(self.accel, list(ACCELS), "accel")
         pass_set(self.passes)
+        _denoise(self.denoise)
 
     def to_proto(self) -> _wpb.FrameSettings:
         """The wire's `FrameSettings` (checked first)."""
@@ -245,9 +267,10 @@ class Frame:
             gather_filter=self.gather_filter,
         )
         passes = pass_set(self.passes)
-        if self.denoise:
-            passes = pass_set([*passes, "albedo", "normal"])
-            f.denoise = True
+        denoise = _denoise(self.denoise)
+        if denoise != "off":
+            passes = pass_set([*passes, *DENOISE_PASSES[denoise]])
+            f.denoise = _wpb.Denoise.Value(f"DENOISE_{denoise.upper()}")
         if passes:
             # An older proto without passes cannot ask for them.
             if "passes" not in _wpb.FrameSettings.DESCRIPTOR.fields_by_name:

@@ -26,6 +26,7 @@ from sylva_client import (
     JobState,
     SylvaError,
 )
+from sylva_client._pb.sylva.v1 import worker_pb2 as wpb
 
 EXR_MAGIC = b"\x76\x2f\x31\x01"
 
@@ -244,6 +245,15 @@ def test_bad_frames_and_scenes_are_refused_with_their_reasons(farm: Farm, tmp_pa
             c.submit(scene, Frame(accel="warp"))
         with pytest.raises(ValueError, match="pass 'fog'"):
             c.submit(scene, Frame(passes="albedo,fog"))
+        with pytest.raises(ValueError, match="denoise 'sky'"):
+            c.submit(scene, Frame(denoise="sky"))
+    # What a denoise reads goes with it, as the CLI adds it.
+    f = Frame(denoise="indirect").to_proto()
+    assert f.denoise == wpb.DENOISE_INDIRECT
+    assert {wpb.Pass.Name(p) for p in f.passes} >= {"PASS_ALBEDO", "PASS_NORMAL", "PASS_INDIRECT"}
+    assert Frame(denoise=True).to_proto().denoise == wpb.DENOISE_FRAME
+    assert Frame().to_proto().denoise == wpb.DENOISE_OFF
+    with farm.client() as c:
         # A scene the coordinator refuses: its reason, with the code.
         bad = tmp_path / "bad.json"
         bad.write_text(scene.read_text().replace('"lighting"', '"lightning"'))

@@ -202,7 +202,10 @@ fn seed_path(x: u32, y: u32, s: u32) {
 // One path per invocation: on lavapipe (Mesa 22.3) a loop over samples
 // around the loop over bounces silently dropped samples of lanes whose paths
 // ended early (up to 20 % of the samples of a forest frame).
-fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 5> {
+//
+// With PASSES, three more images: the camera ray's guides (`guides` in
+// render.wgsl), from the first surface the path meets anyway.
+fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 8> {
     var depth = 0u;
     var ray = camera_ray(x, y, s);
     seed_path(x, y, s);
@@ -218,12 +221,16 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 5> {
     // The passes' split of the first event (docs/passes.md): the sun's
     // light off a first surface, or the sky seen directly (w = 1).
     var first_split = vec4<f32>(0.0);
+    var first_guides = array<vec4<f32>, 3>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
     var alive = true;
     loop {
         if !alive || depth > frame.max_bounces {
             break;
         }
         let surf = first_surface(ray);
+        if PASSES && depth == 0u {
+            first_guides = guides(ray, surf);
+        }
         var hit = vec2<f32>(-1.0, 0.0);
         if HAS_CLOUDS {
             hit = cloud_collision(ray, surf.t);
@@ -329,5 +336,5 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 5> {
     // (divided by the few leaf samples' albedo) it whitened the crowns
     // in front of a cloud.
     let surface_indirect = select(vec3<f32>(0.0), light - first_light, first_surface_hit > 0.0);
-    return array<vec4<f32>, 5>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit), vec4<f32>(surface_indirect, 0.0), first_split);
+    return array<vec4<f32>, 8>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit), vec4<f32>(surface_indirect, 0.0), first_split, first_guides[0], first_guides[1], first_guides[2]);
 }

@@ -88,10 +88,12 @@ override LIGHTING_FAMILY: u32 = 0u;
 // code at all (on lavapipe the reference's unused cloud loops, merely
 // present, made some primary rays miss geometry; see docs/lighting.md).
 override HAS_CLOUDS: bool = false;
-// Whether the kernel writes the light split (direct, indirect, sky) beside
-// the image (docs/passes.md): a pipeline of its own, compiled on the first
-// frame that asks, so frames without passes carry none of it.
-override SPLIT: bool = false;
+// Whether the kernel writes the passes beside the image (docs/passes.md):
+// the light split (direct, indirect, sky) and the guides (albedo, normal,
+// depth, ids) of the frame's own camera rays, so no pass traces them
+// again. A pipeline of its own, compiled on the first frame that asks, so
+// frames without passes carry none of it.
+override PASSES: bool = false;
 
 // PCG hash (Jarzynski & Olano 2020); shared/scene/src/sampler.rs mirrors it.
 fn pcg(v: u32) -> u32 {
@@ -360,8 +362,8 @@ fn light_total(l: Light) -> vec3<f32> {
 }
 
 // Radiance along one primary ray, clouds included.
-fn radiance(ray: Ray) -> Light {
-    return through_clouds(ray, surface_radiance(ray));
+fn radiance(ray: Ray, surf: SurfacePoint) -> Light {
+    return through_clouds(ray, surface_radiance(ray, surf));
 }
 
 const KIND_LEAF: u32 = 0u;
@@ -426,9 +428,8 @@ fn leaf_coefficients(albedo: vec3<f32>) -> array<vec3<f32>, 4> {
     return array<vec3<f32>, 4>(rf / front, rb / back, tf / front, tb / back);
 }
 
-// The light of the first surface (or the sky) along a primary ray.
-fn surface_radiance(ray: Ray) -> Light {
-    let s = first_surface(ray);
+// The light of the first surface `s` (or the sky) along a primary ray.
+fn surface_radiance(ray: Ray, s: SurfacePoint) -> Light {
     let none = vec3<f32>(0.0);
     if s.kind == KIND_SKY {
         return Light(none, 0.0, none, 3.0e38, sky(ray.dir));
@@ -459,6 +460,25 @@ fn surface_radiance(ray: Ray) -> Light {
         indirect = diffuse_albedo(s, n) * frame.ambient;
     }
     return Light(direct, 1.0, indirect, s.t, none);
+}
+
+// A camera ray's guide images (docs/passes.md): (albedo, depth),
+// (normal, 0), (instance + 1, model + 1, 0, 0). The albedo and normal are
+// the first surface's, its normal turned to the camera, and zero for the
+// sky; the depth is along the camera's axis (1e10 for the sky); the ids
+// are 0 for the ground and the sky. The frame's kernels write them from
+// the camera rays they trace anyway.
+fn guides(ray: Ray, surf: SurfacePoint) -> array<vec4<f32>, 3> {
+    if surf.kind == KIND_SKY {
+        return array<vec4<f32>, 3>(vec4<f32>(0.0, 0.0, 0.0, 1.0e10), vec4<f32>(0.0), vec4<f32>(0.0));
+    }
+    let n = select(surf.n, -surf.n, dot(surf.n, ray.dir) > 0.0);
+    let depth = dot(surf.p - frame.cam_position, frame.cam_forward);
+    var ids = vec2<f32>(0.0);
+    if surf.kind != KIND_GROUND {
+        ids = vec2<f32>(f32(surf.instance + 1u), f32(instances[surf.instance].model + 1u));
+    }
+    return array<vec4<f32>, 3>(vec4<f32>(diffuse_albedo(surf, n), depth), vec4<f32>(n, 0.0), vec4<f32>(ids, 0.0, 0.0));
 }
 
 // Camera ray of sample `s` of pixel (x, y). One sample sits at the pixel
@@ -502,8 +522,9 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         // whose first event is a surface (reference.wgsl).
         let r = reference_sample(x, y, frame.sample_base + gid.z);
         let slots = frame.strip_width * frame.height;
-        // The fifth image, the first event's split, only for passes.
-        for (var k = 0u; k < select(4u, 5u, SPLIT); k++) {
+        // Four more images only for passes: the first event's split and
+        // the camera ray's three guide images.
+        for (var k = 0u; k < select(4u, 8u, PASSES); k++) {
             out_pixels[pixel + (k * frame.batch_spp + gid.z) * slots] = r[k];
         }
         atomicAdd(&counters.transparent, transparent_passed);
@@ -514,69 +535,41 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         var direct = vec3<f32>(0.0);
         var indirect = vec3<f32>(0.0);
         var sky_seen = vec3<f32>(0.0);
+        // The guides: albedo and normal summed over the samples (the
+        // worker divides), depth and ids of sample 0.
+        var guide_sum = array<vec4<f32>, 3>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
         for (var s = 0u; s < frame.spp; s++) {
-            let l = radiance(camera_ray(x, y, s));
+            let ray = camera_ray(x, y, s);
+            let surf = first_surface(ray);
+            let l = radiance(ray, surf);
             sum += vec4<f32>(light_total(l), l.hit);
-            if SPLIT {
+            if PASSES {
                 direct += l.direct;
                 indirect += l.indirect;
                 sky_seen += l.sky;
+                let g = guides(ray, surf);
+                if s == 0u {
+                    guide_sum = g;
+                } else {
+                    guide_sum[0] += vec4<f32>(g[0].xyz, 0.0);
+                    guide_sum[1] += g[1];
+                }
             }
         }
         // Box filter: the mean of the samples; alpha is the fraction that hit a model.
         let spp = f32(frame.spp);
         out_pixels[pixel] = sum / spp;
-        if SPLIT {
+        if PASSES {
             let slots = frame.strip_width * frame.height;
             out_pixels[pixel + slots] = vec4<f32>(direct / spp, 0.0);
             out_pixels[pixel + 2u * slots] = vec4<f32>(indirect / spp, 0.0);
             out_pixels[pixel + 3u * slots] = vec4<f32>(sky_seen / spp, 0.0);
+            for (var k = 0u; k < 3u; k++) {
+                out_pixels[pixel + (4u + k) * slots] = guide_sum[k];
+            }
         }
     }
     // One atomic per invocation, outside the loops.
     atomicAdd(&counters.transparent, transparent_passed);
     atomicAdd(&counters.primary, frame.spp);
-}
-
-// The guide passes of the strip's pixels (docs/passes.md), for any lighting
-// method: the albedo and camera-facing normal of the first surface summed
-// over the pixel's camera rays (the image's own) sample_base to
-// sample_base + batch_spp (the worker sums the batches and divides), and
-// the depth along the camera's axis, instance and model of sample 0. Three
-// images of `strip_width × height`: (albedo, depth), (normal, 0),
-// (instance + 1, model + 1, 0, 0); 0 ids for the ground and the sky.
-@compute @workgroup_size(8, 8)
-fn render_guides(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    trace_lane = li;
-    if gid.x >= frame.strip_width || gid.y >= frame.height {
-        return;
-    }
-    let x = frame.x0 + gid.x;
-    let y = gid.y;
-    var albedo = vec3<f32>(0.0);
-    var normal = vec3<f32>(0.0);
-    var depth = 1.0e10;
-    var ids = vec2<f32>(0.0);
-    let end = min(frame.sample_base + frame.batch_spp, frame.spp);
-    for (var s = frame.sample_base; s < end; s++) {
-        let ray = camera_ray(x, y, s);
-        let surf = first_surface(ray);
-        if surf.kind == KIND_SKY {
-            continue;
-        }
-        let n = select(surf.n, -surf.n, dot(surf.n, ray.dir) > 0.0);
-        albedo += diffuse_albedo(surf, n);
-        normal += n;
-        if s == 0u {
-            depth = dot(surf.p - frame.cam_position, frame.cam_forward);
-            if surf.kind != KIND_GROUND {
-                ids = vec2<f32>(f32(surf.instance + 1u), f32(instances[surf.instance].model + 1u));
-            }
-        }
-    }
-    let pixel = gid.x + gid.y * frame.strip_width;
-    let slots = frame.strip_width * frame.height;
-    out_pixels[pixel] = vec4<f32>(albedo, depth);
-    out_pixels[pixel + slots] = vec4<f32>(normal, 0.0);
-    out_pixels[pixel + 2u * slots] = vec4<f32>(ids, 0.0, 0.0);
 }

@@ -198,7 +198,7 @@ pub fn spec(width: u32, height: u32) -> pb::JobSpec {
             gather_bounces: 0,
             gather_filter: None,
             passes: vec![],
-            denoise: false,
+            denoise: 0,
         }),
         schedule: pb::Schedule::Dynamic.into(),
         priority: 0,

@@ -175,9 +175,7 @@ fn render_sequence_here(
         let frame_trace_ms = ms(t);
         trace_ms += frame_trace_ms;
         // Each frame whole, before its tone map, as the farm does it.
-        if request.denoise {
-            rendered.denoise()?;
-        }
+        rendered.denoise(request.denoise)?;
         per_frame.push(json!({
             "frame": i,
             "prepare_ms": frame_prepare_ms,
@@ -353,8 +351,8 @@ fn render_strips_here(
     let trace_ms = ms(t);
     phases.push(("trace", trace_ms));
     bar.finish_and_clear();
-    if request.denoise {
-        phases.push(("denoise", rendered.denoise()?));
+    if request.denoise.is_on() {
+        phases.push(("denoise", rendered.denoise(request.denoise)?));
     }
     let coverage = &rendered.coverage;
     let (tone, exr) = write_image(
@@ -455,14 +453,12 @@ fn render_reference_here(
     phases.push(("trace", ms(t)));
     bar.finish_and_clear();
     let mut r = r;
-    let noisy = if a.frame.denoise {
-        let t = Instant::now();
-        let noisy = sylva_coordinator::executor::denoise(&mut r.image, r.passes.as_ref())?;
+    let t = Instant::now();
+    let noisy =
+        sylva_coordinator::executor::denoise(&mut r.image, r.passes.as_ref(), a.frame.denoise)?;
+    if noisy.is_some() {
         phases.push(("denoise", ms(t)));
-        Some(noisy)
-    } else {
-        None
-    };
+    }
     let (tone, exr) = write_image(a, &r.image, r.passes.as_ref(), noisy.as_ref(), &mut phases)?;
     // Beside the reference, what `local` shows along its own samples:
     // the difference is its indirect light, without edge aliasing.

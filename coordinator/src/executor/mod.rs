@@ -11,6 +11,7 @@ pub use grpc::Farm;
 use crate::farm::WorkerReport;
 use crate::schedule::Strip;
 use sylva_scene::film::HdrImage;
+use sylva_scene::frame::Denoise;
 
 /// A rendered, assembled frame.
 #[derive(Clone, Debug)]
@@ -38,9 +39,28 @@ pub struct RenderedFrame {
     pub noisy: Option<HdrImage>,
 }
 
+/// Denoises `image` in place as `what` says (docs/denoising.md), with the
+/// `passes` rendered beside it: the guides, and for the indirect light
+/// alone the light split. The noisy image it was; `None` for
+/// [`Denoise::Off`].
+pub fn denoise(
+    image: &mut HdrImage,
+    passes: Option<&sylva_scene::passes::PassImage>,
+    what: Denoise,
+) -> anyhow::Result<Option<HdrImage>> {
+    Ok(match what {
+        Denoise::Off => None,
+        Denoise::Frame => Some(denoise_image(image, passes)?),
+        Denoise::Indirect => {
+            let p = passes.ok_or_else(|| anyhow::anyhow!("denoise: the frame has no passes"))?;
+            Some(denoise_indirect(image, p)?)
+        }
+    })
+}
+
 /// Denoises `image` in place, guided by the albedo and normal of
 /// `passes`; the noisy image it was.
-pub fn denoise(
+fn denoise_image(
     image: &mut HdrImage,
     passes: Option<&sylva_scene::passes::PassImage>,
 ) -> anyhow::Result<HdrImage> {
@@ -68,7 +88,7 @@ pub fn denoise(
 /// `passes`, which splits the image into direct + indirect + sky), guided
 /// by its albedo and normal; the direct light and the sky stay as traced.
 /// The noisy image it was.
-pub fn denoise_indirect(
+fn denoise_indirect(
     image: &mut HdrImage,
     passes: &sylva_scene::passes::PassImage,
 ) -> anyhow::Result<HdrImage> {
@@ -81,7 +101,7 @@ pub fn denoise_indirect(
         height: image.height,
         pixels: noisy.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
     };
-    denoise(&mut indirect, Some(passes))?;
+    denoise_image(&mut indirect, Some(passes))?;
     let before = image.clone();
     for ((p, n), d) in image.pixels.iter_mut().zip(noisy.chunks_exact(3)).zip(&indirect.pixels) {
         for c in 0..3 {
@@ -92,12 +112,13 @@ pub fn denoise_indirect(
 }
 
 impl RenderedFrame {
-    /// Denoises the whole assembled frame (no seams where strips meet),
-    /// guided by its albedo and normal passes, and keeps the noisy image
-    /// beside it for the EXR (docs/denoising.md). Its time, ms.
-    pub fn denoise(&mut self) -> anyhow::Result<f64> {
+    /// Denoises the assembled frame as `what` says (the whole of it, so
+    /// no seams where strips meet), guided by its albedo and normal
+    /// passes, and keeps the noisy image beside it for the EXR
+    /// (docs/denoising.md). Its time, ms.
+    pub fn denoise(&mut self, what: Denoise) -> anyhow::Result<f64> {
         let t = std::time::Instant::now();
-        self.noisy = Some(denoise(&mut self.image, self.passes.as_ref())?);
+        self.noisy = denoise(&mut self.image, self.passes.as_ref(), what)?;
         Ok(t.elapsed().as_secs_f64() * 1e3)
     }
 

@@ -592,7 +592,7 @@ pub(super) async fn restore(store: &Store) -> anyhow::Result<BTreeMap<String, Jo
 /// the workers render anything. Why it cannot (a path, the loader's words)
 /// is for the coordinator's log, not the client.
 fn can_denoise(frame: &FrameSettings) -> Result<(), Status> {
-    if !frame.denoise {
+    if !frame.denoise.is_on() {
         return Ok(());
     }
     sylva_denoise::available().map_err(|e| {

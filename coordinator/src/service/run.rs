@@ -227,7 +227,7 @@ impl State {
     ) -> anyhow::Result<Option<Vec<crate::schedule::StripTime>>> {
         use prost::Message;
         let dir = crate::results::job_dir(&self.config.state_dir, id);
-        let denoise = lock(&self.jobs).get(id).is_some_and(|j| j.frame.denoise);
+        let denoise = lock(&self.jobs).get(id).map_or(Default::default(), |j| j.frame.denoise);
         let mut stored = std::collections::HashSet::new();
         let mut first = None;
         let mut in_run = 0u32;
@@ -265,9 +265,7 @@ impl State {
                     let bytes = tokio::task::spawn_blocking(move || {
                         let mut rendered = rendered;
                         // The whole frame, here where it is assembled.
-                        if denoise {
-                            rendered.denoise()?;
-                        }
+                        rendered.denoise(denoise)?;
                         let exr = rendered.exr()?;
                         crate::results::write_whole(&path, &exr)?;
                         anyhow::Ok((exr.len() as u64, crate::results::hash(&exr)))

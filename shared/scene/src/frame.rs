@@ -156,11 +156,78 @@ pub struct FrameSettings {
     /// Render passes beside the beauty image (docs/passes.md).
     #[serde(default)]
     pub passes: crate::passes::PassSet,
-    /// Denoise the assembled frame (Open Image Denoise, guided by the
-    /// albedo and normal passes, which it needs); the EXR keeps the noisy
-    /// image beside it (docs/denoising.md).
+    /// What of the assembled frame is denoised (Open Image Denoise,
+    /// guided by the albedo and normal passes, which it needs); the EXR
+    /// keeps the noisy image beside it (docs/denoising.md).
     #[serde(default)]
-    pub denoise: bool,
+    pub denoise: Denoise,
+}
+
+/// What of a frame the denoiser smooths (docs/denoising.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Denoise {
+    /// Nothing: the frame as traced.
+    #[default]
+    Off,
+    /// The whole frame, as Cycles denoises.
+    Frame,
+    /// The indirect light alone (the light split's pass, which it needs
+    /// too), the direct light and the sky as traced: on foliage the whole
+    /// frame's denoise smooths the sun's leaf-sized detail into the crown.
+    Indirect,
+}
+
+impl Denoise {
+    /// Its name, as flags and scene files write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Denoise::Off => "off",
+            Denoise::Frame => "frame",
+            Denoise::Indirect => "indirect",
+        }
+    }
+
+    /// Parses a name: `off`, `frame` or `indirect`.
+    pub fn parse(name: &str) -> Result<Self, String> {
+        [Denoise::Off, Denoise::Frame, Denoise::Indirect]
+            .into_iter()
+            .find(|d| d.name() == name)
+            .ok_or_else(|| format!("denoise {name:?}: one of off, frame, indirect"))
+    }
+
+    /// Whether anything is denoised.
+    pub fn is_on(self) -> bool {
+        self != Denoise::Off
+    }
+
+    /// The passes its denoise reads: the guides, and for the indirect
+    /// light alone the light split's indirect pass.
+    pub fn passes(self) -> crate::passes::PassSet {
+        use crate::passes::{DENOISE_GUIDES, Pass, PassSet};
+        match self {
+            Denoise::Off => PassSet::NONE,
+            Denoise::Frame => DENOISE_GUIDES,
+            Denoise::Indirect => DENOISE_GUIDES.with(PassSet::of([Pass::Indirect])),
+        }
+    }
+}
+
+/// Read as a name (`off`, `frame`, `indirect`) or, as frames written
+/// before there was a choice, a bool (`true`: the whole frame).
+impl<'de> Deserialize<'de> for Denoise {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Written {
+            Bool(bool),
+            Name(String),
+        }
+        match Written::deserialize(d)? {
+            Written::Bool(b) => Ok(if b { Denoise::Frame } else { Denoise::Off }),
+            Written::Name(n) => Denoise::parse(&n).map_err(serde::de::Error::custom),
+        }
+    }
 }
 
 impl Default for FrameSettings {
@@ -178,7 +245,7 @@ impl Default for FrameSettings {
             gather_bounces: DEFAULT_GATHER_BOUNCES,
             gather_filter: DEFAULT_GATHER_FILTER,
             passes: crate::passes::PassSet::NONE,
-            denoise: false,
+            denoise: Denoise::Off,
         }
     }
 }
@@ -221,11 +288,13 @@ impl FrameSettings {
         {
             return bad(format!("ambient {a:?}: three finite values ≥ 0"));
         }
-        if self.denoise
-            && !(self.passes.contains(crate::passes::Pass::Albedo)
-                && self.passes.contains(crate::passes::Pass::Normal))
-        {
-            return bad("denoise: its guides, the albedo and normal passes, must be rendered too (passes albedo,normal)".into());
+        let needs = self.denoise.passes();
+        if !needs.extra().all(|p| self.passes.contains(p)) {
+            return bad(format!(
+                "denoise {}: the passes it reads must be rendered too (passes {})",
+                self.denoise.name(),
+                needs.extra().map(|p| p.name()).collect::<Vec<_>>().join(",")
+            ));
         }
         self.view.check().map_err(|e| FrameError(e.to_string()))
     }

@@ -81,17 +81,17 @@ impl KernelCache {
 
 /// The render kernels for one specialisation (structure, clouds): one
 /// pipeline per lighting family (direct methods, reference, Boulanger),
-/// and the frame's bind-group layout; the light-split variants and the
-/// guides' kernel are compiled on first use.
+/// and the frame's bind-group layout; the variants that write the passes
+/// are compiled on first use.
 pub struct Kernels {
     pipelines: [wgpu::ComputePipeline; 3],
     /// The frame's bind-group layout (group 1).
     pub(super) layout: wgpu::BindGroupLayout,
-    /// The same kernels writing the light split too (`SPLIT`), compiled
-    /// on the first frame with passes.
-    split: OnceLock<[wgpu::ComputePipeline; 3]>,
-    /// The guide passes' kernel, compiled on the first frame that asks.
-    guides: OnceLock<wgpu::ComputePipeline>,
+    /// The same kernels writing the passes too (`PASSES`: the light split
+    /// and the guides), each compiled on the first frame of its family
+    /// with passes: on lavapipe each pipeline costs about 0.4 s to create
+    /// even when the driver's cache holds it.
+    passes: [OnceLock<wgpu::ComputePipeline>; 3],
     module: wgpu::ShaderModule,
     pipeline_layout: wgpu::PipelineLayout,
     constants: Vec<(&'static str, f64)>,
@@ -131,74 +131,48 @@ impl Kernels {
         Kernels {
             pipelines,
             layout,
-            split: OnceLock::new(),
-            guides: OnceLock::new(),
+            passes: Default::default(),
             module,
             pipeline_layout: pl,
             constants,
         }
     }
 
-    /// The kernel of `kernel`'s family, writing the light split or not
-    /// (those compiled once, on first use).
+    /// The kernel of `kernel`'s family, writing the passes or not (those
+    /// compiled once, on first use).
     pub(super) fn render(
         &self,
         ctx: &GpuContext,
         kernel: Kernel,
-        split: bool,
+        passes: bool,
     ) -> anyhow::Result<&wgpu::ComputePipeline> {
-        if !split {
+        if !passes {
             return Ok(&self.pipelines[kernel as usize]);
         }
-        if self.split.get().is_none() {
-            let built = ctx.checked("building the light split's kernels", || {
-                Ok(Kernel::ALL.map(|kernel| {
-                    render_pipeline(
-                        ctx,
-                        &self.module,
-                        &self.pipeline_layout,
-                        &self.constants,
-                        kernel,
-                        true,
-                    )
-                }))
-            })?;
-            let _ = self.split.set(built);
-        }
-        Ok(&self.split.get().expect("just built")[kernel as usize])
-    }
-
-    /// The guide passes' kernel: compiled once, on first use.
-    pub(super) fn guides(&self, ctx: &GpuContext) -> anyhow::Result<&wgpu::ComputePipeline> {
-        if let Some(p) = self.guides.get() {
+        let slot = &self.passes[kernel as usize];
+        if let Some(p) = slot.get() {
             return Ok(p);
         }
-        let p = ctx.checked("building the guide passes' kernel", || {
-            Ok(ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some("guides"),
-                layout: Some(&self.pipeline_layout),
-                module: &self.module,
-                entry_point: Some("render_guides"),
-                compilation_options: super::shaders::tracer_options(&self.constants),
-                cache: ctx.pipeline_cache(),
-            }))
+        let built = ctx.checked("building the passes' kernel", || {
+            let (m, l, c) = (&self.module, &self.pipeline_layout, &self.constants);
+            Ok(render_pipeline(ctx, m, l, c, kernel, true))
         })?;
-        Ok(self.guides.get_or_init(|| p))
+        Ok(slot.get_or_init(|| built))
     }
 }
 
-/// One render kernel: a lighting family, with or without the split.
+/// One render kernel: a lighting family, with or without the passes.
 fn render_pipeline(
     ctx: &GpuContext,
     module: &wgpu::ShaderModule,
     layout: &wgpu::PipelineLayout,
     constants: &[(&'static str, f64)],
     kernel: Kernel,
-    split: bool,
+    passes: bool,
 ) -> wgpu::ComputePipeline {
     let mut c = constants.to_vec();
     c.push(("LIGHTING_FAMILY", kernel as u32 as f64));
-    c.push(("SPLIT", if split { 1.0 } else { 0.0 }));
+    c.push(("PASSES", if passes { 1.0 } else { 0.0 }));
     ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
         label: Some("render"),
         layout: Some(layout),

@@ -19,13 +19,17 @@ use wgpu::util::DeviceExt;
 /// Bytes one sample of the per-sample kernel writes per pixel: four
 /// images of four floats (the path, `local` along it, the first
 /// surface's guides and its indirect light; `reference.wgsl`'s
-/// `reference_sample`), and a fifth in the `SPLIT` kernels (the first
-/// event's split, for passes).
-pub fn sample_bytes_per_pixel(split: bool) -> u64 {
-    if split { 5 * 16 } else { 4 * 16 }
+/// `reference_sample`), and four more in the `PASSES` kernels (the first
+/// event's split and the camera ray's three guide images).
+pub fn sample_bytes_per_pixel(passes: bool) -> u64 {
+    if passes { 8 * 16 } else { 4 * 16 }
 }
-/// Samples per pixel of one dispatch of the guide passes' kernel.
-const GUIDE_BATCH_SPP: u32 = 64;
+
+/// A pixel's guide images as the kernels write them (`guides` in
+/// render.wgsl): (albedo, depth), (normal, 0), (instance + 1, model + 1,
+/// 0, 0), the albedo and normal summed over the pixel's samples, the
+/// depth and ids of its sample 0.
+type GuidePixel = [[f32; 4]; 3];
 /// Longest path the reference integrator follows.
 pub const MAX_BOUNCES: u32 = 16;
 
@@ -298,17 +302,27 @@ impl StripRenderer {
             batch_spp: 1,
             ..base
         };
-        let split = f.passes.wants_split();
+        let with_passes = !f.passes.is_empty();
         ctx.checked("rendering a strip", || {
             if method.kernel != Kernel::Reference {
                 let n = (strip_width * f.height) as usize;
-                let images = if split { 4 } else { 1 };
-                let (px, counts) =
-                    self.dispatch(ctx, method.kernel, split, &uniform, images * n as u64 * 16, 1)?;
+                // The image, then the split's three and the guides' three.
+                let images = if with_passes { 7 } else { 1 };
+                let (px, counts) = self.dispatch(
+                    ctx,
+                    method.kernel,
+                    with_passes,
+                    &uniform,
+                    images * n as u64 * 16,
+                    1,
+                )?;
                 let rgb = |k: usize| px[k * n..(k + 1) * n].iter().map(|p| [p[0], p[1], p[2]]);
-                let passes = self.passes(ctx, f, &uniform, || {
-                    (rgb(1).collect(), rgb(2).collect(), rgb(3).collect())
-                })?;
+                let passes = with_passes.then(|| {
+                    let guides: Vec<GuidePixel> =
+                        (0..n).map(|i| std::array::from_fn(|k| px[(4 + k) * n + i])).collect();
+                    let split = || (rgb(1).collect(), rgb(2).collect(), rgb(3).collect());
+                    passes(f, strip_width, split, &guides)
+                });
                 return Ok(RenderedStrip {
                     x0,
                     width: strip_width,
@@ -319,7 +333,8 @@ impl StripRenderer {
                     passes,
                 });
             }
-            let (mut means, rays) = self.sample_means(ctx, method.kernel, split, &uniform)?;
+            let (mut means, guides, rays) =
+                self.sample_means(ctx, method.kernel, with_passes, &uniform)?;
             if radius > 0 {
                 super::filter::filter_indirect(
                     &mut means,
@@ -337,18 +352,20 @@ impl StripRenderer {
             let crop4 = |image: &[[f32; 4]]| crop(image, aw, cols.clone());
             let (px, first) = (crop4(&means.paths), crop4(&means.first));
             let pixels: Vec<[f32; 3]> = px.iter().map(|p| [p[0], p[1], p[2]]).collect();
-            // The guides over the strip's own columns.
-            let own = FrameUniform { x0, strip_width, ..uniform };
-            let passes = self.passes(ctx, f, &own, || {
-                let (direct, sky) =
-                    (crop(&means.direct, aw, cols.clone()), crop(&means.sky, aw, cols.clone()));
-                // The rest of each path's light is indirect: the split is
-                // exact per sample, so its means split the image.
-                let indirect = (0..pixels.len())
-                    .map(|i| std::array::from_fn(|c| pixels[i][c] - direct[i][c] - sky[i][c]))
-                    .collect();
-                (direct, indirect, sky)
-            })?;
+            // The passes over the strip's own columns.
+            let passes = with_passes.then(|| {
+                let split = || {
+                    let (direct, sky) =
+                        (crop(&means.direct, aw, cols.clone()), crop(&means.sky, aw, cols.clone()));
+                    // The rest of each path's light is indirect: the split is
+                    // exact per sample, so its means split the image.
+                    let indirect = (0..pixels.len())
+                        .map(|i| std::array::from_fn(|c| pixels[i][c] - direct[i][c] - sky[i][c]))
+                        .collect();
+                    (direct, indirect, sky)
+                };
+                passes(f, strip_width, split, &crop(&guides, aw, cols.clone()))
+            });
             Ok(RenderedStrip {
                 x0,
                 width: strip_width,
@@ -361,75 +378,19 @@ impl StripRenderer {
         })
     }
 
-    /// The strip's passes, if the frame asks for any: the light split
-    /// (`split` gives direct, indirect and sky, called only when asked)
-    /// and the guides, from their own kernel over `uniform`'s columns.
-    fn passes(
-        &self,
-        ctx: &GpuContext,
-        f: &RenderSettings,
-        uniform: &FrameUniform,
-        split: impl FnOnce() -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>),
-    ) -> anyhow::Result<Option<PassImage>> {
-        if f.passes.is_empty() {
-            return Ok(None);
-        }
-        let mut image = PassImage::new(uniform.strip_width, uniform.height, f.passes);
-        let mut put = |p: Pass, v: &mut dyn Iterator<Item = f32>| {
-            if let Some(plane) = image.plane_mut(p) {
-                plane.iter_mut().zip(v).for_each(|(d, s)| *d = s);
-            }
-        };
-        if f.passes.wants_split() {
-            let (direct, indirect, sky) = split();
-            put(Pass::Direct, &mut direct.iter().flatten().copied());
-            put(Pass::Indirect, &mut indirect.iter().flatten().copied());
-            put(Pass::Sky, &mut sky.iter().flatten().copied());
-        }
-        if f.passes.wants_guides() {
-            let n = (uniform.strip_width * uniform.height) as usize;
-            let guides = self.kernels.guides(ctx)?;
-            // In batches of samples, as the per-sample kernel's, so no
-            // dispatch of a many-sample frame runs long; the first holds
-            // sample 0's depth and ids.
-            let (mut sums, mut first) = (vec![[0.0f32; 3]; 2 * n], Vec::new());
-            for base in (0..uniform.spp).step_by(GUIDE_BATCH_SPP as usize) {
-                let u = FrameUniform {
-                    sample_base: base,
-                    batch_spp: GUIDE_BATCH_SPP.min(uniform.spp - base),
-                    ..*uniform
-                };
-                let (g, _) = self.dispatch_with(ctx, guides, &u, 3 * n as u64 * 16, 1)?;
-                for (s, v) in sums.iter_mut().zip(&g[..2 * n]) {
-                    (0..3).for_each(|c| s[c] += v[c]);
-                }
-                if base == 0 {
-                    first = g;
-                }
-            }
-            let spp = uniform.spp as f32;
-            let (a, nrm) = sums.split_at(n);
-            put(Pass::Albedo, &mut a.iter().flat_map(|p| p.map(|v| v / spp)));
-            put(Pass::Normal, &mut nrm.iter().flat_map(|p| p.map(|v| v / spp)));
-            put(Pass::Depth, &mut first[..n].iter().map(|p| p[3]));
-            put(Pass::Instance, &mut first[2 * n..].iter().map(|p| p[0]));
-            put(Pass::Species, &mut first[2 * n..].iter().map(|p| p[1]));
-        }
-        Ok(Some(image))
-    }
-
     /// The per-sample kernel over the columns `uniform` names, every
-    /// sample of the frame: each pixel's mean of its three images. As many
-    /// samples per dispatch as the adapter binds.
+    /// sample of the frame: each pixel's mean of its four images and, with
+    /// `passes`, its guides (empty without). As many samples per dispatch
+    /// as the adapter binds.
     fn sample_means(
         &self,
         ctx: &GpuContext,
         kernel: Kernel,
-        split: bool,
+        passes: bool,
         uniform: &FrameUniform,
-    ) -> anyhow::Result<(SampleMeans, RayCounts)> {
+    ) -> anyhow::Result<(SampleMeans, Vec<GuidePixel>, RayCounts)> {
         let n = (uniform.strip_width * uniform.height) as usize;
-        let sample_bytes = n as u64 * sample_bytes_per_pixel(split);
+        let sample_bytes = n as u64 * sample_bytes_per_pixel(passes);
         let spp = uniform.spp;
         let batch =
             (ctx.limits.max_storage_buffer_binding_size / sample_bytes).min(spp as u64) as u32;
@@ -444,6 +405,9 @@ impl StripRenderer {
         // With passes: per pixel, the sums of the first event's sun light
         // and of the sky it saw.
         let (mut direct, mut sky) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
+        // With passes: per pixel, the guide images, summed as the direct
+        // kernels sum them (sample 0's depth and ids).
+        let mut guides = vec![[[0.0f32; 4]; 3]; if passes { n } else { 0 }];
         // Per pixel and channel, Σ (surface indirect)² over its samples:
         // the spread of its indirect light, which the gathers' filter weighs.
         let mut ind_sq = vec![[0.0f64; 3]; n];
@@ -452,16 +416,29 @@ impl StripRenderer {
             let batch_spp = batch.min(spp - base);
             let u = FrameUniform { sample_base: base, batch_spp, ..*uniform };
             let (all, counts) =
-                self.dispatch(ctx, kernel, split, &u, batch_spp as u64 * sample_bytes, batch_spp)?;
-            // Four (five) images, each `batch_spp` slots of `n` pixels.
+                self.dispatch(ctx, kernel, passes, &u, batch_spp as u64 * sample_bytes, batch_spp)?;
+            // Four (eight) images, each `batch_spp` slots of `n` pixels.
             let slots = n * batch_spp as usize;
             let indirect = &all[3 * slots..4 * slots];
-            if split {
-                for slot in all[4 * slots..].chunks_exact(n) {
+            if passes {
+                for slot in all[4 * slots..5 * slots].chunks_exact(n) {
                     for ((d, s), v) in direct.iter_mut().zip(&mut sky).zip(slot) {
                         let to = if v[3] > 0.5 { s } else { d };
                         for c in 0..3 {
                             to[c] += v[c];
+                        }
+                    }
+                }
+                for j in 0..batch_spp as usize {
+                    let at = |k: usize, i: usize| all[(5 + k) * slots + j * n + i];
+                    for (i, g) in guides.iter_mut().enumerate() {
+                        if base == 0 && j == 0 {
+                            *g = std::array::from_fn(|k| at(k, i));
+                        } else {
+                            for (k, sum) in g.iter_mut().enumerate().take(2) {
+                                let v = at(k, i);
+                                (0..3).for_each(|c| sum[c] += v[c]);
+                            }
                         }
                     }
                 }
@@ -504,7 +481,7 @@ impl StripRenderer {
             })
             .collect();
         let mean3 = |v: Vec<[f32; 3]>| -> Vec<[f32; 3]> {
-            if split {
+            if passes {
                 v.into_iter().map(|p| p.map(|x| x / spp as f32)).collect()
             } else {
                 Vec::new()
@@ -513,35 +490,24 @@ impl StripRenderer {
         let (direct, sky) = (mean3(direct), mean3(sky));
         Ok((
             SampleMeans { paths, first, guide, surface_indirect, indirect_variance, direct, sky },
+            guides,
             rays,
         ))
     }
 
-    /// One dispatch of the method's kernel (writing the light split or
-    /// not) with `uniform`, `depth` samples
-    /// deep (the per-sample kernel's z), into `bytes` of output: what it
-    /// wrote and the rays it counted.
+    /// One dispatch of the method's kernel (writing the passes or not)
+    /// with `uniform`, `depth` samples deep (the per-sample kernel's z),
+    /// into `bytes` of output: what it wrote and the rays it counted.
     fn dispatch(
         &self,
         ctx: &GpuContext,
         kernel: Kernel,
-        split: bool,
+        passes: bool,
         uniform: &FrameUniform,
         bytes: u64,
         depth: u32,
     ) -> anyhow::Result<(Vec<[f32; 4]>, GpuRayCounts)> {
-        self.dispatch_with(ctx, self.kernels.render(ctx, kernel, split)?, uniform, bytes, depth)
-    }
-
-    /// One dispatch of `pipeline` (a render kernel or the guides').
-    fn dispatch_with(
-        &self,
-        ctx: &GpuContext,
-        pipeline: &wgpu::ComputePipeline,
-        uniform: &FrameUniform,
-        bytes: u64,
-        depth: u32,
-    ) -> anyhow::Result<(Vec<[f32; 4]>, GpuRayCounts)> {
+        let pipeline = self.kernels.render(ctx, kernel, passes)?;
         let device = &ctx.device;
         let ubuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("frame"),
@@ -604,4 +570,37 @@ fn ray_offset(scene: &Scene) -> f32 {
         .map(|i| i.to_world.translation.abs().max_element())
         .fold(0.0, f32::max);
     (1e-5 * extent).max(1e-3)
+}
+
+/// A strip's passes (`width` columns of the frame's height): the light
+/// split (`split` gives direct, indirect and sky, called only when asked)
+/// and the guides, from the kernel's guide images.
+fn passes(
+    f: &RenderSettings,
+    width: u32,
+    split: impl FnOnce() -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>),
+    guides: &[GuidePixel],
+) -> PassImage {
+    let mut image = PassImage::new(width, f.height, f.passes);
+    let mut put = |p: Pass, v: &mut dyn Iterator<Item = f32>| {
+        if let Some(plane) = image.plane_mut(p) {
+            plane.iter_mut().zip(v).for_each(|(d, s)| *d = s);
+        }
+    };
+    if f.passes.wants_split() {
+        let (direct, indirect, sky) = split();
+        put(Pass::Direct, &mut direct.iter().flatten().copied());
+        put(Pass::Indirect, &mut indirect.iter().flatten().copied());
+        put(Pass::Sky, &mut sky.iter().flatten().copied());
+    }
+    if f.passes.wants_guides() {
+        let spp = f.spp as f32;
+        let mean = |k: usize| guides.iter().flat_map(move |g| [0, 1, 2].map(|c| g[k][c] / spp));
+        put(Pass::Albedo, &mut mean(0));
+        put(Pass::Normal, &mut mean(1));
+        put(Pass::Depth, &mut guides.iter().map(|g| g[0][3]));
+        put(Pass::Instance, &mut guides.iter().map(|g| g[2][0]));
+        put(Pass::Species, &mut guides.iter().map(|g| g[2][1]));
+    }
+    image
 }

@@ -56,10 +56,20 @@ pub struct FrameArgs {
     #[arg(long, value_parser = sylva_scene::passes::PassSet::parse, default_value = "beauty")]
     pub passes: sylva_scene::passes::PassSet,
     /// Denoise the frame with Open Image Denoise, guided by the albedo and
-    /// normal passes (rendered for it); the EXR keeps the noisy image as
-    /// its "Noisy Image" layer (docs/denoising.md).
-    #[arg(long)]
-    pub denoise: bool,
+    /// normal passes (rendered for it): `--denoise` or `--denoise=frame`
+    /// the whole frame, as Cycles does; `--denoise=indirect` its indirect
+    /// light alone, the sun's direct light as traced. The EXR keeps the
+    /// noisy image as its "Noisy Image" layer (docs/denoising.md).
+    #[arg(
+        long,
+        value_name = "WHAT",
+        num_args = 0..=1,
+        require_equals = true,
+        default_missing_value = "frame",
+        default_value = "off",
+        value_parser = sylva_scene::frame::Denoise::parse
+    )]
+    pub denoise: sylva_scene::frame::Denoise,
     /// Render a sequence of this many frames (with --sun-from/--sun-to, a
     /// --camera-path, or the scene's own `sequence`).
     #[arg(long)]
@@ -137,11 +147,7 @@ impl FrameArgs {
             view: Default::default(),
             gather_bounces: self.gather_bounces,
             gather_filter: self.gather_filter,
-            passes: if self.denoise {
-                self.passes.with(sylva_scene::passes::DENOISE_GUIDES)
-            } else {
-                self.passes
-            },
+            passes: self.passes.with(self.denoise.passes()),
             denoise: self.denoise,
         }
     }

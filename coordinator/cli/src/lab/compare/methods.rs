@@ -3,6 +3,8 @@
 //! different seeds, its image written with the reference's exposure.
 
 use super::*;
+use sylva_coordinator::executor::denoise;
+use sylva_scene::frame::Denoise;
 
 /// One method `compare` renders: a lighting method on a variant of the
 /// scene, with its own rays per pixel and gather depth where it differs.
@@ -21,21 +23,9 @@ pub(super) struct Candidate {
     /// differ by rays, grid or filter).
     pub(super) family: String,
     /// Denoised (Open Image Denoise, guided by albedo and normal, their
-    /// pass and the denoise timed with the frame), and what of it.
-    pub(super) denoise: Denoised,
-}
-
-/// What of a method's frame `compare` denoises.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum Denoised {
-    /// Nothing: the frame as traced.
-    No,
-    /// The whole frame, as `--denoise` does it.
-    Frame,
-    /// Its indirect light alone (the light split's pass), the direct
-    /// light and the sky as traced: does the denoiser's bias come from
-    /// smoothing the direct light?
-    Indirect,
+    /// pass and the denoise timed with the frame), and what of it, as
+    /// `--denoise` does it.
+    pub(super) denoise: Denoise,
 }
 
 impl Candidate {
@@ -49,7 +39,7 @@ impl Candidate {
             gather_bounces: sylva_scene::frame::DEFAULT_GATHER_BOUNCES,
             gather_filter: 0,
             family: name.into(),
-            denoise: Denoised::No,
+            denoise: Denoise::Off,
         }
     }
 }
@@ -105,27 +95,10 @@ pub(super) fn methods_to_compare(
             }
         }
         // The unfiltered gather denoised instead: where the denoiser pays
-        // for its guides' pass and its own time (issue 40).
-        let denoised = [(Denoised::Frame, "denoise"), (Denoised::Indirect, "denoised indirect")];
-        for (what, words) in denoised {
-            if bounces != 2 || sylva_denoise::available().is_err() {
-                break;
-            }
-            for &k in gather_rays {
-                let family = format!("gather {bounces}b + {words}");
-                methods.push(Candidate {
-                    spp: Some(k),
-                    gather_bounces: bounces,
-                    family: family.clone(),
-                    denoise: what,
-                    ..Candidate::new(
-                        &format!("{family} {k} rays"),
-                        LightingMode::Gather,
-                        scene.clone(),
-                        0,
-                    )
-                });
-            }
+        // for its guides and its own time (issue 40).
+        if bounces == 2 {
+            let gather = (LightingMode::Gather, bounces);
+            methods.extend(denoised(scene, "gather 2b", gather, gather_rays, "rays"));
         }
         if let Some(k) = most {
             let family = format!("gather-ambient {bounces}b r{filter}");
@@ -140,6 +113,39 @@ pub(super) fn methods_to_compare(
                     scene.clone(),
                     0,
                 )
+            });
+        }
+    }
+    // The path tracer denoised at the gathers' ray counts: the field's
+    // answer to its noise (Cycles with Open Image Denoise).
+    let path = (LightingMode::Reference, sylva_scene::frame::DEFAULT_GATHER_BOUNCES);
+    methods.extend(denoised(scene, "path tracer", path, gather_rays, "spp"));
+    methods
+}
+
+/// `lighting` (a sampled method with its gather depth, `base` its
+/// family's name) at each of `rays` per pixel, denoised whole and in its
+/// indirect light alone; none where Open Image Denoise is not installed.
+fn denoised(
+    scene: &Scene,
+    base: &str,
+    (lighting, bounces): (LightingMode, u32),
+    rays: &[u32],
+    unit: &str,
+) -> Vec<Candidate> {
+    if sylva_denoise::available().is_err() {
+        return Vec::new();
+    }
+    let mut methods = Vec::new();
+    for (what, words) in [(Denoise::Frame, "denoise"), (Denoise::Indirect, "denoised indirect")] {
+        let family = format!("{base} + {words}");
+        for &k in rays {
+            methods.push(Candidate {
+                spp: Some(k),
+                gather_bounces: bounces,
+                family: family.clone(),
+                denoise: what,
+                ..Candidate::new(&format!("{family} {k} {unit}"), lighting, scene.clone(), 0)
             });
         }
     }
@@ -221,7 +227,7 @@ pub(super) fn render_method(
         gather_bounces: f.gather_bounces,
         gather_filter: f.gather_filter,
         // A denoised method renders what its denoise needs with its image.
-        passes: if c.denoise == Denoised::No { base.passes } else { guide_passes(c.denoise) },
+        passes: if c.denoise.is_on() { c.denoise.passes() } else { base.passes },
         ..*base
     };
     let frame = Frame::compose(ctx, scene, &request, &mut Given(p.prepared.clone()), say)?;
@@ -231,13 +237,13 @@ pub(super) fn render_method(
     say(&format!("{name}: rendering"));
     // One untimed strip first: the pipeline's first dispatch compiles it.
     frame.with_settings(RenderSettings { width: 8, height: 8, spp: 1, ..settings }).strip(0, 8)?;
-    if c.denoise != Denoised::No {
+    if c.denoise.is_on() {
         // The denoiser's library loaded, untimed too.
         sylva_denoise::available()?;
     }
     let t = Instant::now();
     let (mut image, own_local, passes) = render_whole(&frame)?;
-    denoise_whole(&mut image, passes.as_ref(), c.denoise)?;
+    denoise(&mut image, passes.as_ref(), c.denoise)?;
     let frame_ms = ms(t);
     // The same frame with other seeds (untimed): with `local`'s second
     // render (or its own, below), the spread of the two tells the method's
@@ -245,7 +251,7 @@ pub(super) fn render_method(
     let other =
         frame.with_settings(RenderSettings { seed: settings.seed ^ SECOND_SEED, ..settings });
     let (mut again, own_local_again, passes) = render_whole(&other)?;
-    denoise_whole(&mut again, passes.as_ref(), c.denoise)?;
+    denoise(&mut again, passes.as_ref(), c.denoise)?;
     let file = out.dir.join(format!("{}.png", file_stem(name)));
     write_png(&file, f.width, f.height, &reinhard_like(&image, out.exposure))?;
     if out.hdr {
@@ -265,11 +271,7 @@ pub(super) fn render_method(
         "gather_filter": if settings.gather_filtered() { json!(settings.gather_filter) } else { serde_json::Value::Null },
         "gather_bounces": if sylva_worker::lighting::method(lighting).kernel == sylva_worker::lighting::Kernel::Reference { json!(settings.gather_bounces) } else { serde_json::Value::Null },
         "warnings": prepared.light.iter().flat_map(|l| l.warnings.iter().map(move |w| format!("{}: {w}", l.model))).collect::<Vec<_>>(),
-        "denoised": match c.denoise {
-            Denoised::No => serde_json::Value::Null,
-            Denoised::Frame => json!("frame"),
-            Denoised::Indirect => json!("indirect"),
-        },
+        "denoised": if c.denoise.is_on() { json!(c.denoise.name()) } else { serde_json::Value::Null },
     });
     Ok(Rendered {
         report: MethodReport {
@@ -298,36 +300,6 @@ pub(super) fn render_whole(
     frame: &Frame,
 ) -> anyhow::Result<(HdrImage, Option<HdrImage>, Option<sylva_scene::passes::PassImage>)> {
     crate::pilot::render_columns_with_passes(frame, &frame.settings, &[(0, frame.settings.width)])
-}
-
-/// The passes a denoise of `what` needs: the guides, and for the
-/// indirect light alone, the light split.
-fn guide_passes(what: Denoised) -> sylva_scene::passes::PassSet {
-    use sylva_scene::passes::{DENOISE_GUIDES, Pass, PassSet};
-    match what {
-        Denoised::Indirect => DENOISE_GUIDES.with(PassSet::of([Pass::Indirect])),
-        _ => DENOISE_GUIDES,
-    }
-}
-
-/// `image` denoised in place as `what` says, with `passes`, which the
-/// frame rendered beside it in the same strips (as the product does).
-fn denoise_whole(
-    image: &mut HdrImage,
-    passes: Option<&sylva_scene::passes::PassImage>,
-    what: Denoised,
-) -> anyhow::Result<()> {
-    match what {
-        Denoised::No => {}
-        Denoised::Frame => {
-            sylva_coordinator::executor::denoise(image, passes)?;
-        }
-        Denoised::Indirect => {
-            let p = passes.ok_or_else(|| anyhow::anyhow!("the frame has no light split"))?;
-            sylva_coordinator::executor::denoise_indirect(image, p)?;
-        }
-    }
-    Ok(())
 }
 
 /// A method's name as a file name: `lb 32³ + forest grid` → `lb-32-forest-grid`.
