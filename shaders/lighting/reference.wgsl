@@ -203,9 +203,10 @@ fn seed_path(x: u32, y: u32, s: u32) {
 // around the loop over bounces silently dropped samples of lanes whose paths
 // ended early (up to 20 % of the samples of a forest frame).
 //
-// With PASSES, three more images: the camera ray's guides (`guides` in
-// render.wgsl), from the first surface the path meets anyway.
-fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 8> {
+// With PASSES, two more: the camera ray's normal (its albedo is the third
+// image's), and its depth and ids (`guides` in render.wgsl), from the
+// first surface the path meets anyway.
+fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 7> {
     var depth = 0u;
     var ray = camera_ray(x, y, s);
     seed_path(x, y, s);
@@ -221,7 +222,8 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 8> {
     // The passes' split of the first event (docs/passes.md): the sun's
     // light off a first surface, or the sky seen directly (w = 1).
     var first_split = vec4<f32>(0.0);
-    var first_guides = array<vec4<f32>, 3>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    var first_normal = vec4<f32>(0.0);
+    var first_ids = vec4<f32>(0.0);
     var alive = true;
     loop {
         if !alive || depth > frame.max_bounces {
@@ -229,7 +231,9 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 8> {
         }
         let surf = first_surface(ray);
         if PASSES && depth == 0u {
-            first_guides = guides(ray, surf);
+            let g = guides(ray, surf);
+            first_normal = g[1];
+            first_ids = vec4<f32>(g[0].w, g[2].x, g[2].y, 0.0);
         }
         var hit = vec2<f32>(-1.0, 0.0);
         if HAS_CLOUDS {
@@ -336,5 +340,5 @@ fn reference_sample(x: u32, y: u32, s: u32) -> array<vec4<f32>, 8> {
     // (divided by the few leaf samples' albedo) it whitened the crowns
     // in front of a cloud.
     let surface_indirect = select(vec3<f32>(0.0), light - first_light, first_surface_hit > 0.0);
-    return array<vec4<f32>, 8>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit), vec4<f32>(surface_indirect, 0.0), first_split, first_guides[0], first_guides[1], first_guides[2]);
+    return array<vec4<f32>, 7>(vec4<f32>(light, coverage), vec4<f32>(first_light, first_depth), vec4<f32>(first_albedo, first_surface_hit), vec4<f32>(surface_indirect, 0.0), first_split, first_normal, first_ids);
 }

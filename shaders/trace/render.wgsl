@@ -522,10 +522,14 @@ fn render_strip(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         // whose first event is a surface (reference.wgsl).
         let r = reference_sample(x, y, frame.sample_base + gid.z);
         let slots = frame.strip_width * frame.height;
-        // Four more images only for passes: the first event's split and
-        // the camera ray's three guide images.
-        for (var k = 0u; k < select(4u, 8u, PASSES); k++) {
+        // Two more images only for passes: the first event's split and the
+        // camera ray's normal; then, once per pixel, the frame's sample 0's
+        // depth and ids (a guide's mean albedo is the third image's).
+        for (var k = 0u; k < select(4u, 6u, PASSES); k++) {
             out_pixels[pixel + (k * frame.batch_spp + gid.z) * slots] = r[k];
+        }
+        if PASSES && frame.sample_base + gid.z == 0u {
+            out_pixels[pixel + 6u * frame.batch_spp * slots] = r[6];
         }
         atomicAdd(&counters.transparent, transparent_passed);
         atomicAdd(&counters.primary, 1u);

@@ -328,10 +328,42 @@ mod tests {
                 "ambient",
             ),
             (FrameSettings { ambient: Some([0.1, -1.0, 0.0]), ..Default::default() }, "ambient"),
+            (
+                FrameSettings { denoise: Denoise::Frame, ..Default::default() },
+                "denoise frame: the passes it reads must be rendered too (passes albedo,normal)",
+            ),
+            (
+                FrameSettings {
+                    denoise: Denoise::Indirect,
+                    passes: crate::passes::DENOISE_GUIDES,
+                    ..Default::default()
+                },
+                "passes direct,indirect,albedo,normal,sky",
+            ),
         ];
         for (f, want) in cases {
             let e = f.check().unwrap_err().to_string();
             assert!(e.contains(want), "{want}: {e}");
         }
+    }
+
+    /// A frame written before there was a choice said `"denoise": true`:
+    /// it reads as the whole frame; names read as themselves.
+    #[test]
+    fn denoise_reads_old_bools_and_names() {
+        let read = |v: &str| serde_json::from_str::<Denoise>(v);
+        assert_eq!(read("true").unwrap(), Denoise::Frame);
+        assert_eq!(read("false").unwrap(), Denoise::Off);
+        for d in [Denoise::Off, Denoise::Frame, Denoise::Indirect] {
+            assert_eq!(read(&serde_json::to_string(&d).unwrap()).unwrap(), d);
+            assert_eq!(Denoise::parse(d.name()), Ok(d));
+        }
+        assert!(read("\"sky\"").unwrap_err().to_string().contains("one of off, frame, indirect"));
+        let ok = FrameSettings {
+            denoise: Denoise::Indirect,
+            passes: Denoise::Indirect.passes(),
+            ..Default::default()
+        };
+        assert!(ok.check().is_ok());
     }
 }

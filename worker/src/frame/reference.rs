@@ -141,9 +141,9 @@ pub fn render_reference_columns(
     // Each sample of a batch has its own output slot: as many samples and
     // columns per dispatch as the adapter binds, with a margin.
     let budget = (ctx.limits.max_storage_buffer_binding_size / 2).max(1 << 20);
-    // Sized as without passes (their four more images double the bytes,
-    // which the margin's half allows), so the batches, their seeds and so
-    // the image are the same with passes.
+    // Sized as without passes (their two more images and one per dispatch
+    // fit the margin's half), so the batches, their seeds and so the image
+    // are the same with passes.
     let per_sample_column = crate::trace::render::sample_bytes_per_pixel(false) * f.height as u64;
     let batch_spp =
         (opts.batch_spp as u64).min((budget / (per_sample_column * width as u64)).max(1)) as u32;

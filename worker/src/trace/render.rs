@@ -19,15 +19,16 @@ use wgpu::util::DeviceExt;
 /// Bytes one sample of the per-sample kernel writes per pixel: four
 /// images of four floats (the path, `local` along it, the first
 /// surface's guides and its indirect light; `reference.wgsl`'s
-/// `reference_sample`), and four more in the `PASSES` kernels (the first
-/// event's split and the camera ray's three guide images).
+/// `reference_sample`), and two more in the `PASSES` kernels (the first
+/// event's split and the camera ray's normal; a dispatch's output then
+/// also holds one image of sample 0's depth and ids).
 pub fn sample_bytes_per_pixel(passes: bool) -> u64 {
-    if passes { 8 * 16 } else { 4 * 16 }
+    if passes { 6 * 16 } else { 4 * 16 }
 }
 
-/// A pixel's guide images as the kernels write them (`guides` in
-/// render.wgsl): (albedo, depth), (normal, 0), (instance + 1, model + 1,
-/// 0, 0), the albedo and normal summed over the pixel's samples, the
+/// A pixel's guides as the direct kernels write them (`guides` in
+/// render.wgsl), as means: (albedo, depth), (normal, 0), (instance + 1,
+/// model + 1, 0, 0), the albedo and normal over the pixel's samples, the
 /// depth and ids of its sample 0.
 type GuidePixel = [[f32; 4]; 3];
 /// Longest path the reference integrator follows.
@@ -318,8 +319,16 @@ impl StripRenderer {
                 )?;
                 let rgb = |k: usize| px[k * n..(k + 1) * n].iter().map(|p| [p[0], p[1], p[2]]);
                 let passes = with_passes.then(|| {
-                    let guides: Vec<GuidePixel> =
-                        (0..n).map(|i| std::array::from_fn(|k| px[(4 + k) * n + i])).collect();
+                    // The kernel sums albedo and normal over the samples.
+                    let spp = f.spp as f32;
+                    let guides: Vec<GuidePixel> = (0..n)
+                        .map(|i| {
+                            let [a, nrm, ids] = std::array::from_fn(|k| px[(4 + k) * n + i]);
+                            let mean =
+                                |v: [f32; 4], w: f32| [v[0] / spp, v[1] / spp, v[2] / spp, w];
+                            [mean(a, a[3]), mean(nrm, 0.0), ids]
+                        })
+                        .collect();
                     let split = || (rgb(1).collect(), rgb(2).collect(), rgb(3).collect());
                     passes(f, strip_width, split, &guides)
                 });
@@ -391,9 +400,11 @@ impl StripRenderer {
     ) -> anyhow::Result<(SampleMeans, Vec<GuidePixel>, RayCounts)> {
         let n = (uniform.strip_width * uniform.height) as usize;
         let sample_bytes = n as u64 * sample_bytes_per_pixel(passes);
+        // With passes, one image more per dispatch: sample 0's depth and ids.
+        let once = if passes { n as u64 * 16 } else { 0 };
         let spp = uniform.spp;
-        let batch =
-            (ctx.limits.max_storage_buffer_binding_size / sample_bytes).min(spp as u64) as u32;
+        let batch = (ctx.limits.max_storage_buffer_binding_size.saturating_sub(once) / sample_bytes)
+            .min(spp as u64) as u32;
         anyhow::ensure!(
             batch >= 1,
             "a strip of {}×{} needs {} bytes of output per sample, more than the adapter binds",
@@ -405,9 +416,10 @@ impl StripRenderer {
         // With passes: per pixel, the sums of the first event's sun light
         // and of the sky it saw.
         let (mut direct, mut sky) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
-        // With passes: per pixel, the guide images, summed as the direct
-        // kernels sum them (sample 0's depth and ids).
-        let mut guides = vec![[[0.0f32; 4]; 3]; if passes { n } else { 0 }];
+        // With passes: per pixel, the sum of its samples' normals, and
+        // sample 0's (depth, instance + 1, model + 1, 0).
+        let mut normals = vec![[0.0f32; 3]; if passes { n } else { 0 }];
+        let mut first_ids = Vec::new();
         // Per pixel and channel, Σ (surface indirect)² over its samples:
         // the spread of its indirect light, which the gathers' filter weighs.
         let mut ind_sq = vec![[0.0f64; 3]; n];
@@ -415,9 +427,9 @@ impl StripRenderer {
         for base in (0..spp).step_by(batch as usize) {
             let batch_spp = batch.min(spp - base);
             let u = FrameUniform { sample_base: base, batch_spp, ..*uniform };
-            let (all, counts) =
-                self.dispatch(ctx, kernel, passes, &u, batch_spp as u64 * sample_bytes, batch_spp)?;
-            // Four (eight) images, each `batch_spp` slots of `n` pixels.
+            let bytes = batch_spp as u64 * sample_bytes + once;
+            let (all, counts) = self.dispatch(ctx, kernel, passes, &u, bytes, batch_spp)?;
+            // Four (six) images, each `batch_spp` slots of `n` pixels.
             let slots = n * batch_spp as usize;
             let indirect = &all[3 * slots..4 * slots];
             if passes {
@@ -429,18 +441,15 @@ impl StripRenderer {
                         }
                     }
                 }
-                for j in 0..batch_spp as usize {
-                    let at = |k: usize, i: usize| all[(5 + k) * slots + j * n + i];
-                    for (i, g) in guides.iter_mut().enumerate() {
-                        if base == 0 && j == 0 {
-                            *g = std::array::from_fn(|k| at(k, i));
-                        } else {
-                            for (k, sum) in g.iter_mut().enumerate().take(2) {
-                                let v = at(k, i);
-                                (0..3).for_each(|c| sum[c] += v[c]);
-                            }
+                for slot in all[5 * slots..6 * slots].chunks_exact(n) {
+                    for (a, v) in normals.iter_mut().zip(slot) {
+                        for c in 0..3 {
+                            a[c] += v[c];
                         }
                     }
+                }
+                if base == 0 {
+                    first_ids = all[6 * slots..6 * slots + n].to_vec();
                 }
             }
             for slot in indirect.chunks_exact(n) {
@@ -488,6 +497,18 @@ impl StripRenderer {
             }
         };
         let (direct, sky) = (mean3(direct), mean3(sky));
+        // The guides: the albedo is the third image's (the first surface's,
+        // as a diffuse field sees it), the normal its own.
+        let guides = (0..if passes { n } else { 0 })
+            .map(|i| {
+                let (a, nrm, ids) = (guide[i], normals[i].map(|v| v / spp as f32), first_ids[i]);
+                [
+                    [a[0], a[1], a[2], ids[0]],
+                    [nrm[0], nrm[1], nrm[2], 0.0],
+                    [ids[1], ids[2], 0.0, 0.0],
+                ]
+            })
+            .collect();
         Ok((
             SampleMeans { paths, first, guide, surface_indirect, indirect_variance, direct, sky },
             guides,
@@ -594,8 +615,7 @@ fn passes(
         put(Pass::Sky, &mut sky.iter().flatten().copied());
     }
     if f.passes.wants_guides() {
-        let spp = f.spp as f32;
-        let mean = |k: usize| guides.iter().flat_map(move |g| [0, 1, 2].map(|c| g[k][c] / spp));
+        let mean = |k: usize| guides.iter().flat_map(move |g| [0, 1, 2].map(|c| g[k][c]));
         put(Pass::Albedo, &mut mean(0));
         put(Pass::Normal, &mut mean(1));
         put(Pass::Depth, &mut guides.iter().map(|g| g[0][3]));

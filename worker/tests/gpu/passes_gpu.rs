@@ -11,7 +11,7 @@ use sylva_accel::AccelKind;
 use sylva_scene::passes::{NO_DEPTH, Pass, PassImage, PassSet};
 use sylva_scene::{LightingMode, Scene, parse};
 use sylva_worker::prepare::prepare;
-use sylva_worker::trace::{RenderSettings, RenderedStrip};
+use sylva_worker::trace::{RenderSettings, RenderedStrip, Tracer};
 
 fn settings(w: u32, h: u32, spp: u32, lighting: LightingMode) -> RenderSettings {
     RenderSettings {
@@ -171,14 +171,21 @@ fn ids_depth_normals_and_albedo_name_what_each_pixel_sees() {
         "sky": { "zenith": [0.1, 0.2, 0.4], "horizon": [0.1, 0.2, 0.4] }
     }"#;
     let scene = Scene::build(parse(text, "ids.json").unwrap(), &dir, "ids.json").unwrap();
-    let p = prepare(&ctx, &scene, AccelKind::Bvh, LightingMode::Local, &|_| {}).unwrap();
+    // Both kernel families: the direct methods' sum their samples' guides
+    // in the kernel, the path tracer's write a normal per sample.
+    for (lighting, spp) in [(LightingMode::Local, 70), (LightingMode::Reference, 3)] {
+        guides_name_what_each_pixel_sees(&ctx, &scene, lighting, spp);
+    }
+}
+
+fn guides_name_what_each_pixel_sees(ctx: &Tracer, scene: &Scene, lighting: LightingMode, spp: u32) {
+    let p = prepare(ctx, scene, AccelKind::Bvh, lighting, &|_| {}).unwrap();
     let (w, h) = (64u32, 32u32);
-    // More samples than one dispatch of the guides' kernel takes.
-    let f = RenderSettings { passes: PassSet::all(), ..settings(w, h, 70, LightingMode::Local) };
+    let f = RenderSettings { passes: PassSet::all(), ..settings(w, h, spp, lighting) };
     // Two strips, as a farm cuts the frame: the passes land by column.
     let mut frame = PassImage::new(w, h, PassSet::all());
     for (x0, x1) in [(0, 29), (29, 64)] {
-        let s = p.renderer.render_strip(&ctx, &f, x0, x1).unwrap();
+        let s = p.renderer.render_strip(ctx, &f, x0, x1).unwrap();
         frame.paste_strip(x0, s.passes.as_ref().unwrap()).unwrap();
     }
     frame.check().unwrap();
@@ -205,7 +212,10 @@ fn ids_depth_normals_and_albedo_name_what_each_pixel_sees() {
     assert!((get(Pass::Depth, right)[0] - 12.0).abs() < 1e-4);
     for n in [left, right] {
         let v = get(Pass::Normal, n);
-        assert!((Vec3::from_slice(&v) - Vec3::Z).length() < 1e-5, "normal {v:?} faces the camera");
+        assert!(
+            (Vec3::from_slice(&v) - Vec3::Z).length() < 1e-5,
+            "{lighting:?}: normal {v:?} faces the camera"
+        );
     }
     assert!(get(Pass::Normal, sky).iter().all(|&v| v == 0.0));
     let near = |a: Vec<f32>, b: [f32; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6);
