@@ -279,10 +279,11 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         notes: json!({ "reused": reused, "spp": r.stats.spp, "batches": r.stats.batches, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "max_bounces": sylva_worker::trace::MAX_BOUNCES, "leaf_optics": scene.file.leaf_optics }),
     });
 
-    // The time–error chart: every method and the progressive path tracer.
-    let mut points: Vec<pareto::Point> = reports
+    // The time–error chart: every method (the path tracer's denoised
+    // families among them) and the progressive path tracer; not the
+    // reference, the last report, which they are measured against.
+    let mut points: Vec<pareto::Point> = reports[..rendered.len()]
         .iter()
-        .filter(|m| m.lighting != LightingMode::Reference)
         .map(|m| pareto::Point {
             name: m.name.clone(),
             family: m.family.clone(),
