@@ -3,7 +3,8 @@
 # at most 8 minutes: the traversal per ray kind timed by the GPU itself
 # (camera, shadow and diffuse-bounce rays, at least 4 M rays each), whole
 # frames at 1 and 4 spp, the cold and warm first frame, the LB solve,
-# where a frame's time goes through the farm, and a sun sweep.
+# where a frame's time goes through the farm, a sun sweep, the guides'
+# cost and the speed/accuracy front with the denoised methods.
 # Prepared here with benchmarks/gpu/prepare.sh; run there in the repo's
 # root (the device tool: carry [".dev", ".gl"], command
 # `bash benchmarks/gpu/run.sh`). Writes each command's JSON, its log and
@@ -74,6 +75,19 @@ step farm-0.05 60 bench farm "$DEST/forest-0.05.json" --repeat 5
 step sweep-0.05 45 render "$DEST/forest-0.05.json" -o "$DEST/sweep/day.png" --frames 24 \
   --sun-from 15,90 --sun-to 60,200 --local-workers 0 --width 320 --height 160 --spp 1 \
   --lighting lb --json
+# Issue 40: the guides' cost now that the frame's kernels write them
+# (frames 2-3 of an in-process sequence under one sun are the steady
+# state), and the speed/accuracy front of the 0.02 forest at 320 x 160
+# (the issue's table), the path tracer's denoised families on it. Last:
+# each runs only if the budget has room.
+for p in beauty albedo,normal; do
+  step "guides-${p%%,*}" 40 render "$DEST/forest-0.05.json" -o "$DEST/guides/${p%%,*}.png" \
+    --frames 3 --sun-from 60,30 --sun-to 60,30 --local-workers 0 --width 896 --height 448 \
+    --spp 4 --lighting gather --gather-filter 0 --accel bvh --passes "$p" --json
+done
+"$BIN" scene forest --scale 0.02 -o "$DEST/forest-0.02.json" > /dev/null 2>> "$DEST/all.log"
+step compare-0.02 120 compare "$DEST/forest-0.02.json" --width 320 --height 160 \
+  --gather-rays 4,16 --gather-filters 0,3 --out "$DEST/compare-0.02" --json
 # The figures the issues' tables quote, in one file.
 python3 - "$DEST" <<'PY' || echo "summary: python3 missing or a step failed"
 import json, pathlib, sys
@@ -82,6 +96,7 @@ def load(n):
     try: return json.loads((d / f"{n}.json").read_text())
     except Exception: return None
 t, lb, farm, sweep = load("trace-forest"), load("lb-128"), load("farm-0.05"), load("sweep-0.05")
+guides, plain, cmp = load("guides-albedo"), load("guides-beauty"), load("compare-0.02")
 out = {"gpu": (d / "gpu.txt").read_text().strip().splitlines()[-1] if (d / "gpu.txt").exists() else None}
 if t:
     out["adapter"] = t["adapter"]["name"]
@@ -103,6 +118,12 @@ if sweep:
         "next_frames_mean_ms": sum(f["prepare_ms"] + f["trace_ms"] for f in rest) / len(rest) if rest else None,
         "trace_mean_ms": sum(f["trace_ms"] for f in fr) / len(fr) if fr else None,
     }
+if guides and plain:
+    steady = lambda r: [f["trace_ms"] for f in (r.get("frames") or [])[1:]]
+    out["guides_trace_ms"] = {"image": steady(plain), "with_albedo_normal": steady(guides)}
+if cmp:
+    out["compare_0.02_front"] = [{k: p.get(k) for k in ("name", "ms", "raw")} for p in cmp.get("front", [])]
+    out["compare_0.02_reference_ms"] = (cmp.get("reference") or {}).get("ms")
 if lb:
     out["lb_128"] = [{k: r.get(k) for k in ("device", "mlups", "step_mlups")} for r in lb.get("results", [])]
 (d / "summary.json").write_text(json.dumps(out, indent=1))
