@@ -26,11 +26,12 @@ pub fn sample_bytes_per_pixel(passes: bool) -> u64 {
     if passes { 6 * 16 } else { 4 * 16 }
 }
 
-/// A pixel's guides as the direct kernels write them (`guides` in
-/// render.wgsl), as means: (albedo, depth), (normal, 0), (instance + 1,
-/// model + 1, 0, 0), the albedo and normal over the pixel's samples, the
-/// depth and ids of its sample 0.
+/// A pixel's guides in the layout of the direct kernels' guide images
+/// (`guides` in render.wgsl), as means: (albedo, depth), (normal, 0),
+/// (instance + 1, model + 1, 0, 0), the albedo and normal over the
+/// pixel's samples, the depth and ids of its sample 0.
 type GuidePixel = [[f32; 4]; 3];
+
 /// Longest path the reference integrator follows.
 pub const MAX_BOUNCES: u32 = 16;
 
@@ -321,7 +322,8 @@ impl StripRenderer {
                 let passes = with_passes.then(|| {
                     // The kernel sums albedo and normal over the samples.
                     let spp = f.spp as f32;
-                    let guides: Vec<GuidePixel> = (0..n)
+                    let wanted = if f.passes.wants_guides() { n } else { 0 };
+                    let guides: Vec<GuidePixel> = (0..wanted)
                         .map(|i| {
                             let [a, nrm, ids] = std::array::from_fn(|k| px[(4 + k) * n + i]);
                             let mean =
@@ -342,8 +344,13 @@ impl StripRenderer {
                     passes,
                 });
             }
-            let (mut means, guides, rays) =
-                self.sample_means(ctx, method.kernel, with_passes, &uniform)?;
+            let (mut means, guides, rays) = self.sample_means(
+                ctx,
+                method.kernel,
+                with_passes,
+                f.passes.wants_guides(),
+                &uniform,
+            )?;
             if radius > 0 {
                 super::filter::filter_indirect(
                     &mut means,
@@ -389,13 +396,15 @@ impl StripRenderer {
 
     /// The per-sample kernel over the columns `uniform` names, every
     /// sample of the frame: each pixel's mean of its four images and, with
-    /// `passes`, its guides (empty without). As many samples per dispatch
-    /// as the adapter binds.
+    /// `passes`, the light split and, where `guides` asks, the guides
+    /// (empty otherwise: a progressive reference's later batches want the
+    /// split alone). As many samples per dispatch as the adapter binds.
     fn sample_means(
         &self,
         ctx: &GpuContext,
         kernel: Kernel,
         passes: bool,
+        guides: bool,
         uniform: &FrameUniform,
     ) -> anyhow::Result<(SampleMeans, Vec<GuidePixel>, RayCounts)> {
         let n = (uniform.strip_width * uniform.height) as usize;
@@ -418,7 +427,8 @@ impl StripRenderer {
         let (mut direct, mut sky) = (vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
         // With passes: per pixel, the sum of its samples' normals, and
         // sample 0's (depth, instance + 1, model + 1, 0).
-        let mut normals = vec![[0.0f32; 3]; if passes { n } else { 0 }];
+        let wanted = if passes && guides { n } else { 0 };
+        let mut normals = vec![[0.0f32; 3]; wanted];
         let mut first_ids = Vec::new();
         // Per pixel and channel, Σ (surface indirect)² over its samples:
         // the spread of its indirect light, which the gathers' filter weighs.
@@ -441,14 +451,14 @@ impl StripRenderer {
                         }
                     }
                 }
-                for slot in all[5 * slots..6 * slots].chunks_exact(n) {
+                for slot in all[5 * slots..6 * slots].chunks_exact(n).filter(|_| wanted > 0) {
                     for (a, v) in normals.iter_mut().zip(slot) {
                         for c in 0..3 {
                             a[c] += v[c];
                         }
                     }
                 }
-                if base == 0 {
+                if base == 0 && wanted > 0 {
                     first_ids = all[6 * slots..6 * slots + n].to_vec();
                 }
             }
@@ -499,7 +509,7 @@ impl StripRenderer {
         let (direct, sky) = (mean3(direct), mean3(sky));
         // The guides: the albedo is the third image's (the first surface's,
         // as a diffuse field sees it), the normal its own.
-        let guides = (0..if passes { n } else { 0 })
+        let guides = (0..wanted)
             .map(|i| {
                 let (a, nrm, ids) = (guide[i], normals[i].map(|v| v / spp as f32), first_ids[i]);
                 [
