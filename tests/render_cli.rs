@@ -236,6 +236,11 @@ fn bad_render_requests_get_clear_errors() {
 
 /// `--lighting auto` on a scene: the stats JSON, with what it chose and why.
 fn auto(dir: &Path, name: &str, scene: &str, goal: &[&str]) -> Value {
+    auto_with(dir, name, scene, goal, &[])
+}
+
+/// [`auto`] with `env` set.
+fn auto_with(dir: &Path, name: &str, scene: &str, goal: &[&str], env: &[(&str, &str)]) -> Value {
     let path = dir.join(format!("{name}.json"));
     std::fs::write(&path, scene).unwrap();
     let out = dir.join(format!("{name}.png"));
@@ -255,7 +260,9 @@ fn auto(dir: &Path, name: &str, scene: &str, goal: &[&str]) -> Value {
         "--json",
     ];
     args.extend_from_slice(goal);
-    let v: Value = serde_json::from_str(&ok(&args)).unwrap();
+    let o = common::sylva(&args, env);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(png_size(&out), (160, 80));
     v
 }
@@ -319,16 +326,37 @@ fn lighting_auto_picks_for_the_scene_and_says_why() {
             "path tracer 16 rays",
             "gather 1b 4 rays",
             "gather 2b 16 rays",
+            "path tracer + denoised indirect 4 rays",
+            "path tracer + denoised indirect 16 rays",
         ] {
             assert!(names.contains(&n), "{n} missing from {names:?}");
         }
-        assert!(v["phases_ms"].as_array().unwrap().iter().any(|p| p["phase"] == "pilot"));
+        let phases = v["phases_ms"].as_array().unwrap();
+        assert!(phases.iter().any(|p| p["phase"] == "pilot"));
+        // A denoised choice is denoised.
+        let denoised = chosen["denoise"] != "off";
+        assert_eq!(phases.iter().any(|p| p["phase"] == "denoise"), denoised, "{a}");
     }
     // A lone tree: few paths stay among its leaves, so path tracing needs
     // no pre-process and few samples. A stand: paths bounce between crowns,
-    // so brute force is noisy, and the gather over the lattice pays.
+    // so brute force is noisy; without a denoiser the gather over the
+    // lattice pays, and the pilot says why it has no denoised candidates.
     assert_eq!(t["auto"]["chosen"]["lighting"], "reference", "{}", t["auto"]["why"]);
-    assert_eq!(s["auto"]["chosen"]["lighting"], "gather", "{}", s["auto"]["why"]);
+    let no_oidn = [("SYLVA_OIDN_LIB", "/nonexistent/libOpenImageDenoise.so.2")];
+    let plain = auto_with(&dir, "stand-plain", &stand, &goal, &no_oidn);
+    assert_eq!(plain["auto"]["chosen"]["lighting"], "gather", "{}", plain["auto"]["why"]);
+    let error = |v: &Value, name: &str| -> f64 {
+        let c = v["auto"]["candidates"].as_array().unwrap().iter().find(|c| c["name"] == name);
+        c.map(|c| c["error"].as_f64().unwrap()).unwrap_or(f64::NAN)
+    };
+    assert!(error(&plain, "path tracer + denoised indirect 4 rays").is_nan());
+    let left_out = plain["auto"]["left_out"][0].as_str().unwrap_or_default();
+    assert!(left_out.starts_with("denoised methods: "), "{}", plain["auto"]);
+    // With one, the path tracer's indirect light denoised is far closer to
+    // the reference than the same samples raw.
+    let (raw, denoised) =
+        (error(&s, "path tracer 16 rays"), error(&s, "path tracer + denoised indirect 16 rays"));
+    assert!(denoised < 0.7 * raw, "{denoised} against {raw}: {}", s["auto"]);
     // A budget: the most accurate that fits.
     let b = auto(&dir, "stand-budget", &stand, &["--time-budget", "0.3"]);
     let chosen = &b["auto"]["chosen"];

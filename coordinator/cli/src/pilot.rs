@@ -27,7 +27,7 @@ use std::sync::Arc;
 use std::time::Instant;
 use sylva_accel::AccelKind;
 use sylva_scene::film::HdrImage;
-use sylva_scene::frame::{FrameSettings, MAX_SPP};
+use sylva_scene::frame::{Denoise, FrameSettings, MAX_SPP};
 use sylva_scene::{LightingMode, Scene};
 use sylva_worker::frame::reference::ReferenceOptions;
 use sylva_worker::frame::{Frame, Fresh};
@@ -83,6 +83,8 @@ pub struct Measured {
     pub gather_bounces: u32,
     /// The gathers: filter radius, pixels.
     pub gather_filter: u32,
+    /// What of its frame is denoised (the path tracer's indirect light, or nothing).
+    pub denoise: Denoise,
     /// The lighting's own pre-process (LB, forest LB, clouds, ambient
     /// match), measured on the scene itself: it does not scale with pixels.
     pub preprocess_ms: f64,
@@ -122,6 +124,8 @@ pub struct Report {
     pub pilot: PilotFrame,
     /// Every candidate: measured, then read off the curves.
     pub candidates: Vec<Measured>,
+    /// Candidates the pilot could not measure here, and why.
+    pub left_out: Vec<String>,
     /// The choice.
     pub chosen: Measured,
     /// Why, in a sentence.
@@ -254,9 +258,12 @@ pub fn choose(
     let mut measured = Vec::new();
     // Per sampled family: its frame's fixed and per-ray milliseconds.
     let mut timings: Vec<(String, f64, f64)> = Vec::new();
+    let mut left_out = Vec::new();
+    // A whole frame's denoise, timed once.
+    let mut denoise_ms: Option<f64> = None;
     let local = render_columns(first, &base, &columns)?.0;
     for (g, _, p, pre_ms) in &preparations {
-        let mut run = |family: &str, f: RenderSettings, pre: f64| -> anyhow::Result<()> {
+        let mut run = |family: &str, f: RenderSettings, pre: f64, denoise: Denoise| {
             let sampled =
                 f.lighting == LightingMode::Reference || f.lighting == LightingMode::Gather;
             let name = if sampled { format!("{family} {} rays", f.spp) } else { family.into() };
@@ -277,7 +284,16 @@ pub fn choose(
             } else {
                 time_frame(p, &f)?
             };
-            let (image, own) = render_columns(p, &f, &columns)?;
+            let frame_ms = if denoise.is_on() {
+                let d = match denoise_ms {
+                    Some(d) => d,
+                    None => *denoise_ms.insert(denoise_frame_ms(f.width, f.height, denoise)?),
+                };
+                frame_ms + d
+            } else {
+                frame_ms
+            };
+            let (image, own) = render_columns_denoised(p, &f, &columns, denoise)?;
             let l = own.as_ref().unwrap_or(&local);
             let e = IndirectError::measure([&image, &image], [l, l], &reference, &lit);
             measured.push(Measured {
@@ -288,20 +304,21 @@ pub fn choose(
                 spp: f.spp,
                 gather_bounces: f.gather_bounces,
                 gather_filter: f.gather_filter,
+                denoise,
                 preprocess_ms: pre,
                 frame_ms,
                 predicted_ms: pre + frame_ms,
                 error: e.seen,
                 extrapolated: false,
             });
-            Ok(())
+            anyhow::Ok(())
         };
         let on = |name: &str| match g {
             None => name.to_string(),
             Some(g) => format!("{name} on lb {g}³"),
         };
         if g.is_none() {
-            run("local", base, 0.0)?;
+            run("local", base, 0.0, Denoise::Off)?;
             let t = Instant::now();
             let ambient = RenderSettings { lighting: LightingMode::Ambient, ..base };
             let ambient = RenderSettings {
@@ -312,13 +329,36 @@ pub fn choose(
                 )?,
                 ..ambient
             };
-            run("ambient", ambient, pre_ms + ms(t))?;
+            run("ambient", ambient, pre_ms + ms(t), Denoise::Off)?;
+            let clouds_ms = p.prepared.phases.ms("cloud lb");
             for &k in &MEASURED_RAYS {
                 let f = RenderSettings { lighting: LightingMode::Reference, spp: k, ..base };
-                run("path tracer", f, p.prepared.phases.ms("cloud lb"))?;
+                run("path tracer", f, clouds_ms, Denoise::Off)?;
+            }
+            // The path tracer with its indirect light denoised, where the
+            // denoiser's library loads: measured at its ray counts only
+            // (a denoised image's error follows no fitted curve).
+            match sylva_denoise::available() {
+                Ok(()) => {
+                    for &k in &MEASURED_RAYS {
+                        let denoise = Denoise::Indirect;
+                        let f = RenderSettings {
+                            lighting: LightingMode::Reference,
+                            spp: k,
+                            passes: denoise.passes(),
+                            ..base
+                        };
+                        run("path tracer + denoised indirect", f, clouds_ms, denoise)?;
+                    }
+                }
+                Err(e) => {
+                    tracing::info!("the pilot leaves out denoised methods: {e}");
+                    left_out.push(format!("denoised methods: {e}"));
+                }
             }
         }
-        run(&on("lb"), RenderSettings { lighting: LightingMode::Lb, ..base }, *pre_ms)?;
+        let lb = RenderSettings { lighting: LightingMode::Lb, ..base };
+        run(&on("lb"), lb, *pre_ms, Denoise::Off)?;
         for bounces in [1, 2] {
             for &k in &MEASURED_RAYS {
                 let f = RenderSettings {
@@ -328,7 +368,7 @@ pub fn choose(
                     gather_filter: sylva_scene::frame::DEFAULT_GATHER_FILTER,
                     ..base
                 };
-                run(&on(&format!("gather {bounces}b")), f, *pre_ms)?;
+                run(&on(&format!("gather {bounces}b")), f, *pre_ms, Denoise::Off)?;
             }
         }
     }
@@ -344,6 +384,12 @@ pub fn choose(
         spp: chosen.spp,
         gather_bounces: chosen.gather_bounces,
         gather_filter: chosen.gather_filter,
+        denoise: chosen.denoise,
+        passes: if chosen.denoise.is_on() {
+            frame.passes.with(chosen.denoise.passes())
+        } else {
+            frame.passes
+        },
         ..*frame
     };
     let report = Report {
@@ -356,6 +402,7 @@ pub fn choose(
             ms: ms(t),
         },
         candidates,
+        left_out,
         chosen,
         why,
     };
@@ -375,6 +422,98 @@ pub fn render_columns(
     columns: &[(u32, u32)],
 ) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
     render_columns_with_passes(frame, f, columns).map(|(image, own, _)| (image, own))
+}
+
+/// [`render_columns`] with its pixels denoised as `what` says, each run
+/// of adjacent columns as an image of its own (a strip is a whole column
+/// of the frame; denoised side by side, the denoiser would blur across
+/// the seams where strips meet). `f` carries the passes the denoise needs.
+fn render_columns_denoised(
+    frame: &Frame,
+    f: &RenderSettings,
+    columns: &[(u32, u32)],
+    what: Denoise,
+) -> anyhow::Result<(HdrImage, Option<HdrImage>)> {
+    if !what.is_on() {
+        return render_columns(frame, f, columns);
+    }
+    let (mut image, own, passes) = render_columns_with_passes(frame, f, columns)?;
+    let passes = passes.ok_or_else(|| anyhow::anyhow!("a denoised pilot needs its passes"))?;
+    let mut x = 0;
+    for run in runs(columns) {
+        let w = run.1 - run.0;
+        let (mut part, part_passes) = crop(&image, &passes, x, w);
+        sylva_coordinator::executor::denoise(&mut part, Some(&part_passes), what)?;
+        for (y, row) in part.pixels.chunks_exact(w as usize).enumerate() {
+            let at = y * image.width as usize + x as usize;
+            image.pixels[at..at + w as usize].copy_from_slice(row);
+        }
+        x += w;
+    }
+    Ok((image, own))
+}
+
+/// `columns` with each run of adjacent ones joined.
+fn runs(columns: &[(u32, u32)]) -> Vec<(u32, u32)> {
+    let mut out: Vec<(u32, u32)> = Vec::new();
+    for &(x0, x1) in columns {
+        match out.last_mut() {
+            Some(last) if last.1 == x0 => last.1 = x1,
+            _ => out.push((x0, x1)),
+        }
+    }
+    out
+}
+
+/// Milliseconds to denoise a `width` × `height` frame as `what` says:
+/// the denoiser's time depends on the pixels, not on what they show, so
+/// a frame of flat passes is timed, after an untimed first call that
+/// loads the library and its weights.
+fn denoise_frame_ms(width: u32, height: u32, what: Denoise) -> anyhow::Result<f64> {
+    use sylva_scene::passes::{Pass, PassImage};
+    let n = (width * height) as usize;
+    let mut passes = PassImage::new(width, height, what.passes());
+    for (p, plane) in what.passes().extra().zip(&mut passes.planes) {
+        let value = match p {
+            Pass::Albedo => 0.5,
+            Pass::Normal => 0.0,
+            _ => 0.1,
+        };
+        plane.iter_mut().for_each(|v| *v = value);
+    }
+    if let Some(normal) = passes.plane_mut(Pass::Normal) {
+        normal.chunks_exact_mut(3).for_each(|v| v[2] = 1.0);
+    }
+    let image = HdrImage { width, height, pixels: vec![[0.3; 3]; n] };
+    let time = || -> anyhow::Result<f64> {
+        let t = Instant::now();
+        sylva_coordinator::executor::denoise(&mut image.clone(), Some(&passes), what)?;
+        Ok(ms(t))
+    };
+    time()?;
+    time()
+}
+
+/// Columns `[x, x + w)` of `image` and of its `passes`.
+fn crop(
+    image: &HdrImage,
+    passes: &sylva_scene::passes::PassImage,
+    x: u32,
+    w: u32,
+) -> (HdrImage, sylva_scene::passes::PassImage) {
+    let (width, height) = (image.width as usize, image.height as usize);
+    let (x, w) = (x as usize, w as usize);
+    let pixels =
+        (0..height).flat_map(|y| image.pixels[y * width + x..y * width + x + w].to_vec()).collect();
+    let mut out = sylva_scene::passes::PassImage::new(w as u32, image.height, passes.set);
+    for (dst, src) in out.planes.iter_mut().zip(&passes.planes) {
+        let c = src.len() / (width * height);
+        for y in 0..height {
+            dst[y * w * c..(y + 1) * w * c]
+                .copy_from_slice(&src[(y * width + x) * c..(y * width + x + w) * c]);
+        }
+    }
+    (HdrImage { width: w as u32, height: image.height, pixels }, out)
 }
 
 /// [`render_columns`], and the passes `f` asks for, rendered with the
@@ -463,6 +602,10 @@ fn along_curves(measured: &[Measured], goal: Goal) -> Vec<Measured> {
     for family in families {
         let points: Vec<&Measured> = measured.iter().filter(|m| m.family == family).collect();
         let [a, b] = points.as_slice() else { continue };
+        if a.denoise.is_on() {
+            // A denoised image's error is not bias² + noise / k.
+            continue;
+        }
         let curve = Curve::fit(a, b);
         let k = match goal {
             Goal::MaxError(e) if e * e > curve.bias2 => curve.c / (e * e - curve.bias2),
@@ -575,6 +718,7 @@ mod tests {
             spp: 1,
             gather_bounces: 1,
             gather_filter: 3,
+            denoise: Denoise::Off,
             preprocess_ms: 0.0,
             frame_ms: ms,
             predicted_ms: ms,
@@ -601,6 +745,12 @@ mod tests {
             predicted_ms: 500.0 + frame_ms,
             ..c("", 0.0, error)
         }
+    }
+
+    #[test]
+    fn adjacent_columns_are_denoised_as_one_image() {
+        assert_eq!(runs(&[(0, 4), (4, 8), (10, 12), (12, 13)]), [(0, 8), (10, 13)]);
+        assert_eq!(runs(&[(3, 9)]), [(3, 9)]);
     }
 
     #[test]
@@ -670,5 +820,13 @@ mod tests {
         let pt = along_curves(&[p4, p16], Goal::MaxError(0.1));
         assert_eq!(pt[0].spp, 256);
         assert!((pt[0].error - 0.1).abs() < 1e-9);
+        // Denoised, it is not on that curve: only its measured points count.
+        let denoised = |k, e| Measured {
+            denoise: Denoise::Indirect,
+            ..sampled("path tracer + denoised indirect", LightingMode::Reference, k, 9.0, e)
+        };
+        assert!(
+            along_curves(&[denoised(4, 0.3), denoised(16, 0.2)], Goal::MaxError(0.1)).is_empty()
+        );
     }
 }

@@ -19,28 +19,102 @@ pub type PixelLight<'a> = Box<dyn Fn(usize) -> [f32; 3] + 'a>;
 /// means are edge pixels and noise.
 pub const MIN_PIXELS: usize = 20;
 
-/// Per pixel, the instance its centre's camera ray meets first (alpha
-/// test included), or `None` for the sky or the ground in front: the
-/// same pinhole as the render kernel's `camera_ray` at the pixel centre.
-pub fn instance_ids(scene: &Scene, width: u32, height: u32) -> Vec<Option<u32>> {
-    let accel = SceneAccel::build(scene, AccelKind::Bvh);
+/// The camera ray through point (`x`, `y`) of the film, in pixels from its
+/// top-left corner: the same pinhole as the render kernel's `camera_ray`.
+fn camera_ray(scene: &Scene, width: u32, height: u32, x: f32, y: f32) -> Ray {
     let c = &scene.camera;
     let aspect = width as f32 / height as f32;
+    let sx = (2.0 * x / width as f32 - 1.0) * c.tan_half_fov_y * aspect;
+    let sy = (1.0 - 2.0 * y / height as f32) * c.tan_half_fov_y;
+    Ray::new(c.position, (c.forward + c.right * sx + c.up * sy).normalize())
+}
+
+/// Distance along `ray` to the ground plane in front, if the scene has one.
+fn ground_distance(scene: &Scene, ray: &Ray) -> f32 {
+    match scene.ground {
+        Some(_) if ray.dir.y < 0.0 => -ray.origin.y / ray.dir.y,
+        _ => f32::INFINITY,
+    }
+}
+
+/// Per pixel, the instance its centre's camera ray meets first (alpha
+/// test included), or `None` for the sky or the ground in front.
+pub fn instance_ids(scene: &Scene, width: u32, height: u32) -> Vec<Option<u32>> {
+    let accel = SceneAccel::build(scene, AccelKind::Bvh);
     let mut ids = Vec::with_capacity((width * height) as usize);
     for y in 0..height {
         for x in 0..width {
-            let sx = (2.0 * (x as f32 + 0.5) / width as f32 - 1.0) * c.tan_half_fov_y * aspect;
-            let sy = (1.0 - 2.0 * (y as f32 + 0.5) / height as f32) * c.tan_half_fov_y;
-            let dir: Vec3 = (c.forward + c.right * sx + c.up * sy).normalize();
-            let ground = match scene.ground {
-                Some(_) if dir.y < 0.0 => -c.position.y / dir.y,
-                _ => f32::INFINITY,
-            };
-            let hit = accel.closest(scene, &Ray::new(c.position, dir), 0.0, ground);
+            let ray = camera_ray(scene, width, height, x as f32 + 0.5, y as f32 + 0.5);
+            let hit = accel.closest(scene, &ray, 0.0, ground_distance(scene, &ray));
             ids.push(hit.map(|h| h.instance));
         }
     }
     ids
+}
+
+/// Camera rays per pixel side that [`cloud_pixels`] casts.
+pub const CLOUD_RAYS_PER_SIDE: u32 = 4;
+
+/// Per pixel, whether any of its camera rays (a 4 × 4 grid over the
+/// pixel) crosses a cloud's box before its first surface: where a method
+/// that draws no clouds (`local`, `boulanger`) misses the cloud itself,
+/// in front of a crown or behind its gaps. Such pixels' error is the
+/// cloud's, not the leaves' light, and `compare` reports them apart. The
+/// box bounds the cloud's density, so the mask is conservative: it can
+/// flag a pixel whose rays cross only the box's empty corners.
+pub fn cloud_pixels(scene: &Scene, width: u32, height: u32) -> Vec<bool> {
+    if scene.clouds.is_empty() {
+        return vec![false; (width * height) as usize];
+    }
+    let accel = SceneAccel::build(scene, AccelKind::Bvh);
+    let boxes: Vec<(Vec3, Vec3)> = scene
+        .clouds
+        .iter()
+        .map(|c| {
+            let (centre, half) = (Vec3::from(c.center), Vec3::splat(c.size / 2.0));
+            (centre - half, centre + half)
+        })
+        .collect();
+    let k = CLOUD_RAYS_PER_SIDE;
+    let mut mask = Vec::with_capacity((width * height) as usize);
+    for y in 0..height {
+        for x in 0..width {
+            let sees = (0..k * k).any(|s| {
+                let (u, v) = ((s % k) as f32 + 0.5, (s / k) as f32 + 0.5);
+                let ray = camera_ray(
+                    scene,
+                    width,
+                    height,
+                    x as f32 + u / k as f32,
+                    y as f32 + v / k as f32,
+                );
+                let far = ground_distance(scene, &ray);
+                let far = accel.closest(scene, &ray, 0.0, far).map_or(far, |h| h.t);
+                boxes.iter().any(|&(lo, hi)| crosses_box(&ray, lo, hi, far))
+            });
+            mask.push(sees);
+        }
+    }
+    mask
+}
+
+/// Whether `ray` passes through the box [`lo`, `hi`] between 0 and `far`
+/// (the slab test; a ray parallel to a slab outside it misses).
+fn crosses_box(ray: &Ray, lo: Vec3, hi: Vec3, far: f32) -> bool {
+    let (mut near, mut far) = (0.0f32, far);
+    for a in 0..3 {
+        let (o, d) = (ray.origin[a], ray.dir[a]);
+        if d == 0.0 {
+            if o < lo[a] || o > hi[a] {
+                return false;
+            }
+            continue;
+        }
+        let (t0, t1) = ((lo[a] - o) / d, (hi[a] - o) / d);
+        near = near.max(t0.min(t1));
+        far = far.min(t0.max(t1));
+    }
+    near <= far
 }
 
 /// One crown's mean indirect light (linear RGB) for the reference and each method.
@@ -236,6 +310,62 @@ pub fn markdown(t: &CrownTable) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_ray_crosses_a_box_only_in_front_of_its_first_surface() {
+        let ray = Ray::new(Vec3::ZERO, Vec3::Z);
+        let (lo, hi) = (Vec3::new(-1.0, -1.0, 5.0), Vec3::new(1.0, 1.0, 7.0));
+        assert!(crosses_box(&ray, lo, hi, f32::INFINITY));
+        assert!(
+            crosses_box(&ray, lo, hi, 5.5),
+            "a surface inside the box: the box is in front of it"
+        );
+        assert!(!crosses_box(&ray, lo, hi, 4.0), "a surface in front of the box hides it");
+        let beside = Ray::new(Vec3::new(2.0, 0.0, 0.0), Vec3::Z);
+        assert!(!crosses_box(&beside, lo, hi, f32::INFINITY), "parallel to a slab, outside it");
+        let behind = Ray::new(Vec3::ZERO, -Vec3::Z);
+        assert!(!crosses_box(&behind, lo, hi, f32::INFINITY), "the box behind the camera");
+    }
+
+    /// A 32 × 16 view of one small tree, level, with a cloud where `cloud` says.
+    fn view_with_cloud(cloud: &str) -> Scene {
+        let text = format!(
+            r#"{{
+            "models": {{ "maple": {{ "tree": {{ "species": "red_maple", "triangles": 800, "seed": 3 }} }} }},
+            "instances": [ {{ "model": "maple", "position": [0, 0, 0] }} ],
+            "camera": {{ "position": [0, 4, -14], "look_at": [0, 4, 0], "fov_y_deg": 60 }},
+            "sun": {{ "elevation_deg": 45, "azimuth_deg": 120 }},
+            "ground": {{ "color": [0.1, 0.08, 0.05] }},
+            "clouds": [ {cloud} ]
+        }}"#
+        );
+        let file = sylva_scene::parse(&text, "test").unwrap();
+        Scene::build(file, Path::new("."), "test").unwrap()
+    }
+
+    #[test]
+    fn cloud_pixels_are_those_whose_rays_meet_the_box_before_a_surface() {
+        let (w, h) = (32, 16);
+        let row = |mask: &[bool], y: usize| mask[y * w..(y + 1) * w].iter().filter(|&&c| c).count();
+        // High in the sky behind the tree: the top rows see it, the ground
+        // rows (below the horizon, the ground hides what is behind) do not.
+        let sky =
+            cloud_pixels(&view_with_cloud(r#"{ "center": [0, 16, 30], "size": 30 }"#), 32, 16);
+        assert!(row(&sky, 0) > 0, "the top row looks into the cloud");
+        assert_eq!(row(&sky, h - 1), 0, "the bottom row sees the ground in front of it");
+        // Around the camera: every ray starts in it.
+        let around =
+            cloud_pixels(&view_with_cloud(r#"{ "center": [0, 4, -14], "size": 2 }"#), 32, 16);
+        assert!(around.iter().all(|&c| c));
+        // Behind the camera: no ray meets it.
+        let behind =
+            cloud_pixels(&view_with_cloud(r#"{ "center": [0, 4, -30], "size": 4 }"#), 32, 16);
+        assert!(behind.iter().all(|&c| !c));
+        // Under the ground, straight ahead: hidden by it.
+        let buried =
+            cloud_pixels(&view_with_cloud(r#"{ "center": [0, -10, 30], "size": 8 }"#), 32, 16);
+        assert!(buried.iter().all(|&c| !c));
+    }
 
     #[test]
     fn a_method_that_flattens_the_crowns_scores_low_contrast_and_a_scaled_one_full_correlation() {

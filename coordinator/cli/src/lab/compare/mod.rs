@@ -72,10 +72,24 @@ struct MethodReport {
     indirect_noise_reference: f64,
     /// What the method's own pixel sampling (4 rays across leaf edges) adds.
     indirect_noise_method: f64,
+    /// The indirect error over the lit pixels that see no cloud, where the
+    /// scene has clouds: the leaves' light alone, apart from the cloud
+    /// that `local` and `boulanger` do not draw.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    clear_of_clouds: Option<ClearOfClouds>,
     /// Image file.
     image: String,
     /// What the method decided and why (grid choice, forest grid, warnings).
     notes: serde_json::Value,
+}
+
+/// A method's indirect error over the lit pixels no cloud is seen in.
+#[derive(Debug, Clone, Copy, Serialize)]
+struct ClearOfClouds {
+    /// Raw: bias and noise, as `indirect_relative_error`.
+    raw: f64,
+    /// With both images' noise taken out, as `indirect_error_net`.
+    net: f64,
 }
 
 struct Rendered {
@@ -175,7 +189,13 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
 
     // Errors against the reference; the indirect part (method − local)
     // against the reference's own (its estimate minus local along its samples).
+    // Where the scene has clouds, again over the lit pixels that see none.
     let (local, local_again) = (rendered[0].image.clone(), rendered[0].again.clone());
+    let clouds = crowns::cloud_pixels(&scene, a.width, a.height);
+    let clear: Option<Vec<bool>> = clouds
+        .iter()
+        .any(|&c| c)
+        .then(|| lit.iter().zip(&clouds).map(|(&l, &c)| l && !c).collect());
     for m in &mut rendered {
         (m.report.rmse, m.report.mean_relative_error) = errors(&m.image, &reference, &lit);
         m.report.mean_ratio = mean_ratio(&m.image, &reference, &lit);
@@ -188,6 +208,10 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         m.report.indirect_error_net = ind.net;
         m.report.indirect_noise_reference = ind.reference_noise;
         m.report.indirect_noise_method = ind.method_noise;
+        m.report.clear_of_clouds = clear.as_ref().map(|clear| {
+            let e = IndirectError::measure([&m.image, &m.again], l, &r, clear);
+            ClearOfClouds { raw: e.raw, net: e.net }
+        });
     }
     // Boulanger et al. against what their model holds, as their paper
     // compares: the direct sky and one bounce of sun light, from a
@@ -222,9 +246,15 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
             "one_bounce_share_of_all_indirect": ratio(mo, mr),
         });
     }
-    // Per crown: each instance's mean indirect light, reference and methods.
+    // Per crown: each instance's mean indirect light, reference and
+    // methods, over the lit pixels that see no cloud.
     let ids = crowns::instance_ids(&scene, a.width, a.height);
     crowns::write_id_image(&a.out.join("instances.png"), a.width, a.height, &ids)?;
+    let crown_pixels = clear.as_ref().unwrap_or(&lit);
+    if clear.is_some() {
+        let mask: Vec<Option<u32>> = clouds.iter().map(|&c| c.then_some(0)).collect();
+        crowns::write_id_image(&a.out.join("clouds.png"), a.width, a.height, &mask)?;
+    }
     let indirect = |img: &HdrImage, loc: &HdrImage, i: usize| -> [f32; 3] {
         std::array::from_fn(|c| img.pixels[i][c] - loc.pixels[i][c])
     };
@@ -238,7 +268,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         })
         .collect();
     let crown_table =
-        crowns::table(&scene, &ids, &lit, &|i| indirect(&r.image, &r.local, i), &columns);
+        crowns::table(&scene, &ids, crown_pixels, &|i| indirect(&r.image, &r.local, i), &columns);
     drop(columns);
     std::fs::write(a.out.join("crowns.md"), crowns::markdown(&crown_table))?;
     let ref_png = a.out.join("reference.png");
@@ -276,6 +306,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         indirect_error_net: 0.0,
         indirect_noise_reference: 0.0,
         indirect_noise_method: 0.0,
+        clear_of_clouds: None,
         notes: json!({ "reused": reused, "spp": r.stats.spp, "batches": r.stats.batches, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "max_bounces": sylva_worker::trace::MAX_BOUNCES, "leaf_optics": scene.file.leaf_optics }),
     });
 
@@ -319,6 +350,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         "spp": a.spp,
         "adapter": ctx.summary(),
         "lit_pixels": lit.iter().filter(|&&l| l).count(),
+        "lit_pixels_seeing_clouds": clear.as_ref().map(|c| lit.iter().zip(c).filter(|(l, c)| **l && !**c).count()),
         "reference": { "reused": reused, "spp": r.stats.spp, "relative_standard_error": r.stats.relative_error, "converged": r.stats.converged, "ms": r.stats.ms },
         "methods": reports,
         "summary": best,
@@ -336,6 +368,22 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&table)?);
     } else {
         print_table(&reports, &best);
+        if let Some(c) = &clear {
+            let seen = lit.iter().zip(c).filter(|(l, c)| **l && !**c).count();
+            println!(
+                "{seen} lit pixels see a cloud (clouds.png); over the rest, the leaves' light alone:"
+            );
+            for m in &reports {
+                if let Some(e) = m.clear_of_clouds {
+                    println!(
+                        "  {:<28} {:>5.1} % raw, {:>5.1} % net",
+                        m.name,
+                        100.0 * e.raw,
+                        100.0 * e.net
+                    );
+                }
+            }
+        }
         println!("Pareto front (raw indirect error against time):\n{}", pareto::describe(&front));
         if let Some(b) = &budget {
             println!("{b}");
@@ -428,6 +476,7 @@ fn empty_report() -> MethodReport {
         indirect_error_net: 0.0,
         indirect_noise_reference: 0.0,
         indirect_noise_method: 0.0,
+        clear_of_clouds: None,
         image: String::new(),
         notes: serde_json::Value::Null,
     }
