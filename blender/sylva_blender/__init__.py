@@ -5,6 +5,8 @@ with its instancing kept (geometry-node scatters as EXT_mesh_gpu_instancing,
 collection instances as nodes sharing a mesh), submits it to the farm's
 coordinator with the vendored Python client, follows the job and loads the
 result, a multi-layer OpenEXR with the render passes, as an image.
+With Render Engine set to "Sylva", F12 renders the frame on the farm
+into Blender's render window (`engine.py`).
 """
 
 bl_info = {
@@ -18,9 +20,9 @@ bl_info = {
     "doc_url": "",
 }
 
-from . import deps, ops, props, ui  # noqa: E402
+from . import deps, engine, ops, props, ui  # noqa: E402
 
-_MODULES = (props, ops, ui)
+_MODULES = (props, ops, ui, engine)
 
 
 def register() -> None:

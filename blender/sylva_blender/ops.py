@@ -18,10 +18,12 @@ INSTANCING_OPTIONS = ("export_gpu_instances", "export_gn_mesh")
 _RUNNING: list = []
 
 
-def frame_settings(context: bpy.types.Context) -> job.Settings:
-    """The job's settings from the preferences and the scene. Without the
-    add-on's preferences (registered by hand), the farm is
-    $SYLVA_COORDINATOR and the token $SYLVA_TOKEN."""
+def frame_settings(context: bpy.types.Context, sequence: bool | None = None) -> job.Settings:
+    """The job's settings from the preferences and the scene: its frame
+    range as one sequence where `sequence` says (by default, where the
+    panel's "Frame range" does). Without the add-on's preferences
+    (registered by hand), the farm is $SYLVA_COORDINATOR and the token
+    $SYLVA_TOKEN."""
     scene = context.scene
     s = scene.sylva_farm
     r = scene.render
@@ -33,7 +35,8 @@ def frame_settings(context: bpy.types.Context) -> job.Settings:
     if not address:
         raise RuntimeError("no farm address: set it in the Sylva panel or the add-on's preferences")
     passes: list[str] | str = "all" if s.all_passes else sorted(s.passes)
-    frames, views = export.frame_views(scene) if s.animation else ([], [])
+    sequence = s.animation if sequence is None else sequence
+    frames, views = export.frame_views(scene) if sequence else ([], [])
     return job.Settings(
         frames=frames,
         views=views,

@@ -197,3 +197,50 @@ def test_a_frame_range_renders_as_one_sequence_job(rendered: dict, addon, sylva:
         sun.animation_data_clear()
         cam.location, sun.rotation_euler = start_loc, start_rot
         scene.frame_set(1)
+
+
+def test_f12_renders_on_the_farm_into_the_render_result(rendered: dict, tmp_path: Path) -> None:
+    """With Render Engine set to "Sylva", Blender's own render (F12; here
+    `render.render`, which runs the engine on the main thread as
+    background mode does) exports, renders on the farm and fills the
+    render result: the still Blender writes holds the farm's beauty to the
+    bit, as linear light."""
+    scene = bpy.context.scene
+    out = Path(scene.sylva_farm.output_dir)
+    before = set(out.glob("sylva-*.exr"))
+    engine, filepath = scene.render.engine, scene.render.filepath
+    fmt = scene.render.image_settings
+    saved = (fmt.file_format, fmt.color_depth, fmt.color_mode)
+    try:
+        scene.render.engine = "SYLVA"
+        fmt.file_format, fmt.color_depth, fmt.color_mode = "OPEN_EXR", "32", "RGB"
+        scene.render.filepath = str(tmp_path / "f12.exr")
+        assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    finally:
+        scene.render.engine, scene.render.filepath = engine, filepath
+        fmt.file_format, fmt.color_depth, fmt.color_mode = saved
+    fetched = sorted(set(out.glob("sylva-*.exr")) - before)
+    assert len(fetched) == 1, fetched
+    farm, written = channels(fetched[0]), channels(tmp_path / "f12.exr")
+    assert sorted(farm) == ["B", "G", "R"], sorted(farm)  # the beauty alone, plain RGB
+    for c in "RGB":
+        key = next(k for k in written if k.split(".")[-1] == c)
+        assert written[key].shape == (H, W)
+        assert farm[c].max() > 0
+        np.testing.assert_array_equal(written[key], farm[c], err_msg=c)
+
+
+def test_f12_without_a_farm_is_the_renders_error(rendered: dict) -> None:
+    """A farm that cannot be reached is the render's error report, and the
+    engine leaves Blender as it was."""
+    scene = bpy.context.scene
+    prefs = bpy.context.preferences.addons["sylva_blender"].preferences
+    address, engine = prefs.address, scene.render.engine
+    prefs.address = "127.0.0.1:1"
+    scene.render.engine = "SYLVA"
+    try:
+        with pytest.raises(RuntimeError) as e:
+            bpy.ops.render.render()
+    finally:
+        prefs.address, scene.render.engine = address, engine
+    assert "Sylva: " in str(e.value), str(e.value)
