@@ -90,13 +90,23 @@ def show_pass():
                 bpy.ops.image.view_all(fit_view=True)
 
 
+def crop_of(win, x, y, width, height):
+    """ImageMagick's crop geometry of a rectangle of window `win` (x, y
+    from its bottom left, as Blender gives them) on the root screen."""
+    top = win.y + win.height - (y + height)
+    return f"{width}x{height}+{win.x + x}+{top}"
+
+
 def shoot():
+    """Where the Properties editor is, for screenshots.sh to cut the panel
+    out of the screen it takes (`import -window root`): Blender's own
+    `screen.screenshot` and `screenshot_area` give black images on Mesa's
+    software OpenGL in Blender 4.3."""
     win, props = areas("PROPERTIES")
-    with bpy.context.temp_override(window=win, area=props[0]):
-        bpy.ops.screen.screenshot_area(filepath=os.path.join(OUT, "blender-panel.png"))
-    with bpy.context.temp_override(window=win):
-        bpy.ops.screen.screenshot(filepath=os.path.join(OUT, "blender-passes.png"))
-    log("wrote", OUT)
+    a = props[0]
+    with open(os.path.join(OUT, "blender-panel.crop"), "w") as f:
+        f.write(crop_of(win, a.x, a.y, a.width, a.height) + "\n")
+    log("ready to take", OUT)
 
 
 state = {"step": 0, "t": 0.0}
@@ -144,4 +154,5 @@ def tick():
     return 2.0
 
 
-bpy.app.timers.register(tick, first_interval=2.0)
+if __name__ == "__main__":
+    bpy.app.timers.register(tick, first_interval=2.0)

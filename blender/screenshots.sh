@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
-# Takes docs/images/blender-panel.png and blender-passes.png: Debian's GUI
+# Takes docs/images/blender-panel.png, blender-passes.png and
+# blender-f12.png (and checks F12's render result against the farm's
+# image, its exit status): Debian's GUI
 # Blender (apt-get install blender xvfb; 3.4 on Debian 12) under Xvfb with
 # Mesa's software OpenGL, the add-on installed from target/sylva_blender.zip,
 # "Render on Sylva" run against a coordinator and a worker started here on
@@ -53,8 +55,32 @@ blender_pid=$!
 for _ in $(seq 600); do [ -f "$work/ready" ] && break; kill -0 "$blender_pid" 2>/dev/null || break; sleep 0.5; done
 grep -E "screenshots:|Error|rror:|Traceback" "$work/blender.log" || true
 [ -f "$work/ready" ] || { echo "Blender did not get to its screenshots" >&2; exit 1; }
+# The panel: the Properties editor cut out of the screen.
+import -window root "$work/screen.png"
+convert "$work/screen.png" -crop "$(cat "$out/blender-panel.crop")" +repage "$out/blender-panel.png"
+rm -f "$out/blender-panel.crop"
 # The pass selector ("Combined") in the Image Editor's header: open it.
 xdotool mousemove "${SYLVA_SHOT_MENU_X:-1227}" "${SYLVA_SHOT_MENU_Y:-40}" click 1
 sleep 1.5
 import -window root "$out/blender-passes.png"
+kill "$blender_pid" 2>/dev/null || true
+wait "$blender_pid" 2>/dev/null || true
+# F12 with the Sylva render engine, in the interface (f12_gui.py): the
+# render result must hold the farm's beauty to the bit (the ready file
+# says 0); the render window is cut out of the screen as blender-f12.png.
+rm -f "$work/ready"
+SYLVA_COORDINATOR="$addr" SYLVA_TOKEN="$token" SYLVA_BLENDER_DEPS="$deps" SYLVA_SHOT_READY="$work/ready" \
+BLENDER_USER_SCRIPTS="$work/user/scripts" BLENDER_USER_CONFIG="$work/user/config" \
+LIBGL_ALWAYS_SOFTWARE=1 blender --window-geometry 0 0 1600 1300 --no-window-focus \
+  --python "$root/blender/f12_gui.py" -- "$zip" "$out" >"$work/f12.log" 2>&1 &
+pids+=($!)
+blender_pid=$!
+for _ in $(seq 1200); do [ -f "$work/ready" ] && break; kill -0 "$blender_pid" 2>/dev/null || break; sleep 0.5; done
+grep -E "screenshots:|Error|rror:|Traceback" "$work/f12.log" || true
+[ -f "$work/ready" ] || { echo "Blender did not get to F12's end" >&2; exit 1; }
+sleep 1
+import -window root "$work/screen.png"
+convert "$work/screen.png" -crop "$(cat "$out/blender-f12.crop")" +repage "$out/blender-f12.png"
+rm -f "$out/blender-f12.crop"
 ls -l "$out"/blender-*.png
+exit "$(cat "$work/ready")"
