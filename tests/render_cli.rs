@@ -363,6 +363,45 @@ fn lighting_auto_picks_for_the_scene_and_says_why() {
     assert!(chosen["predicted_ms"].as_f64().unwrap() <= 300.0, "{}", b["auto"]);
     assert!(b["auto"]["why"].as_str().unwrap().contains("the most accurate within 0.3 s"));
 
+    // A sequence: the pilot, on its middle frame, prices each method over
+    // the whole job (six frames under one sun: a preparation once, six
+    // frames), and the sequence renders with what it chose.
+    let (tree_file, seq) = (dir.join("tree.json"), dir.join("seq.png"));
+    let args = [
+        "render",
+        tree_file.to_str().unwrap(),
+        "--local-workers",
+        "0",
+        "--width",
+        "160",
+        "--height",
+        "80",
+        "--lighting",
+        "auto",
+        "--max-error",
+        "0.3",
+        "--frames",
+        "6",
+        "--sun-from",
+        "45,120",
+        "--sun-to",
+        "45,120",
+        "-o",
+        seq.to_str().unwrap(),
+        "--json",
+    ];
+    let v: Value = serde_json::from_str(&ok(&args)).unwrap();
+    let a = &v["auto"];
+    assert_eq!(a["job"], serde_json::json!({ "frames": 6, "suns": 1 }), "{a}");
+    assert!(a["why"].as_str().unwrap().contains("for the whole job of 6 frames under one sun"));
+    for c in a["candidates"].as_array().unwrap() {
+        let f = |k: &str| c[k].as_f64().unwrap();
+        let job = f("preprocess_ms") + 6.0 * f("frame_ms");
+        assert!((f("predicted_ms") - job).abs() <= 1e-6 * job.max(1.0), "{c}");
+    }
+    assert_eq!(v["lighting"], a["chosen"]["lighting"], "{a}");
+    assert!(dir.join("seq-0005.png").is_file());
+
     // Wrong uses are refused with what to do instead.
     let path = dir.join("tree.json");
     let p = path.to_str().unwrap();

@@ -66,6 +66,43 @@ const MEASURED_RAYS: [u32; 2] = [4, 16];
 /// Coarser LB grids tried beside each model's own (every model at once).
 const COARSER_GRIDS: [usize; 2] = [16, 32];
 
+/// The job the chosen method renders: its frames, and the suns they are
+/// lit by. A method's preparation is paid once (the structures, the
+/// voxels), its light once per sun, its frame every frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct Job {
+    /// Frames in the job.
+    pub frames: usize,
+    /// Distinct suns among them (1 for a single frame or a camera path).
+    pub suns: usize,
+}
+
+impl Job {
+    /// One frame.
+    pub const FRAME: Job = Job { frames: 1, suns: 1 };
+
+    /// The job of a sequence's `views` (each frame's sun: its own, or the
+    /// scene's where it has none).
+    pub fn of(views: &[sylva_scene::sequence::View]) -> Job {
+        if views.is_empty() {
+            return Job::FRAME;
+        }
+        let mut suns: Vec<Option<[u32; 3]>> =
+            views.iter().map(|v| v.sun_towards.map(|d| d.map(f32::to_bits))).collect();
+        suns.sort_unstable();
+        suns.dedup();
+        Job { frames: views.len(), suns: suns.len() }
+    }
+
+    /// The whole job's milliseconds: the first sun's pre-process, each
+    /// further sun's light, and every frame.
+    fn ms(&self, preprocess_ms: f64, per_sun_ms: f64, frame_ms: f64) -> f64 {
+        preprocess_ms
+            + per_sun_ms * self.suns.saturating_sub(1) as f64
+            + frame_ms * self.frames as f64
+    }
+}
+
 /// One candidate, measured on the pilot (or read off its family's curve).
 #[derive(Clone, Debug, Serialize)]
 pub struct Measured {
@@ -88,10 +125,14 @@ pub struct Measured {
     /// The lighting's own pre-process (LB, forest LB, clouds, ambient
     /// match), measured on the scene itself: it does not scale with pixels.
     pub preprocess_ms: f64,
+    /// What each further sun costs it: the pre-process less what every
+    /// sun shares (the models' voxels).
+    pub per_sun_ms: f64,
     /// Its whole frame, strip by strip as the frame is rendered (a
     /// sampled method's: fixed + per ray × rays, timed at 1 and 4 rays).
     pub frame_ms: f64,
-    /// Pre-process plus frame.
+    /// The job's time: pre-process, each further sun's light, and every
+    /// frame (one frame: pre-process plus frame).
     pub predicted_ms: f64,
     /// Indirect error a viewer sees, bias and the method's own noise, on the pilot.
     pub error: f64,
@@ -120,6 +161,8 @@ pub struct PilotFrame {
 pub struct Report {
     /// What was asked.
     pub goal: Goal,
+    /// The job it was asked for.
+    pub job: Job,
     /// The pilot.
     pub pilot: PilotFrame,
     /// Every candidate: measured, then read off the curves.
@@ -188,6 +231,7 @@ pub fn choose(
     frame: &FrameSettings,
     plan: &[(u32, u32)],
     goal: Goal,
+    job: Job,
     say: &dyn Fn(&str),
 ) -> anyhow::Result<Choice> {
     let t = Instant::now();
@@ -263,7 +307,10 @@ pub fn choose(
     let mut denoise_ms: Option<f64> = None;
     let local = render_columns(first, &base, &columns)?.0;
     for (g, _, p, pre_ms) in &preparations {
-        let mut run = |family: &str, f: RenderSettings, pre: f64, denoise: Denoise| {
+        // The voxels are made once for every sun; the rest of the
+        // lighting's pre-process again for each.
+        let voxelize_ms = p.prepared.phases.ms("voxelize");
+        let mut run = |family: &str, f: RenderSettings, pre: (f64, f64), denoise: Denoise| {
             let sampled =
                 f.lighting == LightingMode::Reference || f.lighting == LightingMode::Gather;
             let name = if sampled { format!("{family} {} rays", f.spp) } else { family.into() };
@@ -305,9 +352,10 @@ pub fn choose(
                 gather_bounces: f.gather_bounces,
                 gather_filter: f.gather_filter,
                 denoise,
-                preprocess_ms: pre,
+                preprocess_ms: pre.0,
+                per_sun_ms: pre.1,
                 frame_ms,
-                predicted_ms: pre + frame_ms,
+                predicted_ms: job.ms(pre.0, pre.1, frame_ms),
                 error: e.seen,
                 extrapolated: false,
             });
@@ -318,7 +366,7 @@ pub fn choose(
             Some(g) => format!("{name} on lb {g}³"),
         };
         if g.is_none() {
-            run("local", base, 0.0, Denoise::Off)?;
+            run("local", base, (0.0, 0.0), Denoise::Off)?;
             let t = Instant::now();
             let ambient = RenderSettings { lighting: LightingMode::Ambient, ..base };
             let ambient = RenderSettings {
@@ -329,11 +377,13 @@ pub fn choose(
                 )?,
                 ..ambient
             };
-            run("ambient", ambient, pre_ms + ms(t), Denoise::Off)?;
+            let matched = ms(t);
+            let pre = (pre_ms + matched, pre_ms - voxelize_ms + matched);
+            run("ambient", ambient, pre, Denoise::Off)?;
             let clouds_ms = p.prepared.phases.ms("cloud lb");
             for &k in &MEASURED_RAYS {
                 let f = RenderSettings { lighting: LightingMode::Reference, spp: k, ..base };
-                run("path tracer", f, clouds_ms, Denoise::Off)?;
+                run("path tracer", f, (clouds_ms, clouds_ms), Denoise::Off)?;
             }
             // The path tracer with its indirect light denoised, where the
             // denoiser's library loads: measured at its ray counts only
@@ -348,7 +398,8 @@ pub fn choose(
                             passes: denoise.passes(),
                             ..base
                         };
-                        run("path tracer + denoised indirect", f, clouds_ms, denoise)?;
+                        let pre = (clouds_ms, clouds_ms);
+                        run("path tracer + denoised indirect", f, pre, denoise)?;
                     }
                 }
                 Err(e) => {
@@ -358,7 +409,8 @@ pub fn choose(
             }
         }
         let lb = RenderSettings { lighting: LightingMode::Lb, ..base };
-        run(&on("lb"), lb, *pre_ms, Denoise::Off)?;
+        let pre = (*pre_ms, pre_ms - voxelize_ms);
+        run(&on("lb"), lb, pre, Denoise::Off)?;
         for bounces in [1, 2] {
             for &k in &MEASURED_RAYS {
                 let f = RenderSettings {
@@ -368,14 +420,23 @@ pub fn choose(
                     gather_filter: sylva_scene::frame::DEFAULT_GATHER_FILTER,
                     ..base
                 };
-                run(&on(&format!("gather {bounces}b")), f, *pre_ms, Denoise::Off)?;
+                run(&on(&format!("gather {bounces}b")), f, pre, Denoise::Off)?;
             }
         }
     }
     let mut candidates = measured.clone();
-    candidates.extend(along_curves(&measured, goal));
+    candidates.extend(along_curves(&measured, goal, job));
 
     let (chosen, why) = pick(&candidates, goal, lit_count);
+    let why = if job.frames > 1 {
+        let suns = if job.suns == 1 { "one sun".to_string() } else { format!("{} suns", job.suns) };
+        format!(
+            "{why}, for the whole job of {} frames under {suns} (each method's preparation once, its light once a sun, its frame every frame)",
+            job.frames
+        )
+    } else {
+        why
+    };
     let chosen = chosen.clone();
     let index = grids.iter().position(|g| *g == chosen.lb_grid).unwrap_or(0);
     let (_, scene, prepared, _) = preparations.swap_remove(index);
@@ -394,6 +455,7 @@ pub fn choose(
     };
     let report = Report {
         goal,
+        job,
         pilot: PilotFrame {
             columns,
             lit_pixels: lit_count,
@@ -595,7 +657,7 @@ impl Curve {
 /// curve: the fewest rays within the error, or the most within the time.
 /// None for a family whose measured points already are that point, or
 /// that cannot reach it.
-fn along_curves(measured: &[Measured], goal: Goal) -> Vec<Measured> {
+fn along_curves(measured: &[Measured], goal: Goal, job: Job) -> Vec<Measured> {
     let mut out = Vec::new();
     let mut families: Vec<&str> = measured.iter().map(|m| m.family.as_str()).collect();
     families.dedup();
@@ -611,7 +673,9 @@ fn along_curves(measured: &[Measured], goal: Goal) -> Vec<Measured> {
             Goal::MaxError(e) if e * e > curve.bias2 => curve.c / (e * e - curve.bias2),
             Goal::MaxError(_) => continue,
             Goal::TimeBudget(s) => {
-                (s * 1e3 - b.preprocess_ms - curve.fixed_ms) / curve.ray_ms.max(1e-9)
+                let frames = job.frames as f64;
+                let fixed = job.ms(b.preprocess_ms, b.per_sun_ms, curve.fixed_ms);
+                (s * 1e3 - fixed) / (curve.ray_ms * frames).max(1e-9)
             }
         };
         // The path tracer samples in passes of 2 × 2 strata.
@@ -628,7 +692,7 @@ fn along_curves(measured: &[Measured], goal: Goal) -> Vec<Measured> {
             name: format!("{family} {k} rays"),
             spp: k as u32,
             frame_ms: curve.frame_ms(k),
-            predicted_ms: b.preprocess_ms + curve.frame_ms(k),
+            predicted_ms: job.ms(b.preprocess_ms, b.per_sun_ms, curve.frame_ms(k)),
             error: curve.error(k),
             extrapolated: true,
             ..(*b).clone()
@@ -720,6 +784,7 @@ mod tests {
             gather_filter: 3,
             denoise: Denoise::Off,
             preprocess_ms: 0.0,
+            per_sun_ms: 0.0,
             frame_ms: ms,
             predicted_ms: ms,
             error,
@@ -741,10 +806,23 @@ mod tests {
             lighting,
             spp: k,
             preprocess_ms: 500.0,
+            per_sun_ms: 300.0,
             frame_ms,
             predicted_ms: 500.0 + frame_ms,
             ..c("", 0.0, error)
         }
+    }
+
+    #[test]
+    fn a_jobs_suns_are_its_distinct_suns() {
+        use sylva_scene::sequence::View;
+        let sun = |d: [f32; 3]| View { camera: None, sun_towards: Some(d) };
+        assert_eq!(Job::of(&[]), Job::FRAME);
+        let path = vec![View::default(); 5];
+        assert_eq!(Job::of(&path), Job { frames: 5, suns: 1 });
+        let sweep = [sun([0.0, 1.0, 0.0]), sun([0.6, 0.8, 0.0]), sun([0.0, 1.0, 0.0])];
+        assert_eq!(Job::of(&sweep), Job { frames: 3, suns: 2 });
+        assert_eq!(Job { frames: 3, suns: 2 }.ms(500.0, 300.0, 100.0), 1100.0);
     }
 
     #[test]
@@ -805,19 +883,30 @@ mod tests {
         let curve = Curve::fit(&g4, &g16);
         assert!((curve.bias2 - 0.01).abs() < 1e-12 && (curve.c - 0.16).abs() < 1e-12);
         // Within 12 %: k = 0.16 / (0.0144 − 0.01) = 36.4 → 37 rays.
-        let more = along_curves(&[g4.clone(), g16.clone()], Goal::MaxError(0.12));
+        let more = along_curves(&[g4.clone(), g16.clone()], Goal::MaxError(0.12), Job::FRAME);
         assert_eq!(more.len(), 1);
         assert_eq!((more[0].spp, more[0].name.as_str()), (37, "gather 1b 37 rays"));
         assert!(more[0].error <= 0.12 && more[0].extrapolated);
         assert!((more[0].predicted_ms - (500.0 + 100.0 + 10.0 * 37.0)).abs() < 1e-6);
         // Under its bias nothing helps; a budget of 1.5 s buys (1500 − 500 − 100) / 10 = 90 rays.
-        assert!(along_curves(&[g4.clone(), g16.clone()], Goal::MaxError(0.09)).is_empty());
-        assert_eq!(along_curves(&[g4, g16], Goal::TimeBudget(1.5))[0].spp, 90);
+        assert!(
+            along_curves(&[g4.clone(), g16.clone()], Goal::MaxError(0.09), Job::FRAME).is_empty()
+        );
+        assert_eq!(
+            along_curves(&[g4.clone(), g16.clone()], Goal::TimeBudget(1.5), Job::FRAME)[0].spp,
+            90
+        );
+        // A job of 10 frames under 2 suns: 500 + 300 ms of light, then
+        // 10 frames of 100 ms + 10 ms a ray within 10 s: (10000 − 800 − 1000) / 100 = 82 rays.
+        let job = Job { frames: 10, suns: 2 };
+        let k = along_curves(&[g4.clone(), g16.clone()], Goal::TimeBudget(10.0), job);
+        assert_eq!(k[0].spp, 82);
+        assert!((k[0].predicted_ms - (800.0 + 10.0 * (100.0 + 10.0 * 82.0))).abs() < 1e-6);
         // The path tracer: unbiased, whole passes of 4.
         let p4 = sampled("path tracer", LightingMode::Reference, 4, 4.0, 0.8);
         let p16 = sampled("path tracer", LightingMode::Reference, 16, 16.0, 0.4);
         assert_eq!(Curve::fit(&p4, &p16).bias2, 0.0);
-        let pt = along_curves(&[p4, p16], Goal::MaxError(0.1));
+        let pt = along_curves(&[p4, p16], Goal::MaxError(0.1), Job::FRAME);
         assert_eq!(pt[0].spp, 256);
         assert!((pt[0].error - 0.1).abs() < 1e-9);
         // Denoised, it is not on that curve: only its measured points count.
@@ -826,7 +915,8 @@ mod tests {
             ..sampled("path tracer + denoised indirect", LightingMode::Reference, k, 9.0, e)
         };
         assert!(
-            along_curves(&[denoised(4, 0.3), denoised(16, 0.2)], Goal::MaxError(0.1)).is_empty()
+            along_curves(&[denoised(4, 0.3), denoised(16, 0.2)], Goal::MaxError(0.1), Job::FRAME)
+                .is_empty()
         );
     }
 }

@@ -82,12 +82,19 @@ pub fn run(mut a: RenderArgs) -> anyhow::Result<()> {
         return render_through_coordinator(&a, &request, &views, &scene, lighting, accel, phases);
     }
     if !views.is_empty() {
-        if goal.is_some() || grid_choice.is_some() {
-            bail!(
-                "--lighting auto and --lb-grid auto choose for one frame: give a sequence its method (--lighting NAME) and grids"
-            );
+        if grid_choice.is_some() {
+            bail!("--lb-grid auto chooses for one frame: give a sequence its grids (--lb-grid N)");
         }
-        return render_sequence_here(&a, &request, &scene, &views, phases);
+        let tracer = Tracer::new()?;
+        let (request, scene, auto) = match goal {
+            Some(goal) => {
+                let c =
+                    choose_for_sequence(&a, &tracer, &request, &scene, &views, goal, &mut phases)?;
+                (c.frame, c.scene, Some(c.report))
+            }
+            None => (request, scene, None),
+        };
+        return render_sequence_here(&a, &tracer, &request, &scene, &views, phases, auto);
     }
     render_here(&a, &request, scene, grid_choice.is_some(), goal, phases)
 }
@@ -123,14 +130,15 @@ fn render_here(
 /// one frame's pixels at a time.
 fn render_sequence_here(
     a: &RenderArgs,
+    tracer: &Tracer,
     request: &FrameSettings,
     scene: &Scene,
     views: &[View],
     mut phases: Vec<(&'static str, f64)>,
+    auto: Option<pilot::Report>,
 ) -> anyhow::Result<()> {
     use sylva_coordinator::results::encode_png;
     use sylva_scene::film::reinhard_like;
-    let tracer = Tracer::new()?;
     let mut fresh = match a.prepared_cache.open()? {
         Some(cache) => {
             tracer.keep_kernels_in(cache.dir());
@@ -161,7 +169,7 @@ fn render_sequence_here(
         bar.set_message(format!("frame {}/{n}", i + 1));
         let t = Instant::now();
         let frame = Frame::compose(
-            &tracer,
+            tracer,
             scene,
             &FrameSettings { view: views[i], ..*request },
             &mut fresh,
@@ -226,13 +234,53 @@ fn render_sequence_here(
             "frames": per_frame,
         }),
     );
-    let how = format!(
+    let mut how = format!(
         "{n} frames in this process in {sequence_ms:.0} ms ({:.0} ms a frame: {:.0} preparing, {:.0} tracing)",
         sequence_ms / n as f64,
         prepare_ms / n as f64,
         trace_ms / n as f64
     );
+    let mut stats = stats;
+    if let Some(r) = &auto {
+        stats["auto"] = serde_json::to_value(r)?;
+        how += &format!("; --lighting auto chose {}", r.why);
+    }
     report_wrote(a, &stats, accel, lighting, &how, &wrote)
+}
+
+/// A spinner for work whose length is not known, with its message.
+fn spinner() -> ProgressBar {
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
+}
+
+/// `--lighting auto` for a sequence: the pilot on the view of its middle
+/// frame (the one that renders first), each method priced over the whole
+/// job: its preparation once, its light once a sun, its frame every frame.
+fn choose_for_sequence(
+    a: &RenderArgs,
+    tracer: &Tracer,
+    request: &FrameSettings,
+    scene: &Scene,
+    views: &[View],
+    goal: Goal,
+    phases: &mut Vec<(&'static str, f64)>,
+) -> anyhow::Result<pilot::Choice> {
+    let bar = spinner();
+    let say = |m: &str| progress::stage(&bar, m);
+    let t = Instant::now();
+    let middle = FrameSettings { view: views[views.len() / 2], ..*request };
+    let plan = even_strips(a.frame.width, STRIP);
+    let job = pilot::Job::of(views);
+    let c = pilot::choose(tracer, scene, &middle, &plan, goal, job, &say)?;
+    phases.push(("pilot", ms(t)));
+    bar.finish_and_clear();
+    tracing::info!(chosen = %c.report.chosen.name, "--lighting auto: {}", c.report.why);
+    Ok(c)
 }
 
 /// A frame composed in this process, and what was chosen on the way.
@@ -263,11 +311,7 @@ fn compose_here(
     goal: Option<Goal>,
     phases: &mut Vec<(&'static str, f64)>,
 ) -> anyhow::Result<Composed> {
-    let bar = ProgressBar::new_spinner();
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"),
-    );
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let bar = spinner();
     let say = |m: &str| progress::stage(&bar, m);
     // Compiled kernels are kept beside the prepared data.
     let disk = a.prepared_cache.open()?;
@@ -278,7 +322,7 @@ fn compose_here(
         Some(goal) => {
             let t = Instant::now();
             let plan = even_strips(a.frame.width, STRIP);
-            let c = pilot::choose(tracer, &scene, request, &plan, goal, &say)?;
+            let c = pilot::choose(tracer, &scene, request, &plan, goal, pilot::Job::FRAME, &say)?;
             phases.push(("pilot", ms(t)));
             tracing::info!(chosen = %c.report.chosen.name, "--lighting auto: {}", c.report.why);
             scene = c.scene;
