@@ -33,7 +33,7 @@ def _load_screenshots():
 screenshots = _load_screenshots()
 
 log, quit_now = screenshots.log, screenshots.quit_now
-state = {"step": 0, "t0": time.monotonic(), "out": ""}
+state = {"step": 0, "t0": time.monotonic()}
 
 
 def pixels(path: str) -> array.array:
@@ -75,38 +75,26 @@ def check() -> int:
     return 0 if same else 1
 
 
-def tick():
-    step = state["step"]
-    try:
-        if step == 0:
-            screenshots.setup()
-        elif step == 1:
-            start()
-        elif step == 2:
-            if time.monotonic() - state["t0"] > 300:
-                log("F12: timed out")
-                quit_now(1)
-            if bpy.app.is_job_running("RENDER"):
-                return 0.5
-            state["code"] = check()
-        elif step == 3:
-            # screenshots.sh takes the screen, cuts the render window out
-            # of it, then ends this Blender.
-            win = bpy.context.window_manager.windows[-1]
-            crop = screenshots.crop_of(win, 0, 0, win.width, win.height)
-            with open(os.path.join(screenshots.OUT, "blender-f12.crop"), "w") as f:
-                f.write(crop + "\n")
-            with open(os.environ["SYLVA_SHOT_READY"], "w") as f:
-                f.write(f"{state.get('code', 1)}\n")
-            return None
-    except Exception as e:  # noqa: BLE001
-        import traceback
-
-        traceback.print_exc()
-        log("failed:", e)
+def wait_and_check():
+    if time.monotonic() - state["t0"] > 300:
+        log("F12: timed out")
         quit_now(1)
-    state["step"] += 1
-    return 2.0
+    if bpy.app.is_job_running("RENDER"):
+        return 0.5
+    state["code"] = check()
+    return None
 
 
-bpy.app.timers.register(tick, first_interval=2.0)
+def ready():
+    # screenshots.sh takes the screen, cuts the render window out of it,
+    # then ends this Blender.
+    win = bpy.context.window_manager.windows[-1]
+    crop = screenshots.crop_of(win, 0, 0, win.width, win.height)
+    with open(os.path.join(screenshots.OUT, "blender-f12.crop"), "w") as f:
+        f.write(crop + "\n")
+    with open(os.environ["SYLVA_SHOT_READY"], "w") as f:
+        f.write(f"{state.get('code', 1)}\n")
+    return "stay"
+
+
+screenshots.run_steps([screenshots.setup, start, wait_and_check, ready], state)

@@ -109,50 +109,58 @@ def shoot():
     log("ready to take", OUT)
 
 
-state = {"step": 0, "t": 0.0}
-
-
 def quit_now(code):
     sys.stdout.flush()
     os._exit(code)  # quit_blender from a timer does not always quit
 
 
-def tick():
-    step = state["step"]
-    try:
-        if step == 0:
-            setup()
-        elif step == 1:
-            start_render()
-        elif step == 2:
-            st = bpy.context.window_manager.sylva_status
-            if time.monotonic() - started > 240:
-                log("timed out:", st.stage)
-                quit_now(1)
-            if st.running:
-                log("progress:", st.stage, round(st.progress, 2))
-                return 0.5
-            log("finished:", st.stage, st.job, st.image)
-            show_pass()
-            scroll_panel()
-        elif step == 3:
-            shoot()
-        elif os.environ.get("SYLVA_SHOT_READY"):
-            # screenshots.sh opens the pass menu and takes the screen itself,
-            # then ends this Blender.
-            open(os.environ["SYLVA_SHOT_READY"], "w").write("ready\n")
-            return None
-        else:
-            quit_now(0)
-    except Exception as e:  # noqa: BLE001
-        import traceback
+def run_steps(steps, state):
+    """Runs `steps` one after another from a timer, 2 s apart: a step that
+    returns a number is called again after that many seconds, one that
+    returns "stay" ends the timer there (Blender stays open); any error
+    ends Blender with status 1."""
 
-        traceback.print_exc()
-        log("failed:", e)
+    def tick():
+        try:
+            again = steps[state["step"]]()
+        except Exception as e:  # noqa: BLE001
+            import traceback
+
+            traceback.print_exc()
+            log("failed:", e)
+            quit_now(1)
+        if again == "stay":
+            return None
+        if again is not None:
+            return again
+        state["step"] += 1
+        return 2.0
+
+    bpy.app.timers.register(tick, first_interval=2.0)
+
+
+def wait_for_render():
+    st = bpy.context.window_manager.sylva_status
+    if time.monotonic() - started > 240:
+        log("timed out:", st.stage)
         quit_now(1)
-    state["step"] += 1
-    return 2.0
+    if st.running:
+        log("progress:", st.stage, round(st.progress, 2))
+        return 0.5
+    log("finished:", st.stage, st.job, st.image)
+    show_pass()
+    scroll_panel()
+    return None
+
+
+def ready():
+    if not os.environ.get("SYLVA_SHOT_READY"):
+        quit_now(0)
+    # screenshots.sh opens the pass menu and takes the screen itself,
+    # then ends this Blender.
+    open(os.environ["SYLVA_SHOT_READY"], "w").write("ready\n")
+    return "stay"
 
 
 if __name__ == "__main__":
-    bpy.app.timers.register(tick, first_interval=2.0)
+    run_steps([setup, start_render, wait_for_render, shoot, ready], {"step": 0})

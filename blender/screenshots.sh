@@ -46,15 +46,23 @@ Xvfb -displayfd 3 -screen 0 1600x1300x24 -nolisten tcp 3>"$work/display" >/dev/n
 pids+=($!)
 for _ in $(seq 100); do [ -s "$work/display" ] && break; sleep 0.1; done
 export DISPLAY=":$(cat "$work/display")"
-SYLVA_COORDINATOR="$addr" SYLVA_TOKEN="$token" SYLVA_BLENDER_DEPS="$deps" SYLVA_SHOT_READY="$work/ready" \
-BLENDER_USER_SCRIPTS="$work/user/scripts" BLENDER_USER_CONFIG="$work/user/config" \
-LIBGL_ALWAYS_SOFTWARE=1 blender --window-geometry 0 0 1600 1300 --no-window-focus \
-  --python "$root/blender/screenshots.py" -- "$zip" "$out" >"$work/blender.log" 2>&1 &
-pids+=($!)
-blender_pid=$!
-for _ in $(seq 600); do [ -f "$work/ready" ] && break; kill -0 "$blender_pid" 2>/dev/null || break; sleep 0.5; done
-grep -E "screenshots:|Error|rror:|Traceback" "$work/blender.log" || true
-[ -f "$work/ready" ] || { echo "Blender did not get to its screenshots" >&2; exit 1; }
+# A GUI Blender running SCRIPT against the farm, its output in LOG,
+# waited for until it writes the ready file (or ends); false if it ended
+# without.
+blender_until_ready() {
+  local script=$1 log=$2
+  rm -f "$work/ready"
+  SYLVA_COORDINATOR="$addr" SYLVA_TOKEN="$token" SYLVA_BLENDER_DEPS="$deps" SYLVA_SHOT_READY="$work/ready" \
+  BLENDER_USER_SCRIPTS="$work/user/scripts" BLENDER_USER_CONFIG="$work/user/config" \
+  LIBGL_ALWAYS_SOFTWARE=1 blender --window-geometry 0 0 1600 1300 --no-window-focus \
+    --python "$root/blender/$script" -- "$zip" "$out" >"$log" 2>&1 &
+  blender_pid=$!
+  pids+=("$blender_pid")
+  for _ in $(seq 1200); do [ -f "$work/ready" ] && break; kill -0 "$blender_pid" 2>/dev/null || break; sleep 0.5; done
+  grep -E "screenshots:|Error|rror:|Traceback" "$log" || true
+  [ -f "$work/ready" ]
+}
+blender_until_ready screenshots.py "$work/blender.log" || { echo "Blender did not get to its screenshots" >&2; exit 1; }
 # The panel: the Properties editor cut out of the screen.
 import -window root "$work/screen.png"
 convert "$work/screen.png" -crop "$(cat "$out/blender-panel.crop")" +repage "$out/blender-panel.png"
@@ -68,16 +76,7 @@ wait "$blender_pid" 2>/dev/null || true
 # F12 with the Sylva render engine, in the interface (f12_gui.py): the
 # render result must hold the farm's beauty to the bit (the ready file
 # says 0); the render window is cut out of the screen as blender-f12.png.
-rm -f "$work/ready"
-SYLVA_COORDINATOR="$addr" SYLVA_TOKEN="$token" SYLVA_BLENDER_DEPS="$deps" SYLVA_SHOT_READY="$work/ready" \
-BLENDER_USER_SCRIPTS="$work/user/scripts" BLENDER_USER_CONFIG="$work/user/config" \
-LIBGL_ALWAYS_SOFTWARE=1 blender --window-geometry 0 0 1600 1300 --no-window-focus \
-  --python "$root/blender/f12_gui.py" -- "$zip" "$out" >"$work/f12.log" 2>&1 &
-pids+=($!)
-blender_pid=$!
-for _ in $(seq 1200); do [ -f "$work/ready" ] && break; kill -0 "$blender_pid" 2>/dev/null || break; sleep 0.5; done
-grep -E "screenshots:|Error|rror:|Traceback" "$work/f12.log" || true
-[ -f "$work/ready" ] || { echo "Blender did not get to F12's end" >&2; exit 1; }
+blender_until_ready f12_gui.py "$work/f12.log" || { echo "Blender did not get to F12's end" >&2; exit 1; }
 sleep 1
 import -window root "$work/screen.png"
 convert "$work/screen.png" -crop "$(cat "$out/blender-f12.crop")" +repage "$out/blender-f12.png"
