@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Takes docs/images/blender-panel.png, blender-passes.png and
 # blender-f12.png (and checks F12's render result against the farm's
-# image, its exit status): Debian's GUI
-# Blender (apt-get install blender xvfb; 3.4 on Debian 12) under Xvfb with
-# Mesa's software OpenGL, the add-on installed from target/sylva_blender.zip,
+# image, its exit status): a GUI Blender (apt-get install blender xvfb
+# xdotool imagemagick; the pictures are from Debian 13's 4.3.2, Debian 12's
+# is 3.4) under Xvfb with Mesa's software OpenGL, the add-on installed from target/sylva_blender.zip,
 # "Render on Sylva" run against a coordinator and a worker started here on
 # loopback ($SYLVA_BIN, default target/release/sylva). The add-on's Python
 # dependencies come from $SYLVA_BLENDER_DEPS (default: pip-installed into

@@ -390,6 +390,18 @@ fn lighting_auto_picks_for_the_scene_and_says_why() {
     let p = path.to_str().unwrap();
     let err = fails(&["render", p, "--lighting", "auto", "--local-workers", "0"]);
     assert!(err.contains("--time-budget SECONDS or --max-error E"), "{err}");
+    let err = fails(&[
+        "render",
+        p,
+        "--lighting",
+        "auto",
+        "--max-error",
+        "0.1",
+        "--local-workers",
+        "0",
+        "--denoise",
+    ]);
+    assert!(err.contains("--lighting auto chooses whether to denoise"), "{err}");
     let err = fails(&["render", p, "--lighting", "auto", "--max-error", "0.1"]);
     assert!(err.contains("add --local-workers 0"), "{err}");
     let err = fails(&["render", p, "--time-budget", "3", "--local-workers", "0"]);
@@ -753,4 +765,58 @@ fn a_sequence_logs_each_lb_warning_once() {
         let kind = l.split("LB: ").nth(1).and_then(|w| w.split(':').next()).unwrap_or_default();
         assert!(seen.insert((model, kind)), "said twice: {l}\n{said}");
     }
+}
+
+/// A sequence keeps its clouds' LB light per sun, as it keeps the
+/// models': frames under a sun seen before solve nothing again, and look
+/// as the first did.
+#[test]
+fn a_sequence_under_one_sun_solves_its_clouds_once() {
+    let dir = scratch("clouds-once");
+    let scene = dir.join("cloud.json");
+    std::fs::write(
+        &scene,
+        r#"{
+        "models": { "maple": { "tree": { "species": "red_maple", "triangles": 800, "seed": 3 } } },
+        "instances": [ { "model": "maple", "position": [0, 0, 0] } ],
+        "camera": { "position": [0, 4, -14], "look_at": [0, 5, 0], "fov_y_deg": 60 },
+        "sun": { "elevation_deg": 45, "azimuth_deg": 120 },
+        "ground": { "color": [0.1, 0.08, 0.05] },
+        "lb": { "grid": 12, "preset": "leaf" },
+        "clouds": [ { "center": [0, 14, 20], "size": 12, "grid": 12, "seed": 7 } ]
+    }"#,
+    )
+    .unwrap();
+    let out = dir.join("seq.png");
+    let v: Value = serde_json::from_str(&ok(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--local-workers",
+        "0",
+        "--width",
+        "48",
+        "--height",
+        "24",
+        "--lighting",
+        "lb",
+        "--frames",
+        "3",
+        "--sun-from",
+        "45,120",
+        "--sun-to",
+        "45,120",
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ]))
+    .unwrap();
+    let solved: Vec<bool> = v["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["phases_ms"].as_array().unwrap().iter().any(|p| p["name"] == "cloud lb"))
+        .collect();
+    assert_eq!(solved, [true, false, false], "in the order rendered: {}", v["frames"]);
+    let png = |i: usize| std::fs::read(dir.join(format!("seq-{i:04}.png"))).unwrap();
+    assert!(png(0) == png(1) && png(1) == png(2), "one view, one sun: one image");
 }

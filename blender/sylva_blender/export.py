@@ -76,7 +76,9 @@ def export_scene(
     opts, lacking = exporter_options()
     # The exporter runs on the view layer's objects; object mode keeps
     # edit-mode changes in.
-    if context.object is not None and context.object.mode != "OBJECT":
+    # (A command-line render's context has no active object.)
+    active = getattr(context, "object", None)
+    if active is not None and active.mode != "OBJECT":
         bpy.ops.object.mode_set(mode="OBJECT")
     result = bpy.ops.export_scene.gltf(filepath=str(glb_path), **opts)
     if "FINISHED" not in result or not glb_path.is_file():

@@ -61,6 +61,8 @@ pub struct Reuse {
     pub coverage: Option<Arc<Vec<Vec<Coverage>>>>,
     /// LB light solved before for this scene, lighting and sun.
     pub lb: Option<Arc<SceneLb>>,
+    /// The clouds' LB light solved before for this scene and sun.
+    pub clouds: Option<Arc<Vec<lighting::clouds::CloudGrid>>>,
     /// The scene's LB media (any sun), voxelized before.
     pub lb_media: Option<Arc<lighting::lb::LbMedia>>,
     /// Boulanger's envelopes (any sun or view), found before, with their
@@ -252,8 +254,16 @@ pub fn prepare_reusing(
         (light.envelopes, boulanger) = (e.0.clone(), e.1.clone());
     }
     if needs.clouds && !scene.clouds.is_empty() {
-        progress("LB light of the clouds");
-        light.clouds = phases.time("cloud lb", || lighting::clouds::solve_clouds(ctx, scene))?;
+        // Solved once a sun: a camera path's frames share it.
+        let clouds = match &reuse.clouds {
+            Some(c) => c.clone(),
+            None => {
+                progress("LB light of the clouds");
+                let c = phases.time("cloud lb", || lighting::clouds::solve_clouds(ctx, scene))?;
+                reuse.clouds.insert(Arc::new(c)).clone()
+            }
+        };
+        light.clouds = clouds.as_ref().clone();
     }
     progress("uploading the scene");
     let structure = |b: Backend| match b {

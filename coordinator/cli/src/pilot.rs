@@ -9,8 +9,9 @@
 //! measures it: the error of its indirect light against the reference's
 //! expectation, over lit pixels, the candidate's own noise kept (what a
 //! viewer sees). A candidate's time is its lighting's pre-process plus
-//! its frame, both measured on the whole frame: the pilot's columns are
-//! where the models are, and a model's pixel costs many times a sky's.
+//! its frame (for a sequence, the whole job's: [`Job`]), both measured
+//! on the whole frame: the pilot's columns are where the models are, and
+//! a model's pixel costs many times a sky's.
 //! A sampled method's frame is timed at one and four rays a pixel and
 //! taken as a fixed part plus a part per ray.
 //!
@@ -38,7 +39,8 @@ use sylva_worker::trace::{RenderSettings, Tracer};
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Goal {
-    /// The most accurate method whose pre-process and frame fit this many seconds.
+    /// The most accurate method whose pre-process and frames (the whole
+    /// job's, for a sequence) fit this many seconds.
     TimeBudget(f64),
     /// The fastest method whose indirect error is at most this (0.1: 10 %).
     MaxError(f64),
@@ -81,14 +83,13 @@ impl Job {
     /// One frame.
     pub const FRAME: Job = Job { frames: 1, suns: 1 };
 
-    /// The job of a sequence's `views` (each frame's sun: its own, or the
-    /// scene's where it has none).
+    /// The job of a sequence's `views`: its suns counted as the preparer
+    /// keys the light it keeps ([`View::sun_key`](sylva_scene::sequence::View::sun_key)).
     pub fn of(views: &[sylva_scene::sequence::View]) -> Job {
         if views.is_empty() {
             return Job::FRAME;
         }
-        let mut suns: Vec<Option<[u32; 3]>> =
-            views.iter().map(|v| v.sun_towards.map(|d| d.map(f32::to_bits))).collect();
+        let mut suns: Vec<Option<[u32; 3]>> = views.iter().map(|v| v.sun_key()).collect();
         suns.sort_unstable();
         suns.dedup();
         Job { frames: views.len(), suns: suns.len() }
@@ -310,7 +311,9 @@ pub fn choose(
         // The voxels are made once for every sun; the rest of the
         // lighting's pre-process again for each.
         let voxelize_ms = p.prepared.phases.ms("voxelize");
-        let mut run = |family: &str, f: RenderSettings, pre: (f64, f64), denoise: Denoise| {
+        // `pre`: (the first sun's pre-process, each further sun's, what
+        // every frame pays again: the ambient match is per view).
+        let mut run = |family: &str, f: RenderSettings, pre: (f64, f64, f64), denoise: Denoise| {
             let sampled =
                 f.lighting == LightingMode::Reference || f.lighting == LightingMode::Gather;
             let name = if sampled { format!("{family} {} rays", f.spp) } else { family.into() };
@@ -340,6 +343,7 @@ pub fn choose(
             } else {
                 frame_ms
             };
+            let frame_ms = frame_ms + pre.2;
             let (image, own) = render_columns_denoised(p, &f, &columns, denoise)?;
             let l = own.as_ref().unwrap_or(&local);
             let e = IndirectError::measure([&image, &image], [l, l], &reference, &lit);
@@ -366,7 +370,7 @@ pub fn choose(
             Some(g) => format!("{name} on lb {g}³"),
         };
         if g.is_none() {
-            run("local", base, (0.0, 0.0), Denoise::Off)?;
+            run("local", base, (0.0, 0.0, 0.0), Denoise::Off)?;
             let t = Instant::now();
             let ambient = RenderSettings { lighting: LightingMode::Ambient, ..base };
             let ambient = RenderSettings {
@@ -378,38 +382,42 @@ pub fn choose(
                 ..ambient
             };
             let matched = ms(t);
-            let pre = (pre_ms + matched, pre_ms - voxelize_ms + matched);
-            run("ambient", ambient, pre, Denoise::Off)?;
+            // The match is per view: every frame pays it.
+            run("ambient", ambient, (*pre_ms, pre_ms - voxelize_ms, matched), Denoise::Off)?;
             let clouds_ms = p.prepared.phases.ms("cloud lb");
             for &k in &MEASURED_RAYS {
                 let f = RenderSettings { lighting: LightingMode::Reference, spp: k, ..base };
-                run("path tracer", f, (clouds_ms, clouds_ms), Denoise::Off)?;
+                run("path tracer", f, (clouds_ms, clouds_ms, 0.0), Denoise::Off)?;
             }
             // The path tracer with its indirect light denoised, where the
-            // denoiser's library loads: measured at its ray counts only
-            // (a denoised image's error follows no fitted curve).
-            match sylva_denoise::available() {
-                Ok(()) => {
-                    for &k in &MEASURED_RAYS {
-                        let denoise = Denoise::Indirect;
-                        let f = RenderSettings {
-                            lighting: LightingMode::Reference,
-                            spp: k,
-                            passes: denoise.passes(),
-                            ..base
-                        };
-                        let pre = (clouds_ms, clouds_ms);
-                        run("path tracer + denoised indirect", f, pre, denoise)?;
-                    }
+            // denoiser works here: measured at its ray counts only (a
+            // denoised image's error follows no fitted curve). A denoiser
+            // that fails leaves it out, not the pilot.
+            let denoised = sylva_denoise::available().map_err(anyhow::Error::from).and_then(|()| {
+                for &k in &MEASURED_RAYS {
+                    let denoise = Denoise::Indirect;
+                    let f = RenderSettings {
+                        lighting: LightingMode::Reference,
+                        spp: k,
+                        passes: denoise.passes(),
+                        ..base
+                    };
+                    run(
+                        "path tracer + denoised indirect",
+                        f,
+                        (clouds_ms, clouds_ms, 0.0),
+                        denoise,
+                    )?;
                 }
-                Err(e) => {
-                    tracing::info!("the pilot leaves out denoised methods: {e}");
-                    left_out.push(format!("denoised methods: {e}"));
-                }
+                Ok(())
+            });
+            if let Err(e) = denoised {
+                tracing::info!("the pilot leaves out denoised methods: {e:#}");
+                left_out.push(format!("denoised methods: {e:#}"));
             }
         }
         let lb = RenderSettings { lighting: LightingMode::Lb, ..base };
-        let pre = (*pre_ms, pre_ms - voxelize_ms);
+        let pre = (*pre_ms, pre_ms - voxelize_ms, 0.0);
         run(&on("lb"), lb, pre, Denoise::Off)?;
         for bounces in [1, 2] {
             for &k in &MEASURED_RAYS {

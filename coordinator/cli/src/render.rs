@@ -73,6 +73,11 @@ pub fn run(mut a: RenderArgs) -> anyhow::Result<()> {
     let lighting = request.lighting_or(scene.lighting);
     let accel = request.accel;
     let views = a.frame.views(&scene.file)?;
+    if goal.is_some() && request.denoise.is_on() {
+        bail!(
+            "--lighting auto chooses whether to denoise (it measures the path tracer denoised beside the other methods): leave out --denoise"
+        );
+    }
     if goal.is_some() && (remote || grid_choice.is_some() || a.lb_grid.is_some()) {
         bail!(
             "--lighting auto runs its pilot and the frame in this process and picks the LB grid itself: add --local-workers 0, leave out --lb-grid"

@@ -78,18 +78,26 @@ impl AmbientKey {
 /// holds of the scene where one is given ([`Fresh::with_disk`]), and
 /// leaving in [`Fresh::reuse`] what a next preparation of the same scene
 /// (another LB grid, another lighting, another view) can take. The LB
-/// light is kept per sun, so a sequence's frames under a sun seen before
-/// solve nothing, and a new sun never takes another's light.
+/// light, the models' and the clouds', is kept per sun, so a sequence's
+/// frames under a sun seen before solve nothing, and a new sun never
+/// takes another's light.
 #[derive(Default)]
 pub struct Fresh {
     /// What was built, solved and chosen, for the next preparation and
     /// for the disk cache ([`Reuse::keeper`]).
     pub reuse: Reuse,
-    /// The LB light solved here, by the sun it was solved under (`None`:
-    /// the scene's own).
-    suns: std::collections::HashMap<Option<[u32; 3]>, Arc<crate::lighting::lb::SceneLb>>,
-    /// The sun `reuse.lb` was solved under.
+    /// The LB light solved here, the models' and the clouds', by the sun
+    /// it was solved under (`None`: the scene's own).
+    suns: std::collections::HashMap<Option<[u32; 3]>, SunLight>,
+    /// The sun `reuse.lb` and `reuse.clouds` were solved under.
     sun: Option<[u32; 3]>,
+}
+
+/// The LB light of one sun: the models' and the clouds'.
+#[derive(Clone, Default)]
+struct SunLight {
+    lb: Option<Arc<crate::lighting::lb::SceneLb>>,
+    clouds: Option<Arc<Vec<crate::lighting::clouds::CloudGrid>>>,
 }
 
 impl Fresh {
@@ -119,10 +127,12 @@ impl Preparer for Fresh {
         // The light kept for this view's sun, and the disk's entry for it.
         let sun = view.sun_key();
         if sun != self.sun {
-            if let Some(lb) = self.reuse.lb.take() {
-                self.suns.insert(self.sun, lb);
+            let (lb, clouds) = (self.reuse.lb.take(), self.reuse.clouds.take());
+            if lb.is_some() || clouds.is_some() {
+                self.suns.insert(self.sun, SunLight { lb, clouds });
             }
-            self.reuse.lb = self.suns.get(&sun).cloned();
+            let kept = self.suns.get(&sun).cloned().unwrap_or_default();
+            (self.reuse.lb, self.reuse.clouds) = (kept.lb, kept.clouds);
             self.sun = sun;
         }
         if let Some(d) = &mut self.reuse.disk {
