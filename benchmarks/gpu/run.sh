@@ -4,7 +4,8 @@
 # (camera, shadow and diffuse-bounce rays, at least 4 M rays each), whole
 # frames at 1 and 4 spp, the cold and warm first frame, the LB solve,
 # where a frame's time goes through the farm, a sun sweep, the guides'
-# cost and the speed/accuracy front with the denoised methods.
+# cost, the speed/accuracy front with the denoised methods, and what
+# `--lighting auto` chooses for a sun sweep.
 # Prepared here with benchmarks/gpu/prepare.sh; run there in the repo's
 # root (the device tool: carry [".dev", ".gl"], command
 # `bash benchmarks/gpu/run.sh`). Writes each command's JSON, its log and
@@ -88,6 +89,11 @@ done
 "$BIN" scene forest --scale 0.02 -o "$DEST/forest-0.02.json" > /dev/null 2>> "$DEST/all.log"
 step compare-0.02 120 compare "$DEST/forest-0.02.json" --width 320 --height 160 \
   --gather-rays 4,16 --gather-filters 0,3 --out "$DEST/compare-0.02" --json
+# `--lighting auto` on the GPU for the 0.05 forest's 24-suns sweep: what
+# it chooses when each method is priced over the whole job (issue 40).
+step auto-sweep-0.05 90 render "$DEST/forest-0.05.json" -o "$DEST/auto-sweep/day.png" \
+  --frames 24 --sun-from 15,90 --sun-to 60,200 --local-workers 0 --width 320 --height 160 \
+  --lighting auto --max-error 0.3 --json
 # The figures the issues' tables quote, in one file.
 python3 - "$DEST" <<'PY' || echo "summary: python3 missing or a step failed"
 import json, pathlib, sys
@@ -97,6 +103,7 @@ def load(n):
     except Exception: return None
 t, lb, farm, sweep = load("trace-forest"), load("lb-128"), load("farm-0.05"), load("sweep-0.05")
 guides, plain, cmp = load("guides-albedo"), load("guides-beauty"), load("compare-0.02")
+auto = load("auto-sweep-0.05")
 out = {"gpu": (d / "gpu.txt").read_text().strip().splitlines()[-1] if (d / "gpu.txt").exists() else None}
 if t:
     out["adapter"] = t["adapter"]["name"]
@@ -124,6 +131,11 @@ if guides and plain:
 if cmp:
     out["compare_0.02_front"] = [{k: p.get(k) for k in ("name", "ms", "raw")} for p in cmp.get("front", [])]
     out["compare_0.02_reference_ms"] = (cmp.get("reference") or {}).get("ms")
+if auto and auto.get("auto"):
+    a = auto["auto"]
+    out["auto_sweep_0.05"] = {"why": a.get("why"), "predicted_ms": (a.get("chosen") or {}).get("predicted_ms"),
+        "sequence_ms": next((p["ms"] for p in auto.get("phases_ms", []) if p["phase"] == "sequence"), None),
+        "pilot_ms": next((p["ms"] for p in auto.get("phases_ms", []) if p["phase"] == "pilot"), None)}
 if lb:
     out["lb_128"] = [{k: r.get(k) for k in ("device", "mlups", "step_mlups")} for r in lb.get("results", [])]
 (d / "summary.json").write_text(json.dumps(out, indent=1))
