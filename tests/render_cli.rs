@@ -370,10 +370,16 @@ fn lighting_auto_picks_for_the_scene_and_says_why() {
 
     // A sequence: the pilot, on its middle frame, prices each method over
     // the whole job (six frames under one sun: a preparation once, six
-    // frames), and the sequence renders with what it chose.
+    // frames), and the sequence renders with what it chose, going on from
+    // the pilot's preparation (no prepared-data cache here: nothing is
+    // built again).
     let sequence =
         ["--max-error", "0.3", "--frames", "6", "--sun-from", "45,120", "--sun-to", "45,120"];
-    let v = auto(&dir, "seq", &tree, &sequence);
+    let v = auto_with(&dir, "seq", &tree, &sequence, &[("SYLVA_PREPARED_CACHE_MIB", "0")]);
+    for f in v["frames"].as_array().unwrap() {
+        let built = f["phases_ms"].as_array().unwrap().iter().any(|p| p["name"] == "build");
+        assert!(!built, "the pilot's structures are the sequence's: {f}");
+    }
     let a = &v["auto"];
     assert_eq!(a["job"], serde_json::json!({ "frames": 6, "suns": 1 }), "{a}");
     assert!(a["why"].as_str().unwrap().contains("for the whole job of 6 frames under one sun"));

@@ -186,6 +186,11 @@ pub struct Choice {
     pub prepared: Arc<PreparedScene>,
     /// The frame with the chosen method and parameters.
     pub frame: FrameSettings,
+    /// What the pilot made of the scene that the chosen method's frames
+    /// can go on from (the structures, the models' voxels, the light of
+    /// the pilot's sun where it is the chosen grids'), for a sequence's
+    /// other frames ([`Fresh::with_reuse`]).
+    pub reuse: sylva_worker::prepare::Reuse,
 }
 
 /// The columns the pilot renders of a `width` × `height` frame whose
@@ -447,7 +452,23 @@ pub fn choose(
     };
     let chosen = chosen.clone();
     let index = grids.iter().position(|g| *g == chosen.lb_grid).unwrap_or(0);
+    // The preparer holds the last grid's light: another grid's is not
+    // the chosen scene's. Structures and voxels are checked where used.
+    let last = preparations.len() - 1;
     let (_, scene, prepared, _) = preparations.swap_remove(index);
+    let mut reuse = fresh.into_reuse();
+    if index != last {
+        reuse.lb = None;
+    }
+    let reuse = sylva_worker::prepare::Reuse {
+        accel: reuse.accel,
+        coverage: reuse.coverage,
+        lb: reuse.lb,
+        clouds: reuse.clouds,
+        lb_media: reuse.lb_media,
+        envelopes: reuse.envelopes,
+        ..Default::default()
+    };
     let frame = FrameSettings {
         lighting: Some(chosen.lighting),
         spp: chosen.spp,
@@ -476,7 +497,7 @@ pub fn choose(
         chosen,
         why,
     };
-    Ok(Choice { report, scene, prepared: prepared.prepared, frame })
+    Ok(Choice { report, scene, prepared: prepared.prepared, frame, reuse })
 }
 
 /// "the scene's own LB grids" or "lb 16³".

@@ -19,7 +19,7 @@ use sylva_scene::frame::Backend;
 use sylva_scene::{LightingMode, Scene};
 use sylva_worker::frame::reference::{MIN_BATCH_SPP, ReferenceOptions};
 use sylva_worker::frame::{Frame, Fresh, Given, Preparer};
-use sylva_worker::prepare::DiskSource;
+use sylva_worker::prepare::{DiskSource, Reuse};
 use sylva_worker::trace::Tracer;
 
 use crate::spec::job_spec;
@@ -91,15 +91,18 @@ pub fn run(mut a: RenderArgs) -> anyhow::Result<()> {
             bail!("--lb-grid auto chooses for one frame: give a sequence its grids (--lb-grid N)");
         }
         let tracer = Tracer::new()?;
-        let (request, scene, auto) = match goal {
+        let (request, scene, auto, reuse) = match goal {
             Some(goal) => {
                 let c =
                     choose_for_sequence(&a, &tracer, &request, &scene, &views, goal, &mut phases)?;
-                (c.frame, c.scene, Some(c.report))
+                // The pilot ran on the middle frame's view and sun.
+                let sun = views[views.len() / 2].sun_key();
+                (c.frame, c.scene, Some(c.report), Some((c.reuse, sun)))
             }
-            None => (request, scene, None),
+            None => (request, scene, None, None),
         };
-        return render_sequence_here(&a, &tracer, &request, &scene, &views, phases, auto);
+        let s = Sequence { tracer: &tracer, request: &request, scene: &scene, views: &views };
+        return render_sequence_here(&a, s, phases, auto, reuse);
     }
     render_here(&a, &request, scene, grid_choice.is_some(), goal, phases)
 }
@@ -135,23 +138,24 @@ fn render_here(
 /// one frame's pixels at a time.
 fn render_sequence_here(
     a: &RenderArgs,
-    tracer: &Tracer,
-    request: &FrameSettings,
-    scene: &Scene,
-    views: &[View],
+    Sequence { tracer, request, scene, views }: Sequence<'_>,
     mut phases: Vec<(&'static str, f64)>,
     auto: Option<pilot::Report>,
+    reuse: Option<(Reuse, Option<[u32; 3]>)>,
 ) -> anyhow::Result<()> {
     use sylva_coordinator::results::encode_png;
     use sylva_scene::film::reinhard_like;
-    let mut fresh = match a.prepared_cache.open()? {
+    let disk = match a.prepared_cache.open()? {
         Some(cache) => {
             tracer.keep_kernels_in(cache.dir());
             let bundle = sylva_scene::bundle::pack(&a.scene)?.hash;
-            Fresh::with_disk(DiskSource { cache, bundle, sun: None })
+            Some(DiskSource { cache, bundle, sun: None })
         }
-        None => Fresh::default(),
+        None => None,
     };
+    // Going on from what the pilot made, where it ran.
+    let (reuse, sun) = reuse.unwrap_or_default();
+    let mut fresh = Fresh::with_reuse(Reuse { disk, ..reuse }, sun);
     let n = views.len();
     let plan = even_strips(a.frame.width, STRIP);
     let bar = ProgressBar::new((n * plan.len()) as u64);
@@ -251,6 +255,15 @@ fn render_sequence_here(
         how += &format!("; --lighting auto chose {}", r.why);
     }
     report_wrote(a, &stats, accel, lighting, &how, &wrote)
+}
+
+/// What a sequence renders in this process: its frames' settings, scene
+/// and views, on one GPU.
+struct Sequence<'a> {
+    tracer: &'a Tracer,
+    request: &'a FrameSettings,
+    scene: &'a Scene,
+    views: &'a [View],
 }
 
 /// A spinner for work whose length is not known, with its message.

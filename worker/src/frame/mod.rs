@@ -105,6 +105,18 @@ impl Fresh {
     pub fn with_disk(disk: DiskSource) -> Self {
         Self { reuse: Reuse { disk: Some(disk), ..Default::default() }, ..Default::default() }
     }
+
+    /// A preparation that goes on from what another made of the same
+    /// scene (`reuse`: its structures, voxels and light), whose light, if
+    /// any, is of the sun with key `sun` ([`View::sun_key`]).
+    pub fn with_reuse(reuse: Reuse, sun: Option<[u32; 3]>) -> Self {
+        Self { reuse, sun, ..Default::default() }
+    }
+
+    /// What this preparer made, to hand to another ([`Fresh::with_reuse`]).
+    pub fn into_reuse(self) -> Reuse {
+        self.reuse
+    }
 }
 
 impl Preparer for Fresh {
