@@ -533,7 +533,11 @@ fn render_columns_denoised(
     let mut x = 0;
     for run in runs(columns) {
         let w = run.1 - run.0;
-        let (mut part, part_passes) = crop(&image, &passes, x, w);
+        let (width, x0) = (image.width as usize, x as usize);
+        let pixels =
+            image.pixels.chunks_exact(width).flat_map(|row| row[x0..x0 + w as usize].to_vec());
+        let mut part = HdrImage { width: w, height: image.height, pixels: pixels.collect() };
+        let part_passes = passes.columns(x, w)?;
         sylva_coordinator::executor::denoise(&mut part, Some(&part_passes), what)?;
         for (y, row) in part.pixels.chunks_exact(w as usize).enumerate() {
             let at = y * image.width as usize + x as usize;
@@ -583,28 +587,6 @@ fn denoise_frame_ms(width: u32, height: u32, what: Denoise) -> anyhow::Result<f6
     };
     time()?;
     time()
-}
-
-/// Columns `[x, x + w)` of `image` and of its `passes`.
-fn crop(
-    image: &HdrImage,
-    passes: &sylva_scene::passes::PassImage,
-    x: u32,
-    w: u32,
-) -> (HdrImage, sylva_scene::passes::PassImage) {
-    let (width, height) = (image.width as usize, image.height as usize);
-    let (x, w) = (x as usize, w as usize);
-    let pixels =
-        (0..height).flat_map(|y| image.pixels[y * width + x..y * width + x + w].to_vec()).collect();
-    let mut out = sylva_scene::passes::PassImage::new(w as u32, image.height, passes.set);
-    for (dst, src) in out.planes.iter_mut().zip(&passes.planes) {
-        let c = src.len() / (width * height);
-        for y in 0..height {
-            dst[y * w * c..(y + 1) * w * c]
-                .copy_from_slice(&src[(y * width + x) * c..(y * width + x + w) * c]);
-        }
-    }
-    (HdrImage { width: w as u32, height: image.height, pixels }, out)
 }
 
 /// [`render_columns`], and the passes `f` asks for, rendered with the

@@ -310,6 +310,28 @@ impl PassImage {
         Ok(())
     }
 
+    /// Columns `[x0, x0 + width)` of the planes, as a strip's: what
+    /// [`PassImage::paste_strip`] puts back.
+    pub fn columns(&self, x0: u32, width: u32) -> Result<PassImage> {
+        if x0 + width > self.width {
+            return Err(Error::Invalid(format!(
+                "columns {x0}..{} of a frame {} wide",
+                x0 + width,
+                self.width
+            )));
+        }
+        let mut out = PassImage::new(width, self.height, self.set);
+        for ((p, dst), src) in self.set.extra().zip(&mut out.planes).zip(&self.planes) {
+            let c = p.channels().len();
+            let (w, sw) = (self.width as usize * c, width as usize * c);
+            for y in 0..self.height as usize {
+                let at = y * w + x0 as usize * c;
+                dst[y * sw..(y + 1) * sw].copy_from_slice(&src[at..at + sw]);
+            }
+        }
+        Ok(out)
+    }
+
     /// Copies a strip's planes into columns `[x0, x0 + strip.width)`.
     pub fn paste_strip(&mut self, x0: u32, strip: &PassImage) -> Result<()> {
         if strip.set != self.set || strip.height != self.height || x0 + strip.width > self.width {
@@ -536,6 +558,19 @@ mod tests {
             PassSet::parse("diffuse").unwrap_err().to_string().contains("one of beauty, direct")
         );
         assert_eq!(PassSet::all().floats_per_pixel(), 3 + 3 + 3 + 3 + 1 + 1 + 1 + 3);
+    }
+
+    #[test]
+    fn columns_cut_out_what_a_pasted_strip_put_in() {
+        let set = PassSet::parse("depth,normal,instance").unwrap();
+        let mut strip = PassImage::new(2, 3, set);
+        for (k, plane) in strip.planes.iter_mut().enumerate() {
+            plane.iter_mut().enumerate().for_each(|(i, v)| *v = (10 * k + i) as f32);
+        }
+        let mut frame = PassImage::new(6, 3, set);
+        frame.paste_strip(2, &strip).unwrap();
+        assert_eq!(frame.columns(2, 2).unwrap(), strip);
+        assert!(frame.columns(5, 2).is_err(), "past the frame's edge");
     }
 
     #[test]

@@ -451,7 +451,8 @@ impl StripRenderer {
                         }
                     }
                 }
-                for slot in all[5 * slots..6 * slots].chunks_exact(n).filter(|_| wanted > 0) {
+                let normal_slots = if wanted > 0 { &all[5 * slots..6 * slots] } else { &[] };
+                for slot in normal_slots.chunks_exact(n) {
                     for (a, v) in normals.iter_mut().zip(slot) {
                         for c in 0..3 {
                             a[c] += v[c];

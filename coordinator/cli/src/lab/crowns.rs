@@ -7,7 +7,7 @@
 use glam::Vec3;
 use serde::Serialize;
 use std::path::Path;
-use sylva_accel::{AccelKind, Ray, SceneAccel};
+use sylva_accel::{Ray, SceneAccel};
 use sylva_scene::Scene;
 use sylva_scene::color::luminance;
 use sylva_scene::film::write_png;
@@ -38,9 +38,14 @@ fn ground_distance(scene: &Scene, ray: &Ray) -> f32 {
 }
 
 /// Per pixel, the instance its centre's camera ray meets first (alpha
-/// test included), or `None` for the sky or the ground in front.
-pub fn instance_ids(scene: &Scene, width: u32, height: u32) -> Vec<Option<u32>> {
-    let accel = SceneAccel::build(scene, AccelKind::Bvh);
+/// test included; `accel`: the scene's structures on the CPU), or `None`
+/// for the sky or the ground in front.
+pub fn instance_ids(
+    scene: &Scene,
+    accel: &SceneAccel,
+    width: u32,
+    height: u32,
+) -> Vec<Option<u32>> {
     let mut ids = Vec::with_capacity((width * height) as usize);
     for y in 0..height {
         for x in 0..width {
@@ -62,11 +67,10 @@ pub const CLOUD_RAYS_PER_SIDE: u32 = 4;
 /// cloud's, not the leaves' light, and `compare` reports them apart. The
 /// box bounds the cloud's density, so the mask is conservative: it can
 /// flag a pixel whose rays cross only the box's empty corners.
-pub fn cloud_pixels(scene: &Scene, width: u32, height: u32) -> Vec<bool> {
+pub fn cloud_pixels(scene: &Scene, accel: &SceneAccel, width: u32, height: u32) -> Vec<bool> {
     if scene.clouds.is_empty() {
         return vec![false; (width * height) as usize];
     }
-    let accel = SceneAccel::build(scene, AccelKind::Bvh);
     let boxes: Vec<(Vec3, Vec3)> = scene
         .clouds
         .iter()
@@ -310,6 +314,7 @@ pub fn markdown(t: &CrownTable) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sylva_accel::AccelKind;
 
     #[test]
     fn a_ray_crosses_a_box_only_in_front_of_its_first_surface() {
@@ -347,6 +352,9 @@ mod tests {
     fn cloud_pixels_are_those_whose_rays_meet_the_box_before_a_surface() {
         let (w, h) = (32, 16);
         let row = |mask: &[bool], y: usize| mask[y * w..(y + 1) * w].iter().filter(|&&c| c).count();
+        let cloud_pixels = |scene: &Scene, w, h| {
+            cloud_pixels(scene, &SceneAccel::build(scene, AccelKind::Bvh), w, h)
+        };
         // High in the sky behind the tree: the top rows see it, the ground
         // rows (below the horizon, the ground hides what is behind) do not.
         let sky =

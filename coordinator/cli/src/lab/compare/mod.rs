@@ -191,7 +191,9 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     // against the reference's own (its estimate minus local along its samples).
     // Where the scene has clouds, again over the lit pixels that see none.
     let (local, local_again) = (rendered[0].image.clone(), rendered[0].again.clone());
-    let clouds = crowns::cloud_pixels(&scene, a.width, a.height);
+    // The scene's structures on the CPU, for which pixel shows what.
+    let accel = sylva_accel::SceneAccel::build(&scene, AccelKind::Bvh);
+    let clouds = crowns::cloud_pixels(&scene, &accel, a.width, a.height);
     let clear: Option<Vec<bool>> = clouds
         .iter()
         .any(|&c| c)
@@ -248,7 +250,7 @@ pub fn run(a: CompareArgs) -> anyhow::Result<()> {
     }
     // Per crown: each instance's mean indirect light, reference and
     // methods, over the lit pixels that see no cloud.
-    let ids = crowns::instance_ids(&scene, a.width, a.height);
+    let ids = crowns::instance_ids(&scene, &accel, a.width, a.height);
     crowns::write_id_image(&a.out.join("instances.png"), a.width, a.height, &ids)?;
     let crown_pixels = clear.as_ref().unwrap_or(&lit);
     if clear.is_some() {
