@@ -164,17 +164,28 @@ pub fn prepare_reusing(
     let candidates = crate::trace::candidates(ctx, resolved)?;
     let needs = lighting::method(lighting).needs;
     let mut phases = PhaseTimer::default();
-    // Where the backend is known, its render kernels compile from the
-    // start, beside everything else until the pipeline needs them.
-    let compiler = (candidates.len() == 1).then(|| {
-        let (ctx, backend, clouds) = (ctx.clone(), candidates[0], !scene.clouds.is_empty());
-        std::thread::spawn(move || {
-            let t = std::time::Instant::now();
-            // An error here is the pipeline's to report, below.
-            let _ = ctx.kernels.get(&ctx, backend, clouds);
-            t.elapsed().as_secs_f64() * 1e3
+    // Where the backend is known, the render kernel of the lighting's
+    // family compiles from the start, beside everything else until the
+    // pipeline needs it. Under `auto` on a GPU every candidate's does: the
+    // host's cores are otherwise idle while the scene is prepared, and the
+    // one not chosen is kept for the process. On a CPU adapter the same
+    // cores build and trace, so only the chosen backend's compiles.
+    let family = lighting::method(lighting).kernel;
+    let early = if candidates.len() == 1 || !ctx.is_cpu() { candidates.clone() } else { vec![] };
+    let mut compilers: Vec<(Backend, std::thread::JoinHandle<f64>)> = early
+        .into_iter()
+        .map(|backend| {
+            let (ctx, clouds) = (ctx.clone(), !scene.clouds.is_empty());
+            let compile = std::thread::spawn(move || {
+                let t = std::time::Instant::now();
+                // An error here is the pipeline's to report, below.
+                let _ =
+                    ctx.kernels.get(&ctx, backend, clouds).map(|k| k.render(&ctx, family, false));
+                t.elapsed().as_secs_f64() * 1e3
+            });
+            (backend, compile)
         })
-    });
+        .collect();
     if let Some(d) = reuse.disk.clone() {
         let lb_for = needs.lb.then_some(d.sun);
         let envelopes = needs.envelopes;
@@ -333,11 +344,18 @@ pub fn prepare_reusing(
         Backend::Cwbvh => gpu_scene.structure_bytes as usize,
         _ => reuse.accel.as_ref().map_or(0, |a| a.bytes()),
     };
-    if let Some(Ok(ms)) = compiler.map(|c| c.join()) {
+    // The chosen backend's compile is waited for; another candidate's
+    // goes on (its kernel is kept in the process's cache).
+    if let Some(i) = compilers.iter().position(|(b, _)| *b == gpu_scene.backend)
+        && let Ok(ms) = compilers.swap_remove(i).1.join()
+    {
         phases.0.push(sylva_light::lb::solver::Phase { name: "kernels", ms });
     }
     let renderer = phases.time("pipeline", || -> anyhow::Result<StripRenderer> {
         let r = StripRenderer::new(ctx, gpu_scene, scene)?;
+        // The family's kernel, unless compiled above: a frame's first
+        // dispatch is not to be timed as its trace.
+        r.kernels().render(ctx, family, false)?;
         ctx.wait()?;
         Ok(r)
     })?;

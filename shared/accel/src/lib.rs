@@ -335,6 +335,38 @@ mod tests {
     }
 
     #[test]
+    fn a_bvh_is_the_same_tree_on_any_number_of_threads() {
+        // Big enough that subtrees are built apart from the levels above
+        // them, with slivers that spend the spatial splits' budget.
+        let mut tris = soup(30_000, 11);
+        let mut rng = SplitMix64::new(12);
+        for _ in 0..3000 {
+            let a =
+                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            let b =
+                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            tris.push([a, b, b + Vec3::splat(0.3)]);
+        }
+        let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            match pool.install(|| Accel::build_triangles(AccelKind::Bvh, &bounds, &tris)) {
+                Accel::Bvh(b) => b,
+                Accel::Kd(_) => unreachable!(),
+            }
+        };
+        let (one, four) = (on(1), on(4));
+        assert!(one.prims.len() > tris.len(), "no triangle was split");
+        assert_eq!(
+            (one.nodes.as_slice(), one.prims.as_slice()),
+            (four.nodes.as_slice(), four.prims.as_slice())
+        );
+        assert_eq!(one.stack_depth, four.stack_depth);
+        one.check(tris.len()).unwrap();
+        check_accel(&Accel::Bvh(one), &tris, &rays(5_000, 13));
+    }
+
+    #[test]
     fn rays_lying_in_kd_split_planes_are_traversed() {
         let tris = soup(2000, 3);
         let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();

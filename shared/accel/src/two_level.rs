@@ -173,12 +173,12 @@ impl SceneAccel {
                 Accel::build(kind, &world)
             }
             AccelKind::Kd => {
+                let models: Vec<Aabb> =
+                    scene.models.iter().map(|m| model_bounds(&m.model)).collect();
                 let world: Vec<Aabb> = scene
                     .instances
                     .iter()
-                    .map(|i| {
-                        model_bounds(&scene.models[i.model as usize].model).transformed(&i.to_world)
-                    })
+                    .map(|i| models[i.model as usize].transformed(&i.to_world))
                     .collect();
                 Accel::build(kind, &world)
             }

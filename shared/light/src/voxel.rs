@@ -316,7 +316,9 @@ pub fn leaf_area_in(
                 if !wood {
                     acc.leaf += share;
                 }
-                if masked && mesh.is_transparent(t, uvp) {
+                // One texel read serves the mask and the colour.
+                let texel = mat.texture.map(|i| mesh.textures[i as usize].texel(uvp));
+                if masked && mat.is_hole(texel) {
                     acc.cut += share;
                     return;
                 }
@@ -328,8 +330,7 @@ pub fn leaf_area_in(
                     return;
                 }
                 let mut albedo = [mat.base_color[0], mat.base_color[1], mat.base_color[2]];
-                if let Some(tex) = mat.texture {
-                    let px = mesh.textures[tex as usize].texel(uvp);
+                if let Some(px) = texel {
                     for c in 0..3 {
                         albedo[c] *= srgb8_to_linear(px[c]);
                     }

@@ -66,6 +66,14 @@ impl Material {
             double_sided: surface == Surface::Leaf,
         }
     }
+
+    /// Whether a point whose texel (of this material's texture, `None`
+    /// without one) is `texel` is a hole.
+    pub fn is_hole(&self, texel: Option<[u8; 4]>) -> bool {
+        let Some(cut) = self.alpha_cutoff else { return false };
+        let alpha = texel.map_or(1.0, |t| t[3] as f32 / 255.0);
+        alpha * self.base_color[3] < cut
+    }
 }
 
 /// An indexed triangle model in model space.
@@ -183,14 +191,8 @@ impl Model {
     /// Whether the texel `uv` of triangle `t`'s material is a hole.
     pub fn is_transparent(&self, t: usize, uv: Vec2) -> bool {
         let m = &self.materials[self.material[t] as usize];
-        match (m.alpha_cutoff, m.texture) {
-            (Some(cut), Some(tex)) => {
-                let a = self.textures[tex as usize].texel(uv)[3] as f32 / 255.0 * m.base_color[3];
-                a < cut
-            }
-            (Some(cut), None) => m.base_color[3] < cut,
-            _ => false,
-        }
+        m.alpha_cutoff.is_some()
+            && m.is_hole(m.texture.map(|i| self.textures[i as usize].texel(uv)))
     }
 }
 

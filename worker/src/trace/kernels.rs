@@ -9,7 +9,7 @@ use super::shaders::tracer_source;
 use crate::gpu::GpuContext;
 use crate::lighting::{self, Kernel};
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex};
 use sylva_proto::sync::lock;
 use sylva_scene::frame::Backend;
 
@@ -79,19 +79,21 @@ impl KernelCache {
     }
 }
 
-/// The render kernels for one specialisation (structure, clouds): one
-/// pipeline per lighting family (direct methods, reference, Boulanger),
-/// and the frame's bind-group layout; the variants that write the passes
-/// are compiled on first use.
+/// The render kernels for one specialisation (structure, clouds): the
+/// module, the frame's bind-group layout, and one pipeline per lighting
+/// family (direct methods, reference, Boulanger), with and without the
+/// passes, each compiled on first use. A frame runs one family: compiling
+/// all three up front cost a process three pipelines where it needed one
+/// (on lavapipe each costs about 0.4 s to create even when the driver's
+/// cache holds it).
 pub struct Kernels {
-    pipelines: [wgpu::ComputePipeline; 3],
+    /// By family, then without and with the passes (`PASSES`: the light
+    /// split and the guides). A slot's lock is held while it compiles, so
+    /// a frame that needs it waits for the compile under way rather than
+    /// starting its own.
+    pipelines: [[Mutex<Option<wgpu::ComputePipeline>>; 2]; 3],
     /// The frame's bind-group layout (group 1).
     pub(super) layout: wgpu::BindGroupLayout,
-    /// The same kernels writing the passes too (`PASSES`: the light split
-    /// and the guides), each compiled on the first frame of its family
-    /// with passes: on lavapipe each pipeline costs about 0.4 s to create
-    /// even when the driver's cache holds it.
-    passes: [OnceLock<wgpu::ComputePipeline>; 3],
     module: wgpu::ShaderModule,
     pipeline_layout: wgpu::PipelineLayout,
     constants: Vec<(&'static str, f64)>,
@@ -126,38 +128,26 @@ impl Kernels {
             ("ACCEL_KIND", accel_kind(backend) as f64),
             ("HAS_CLOUDS", if clouds { 1.0 } else { 0.0 }),
         ];
-        let pipelines =
-            Kernel::ALL.map(|kernel| render_pipeline(ctx, &module, &pl, &constants, kernel, false));
-        Kernels {
-            pipelines,
-            layout,
-            passes: Default::default(),
-            module,
-            pipeline_layout: pl,
-            constants,
-        }
+        Kernels { pipelines: Default::default(), layout, module, pipeline_layout: pl, constants }
     }
 
-    /// The kernel of `kernel`'s family, writing the passes or not (those
-    /// compiled once, on first use).
-    pub(super) fn render(
+    /// The kernel of `kernel`'s family, writing the passes or not:
+    /// compiled on first use, and kept.
+    pub fn render(
         &self,
         ctx: &GpuContext,
         kernel: Kernel,
         passes: bool,
-    ) -> anyhow::Result<&wgpu::ComputePipeline> {
-        if !passes {
-            return Ok(&self.pipelines[kernel as usize]);
+    ) -> anyhow::Result<wgpu::ComputePipeline> {
+        let mut slot = lock(&self.pipelines[kernel as usize][passes as usize]);
+        if let Some(p) = slot.as_ref() {
+            return Ok(p.clone());
         }
-        let slot = &self.passes[kernel as usize];
-        if let Some(p) = slot.get() {
-            return Ok(p);
-        }
-        let built = ctx.checked("building the passes' kernel", || {
+        let built = ctx.checked("building the render pipeline", || {
             let (m, l, c) = (&self.module, &self.pipeline_layout, &self.constants);
-            Ok(render_pipeline(ctx, m, l, c, kernel, true))
+            Ok(render_pipeline(ctx, m, l, c, kernel, passes))
         })?;
-        Ok(slot.get_or_init(|| built))
+        Ok(slot.insert(built).clone())
     }
 }
 

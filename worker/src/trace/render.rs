@@ -227,6 +227,11 @@ impl StripRenderer {
         &self.scene
     }
 
+    /// Its kernels.
+    pub fn kernels(&self) -> &Kernels {
+        &self.kernels
+    }
+
     fn build(gpu_scene: GpuScene, scene: &Scene, kernels: Arc<Kernels>) -> Self {
         let mut base = FrameUniform {
             sun_radiance: scene.sun.radiance,
@@ -576,7 +581,7 @@ impl StripRenderer {
         let mut enc = device.create_command_encoder(&Default::default());
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(pipeline);
+            pass.set_pipeline(&pipeline);
             pass.set_bind_group(0, &self.scene.bind_group, &[]);
             pass.set_bind_group(1, &bg, &[]);
             pass.dispatch_workgroups(

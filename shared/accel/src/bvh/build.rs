@@ -102,21 +102,94 @@ impl Bvh {
     }
 }
 
+/// A node with at most this many references, below the root, is built as
+/// a subtree of its own once the levels above are split, the subtrees in
+/// parallel. A count, not a share of the machine: the tree is the same on
+/// every machine.
+const SUBTREE_REFS: usize = 4096;
+
 /// The binary SAH tree over `refs`, and the primitive slots its leaves
 /// index (each leaf's contiguous). With `triangles`, spatial splits are
 /// tried where an object split's children would overlap.
+///
+/// The levels above [`SUBTREE_REFS`] references are split breadth first,
+/// so the budget of extra references goes to them first, where a split
+/// saves most; what budget is left is shared among the subtrees below in
+/// proportion to their references, and they are built in parallel.
 fn build_binary(refs: Vec<Ref>, triangles: Option<&[[glam::Vec3; 3]]>) -> (Vec<Binary>, Vec<u32>) {
-    let mut budget = (refs.len() as f32 * SPATIAL_BUDGET) as usize;
+    use rayon::prelude::*;
+    let budget = (refs.len() as f32 * SPATIAL_BUDGET) as usize;
+    let root_area = refs.iter().fold(Aabb::EMPTY, |b, r| b.union(r.bounds)).area();
+    let top = grow(refs, triangles, budget, root_area, 0, SUBTREE_REFS);
+    let waiting: usize = top.deferred.iter().map(|d| d.refs.len()).sum();
+    let left = top.budget;
+    let homes: Vec<usize> = top.deferred.iter().map(|d| d.node).collect();
+    let subtrees: Vec<Part> = top
+        .deferred
+        .into_par_iter()
+        .map(|d| {
+            let share = (left as u128 * d.refs.len() as u128 / waiting.max(1) as u128) as usize;
+            grow(d.refs, triangles, share, root_area, d.depth, 0)
+        })
+        .collect();
+    let (mut nodes, mut prims) = (top.nodes, top.prims);
+    nodes.reserve(subtrees.iter().map(|p| p.nodes.len()).sum());
+    for (home, sub) in homes.into_iter().zip(subtrees) {
+        // The subtree's root takes its place in the tree above; its other
+        // nodes go after the nodes so far, its leaves' slots after theirs.
+        let (base, slots) = (nodes.len(), prims.len());
+        let place = |i: usize| if i == 0 { home } else { base + i - 1 };
+        for (i, mut b) in sub.nodes.into_iter().enumerate() {
+            b.first = if b.count > 0 { b.first + slots } else { place(b.first) };
+            if i == 0 {
+                nodes[home] = b;
+            } else {
+                nodes.push(b);
+            }
+        }
+        prims.extend(sub.prims);
+    }
+    (nodes, prims)
+}
+
+/// A node left for later: its references and depth.
+struct Deferred {
+    node: usize,
+    refs: Vec<Ref>,
+    depth: usize,
+}
+
+/// A binary tree built by [`grow`], with the nodes it left for later.
+struct Part {
+    nodes: Vec<Binary>,
+    prims: Vec<u32>,
+    deferred: Vec<Deferred>,
+    /// Extra references spatial splits may still make.
+    budget: usize,
+}
+
+/// Splits `refs` breadth first from depth `depth` into a tree whose root
+/// is node 0, leaving every node below the root with at most `defer`
+/// references unsplit, for later (none when `defer` is 0).
+fn grow(
+    refs: Vec<Ref>,
+    triangles: Option<&[[glam::Vec3; 3]]>,
+    mut budget: usize,
+    root_area: f32,
+    depth: usize,
+    defer: usize,
+) -> Part {
     let mut prims = Vec::with_capacity(refs.len());
     let mut nodes = Vec::with_capacity(2 * refs.len());
     nodes.push(Binary { bounds: Aabb::EMPTY, first: 0, count: 0 });
-    let mut root_area = None;
-    // (node, its references, depth), breadth first: the budget of extra
-    // references goes to the upper levels, where a split saves most.
-    let mut todo = std::collections::VecDeque::from([(0usize, refs, 0usize)]);
+    let mut deferred = Vec::new();
+    let mut todo = std::collections::VecDeque::from([(0usize, refs, depth)]);
     while let Some((node, refs, depth)) = todo.pop_front() {
+        if node > 0 && refs.len() <= defer {
+            deferred.push(Deferred { node, refs, depth });
+            continue;
+        }
         let bb = refs.iter().fold(Aabb::EMPTY, |b, r| b.union(r.bounds));
-        let root_area = *root_area.get_or_insert(bb.area());
         nodes[node].bounds = bb;
         let split = if refs.len() <= 1 {
             Err(refs)
@@ -143,7 +216,7 @@ fn build_binary(refs: Vec<Ref>, triangles: Option<&[[glam::Vec3; 3]]>) -> (Vec<B
             }
         }
     }
-    (nodes, prims)
+    Part { nodes, prims, deferred, budget }
 }
 
 /// The references split in list order, half on each side.

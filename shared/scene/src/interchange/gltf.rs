@@ -276,11 +276,10 @@ fn add_model(p: &mut Parts, scene: &Scene, mi: usize, m: &crate::SceneModel) -> 
 
 /// The ground: a square three times the stand's extent, at least 200 m.
 fn add_ground(p: &mut Parts, scene: &Scene, colour: [f32; 3]) {
-    let (lo, hi) = scene
-        .instances
-        .iter()
-        .filter_map(|i| scene.models[i.model as usize].model.bounds().map(|b| (i, b)))
-        .fold(
+    // Each model's box once, not once per instance.
+    let boxes: Vec<_> = scene.models.iter().map(|m| m.model.bounds()).collect();
+    let (lo, hi) =
+        scene.instances.iter().filter_map(|i| boxes[i.model as usize].map(|b| (i, b))).fold(
             (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
             |(lo, hi), (i, (a, b))| {
                 let corners = [a, b, Vec3::new(a.x, a.y, b.z), Vec3::new(b.x, a.y, a.z)]
