@@ -138,44 +138,27 @@ impl DeviceLb {
         made.clone()
     }
 
-    /// The kernels compiled from `source`, compiled now if not kept.
-    fn kernels(
-        &mut self,
-        ctx: &GpuContext,
-        layout: &StateLayout,
-        source: String,
-    ) -> anyhow::Result<Arc<Kernels>> {
-        if let Some(i) = self.kernels.iter().position(|(s, _)| *s == source) {
-            let kept = self.kernels.remove(i);
-            let k = kept.1.clone();
-            self.kernels.push(kept);
-            return Ok(k);
+    /// The kernels compiled from `source`, if kept (now the most recently used).
+    fn kept_kernels(&mut self, source: &str) -> Option<Arc<Kernels>> {
+        let i = self.kernels.iter().position(|(s, _)| s == source)?;
+        let kept = self.kernels.remove(i);
+        let k = kept.1.clone();
+        self.kernels.push(kept);
+        Some(k)
+    }
+
+    /// Keeps kernels compiled from `source`, unless another solve kept the
+    /// same meanwhile (then those are used, and these dropped).
+    fn keep_kernels(&mut self, source: String, k: Arc<Kernels>) -> Arc<Kernels> {
+        if let Some(other) = self.kept_kernels(&source) {
+            return other;
         }
-        let layouts = self.layouts(ctx, layout);
-        let k = ctx.checked("compiling the LB kernels", || {
-            let module = ctx.trusted_module("lb step", source.clone());
-            let pipeline = |entry: &str| {
-                ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(entry),
-                    layout: Some(&layouts.pipeline),
-                    module: &module,
-                    entry_point: Some(entry),
-                    compilation_options: Default::default(),
-                    cache: ctx.pipeline_cache(),
-                })
-            };
-            Ok(Arc::new(Kernels {
-                init: pipeline("init"),
-                step: pipeline("step"),
-                totals: pipeline("totals"),
-            }))
-        })?;
         self.made.compiled += 1;
         self.kernels.push((source, k.clone()));
         if self.kernels.len() > KEPT_KERNELS {
             self.kernels.remove(0);
         }
-        Ok(k)
+        k
     }
 
     /// The index of `medium`'s buffers in `grids` (now the most recently
@@ -303,6 +286,28 @@ fn upload_grid(
     Grid { key, bytes, bind_groups, node_total, group_sum, sums_staging, light_in }
 }
 
+/// Compiles one channel's kernels from their generated `source`.
+fn compile(ctx: &GpuContext, layouts: &Layouts, source: &str) -> anyhow::Result<Arc<Kernels>> {
+    ctx.checked("compiling the LB kernels", || {
+        let module = ctx.trusted_module("lb step", source.to_string());
+        let pipeline = |entry: &str| {
+            ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&layouts.pipeline),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: ctx.pipeline_cache(),
+            })
+        };
+        Ok(Arc::new(Kernels {
+            init: pipeline("init"),
+            step: pipeline("step"),
+            totals: pipeline("totals"),
+        }))
+    })
+}
+
 impl LightingSolver for GpuSolver {
     fn name(&self) -> String {
         self.ctx.adapter_name()
@@ -322,9 +327,23 @@ impl LightingSolver for GpuSolver {
         let source = phases.time("codegen", || {
             codegen::step_shader(&layout, &Collision::new(params), boundary.ground.is_some())
         });
-        // Held for the whole solve: solves on one device take turns.
-        let mut kept = self.ctx.lb.lock().unwrap_or_else(|p| p.into_inner());
-        let k = phases.time("kernels", || kept.kernels(&self.ctx, &layout, source))?;
+        // Compiled with the device's solver state unlocked: solves on one
+        // device (a forest's species, solved in parallel) compile their
+        // kernels at the same time, and take turns only on the device.
+        let lb = || self.ctx.lb.lock().unwrap_or_else(|p| p.into_inner());
+        let k = phases.time("kernels", || -> anyhow::Result<Arc<Kernels>> {
+            let layouts = {
+                let mut kept = lb();
+                if let Some(k) = kept.kept_kernels(&source) {
+                    return Ok(k);
+                }
+                kept.layouts(&self.ctx, &layout)
+            };
+            let k = compile(&self.ctx, &layouts, &source)?;
+            Ok(lb().keep_kernels(source, k))
+        })?;
+        // Held for the rest of the solve: solves on one device take turns.
+        let mut kept = lb();
         let g = phases.time("upload", || kept.grid(&self.ctx, &layout, medium))?;
         let g = &kept.grids[g];
         phases.time("init", || {

@@ -165,3 +165,46 @@ fn a_new_sun_on_a_kept_grid_compiles_and_uploads_nothing_and_solves_as_a_fresh_d
     assert_eq!(second.uploaded, first.uploaded, "the medium stays on the device");
     assert_eq!(second.compiled - first.compiled, 2, "green and blue's collisions; no sun compiled");
 }
+
+#[test]
+fn solves_side_by_side_on_one_device_compile_each_kernel_once_and_match_solves_one_by_one() {
+    // Two media, each solved for all three channels on two threads at
+    // once (as a forest's species are on a GPU), against the same solves
+    // one after another on a device of their own.
+    let media = [
+        random_medium(GridDims { nx: 14, ny: 12, nz: 10 }, 21),
+        random_medium(GridDims::cube(12), 22),
+    ];
+    let params = LbParams::from_preset(Preset::Leaf);
+    let b = Sun::default().boundary();
+    let opts = SolveOptions::default();
+    let solve_all = |solver: &mut GpuSolver, medium: &sylva_light::lb::MediumGrid| {
+        params
+            .channels
+            .iter()
+            .map(|p| solver.solve_channel(medium, p, &b, &opts, &|_, _| {}).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let shared = gpu().context().clone();
+    let side_by_side: Vec<_> = std::thread::scope(|s| {
+        let handles: Vec<_> = media
+            .iter()
+            .map(|m| {
+                let ctx = shared.clone();
+                let solve_all = &solve_all;
+                s.spawn(move || solve_all(&mut GpuSolver::new(ctx), m))
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let mut alone = gpu();
+    for (m, together) in media.iter().zip(&side_by_side) {
+        for (c, (a, t)) in solve_all(&mut alone, m).iter().zip(together).enumerate() {
+            assert_eq!(a.report.steps, t.report.steps, "channel {c}");
+            assert!(a.total == t.total, "channel {c}: the same light side by side as alone");
+        }
+    }
+    let made = GpuSolver::new(shared).made();
+    assert_eq!(made.compiled, 6, "two grids × three collisions, each compiled once");
+    assert_eq!(made.uploaded, 2);
+}

@@ -332,13 +332,46 @@ pub fn prepare(
             m
         }
     };
-    let mut solver = crate::lb::scene_solver(ctx);
     let mut grids = Vec::new();
     let mut light = Vec::new();
     phases.time("lb", || -> anyhow::Result<()> {
-        for (m, mm) in scene.models.iter().zip(&media.media) {
-            progress(&format!("LB light of {} ({})", m.name, mm.medium.dims));
-            let (grid, report) = solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid)?;
+        let solved: Vec<anyhow::Result<(LbGrid, ModelLight)>> = if ctx.is_cpu() {
+            // The CPU solver runs each solve on every core already.
+            let mut solver = crate::lb::scene_solver(ctx);
+            let mut solved = Vec::new();
+            for (m, mm) in scene.models.iter().zip(&media.media) {
+                progress(&format!("LB light of {} ({})", m.name, mm.medium.dims));
+                solved.push(solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid));
+            }
+            solved
+        } else {
+            // On a GPU the species are solved side by side: each solve's
+            // kernels are generated for its grid and collision, and their
+            // compiles, the host's work, run in parallel (the device's
+            // steps take turns).
+            progress(&format!("LB light of {} models", scene.models.len()));
+            std::thread::scope(|s| {
+                let solves: Vec<_> = scene
+                    .models
+                    .iter()
+                    .zip(&media.media)
+                    .map(|(m, mm)| {
+                        s.spawn(move || {
+                            let mut solver = crate::lb::scene_solver(ctx);
+                            solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid)
+                        })
+                    })
+                    .collect();
+                solves
+                    .into_iter()
+                    .map(|h| {
+                        h.join().unwrap_or_else(|_| Err(anyhow::anyhow!("an LB solve panicked")))
+                    })
+                    .collect()
+            })
+        };
+        for (m, result) in scene.models.iter().zip(solved) {
+            let (grid, report) = result?;
             for w in &report.warnings {
                 warn_once(&m.name, w);
             }
