@@ -18,7 +18,12 @@ fn png_size(path: &Path) -> (u32, u32) {
 }
 
 fn small_forest(dir: &Path) -> PathBuf {
-    let scene = dir.join("forest.json");
+    small_forest_seeded(dir, "forest.json", 1)
+}
+
+/// The 0.01 forest at a hundredth of its triangles, placed and shaped by `seed`.
+fn small_forest_seeded(dir: &Path, name: &str, seed: u64) -> PathBuf {
+    let scene = dir.join(name);
     let v: Value = serde_json::from_str(&ok(&[
         "scene",
         "forest",
@@ -26,6 +31,8 @@ fn small_forest(dir: &Path) -> PathBuf {
         "0.01",
         "--triangle-scale",
         "0.01",
+        "--seed",
+        &seed.to_string(),
         "-o",
         scene.to_str().unwrap(),
         "--json",
@@ -680,6 +687,63 @@ fn compiled_kernels_are_kept_checked_and_read_back() {
     assert_eq!(third, first);
     let again = std::fs::read(&files[0]).unwrap();
     assert_eq!(&again[..64], blake3::hash(&again[64..]).to_hex().as_bytes());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `auto` keeps what its probe measured on this adapter (issue 39): a
+/// backend more than `LEFT_BEHIND` (10) times slower than the fastest on
+/// one scene is neither built nor measured for the next (on lavapipe, ray
+/// queries), the stats say why, and its figure is kept for the scene after.
+#[test]
+fn auto_leaves_out_a_backend_far_behind_on_this_adapters_last_probe() {
+    let dir = scratch("left-behind");
+    let cache = dir.join("cache");
+    let scenes: Vec<PathBuf> = (1..=3)
+        .map(|seed| small_forest_seeded(&dir, &format!("forest-{seed}.json"), seed))
+        .collect();
+    let env =
+        [("SYLVA_PREPARED_CACHE_MIB", "64"), ("SYLVA_PREPARED_CACHE_DIR", cache.to_str().unwrap())];
+    let backend = |i: usize| -> Value {
+        let name = format!("render-{i}");
+        small_render(&dir, &scenes[i], &name, &["--accel", "auto"], &env);
+        let stats: Value =
+            serde_json::from_slice(&std::fs::read(dir.join(format!("{name}.stats.json"))).unwrap())
+                .unwrap();
+        stats["backend"].clone()
+    };
+    let speed = |b: &Value, name: &str| {
+        b["probe"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["backend"] == name)
+            .map(|p| p["mrays_per_second"].as_f64().unwrap())
+    };
+    let first = backend(0);
+    let measured: Vec<String> = first["probe"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["backend"].as_str().unwrap().to_string())
+        .collect();
+    assert!(measured.len() >= 2, "auto measured {measured:?}");
+    let best = measured.iter().filter_map(|n| speed(&first, n)).fold(0.0, f64::max);
+    let behind: Vec<&String> =
+        measured[1..].iter().filter(|n| speed(&first, n).unwrap() * 10.0 < best).collect();
+    for later in [backend(1), backend(2)] {
+        let why = later["why"].as_str().unwrap();
+        for n in &measured {
+            let left_out = behind.contains(&n);
+            assert_eq!(why.contains(&format!("{n} left out")), left_out, "{n}: {why}");
+            // With one backend left nothing is measured; otherwise the
+            // rest are measured again.
+            if left_out || measured.len() - behind.len() == 1 {
+                assert_eq!(speed(&later, n), None, "{n} was measured: {later}");
+            } else {
+                assert!(speed(&later, n).is_some(), "{n} was not measured: {later}");
+            }
+        }
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -186,6 +186,23 @@ impl DiskCache {
         self.write_postcard(&choice_key(bundle, &choice.adapter), choice);
     }
 
+    /// What `auto`'s probe last measured on this adapter, for any scene,
+    /// if kept.
+    pub fn probe(&self, adapter: &str) -> Option<Vec<crate::trace::ProbeTime>> {
+        let what = "a probe of this adapter";
+        self.read_postcard(&probe_key(adapter), what, |p: &Vec<crate::trace::ProbeTime>| {
+            let fine = |t: &crate::trace::ProbeTime| {
+                t.mrays_per_second.is_finite() && t.mrays_per_second >= 0.0
+            };
+            (p.len() <= 8 && p.iter().all(fine)).then_some(()).ok_or_else(|| format!("not {what}"))
+        })
+    }
+
+    /// Keeps what `auto`'s probe measured on this adapter.
+    pub fn keep_probe(&self, adapter: &str, probe: &[crate::trace::ProbeTime]) {
+        self.write_postcard(&probe_key(adapter), probe);
+    }
+
     /// An entry [`DiskCache::write_postcard`] wrote, decoded as `what` and
     /// passed by `check` before it is used (its bytes were checked against
     /// their hash as [`DiskCache::read`] read them); one that fails either
@@ -360,6 +377,14 @@ fn envelopes_key(bundle: &str) -> String {
 fn choice_key(bundle: &str, adapter: &str) -> String {
     let mut h = blake3::Hasher::new();
     h.update(format!("sylva choice {FORMAT} {} {bundle} ", env!("CARGO_PKG_VERSION")).as_bytes());
+    h.update(adapter.as_bytes());
+    h.finalize().to_hex().to_string()
+}
+
+/// The name of what `auto`'s probe last measured on an adapter.
+fn probe_key(adapter: &str) -> String {
+    let mut h = blake3::Hasher::new();
+    h.update(format!("sylva probe {FORMAT} {} ", env!("CARGO_PKG_VERSION")).as_bytes());
     h.update(adapter.as_bytes());
     h.finalize().to_hex().to_string()
 }

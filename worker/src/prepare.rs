@@ -162,6 +162,15 @@ pub fn prepare_reusing(
         .filter(|c| c.backend != Backend::Rq || ctx.has_ray_queries());
     let resolved = adopted.as_ref().map_or(asked, |c| c.backend);
     let candidates = crate::trace::candidates(ctx, resolved)?;
+    // A backend far behind on this adapter's last probe, of any scene, is
+    // neither built nor measured for this one.
+    let last_probe = (candidates.len() > 1)
+        .then(|| reuse.disk.as_ref().and_then(|d| d.cache.probe(&adapter)))
+        .flatten();
+    let (candidates, left_behind) = match &last_probe {
+        Some(last) => crate::trace::worth_measuring(candidates, last),
+        None => (candidates, Vec::new()),
+    };
     let needs = lighting::method(lighting).needs;
     let mut phases = PhaseTimer::default();
     // Where the backend is known, the render kernel of the lighting's
@@ -316,16 +325,34 @@ pub fn prepare_reusing(
             Err(e) => return Err(e),
         }
     }
-    let (gpu_scene, backend) = if uploads.len() == 1 {
+    let (gpu_scene, mut backend) = if uploads.len() == 1 {
         let mut b = crate::trace::BackendChoice::asked(asked, candidates[0], ctx);
         if let Some(c) = &adopted {
             b.why = format!("{} (measured before, for this scene)", c.why);
+        } else if !left_behind.is_empty() {
+            b.why = format!("auto: {}, the one backend left to measure", b.backend.name());
         }
         (uploads.pop().expect("one"), b)
     } else {
         progress("measuring the traversal backends");
         phases.time("choose backend", || crate::trace::choose(ctx, scene, asked, uploads))?
     };
+    if !left_behind.is_empty() {
+        backend.why = format!("{}; {}", backend.why, left_behind.join("; "));
+    }
+    // What this probe measured, with the last probe's figures for the
+    // backends it left out, is kept for the next scene on this adapter.
+    if let (false, Some(d)) = (backend.probe.is_empty(), &reuse.disk) {
+        let mut all = backend.probe.clone();
+        let earlier: Vec<_> = last_probe
+            .iter()
+            .flatten()
+            .filter(|t| !all.iter().any(|n| n.backend == t.backend))
+            .cloned()
+            .collect();
+        all.extend(earlier);
+        d.cache.keep_probe(&adapter, &all);
+    }
     if asked == Backend::Auto {
         let measured = adopted.is_none();
         let c = adopted.unwrap_or_else(|| crate::share::SharedChoice {

@@ -200,6 +200,19 @@ mod tests {
         tris
     }
 
+    /// `tris` and `n` long slivers across them, as branches cross a crown.
+    fn with_slivers(mut tris: Vec<[Vec3; 3]>, n: usize, seed: u64) -> Vec<[Vec3; 3]> {
+        let mut rng = SplitMix64::new(seed);
+        for _ in 0..n {
+            let a =
+                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            let b =
+                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
+            tris.push([a, b, b + Vec3::splat(0.3)]);
+        }
+        tris
+    }
+
     fn brute(tris: &[[Vec3; 3]], ray: &Ray) -> Option<(u32, f32)> {
         brute_where(tris, ray, |_| true)
     }
@@ -312,15 +325,7 @@ mod tests {
     #[test]
     fn spatial_splits_cut_long_crossing_triangles_and_find_the_same_hits() {
         // A soup with long slivers across it, as branches cross a crown.
-        let mut tris = soup(2000, 6);
-        let mut rng = SplitMix64::new(7);
-        for _ in 0..300 {
-            let a =
-                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
-            let b =
-                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
-            tris.push([a, b, b + Vec3::splat(0.3)]);
-        }
+        let tris = with_slivers(soup(2000, 6), 300, 7);
         let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
         let Accel::Bvh(bvh) = Accel::build_triangles(AccelKind::Bvh, &bounds, &tris) else {
             unreachable!()
@@ -338,15 +343,7 @@ mod tests {
     fn a_bvh_is_the_same_tree_on_any_number_of_threads() {
         // Big enough that subtrees are built apart from the levels above
         // them, with slivers that spend the spatial splits' budget.
-        let mut tris = soup(30_000, 11);
-        let mut rng = SplitMix64::new(12);
-        for _ in 0..3000 {
-            let a =
-                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
-            let b =
-                Vec3::new(rng.range(-10.0, 10.0), rng.range(-10.0, 10.0), rng.range(-10.0, 10.0));
-            tris.push([a, b, b + Vec3::splat(0.3)]);
-        }
+        let tris = with_slivers(soup(30_000, 11), 3000, 12);
         let bounds: Vec<Aabb> = tris.iter().map(|t| Aabb::around(t)).collect();
         let on = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

@@ -31,7 +31,7 @@ const TIMED_SECONDS: f64 = 0.01;
 const FULL_ROUNDS: usize = 3;
 
 /// One backend's speed on the probe rays.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ProbeTime {
     /// The backend.
     pub backend: Backend,
@@ -80,6 +80,47 @@ pub fn candidates(ctx: &GpuContext, asked: Backend) -> anyhow::Result<Vec<Backen
         None if ctx.has_ray_queries() => vec![Backend::Bvh, Backend::Cwbvh, Backend::Rq],
         None => vec![Backend::Bvh, Backend::Cwbvh],
     })
+}
+
+/// How many times slower than the fastest a backend must have been on an
+/// adapter's last probe (of any scene) to be left out of the next scene's:
+/// neither built nor measured. Scenes move the backends' speeds far less:
+/// lavapipe's ray queries were 50, 80 and 300 times slower than its BVH
+/// on one tree, the full forest and the 0.05 forest (docs/tracing.md),
+/// and the two compute walks stay within 1.5× of each other.
+pub const LEFT_BEHIND: f64 = 10.0;
+
+/// The candidates still worth measuring after the adapter's `last` probe,
+/// and a sentence for each one left out. The first candidate, the BVH,
+/// always stays: it runs everywhere, and its hits make the probe's rays.
+pub fn worth_measuring(
+    candidates: Vec<Backend>,
+    last: &[ProbeTime],
+) -> (Vec<Backend>, Vec<String>) {
+    let best = last.iter().max_by(|a, b| a.mrays_per_second.total_cmp(&b.mrays_per_second));
+    let Some(best) = best else { return (candidates, Vec::new()) };
+    let mut why = Vec::new();
+    let kept = candidates
+        .into_iter()
+        .enumerate()
+        .filter(|&(i, b)| {
+            let slow = last.iter().find(|t| t.backend == b).filter(|t| {
+                i > 0 && t.mrays_per_second * LEFT_BEHIND < best.mrays_per_second
+            });
+            if let Some(t) = slow {
+                why.push(format!(
+                    "{} left out: {:.4} Mrays/s against {}'s {:.2} when this adapter was last measured",
+                    b.name(),
+                    t.mrays_per_second,
+                    best.backend.name(),
+                    best.mrays_per_second
+                ));
+            }
+            slow.is_none()
+        })
+        .map(|(_, b)| b)
+        .collect();
+    (kept, why)
 }
 
 /// Casts the probe through each upload and keeps the fastest.
