@@ -533,16 +533,10 @@ fn render_columns_denoised(
     let mut x = 0;
     for run in runs(columns) {
         let w = run.1 - run.0;
-        let (width, x0) = (image.width as usize, x as usize);
-        let pixels =
-            image.pixels.chunks_exact(width).flat_map(|row| row[x0..x0 + w as usize].to_vec());
-        let mut part = HdrImage { width: w, height: image.height, pixels: pixels.collect() };
+        let mut part = image.columns(x, w);
         let part_passes = passes.columns(x, w)?;
         sylva_coordinator::executor::denoise(&mut part, Some(&part_passes), what)?;
-        for (y, row) in part.pixels.chunks_exact(w as usize).enumerate() {
-            let at = y * image.width as usize + x as usize;
-            image.pixels[at..at + w as usize].copy_from_slice(row);
-        }
+        image.paste_strip(x, w, &part.pixels);
         x += w;
     }
     Ok((image, own))

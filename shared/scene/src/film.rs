@@ -23,6 +23,19 @@ impl HdrImage {
         Self { width, height, pixels: vec![[0.0; 3]; (width * height) as usize] }
     }
 
+    /// Columns `[x0, x0 + width)`, as a strip's pixels: what
+    /// [`HdrImage::paste_strip`] puts back.
+    pub fn columns(&self, x0: u32, width: u32) -> HdrImage {
+        assert!(x0 + width <= self.width, "columns outside the frame");
+        let (w, x0) = (self.width as usize, x0 as usize);
+        let pixels = self
+            .pixels
+            .chunks_exact(w)
+            .flat_map(|row| row[x0..x0 + width as usize].iter().copied())
+            .collect();
+        HdrImage { width, height: self.height, pixels }
+    }
+
     /// Copies a strip of columns `[x0, x0 + strip_width)` into place.
     pub fn paste_strip(&mut self, x0: u32, strip_width: u32, pixels: &[[f32; 3]]) {
         assert_eq!(pixels.len(), (strip_width * self.height) as usize, "strip size");

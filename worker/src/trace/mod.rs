@@ -13,7 +13,7 @@ pub(crate) mod render;
 mod rq;
 mod shaders;
 
-pub use choose::{BackendChoice, LEFT_BEHIND, ProbeTime, candidates, choose, worth_measuring};
+pub use choose::{BackendChoice, ProbeTime, candidates, choose, worth_measuring};
 pub use filter::SampleMeans;
 pub use gpu_scene::{
     GpuCloud, GpuInstance, GpuMaterial, GpuModel, GpuScene, GpuTexture, GpuTriangle, SceneLight,

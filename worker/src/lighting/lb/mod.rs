@@ -341,31 +341,35 @@ pub fn prepare(
             let mut solved = Vec::new();
             for (m, mm) in scene.models.iter().zip(&media.media) {
                 progress(&format!("LB light of {} ({})", m.name, mm.medium.dims));
-                solved.push(solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid));
+                let one = solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid);
+                let failed = one.is_err();
+                solved.push(one);
+                if failed {
+                    break;
+                }
             }
             solved
         } else {
             // On a GPU the species are solved side by side: each solve's
             // kernels are generated for its grid and collision, and their
             // compiles, the host's work, run in parallel (the device's
-            // steps take turns).
+            // steps take turns). A pool of its own, at most a thread a
+            // core, however many models a scene holds: the solves block on
+            // the device, and the global pool is building the structures.
+            use rayon::prelude::*;
             progress(&format!("LB light of {} models", scene.models.len()));
-            std::thread::scope(|s| {
-                let solves: Vec<_> = scene
+            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(cores.min(scene.models.len()).max(1))
+                .build()?;
+            pool.install(|| {
+                scene
                     .models
-                    .iter()
+                    .par_iter()
                     .zip(&media.media)
                     .map(|(m, mm)| {
-                        s.spawn(move || {
-                            let mut solver = crate::lb::scene_solver(ctx);
-                            solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid)
-                        })
-                    })
-                    .collect();
-                solves
-                    .into_iter()
-                    .map(|h| {
-                        h.join().unwrap_or_else(|_| Err(anyhow::anyhow!("an LB solve panicked")))
+                        let mut solver = crate::lb::scene_solver(ctx);
+                        solve_medium(solver.as_mut(), scene, m, mm, m.lb.grid)
                     })
                     .collect()
             })
